@@ -1,0 +1,515 @@
+//! Triangle meshes split into parts, with Lambertian materials; OBJ/MTL loading through tobj
+//! (feature `obj`). Each OBJ object or group is a part; a part sits at the identity
+//! transform, so a multi-part OBJ renders in place as the mesh would.
+
+use glam::{Vec2, Vec3};
+use std::sync::Arc;
+
+/// A diffuse texture in linear RGB.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Texture {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Row-major texels, row 0 at the top of the image, linear RGB.
+    pub texels: Vec<Vec3>,
+}
+
+impl Texture {
+    /// Bilinear sample with wrapping; OBJ's v runs bottom to top.
+    pub fn sample(&self, uv: Vec2) -> Vec3 {
+        let (w, h) = (self.width as i64, self.height as i64);
+        if w == 0 || h == 0 || !uv.is_finite() {
+            return Vec3::splat(0.5);
+        }
+        let x = uv.x as f64 * w as f64 - 0.5;
+        let y = (1.0 - uv.y as f64) * h as f64 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+        let at = |xi: f64, yi: f64| {
+            let xi = (xi as i64).rem_euclid(w) as usize;
+            let yi = (yi as i64).rem_euclid(h) as usize;
+            self.texels[yi * w as usize + xi]
+        };
+        let top = at(x0, y0).lerp(at(x0 + 1.0, y0), fx);
+        let bottom = at(x0, y0 + 1.0).lerp(at(x0 + 1.0, y0 + 1.0), fx);
+        top.lerp(bottom, fy)
+    }
+}
+
+/// A Lambertian material (two-sided).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    /// Name from the MTL file.
+    pub name: String,
+    /// Linear albedo (MTL `Kd`).
+    pub albedo: Vec3,
+    /// Emitted radiance (MTL `Ke`).
+    pub emission: Vec3,
+    /// Diffuse texture (MTL `map_Kd`); replaces `albedo` where present.
+    pub texture: Option<Arc<Texture>>,
+}
+
+impl Material {
+    /// A plain material.
+    pub fn new(name: &str, albedo: Vec3) -> Self {
+        Material {
+            name: name.into(),
+            albedo,
+            emission: Vec3::ZERO,
+            texture: None,
+        }
+    }
+    /// Albedo at a texture coordinate (the texture if there is one and `uv` is given).
+    pub fn albedo_at(&self, uv: Option<Vec2>) -> Vec3 {
+        match (&self.texture, uv) {
+            (Some(t), Some(uv)) => t.sample(uv),
+            _ => self.albedo,
+        }
+    }
+}
+
+/// One triangle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Triangle {
+    /// Vertex positions.
+    pub positions: [Vec3; 3],
+    /// Texture coordinates, if the OBJ gave them.
+    pub uvs: Option<[Vec2; 3]>,
+    /// Index into [`Mesh::materials`].
+    pub material: u32,
+}
+
+/// A named rigid part: the unit that gets its own SVO.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Part {
+    /// OBJ object/group name (or file stem).
+    pub name: String,
+    /// Its triangles.
+    pub triangles: Vec<Triangle>,
+}
+
+/// Parts plus the materials they index.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Mesh {
+    /// Parts in file order.
+    pub parts: Vec<Part>,
+    /// Materials; triangles index into this.
+    pub materials: Vec<Material>,
+    /// Triangles dropped because they had (numerically) zero area.
+    pub degenerate_skipped: usize,
+    /// Non-fatal problems met while loading (a missing texture, a part with no triangle).
+    pub warnings: Vec<String>,
+}
+
+impl Mesh {
+    /// Total triangle count.
+    pub fn triangle_count(&self) -> usize {
+        self.parts.iter().map(|p| p.triangles.len()).sum()
+    }
+    /// Appends another mesh's parts and materials (material indices are rebased).
+    pub fn append(&mut self, other: Mesh) {
+        let base = self.materials.len() as u32;
+        self.materials.extend(other.materials);
+        for mut p in other.parts {
+            for t in &mut p.triangles {
+                t.material += base;
+            }
+            self.parts.push(p);
+        }
+        self.degenerate_skipped += other.degenerate_skipped;
+        self.warnings.extend(other.warnings);
+    }
+}
+
+/// Whether a triangle has numerically zero area (relative to its edge lengths).
+pub fn is_degenerate(p: &[Vec3; 3]) -> bool {
+    let (a, b, c) = (p[0].as_dvec3(), p[1].as_dvec3(), p[2].as_dvec3());
+    let cross = (b - a).cross(c - a).length_squared();
+    let scale = (b - a)
+        .length_squared()
+        .max((c - a).length_squared())
+        .max((c - b).length_squared());
+    !(cross > 1e-24 * scale * scale)
+}
+
+/// Why a mesh could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// The file does not exist.
+    #[error("{path}: file not found")]
+    NotFound {
+        /// The path.
+        path: String,
+    },
+    /// Reading failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path.
+        path: String,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// Malformed OBJ/MTL content.
+    #[error("{path}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+    Parse {
+        /// The file.
+        path: String,
+        /// 1-based line, when known.
+        line: Option<usize>,
+        /// What is wrong.
+        message: String,
+    },
+    /// A vertex coordinate is NaN or infinite.
+    #[error("{path}:{line}: non-finite coordinate in object '{object}': {text}")]
+    NonFinite {
+        /// The file.
+        path: String,
+        /// 1-based line.
+        line: usize,
+        /// Object/group the vertex was declared in.
+        object: String,
+        /// The offending line.
+        text: String,
+    },
+    /// No usable triangle at all.
+    #[error("{path}: no non-degenerate triangles (empty mesh)")]
+    Empty {
+        /// The file.
+        path: String,
+    },
+}
+
+#[cfg(feature = "obj")]
+pub use obj::{load_obj, load_obj_text};
+
+#[cfg(feature = "obj")]
+mod obj {
+    use super::*;
+    use std::path::Path;
+
+    /// Loads an OBJ file (with its MTL files and textures, relative to the OBJ's folder).
+    pub fn load_obj(path: &Path) -> Result<Mesh, MeshError> {
+        let label = path.display().to_string();
+        let text = std::fs::read(path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => MeshError::NotFound {
+                path: label.clone(),
+            },
+            _ => MeshError::Io {
+                path: label.clone(),
+                source: e,
+            },
+        })?;
+        let text = String::from_utf8_lossy(&text);
+        let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let read_mtl = |name: &Path| -> Result<String, MeshError> {
+            let p = dir.join(name);
+            std::fs::read_to_string(&p).map_err(|e| match e.kind() {
+                std::io::ErrorKind::NotFound => MeshError::NotFound {
+                    path: p.display().to_string(),
+                },
+                _ => MeshError::Io {
+                    path: p.display().to_string(),
+                    source: e,
+                },
+            })
+        };
+        load_obj_text(&text, &label, &stem, Some(&dir), &read_mtl)
+    }
+
+    /// Loads OBJ text. `label` names the source in errors, `default_name` names parts that
+    /// have no `o`/`g`, `texture_dir` is where `map_Kd` paths are resolved (None: textures
+    /// are not loaded and a warning says so), and `read_mtl` supplies MTL files by name.
+    pub fn load_obj_text(
+        text: &str,
+        label: &str,
+        default_name: &str,
+        texture_dir: Option<&Path>,
+        read_mtl: &dyn Fn(&Path) -> Result<String, MeshError>,
+    ) -> Result<Mesh, MeshError> {
+        prescan(text, label)?;
+        let mut mtl_error: std::cell::RefCell<Option<MeshError>> = Default::default();
+        let opts = tobj::LoadOptions {
+            triangulate: true,
+            single_index: false,
+            ignore_points: true,
+            ignore_lines: true,
+        };
+        let (models, materials) = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |p| {
+            let src = match read_mtl(p) {
+                Ok(s) => s,
+                Err(e) => {
+                    mtl_error.borrow_mut().get_or_insert(e);
+                    return Err(tobj::LoadError::OpenFileFailed);
+                }
+            };
+            tobj::load_mtl_buf(&mut src.as_bytes()).inspect_err(|e| {
+                mtl_error.borrow_mut().get_or_insert(MeshError::Parse {
+                    path: p.display().to_string(),
+                    line: None,
+                    message: format!("MTL: {e}"),
+                });
+            })
+        })
+        .map_err(|e| MeshError::Parse {
+            path: label.into(),
+            line: None,
+            message: e.to_string(),
+        })?;
+        if let Some(e) = mtl_error.get_mut().take() {
+            return Err(e);
+        }
+        let materials = materials.unwrap_or_default();
+        let mut mesh = Mesh::default();
+        for m in &materials {
+            mesh.materials
+                .push(convert_material(m, texture_dir, &mut mesh.warnings)?);
+        }
+        let default_mat = mesh.materials.len() as u32;
+        mesh.materials
+            .push(Material::new("default", Vec3::splat(0.7)));
+
+        for model in &models {
+            let name = if model.name.is_empty() || model.name == "unnamed_object" {
+                default_name.to_string()
+            } else {
+                model.name.clone()
+            };
+            // tobj starts a new model at every material change; merge them back by name.
+            let idx = match mesh.parts.iter().position(|p| p.name == name) {
+                Some(i) => i,
+                None => {
+                    mesh.parts.push(Part {
+                        name: name.clone(),
+                        triangles: Vec::new(),
+                    });
+                    mesh.parts.len() - 1
+                }
+            };
+            let m = &model.mesh;
+            let material = m
+                .material_id
+                .map_or(default_mat, |i| i.min(default_mat as usize) as u32);
+            let pos = |i: u32| {
+                let i = i as usize * 3;
+                Vec3::new(m.positions[i], m.positions[i + 1], m.positions[i + 2])
+            };
+            let has_uv = !m.texcoords.is_empty() && m.texcoord_indices.len() == m.indices.len();
+            for (f, tri) in m.indices.chunks_exact(3).enumerate() {
+                let positions = [pos(tri[0]), pos(tri[1]), pos(tri[2])];
+                if is_degenerate(&positions) {
+                    mesh.degenerate_skipped += 1;
+                    continue;
+                }
+                let uvs = has_uv.then(|| {
+                    let ti = &m.texcoord_indices[f * 3..f * 3 + 3];
+                    ti.map_or_uv(&m.texcoords)
+                });
+                mesh.parts[idx].triangles.push(Triangle {
+                    positions,
+                    uvs,
+                    material,
+                });
+            }
+        }
+        mesh.parts.retain(|p| {
+            if p.triangles.is_empty() {
+                mesh.warnings.push(format!(
+                    "{label}: part '{}' has no non-degenerate triangle; skipped",
+                    p.name
+                ));
+            }
+            !p.triangles.is_empty()
+        });
+        if mesh.parts.is_empty() {
+            return Err(MeshError::Empty { path: label.into() });
+        }
+        Ok(mesh)
+    }
+
+    trait UvLookup {
+        fn map_or_uv(&self, texcoords: &[f32]) -> [Vec2; 3];
+    }
+    impl UvLookup for [u32] {
+        fn map_or_uv(&self, tc: &[f32]) -> [Vec2; 3] {
+            let at = |i: u32| {
+                let i = i as usize * 2;
+                Vec2::new(
+                    tc.get(i).copied().unwrap_or(0.0),
+                    tc.get(i + 1).copied().unwrap_or(0.0),
+                )
+            };
+            [at(self[0]), at(self[1]), at(self[2])]
+        }
+    }
+
+    fn convert_material(
+        m: &tobj::Material,
+        dir: Option<&Path>,
+        warnings: &mut Vec<String>,
+    ) -> Result<Material, MeshError> {
+        let albedo = m.diffuse.map_or(Vec3::splat(0.7), Vec3::from);
+        let emission = m
+            .unknown_param
+            .get("Ke")
+            .and_then(|s| {
+                let v: Vec<f32> = s
+                    .split_whitespace()
+                    .filter_map(|x| x.parse().ok())
+                    .collect();
+                (v.len() >= 3).then(|| Vec3::new(v[0], v[1], v[2]))
+            })
+            .unwrap_or(Vec3::ZERO);
+        let bad = |what: &str| MeshError::Parse {
+            path: format!("material '{}'", m.name),
+            line: None,
+            message: format!("{what} must be finite and non-negative"),
+        };
+        if !albedo.is_finite() || albedo.min_element() < 0.0 {
+            return Err(bad("Kd"));
+        }
+        if !emission.is_finite() || emission.min_element() < 0.0 {
+            return Err(bad("Ke"));
+        }
+        let mut out = Material {
+            name: m.name.clone(),
+            albedo,
+            emission,
+            texture: None,
+        };
+        if let Some(tex) = &m.diffuse_texture {
+            match dir {
+                None => warnings.push(format!(
+                    "material '{}': texture '{tex}' not loaded (no folder to resolve it)",
+                    m.name
+                )),
+                Some(d) => match load_texture(&d.join(tex)) {
+                    Ok(t) => out.texture = Some(Arc::new(t)),
+                    Err(e) => warnings.push(format!(
+                        "material '{}': texture ignored, using Kd: {e}",
+                        m.name
+                    )),
+                },
+            }
+        }
+        Ok(out)
+    }
+
+    #[cfg(feature = "image-io")]
+    fn load_texture(path: &Path) -> Result<Texture, String> {
+        let img = image::open(path)
+            .map_err(|e| format!("{}: {e}", path.display()))?
+            .to_rgb32f();
+        let (width, height) = img.dimensions();
+        // 8-bit images are sRGB-encoded; to_rgb32f only rescales, so decode here.
+        let texels = img
+            .pixels()
+            .map(|p| {
+                Vec3::new(
+                    srgb_to_linear(p[0]),
+                    srgb_to_linear(p[1]),
+                    srgb_to_linear(p[2]),
+                )
+            })
+            .collect();
+        Ok(Texture {
+            width,
+            height,
+            texels,
+        })
+    }
+
+    #[cfg(feature = "image-io")]
+    fn srgb_to_linear(s: f32) -> f32 {
+        if s <= 0.040_45 {
+            s / 12.92
+        } else {
+            ((s + 0.055) / 1.055).powf(2.4)
+        }
+    }
+
+    #[cfg(not(feature = "image-io"))]
+    fn load_texture(path: &Path) -> Result<Texture, String> {
+        Err(format!(
+            "{}: built without the `image-io` feature",
+            path.display()
+        ))
+    }
+
+    /// Checks vertex and face lines before tobj sees them, so errors carry a line number and
+    /// the object name (tobj reports neither).
+    fn prescan(text: &str, label: &str) -> Result<(), MeshError> {
+        let mut object = String::from("(none)");
+        let (mut nv, mut nvt) = (0i64, 0i64);
+        for (i, raw) in text.lines().enumerate() {
+            let line = i + 1;
+            let l = raw.trim();
+            let mut it = l.split_whitespace();
+            let parse_err = |message: String| MeshError::Parse {
+                path: label.into(),
+                line: Some(line),
+                message,
+            };
+            match it.next() {
+                Some("o") | Some("g") => object = it.collect::<Vec<_>>().join(" "),
+                Some(kw @ ("v" | "vt")) => {
+                    let want = if kw == "v" { 3 } else { 1 };
+                    let vals: Vec<&str> = it.collect();
+                    if vals.len() < want {
+                        return Err(parse_err(format!("'{kw}' needs {want} numbers: {l}")));
+                    }
+                    for v in &vals[..vals.len().min(if kw == "v" { 3 } else { 2 })] {
+                        let x: f32 = v
+                            .parse()
+                            .map_err(|_| parse_err(format!("'{v}' is not a number: {l}")))?;
+                        if !x.is_finite() {
+                            return Err(MeshError::NonFinite {
+                                path: label.into(),
+                                line,
+                                object: object.clone(),
+                                text: l.into(),
+                            });
+                        }
+                    }
+                    if kw == "v" {
+                        nv += 1
+                    } else {
+                        nvt += 1
+                    }
+                }
+                Some("f") => {
+                    let verts: Vec<&str> = it.collect();
+                    if verts.len() < 3 {
+                        return Err(parse_err(format!("a face needs at least 3 vertices: {l}")));
+                    }
+                    for v in verts {
+                        let mut refs = v.split('/');
+                        for (k, count) in [(0, nv), (1, nvt)] {
+                            let Some(s) = refs.next() else { break };
+                            if s.is_empty() && k > 0 {
+                                continue;
+                            }
+                            let idx: i64 = s.parse().map_err(|_| {
+                                parse_err(format!("bad vertex reference '{v}': {l}"))
+                            })?;
+                            let ok = (idx > 0 && idx <= count) || (idx < 0 && -idx <= count);
+                            if !ok {
+                                return Err(parse_err(format!(
+                                    "vertex reference '{v}' out of range ({count} {} declared so far): {l}",
+                                    if k == 0 { "vertices" } else { "texture coordinates" }
+                                )));
+                            }
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,163 @@
+//! Rays and their preparation for octree traversal: mapping into the unit cube of one SVO,
+//! the robust handling of zero, −0.0, denormal and tiny direction components, and the
+//! Revelles mirroring.
+
+use crate::svo::Cube;
+use glam::{DVec3, Vec3};
+
+/// A ray `origin + t·dir`. `dir` need not be unit length: after an affine inverse transform
+/// it is deliberately left unnormalized so that `t` means the same in every space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Start point.
+    pub origin: Vec3,
+    /// Direction (any non-zero length).
+    pub dir: Vec3,
+}
+
+impl Ray {
+    /// Creates a ray.
+    pub fn new(origin: Vec3, dir: Vec3) -> Self {
+        Ray { origin, dir }
+    }
+    /// The point at parameter `t`.
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
+}
+
+/// A direction component whose magnitude is below this fraction of the largest component is
+/// treated as exactly parallel to its axis (Revelles §3.3): its t-values would be ±∞ or
+/// overflow, and a ray that moves less than 2⁻⁴⁰ of a cube width sideways while crossing it
+/// cannot change voxel at any supported depth (≤ 2⁻²⁰) except by sitting on a boundary.
+pub const PARALLEL_RATIO: f32 = 1.0 / (1u64 << 40) as f32;
+
+/// Rays whose unit-cube origin lies further than this from the cube are refused (returned
+/// as misses): the cube subtends less than 2⁻⁴⁰ of their view and f32 cannot resolve it.
+pub const MAX_UNIT_ORIGIN: f32 = (1u64 << 40) as f32;
+
+/// Bit i set: direction component i counts as parallel (see [`PARALLEL_RATIO`]). Shared by
+/// the traversal and the DDA oracle so both classify a ray the same way.
+pub fn parallel_axes(dir: DVec3) -> u32 {
+    let m = dir.abs().max_element();
+    let mut mask = 0;
+    for i in 0..3 {
+        if dir[i].abs() < PARALLEL_RATIO as f64 * m {
+            mask |= 1 << i;
+        }
+    }
+    mask
+}
+
+/// A ray prepared for the traversal of one SVO.
+///
+/// In the unit cube of the SVO, with the direction rescaled by a power of two so that its
+/// largest component lies in [1, 2) (exact, and it keeps every t-value finite), and mirrored
+/// so that every non-parallel component is positive (Revelles' `a` mask, taken from the
+/// sign bit so that −0.0 behaves like +0.0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UnitRay {
+    /// Origin in the unit cube, mirrored on the axes in `mirror`.
+    pub origin: [f32; 3],
+    /// Reciprocal of the (rescaled, mirrored, positive) direction; 0 on parallel axes.
+    pub inv_dir: [f32; 3],
+    /// Bit i: axis i is mirrored (the original direction had its sign bit set).
+    pub mirror: u32,
+    /// Bit i: axis i is treated as parallel (no motion along it).
+    pub parallel: u32,
+    /// The direction was multiplied by this power of two, so internal t = world t / `t_scale`.
+    pub t_scale: f64,
+}
+
+impl UnitRay {
+    /// Prepares a ray given in SVO object space.
+    pub fn from_object(cube: &Cube, ray: &Ray) -> Option<Self> {
+        Self::from_unit(
+            cube.to_unit(ray.origin.as_dvec3()),
+            ray.dir.as_dvec3() / cube.size as f64,
+        )
+    }
+
+    /// Prepares a ray already mapped to the unit cube. The origin comes in f64 so callers can
+    /// subtract large offsets before rounding (camera-relative precision). Returns `None` for
+    /// non-finite input, a zero direction, or an origin too far away (see
+    /// [`MAX_UNIT_ORIGIN`]); such rays miss.
+    pub fn from_unit(origin: DVec3, dir: DVec3) -> Option<Self> {
+        if !origin.is_finite() || !dir.is_finite() {
+            return None;
+        }
+        let m = dir.abs().max_element();
+        if m <= 0.0 {
+            return None;
+        }
+        // Power-of-two rescale: exact, so t converts back without rounding.
+        let k = -(m.log2().floor() as i32);
+        let t_scale = 2f64.powi(k);
+        let d = dir * t_scale;
+        let mut out = UnitRay {
+            origin: [0.0; 3],
+            inv_dir: [0.0; 3],
+            mirror: 0,
+            parallel: 0,
+            t_scale,
+        };
+        let parallel = parallel_axes(dir);
+        for i in 0..3 {
+            let o = origin[i] as f32;
+            if !(o.abs() <= MAX_UNIT_ORIGIN) {
+                return None;
+            }
+            let di = d[i] as f32;
+            if parallel & (1 << i) != 0 {
+                out.parallel |= 1 << i;
+                out.origin[i] = o;
+            } else if di.is_sign_negative() {
+                out.mirror |= 1 << i;
+                out.origin[i] = 1.0 - o;
+                out.inv_dir[i] = 1.0 / -di;
+            } else {
+                out.origin[i] = o;
+                out.inv_dir[i] = 1.0 / di;
+            }
+        }
+        Some(out)
+    }
+
+    /// Converts a world/object t to this ray's internal t.
+    pub fn to_internal(&self, t: f32) -> f32 {
+        (t as f64 / self.t_scale) as f32
+    }
+    /// Converts an internal t back to world/object t.
+    pub fn to_world(&self, t: f32) -> f32 {
+        (t as f64 * self.t_scale) as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn signed_zero_and_denormals_are_parallel_and_unmirrored() {
+        let r = UnitRay::from_unit(DVec3::splat(0.5), DVec3::new(1.0, -0.0, 1e-42)).unwrap();
+        assert_eq!(r.parallel, 0b110);
+        assert_eq!(r.mirror, 0);
+        let r = UnitRay::from_unit(DVec3::splat(0.5), DVec3::new(-0.0, -1.0, 0.0)).unwrap();
+        assert_eq!((r.parallel, r.mirror), (0b101, 0b010));
+    }
+
+    #[test]
+    fn degenerate_rays_are_refused() {
+        assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::ZERO).is_none());
+        assert!(UnitRay::from_unit(DVec3::NAN, DVec3::X).is_none());
+        assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::new(f64::INFINITY, 0.0, 0.0)).is_none());
+        assert!(UnitRay::from_unit(DVec3::splat(1e13), DVec3::X).is_none());
+    }
+
+    #[test]
+    fn rescale_is_a_power_of_two() {
+        let r = UnitRay::from_unit(DVec3::ZERO, DVec3::new(3e-30, 0.0, 0.0)).unwrap();
+        assert_eq!(r.t_scale.log2().fract(), 0.0);
+        assert!((1.0..2.0).contains(&(1.0 / r.inv_dir[0])));
+    }
+}

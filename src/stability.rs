@@ -1,0 +1,586 @@
+//! The numerical stability suite: stiff and adversarial rays traced through SVOs and checked
+//! ray by ray against the brute-force DDA oracle ([`crate::oracle`]). `voxray stability`
+//! prints its table; `tests/stability.rs` asserts it.
+//!
+//! A traversal answer counts as correct when it names the oracle's voxel at the oracle's t
+//! (relative error ≤ [`T_TOLERANCE`] of max(|t|, one cube width in t)). Where a ray passes
+//! exactly through an edge or corner, several voxels are touched at the same t and which one
+//! a walk reports first depends on rounding; such an answer is a *tie*, accepted only if the
+//! voxel reported is occupied and its closed box is touched at that t.
+
+use crate::oracle::{dda, voxel_interval, Contact, OracleHit, VoxelSet};
+use crate::ray::UnitRay;
+use crate::rng::Rng;
+use crate::svo::{self, Cube, Svo};
+use crate::traverse::{step_bound, trace_unit, Hit, TraceOptions};
+use crate::voxelize::VoxelGrid;
+use glam::{DVec3, Vec3};
+
+/// Largest accepted relative t error against the oracle.
+pub const T_TOLERANCE: f64 = 1e-5;
+
+/// One ray of a case, in the unit cube of the case's SVO.
+#[derive(Clone, Copy, Debug)]
+pub struct CaseRay {
+    /// Origin (unit-cube coordinates).
+    pub origin: Vec3,
+    /// Direction (any length).
+    pub dir: Vec3,
+    /// Interval start.
+    pub t_min: f32,
+    /// Interval end.
+    pub t_max: f32,
+}
+
+/// A scene plus a family of rays.
+pub struct Case {
+    /// Short name (table row).
+    pub name: String,
+    /// The voxels.
+    pub set: VoxelSet,
+    /// The SVO built from them (unit-cube bounds).
+    pub svo: Svo,
+    /// Rays to trace.
+    pub rays: Vec<CaseRay>,
+    /// Level-of-detail limit, if the case tests LOD.
+    pub max_level: Option<u32>,
+}
+
+/// How one ray compared with the oracle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Same voxel (or both missed) and t within tolerance.
+    Match,
+    /// A different voxel touched at the same t (edge/corner/face contact), or a zero-length
+    /// touch one side reported and the other skipped.
+    Tie,
+    /// Anything else.
+    Mismatch,
+}
+
+/// One row of the stability table.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaseReport {
+    /// Case name.
+    pub name: String,
+    /// Tree depth.
+    pub depth: u32,
+    /// Rays traced.
+    pub rays: u64,
+    /// Rays the oracle says hit.
+    pub hits: u64,
+    /// Results with a NaN or infinite t or normal.
+    pub nan: u64,
+    /// Disagreements with the oracle (wrong voxel, wrong t, hit vs miss).
+    pub mismatches: u64,
+    /// Accepted ties (see [`Verdict::Tie`]).
+    pub ties: u64,
+    /// Largest relative |Δt| among rays where both hit.
+    pub max_rel_dt: f64,
+    /// Largest loop count of one traversal.
+    pub max_steps: u32,
+    /// The proven bound on the loop count for this depth.
+    pub step_bound: u32,
+    /// Traversals stopped by the step bound.
+    pub aborted: u64,
+    /// Description of the first mismatch, for debugging.
+    pub first_mismatch: Option<String>,
+}
+
+/// How close (relative to max(|t|, one cube width in t)) a ray must pass to a voxel to count
+/// as touching it: the traversal's f32 arithmetic decides contacts to about this precision.
+pub const TOUCH_TOLERANCE: f64 = 1e-6;
+
+/// Compares a traversal result with the oracle for one ray. `strict` is the oracle under
+/// closed-box contact, `lenient` the oracle counting only voxels the ray stays inside for
+/// longer than [`TOUCH_TOLERANCE`]. Returns the verdict and the relative error of the hit's
+/// t against the exact (f64) entry of the voxel it names.
+pub fn compare(
+    set: &VoxelSet,
+    ray: &CaseRay,
+    got: Option<&Hit>,
+    strict: Option<&OracleHit>,
+    lenient: Option<&OracleHit>,
+) -> (Verdict, f64) {
+    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+    let t_unit = 1.0 / d.abs().max_element().max(1e-300);
+    let scale = |t: f64| t.abs().max(t_unit);
+    let Some(h) = got else {
+        // Missing is right when nothing is robustly entered (at most touched).
+        return (
+            if strict.is_none() {
+                Verdict::Match
+            } else if lenient.is_none() {
+                Verdict::Tie
+            } else {
+                Verdict::Mismatch
+            },
+            0.0,
+        );
+    };
+    let (enter, exit) = voxel_interval(set.depth, h.coord, o, d);
+    let t = h.t as f64;
+    let exact_t = enter.max(ray.t_min as f64);
+    let dt = (t - exact_t).abs() / scale(exact_t);
+    let touch = TOUCH_TOLERANCE * scale(t);
+    let contact = set.contains(h.coord) && enter <= t + touch && exit >= t - touch;
+    if !contact || dt > T_TOLERANCE || t > ray.t_max as f64 + touch {
+        return (Verdict::Mismatch, dt);
+    }
+    match (strict, lenient) {
+        (Some(s), _) if s.coord == h.coord => (Verdict::Match, dt),
+        // Another voxel touched first or at the same time (an edge/corner/face contact), but no
+        // voxel is robustly entered before this one.
+        (_, Some(l)) if t <= l.t + T_TOLERANCE * scale(l.t) => (Verdict::Tie, dt),
+        (_, None) => (Verdict::Tie, dt),
+        _ => (Verdict::Mismatch, dt),
+    }
+}
+
+/// Runs one case.
+pub fn run_case(case: &Case) -> CaseReport {
+    let oracle_set = match case.max_level {
+        Some(l) if l < case.set.depth => case.set.coarsen(l),
+        _ => case.set.clone(),
+    };
+    let opts_of = |r: &CaseRay| TraceOptions {
+        t_min: r.t_min,
+        t_max: r.t_max,
+        max_level: case.max_level.unwrap_or(u32::MAX),
+    };
+    let one = |r: &CaseRay| -> CaseReport {
+        let traced = UnitRay::from_unit(r.origin.as_dvec3(), r.dir.as_dvec3())
+            .map(|u| trace_unit(&case.svo, &u, &opts_of(r)));
+        let (hit, steps, aborted) =
+            traced.map_or((None, 0, false), |t| (t.hit, t.steps, t.aborted));
+        let (o, d) = (r.origin.as_dvec3(), r.dir.as_dvec3());
+        let (t0, t1) = (r.t_min as f64, r.t_max as f64);
+        let want = dda(&oracle_set, o, d, t0, t1, Contact::Closed);
+        let (verdict, dt) =
+            match compare(&oracle_set, r, hit.as_ref(), want.as_ref(), want.as_ref()) {
+                (Verdict::Mismatch, _) => {
+                    let min_overlap = TOUCH_TOLERANCE * t0.abs().max(1.0 / d.abs().max_element());
+                    let lenient = dda(&oracle_set, o, d, t0, t1, Contact::MinOverlap(min_overlap));
+                    compare(
+                        &oracle_set,
+                        r,
+                        hit.as_ref(),
+                        want.as_ref(),
+                        lenient.as_ref(),
+                    )
+                }
+                ok => ok,
+            };
+        let nan = hit.is_some_and(|h| {
+            !h.t.is_finite() || !h.normal().is_finite() || !h.face_normal.is_finite()
+        });
+        CaseReport {
+            rays: 1,
+            hits: want.is_some() as u64,
+            nan: nan as u64,
+            mismatches: (verdict == Verdict::Mismatch) as u64,
+            ties: (verdict == Verdict::Tie) as u64,
+            max_rel_dt: dt,
+            max_steps: steps,
+            aborted: aborted as u64,
+            first_mismatch: (verdict == Verdict::Mismatch).then(|| {
+                format!(
+                    "ray {r:?}: traversal {:?}, oracle {want:?}",
+                    hit.map(|h| (h.t, h.coord))
+                )
+            }),
+            ..Default::default()
+        }
+    };
+    let merge = |mut a: CaseReport, b: CaseReport| {
+        a.rays += b.rays;
+        a.hits += b.hits;
+        a.nan += b.nan;
+        a.mismatches += b.mismatches;
+        a.ties += b.ties;
+        a.max_rel_dt = a.max_rel_dt.max(b.max_rel_dt);
+        a.max_steps = a.max_steps.max(b.max_steps);
+        a.aborted += b.aborted;
+        a.first_mismatch = a.first_mismatch.or(b.first_mismatch);
+        a
+    };
+    #[cfg(feature = "parallel")]
+    let mut report = {
+        use rayon::prelude::*;
+        case.rays
+            .par_iter()
+            .map(one)
+            .reduce(CaseReport::default, merge)
+    };
+    #[cfg(not(feature = "parallel"))]
+    let mut report = case.rays.iter().map(one).fold(CaseReport::default(), merge);
+    report.name = case.name.clone();
+    report.depth = case.svo.depth;
+    report.step_bound = step_bound(case.svo.depth);
+    report
+}
+
+/// Builds a case from voxel coordinates (unit-cube bounds).
+pub fn make_case(
+    name: &str,
+    depth: u32,
+    coords: Vec<[u32; 3]>,
+    rays: Vec<CaseRay>,
+    max_level: Option<u32>,
+) -> Case {
+    let unit = Cube {
+        min: Vec3::ZERO,
+        size: 1.0,
+    };
+    let grid = VoxelGrid::from_coords(depth, unit, coords.iter().copied(), Vec3::splat(0.8));
+    let svo = svo::build(&grid).expect("non-empty case scene");
+    Case {
+        name: name.into(),
+        set: VoxelSet::new(depth, coords),
+        svo,
+        rays,
+        max_level,
+    }
+}
+
+/// Scattered blobs and single voxels in a 2^depth grid.
+pub fn scene_blobs(depth: u32, seed: u64) -> Vec<[u32; 3]> {
+    let n = 1u32 << depth;
+    let mut rng = Rng::new(seed);
+    let mut out = Vec::new();
+    for _ in 0..12 {
+        let c = Vec3::new(
+            rng.range(0.1, 0.9),
+            rng.range(0.1, 0.9),
+            rng.range(0.1, 0.9),
+        ) * n as f32;
+        let r = rng.range(0.03, 0.12) * n as f32;
+        let (lo, hi) = (
+            (c - r).max(Vec3::ZERO),
+            (c + r).min(Vec3::splat(n as f32 - 1.0)),
+        );
+        for z in lo.z as u32..=hi.z as u32 {
+            for y in lo.y as u32..=hi.y as u32 {
+                for x in lo.x as u32..=hi.x as u32 {
+                    let p = Vec3::new(x as f32, y as f32, z as f32) + 0.5;
+                    if (p - c).length() <= r {
+                        out.push([x, y, z]);
+                    }
+                }
+            }
+        }
+    }
+    for _ in 0..(n * n / 8) {
+        out.push([
+            rng.below(n as u64) as u32,
+            rng.below(n as u64) as u32,
+            rng.below(n as u64) as u32,
+        ]);
+    }
+    out
+}
+
+/// A one-voxel-thick spherical shell (like a voxelized surface) around a solid cube.
+pub fn scene_shell(depth: u32) -> Vec<[u32; 3]> {
+    let n = 1u32 << depth;
+    let c = n as f32 / 2.0;
+    let r = 0.4 * n as f32;
+    let mut out = Vec::new();
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let p = Vec3::new(x as f32, y as f32, z as f32) + 0.5 - c;
+                let l = p.length();
+                if (l - r).abs() <= 0.87 || p.abs().max_element() < 0.1 * n as f32 {
+                    out.push([x, y, z]);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A compact random blob 2^16 deep: a 64³ window placed far from the origin of the grid.
+pub fn scene_deep(depth: u32, seed: u64) -> Vec<[u32; 3]> {
+    let mut rng = Rng::new(seed);
+    let base = [
+        (1u32 << depth) / 3 + 17,
+        (1u32 << depth) / 2 - 5,
+        (1u32 << depth) * 2 / 3 + 3,
+    ];
+    let mut out = Vec::new();
+    for _ in 0..6000 {
+        out.push([0, 1, 2].map(|i| base[i] + rng.below(64) as u32));
+    }
+    out
+}
+
+fn random_point(rng: &mut Rng, lo: f32, hi: f32) -> Vec3 {
+    Vec3::new(rng.range(lo, hi), rng.range(lo, hi), rng.range(lo, hi))
+}
+
+fn voxel_point(c: [u32; 3], depth: u32, local: Vec3) -> Vec3 {
+    (Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) + local) / (1u64 << depth) as f32
+}
+
+fn ray(origin: Vec3, dir: Vec3) -> CaseRay {
+    CaseRay {
+        origin,
+        dir,
+        t_min: 0.0,
+        t_max: f32::INFINITY,
+    }
+}
+
+/// Every standard case. `random_rays` sets the size of the random families (the test uses
+/// 10⁶ in all); the adversarial families have fixed sizes.
+pub fn standard_cases(random_rays: usize) -> Vec<Case> {
+    let mut cases = Vec::new();
+    let blobs = scene_blobs(6, 1);
+    let shell = scene_shell(7);
+    let mut rng = Rng::new(42);
+
+    // Uniformly random rays: origins around and inside the cube, random directions; half of
+    // them aimed at an occupied voxel so that most hit something.
+    let random = |rng: &mut Rng, coords: &[[u32; 3]], depth: u32, n: usize| {
+        (0..n)
+            .map(|i| {
+                let o = random_point(rng, -0.5, 1.5);
+                let dir = if i % 2 == 0 {
+                    rng.unit_vector()
+                } else {
+                    let c = coords[rng.below(coords.len() as u64) as usize];
+                    (voxel_point(c, depth, random_point(rng, 0.0, 1.0)) - o).normalize_or(Vec3::X)
+                };
+                ray(o, dir)
+            })
+            .collect::<Vec<_>>()
+    };
+    let r = random(&mut rng, &blobs, 6, random_rays / 2);
+    cases.push(make_case(
+        "random rays, blobs d6",
+        6,
+        blobs.clone(),
+        r,
+        None,
+    ));
+    let r = random(&mut rng, &shell, 7, random_rays / 2);
+    cases.push(make_case(
+        "random rays, shell d7",
+        7,
+        shell.clone(),
+        r,
+        None,
+    ));
+
+    // Random [t_min, t_max] intervals, including origins inside the cube.
+    let mut r = random(&mut rng, &blobs, 6, 20_000);
+    for x in &mut r {
+        x.t_min = rng.range(-0.5, 1.5);
+        x.t_max = x.t_min + rng.range(0.0, 1.0);
+    }
+    cases.push(make_case("random t intervals", 6, blobs.clone(), r, None));
+
+    // Axis-parallel rays from grid points (centres, faces, edges, corners), with the other
+    // components +0.0 or −0.0.
+    let n6 = 64u32;
+    let mut r = Vec::new();
+    for k in 0..20_000 {
+        let c = [0, 1, 2].map(|_| rng.below(n6 as u64) as u32);
+        let local = [0.5f32, 0.0, 1.0, 0.25][k % 4];
+        let mut local3 = Vec3::splat(0.5);
+        for i in 0..3 {
+            if rng.below(2) == 0 {
+                local3[i] = local;
+            }
+        }
+        let mut o = voxel_point(c, 6, local3);
+        let axis = rng.below(3) as usize;
+        o[axis] = if rng.below(2) == 0 { -0.25 } else { 1.25 };
+        let mut d = Vec3::new(
+            if rng.below(2) == 0 { 0.0 } else { -0.0 },
+            if rng.below(2) == 0 { 0.0 } else { -0.0 },
+            if rng.below(2) == 0 { 0.0 } else { -0.0 },
+        );
+        d[axis] = if o[axis] < 0.0 { 1.0 } else { -1.0 };
+        r.push(ray(o, d));
+    }
+    cases.push(make_case(
+        "axis-parallel, ±0.0 others",
+        6,
+        blobs.clone(),
+        r,
+        None,
+    ));
+
+    // ±0.0, denormal and minimum-normal components in otherwise random directions.
+    let specials = [
+        0.0f32,
+        -0.0,
+        1e-40,
+        -1e-40,
+        f32::MIN_POSITIVE,
+        -f32::MIN_POSITIVE,
+        1e-45,
+        -1e-45,
+    ];
+    let mut r = random(&mut rng, &blobs, 6, 20_000);
+    for x in &mut r {
+        let k = 1 + rng.below(2) as usize;
+        for _ in 0..k {
+            x.dir[rng.below(3) as usize] = specials[rng.below(specials.len() as u64) as usize];
+        }
+        if x.dir.abs().max_element() == 0.0 {
+            x.dir.x = 1.0;
+        }
+    }
+    cases.push(make_case(
+        "±0.0 / denormal components",
+        6,
+        blobs.clone(),
+        r,
+        None,
+    ));
+
+    // Along voxel faces: one coordinate exactly on a grid plane, no motion along it.
+    let mut r = random(&mut rng, &blobs, 6, 20_000);
+    for x in &mut r {
+        let axis = rng.below(3) as usize;
+        x.origin[axis] = rng.below(n6 as u64 + 1) as f32 / n6 as f32;
+        x.dir[axis] = if rng.below(2) == 0 { 0.0 } else { -0.0 };
+        if x.dir.abs().max_element() == 0.0 {
+            x.dir[(axis + 1) % 3] = 1.0;
+        }
+    }
+    cases.push(make_case("along voxel faces", 6, blobs.clone(), r, None));
+
+    // Along voxel edges: two coordinates on grid planes, moving along the third axis.
+    let mut r = Vec::new();
+    for _ in 0..20_000 {
+        let axis = rng.below(3) as usize;
+        let mut o = Vec3::ZERO;
+        for i in 0..3 {
+            o[i] = rng.below(n6 as u64 + 1) as f32 / n6 as f32;
+        }
+        o[axis] = if rng.below(2) == 0 { -0.5 } else { 1.5 };
+        let mut d = Vec3::ZERO;
+        d[axis] = if o[axis] < 0.0 { 1.0 } else { -1.0 };
+        r.push(ray(o, d));
+    }
+    cases.push(make_case("along voxel edges", 6, blobs.clone(), r, None));
+
+    // Through voxel corners: diagonal directions from a point on a diagonal through a grid
+    // corner; every coordinate is dyadic, so the ray meets corners exactly.
+    let mut r = Vec::new();
+    for _ in 0..20_000 {
+        let corner = Vec3::new(
+            rng.below(65) as f32,
+            rng.below(65) as f32,
+            rng.below(65) as f32,
+        ) / 64.0;
+        let sign = Vec3::new(
+            if rng.below(2) == 0 { 1.0 } else { -1.0 },
+            if rng.below(2) == 0 { 1.0 } else { -1.0 },
+            if rng.below(2) == 0 { 1.0 } else { -1.0 },
+        );
+        let back = rng.below(96) as f32 / 64.0;
+        r.push(ray(corner - sign * back, sign));
+    }
+    cases.push(make_case(
+        "through voxel corners",
+        6,
+        blobs.clone(),
+        r,
+        None,
+    ));
+
+    // Origins on faces of occupied voxels, and inside occupied voxels.
+    let (mut on_face, mut inside) = (Vec::new(), Vec::new());
+    for _ in 0..20_000 {
+        let c = blobs[rng.below(blobs.len() as u64) as usize];
+        let mut local = random_point(&mut rng, 0.0, 1.0);
+        local[rng.below(3) as usize] = rng.below(2) as f32;
+        on_face.push(ray(voxel_point(c, 6, local), rng.unit_vector()));
+        let c = blobs[rng.below(blobs.len() as u64) as usize];
+        inside.push(ray(
+            voxel_point(c, 6, random_point(&mut rng, 0.01, 0.99)),
+            rng.unit_vector(),
+        ));
+    }
+    cases.push(make_case(
+        "origins on voxel faces",
+        6,
+        blobs.clone(),
+        on_face,
+        None,
+    ));
+    cases.push(make_case(
+        "origins inside voxels",
+        6,
+        blobs.clone(),
+        inside,
+        None,
+    ));
+
+    // Grazing angles: one component 10⁻³ … 10⁻⁹ of the others.
+    let mut r = random(&mut rng, &shell, 7, 20_000);
+    for x in &mut r {
+        let axis = rng.below(3) as usize;
+        x.dir[axis] *= 10f32.powf(-rng.range(3.0, 9.0));
+    }
+    cases.push(make_case("grazing angles", 7, shell.clone(), r, None));
+
+    // Level of detail: stop two levels above the leaves; the oracle walks the coarsened set.
+    let r = random(&mut rng, &shell, 7, 20_000);
+    cases.push(make_case(
+        "LOD max_level = depth-2",
+        7,
+        shell.clone(),
+        r,
+        Some(5),
+    ));
+
+    // Depth 16: a blob deep inside a 65536³ grid, rays aimed at it, some axis-parallel.
+    let deep = scene_deep(16, 7);
+    let mut r = random(&mut rng, &deep, 16, 20_000);
+    for (i, x) in r.iter_mut().enumerate() {
+        if i % 4 == 0 {
+            let axis = rng.below(3) as usize;
+            let target = x.origin + x.dir;
+            x.dir = Vec3::ZERO;
+            x.dir[axis] = 1.0;
+            x.origin = target;
+            x.origin[axis] = -0.1;
+        }
+    }
+    cases.push(make_case("depth-16 tree", 16, deep, r, None));
+    cases
+}
+
+/// Formats reports as a Markdown table.
+pub fn table(reports: &[CaseReport]) -> String {
+    let mut s = String::from(
+        "| case | depth | rays | oracle hits | NaN | misses vs oracle | accepted ties | max rel. \\|Δt\\| | max loop count | loop bound |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in reports {
+        s += &format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {:.2e} | {} | {} |\n",
+            r.name,
+            r.depth,
+            r.rays,
+            r.hits,
+            r.nan,
+            r.mismatches,
+            r.ties,
+            r.max_rel_dt,
+            r.max_steps,
+            r.step_bound
+        );
+    }
+    s
+}
+
+/// Convenience for callers with a world-space ray: the unit-cube origin in f64.
+pub fn unit_origin(cube: &Cube, p: DVec3) -> DVec3 {
+    cube.to_unit(p)
+}

@@ -1,0 +1,375 @@
+//! The in-memory SVO layout: Laine–Karras child descriptors, far pointers and per-node
+//! attributes. See `docs/svo-format.md` for the byte-level description.
+
+use bytemuck::{Pod, Zeroable};
+use glam::{DVec3, Vec3};
+
+/// Deepest tree the format and the traversal support. Laine & Karras bound the depth by the
+/// f32 mantissa (23 bits); we keep three bits of head room so that child midpoints of the
+/// parametric traversal stay exactly representable in the unit cube.
+pub const MAX_DEPTH: u32 = 20;
+
+/// Largest child pointer that fits the descriptor's 15-bit field; larger offsets go through a
+/// far pointer slot (Laine & Karras 2010, §3.1).
+pub const MAX_NEAR_POINTER: u32 = 0x7FFF;
+
+/// One 64-bit slot of the node array.
+///
+/// For a node: `desc` is the 32-bit child descriptor and `attr_base` the index in the attribute
+/// array of its first valid child's attributes. For a far-pointer slot: `desc` holds the offset
+/// from this slot to the child group and `attr_base` is zero.
+///
+/// Must be kept in sync with `struct Node` in `wgsl/layout.wgsl` (the GPU path).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct Node {
+    /// Child descriptor: `ptr:15 | far:1 | valid:8 | leaf:8` from the high bits down.
+    pub desc: u32,
+    /// Index of the attributes of this node's first valid child.
+    pub attr_base: u32,
+}
+
+impl Node {
+    /// Packs a child descriptor. `ptr` must be at most [`MAX_NEAR_POINTER`].
+    pub fn new(ptr: u32, far: bool, valid: u8, leaf: u8, attr_base: u32) -> Self {
+        debug_assert!(ptr <= MAX_NEAR_POINTER);
+        Node {
+            desc: (ptr << 17) | ((far as u32) << 16) | ((valid as u32) << 8) | leaf as u32,
+            attr_base,
+        }
+    }
+    /// Relative child pointer (to the child group, or to the far slot when [`Node::far`]).
+    pub fn ptr(self) -> u32 {
+        self.desc >> 17
+    }
+    /// Whether [`Node::ptr`] points at a far-pointer slot.
+    pub fn far(self) -> bool {
+        (self.desc >> 16) & 1 == 1
+    }
+    /// Bit `i` set: octant `i` holds geometry.
+    pub fn valid(self) -> u8 {
+        (self.desc >> 8) as u8
+    }
+    /// Bit `i` set: octant `i` is a leaf (has no descriptor of its own).
+    pub fn leaf(self) -> u8 {
+        self.desc as u8
+    }
+}
+
+/// Per-node attributes: albedo (sRGB-encoded RGBA8) and an octahedral-encoded unit normal.
+///
+/// Must be kept in sync with `struct Attr` in `wgsl/layout.wgsl` (the GPU path).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct Attr {
+    /// R in the low byte, then G, B, A; RGB sRGB-encoded, A linear coverage (255 = opaque).
+    pub albedo: u32,
+    /// Octahedral normal: x in the low 16 bits, y in the high, both snorm16.
+    pub normal: u32,
+}
+
+impl Attr {
+    /// Packs a linear albedo (clamped to [0, 1]) and a normal (normalized here; zero stays a
+    /// valid encoding of +Z so that decoding never yields NaN).
+    pub fn pack(albedo_linear: Vec3, normal: Vec3) -> Self {
+        let c = albedo_linear.clamp(Vec3::ZERO, Vec3::ONE);
+        let r = linear_to_srgb8(c.x) as u32;
+        let g = linear_to_srgb8(c.y) as u32;
+        let b = linear_to_srgb8(c.z) as u32;
+        Attr {
+            albedo: r | (g << 8) | (b << 16) | (255 << 24),
+            normal: encode_octahedral(normal),
+        }
+    }
+    /// Linear albedo in [0, 1].
+    pub fn albedo_linear(self) -> Vec3 {
+        Vec3::new(
+            srgb8_to_linear(self.albedo as u8),
+            srgb8_to_linear((self.albedo >> 8) as u8),
+            srgb8_to_linear((self.albedo >> 16) as u8),
+        )
+    }
+    /// Unit normal (object space).
+    pub fn normal(self) -> Vec3 {
+        decode_octahedral(self.normal)
+    }
+}
+
+/// sRGB transfer function, linear → 8-bit code.
+pub fn linear_to_srgb8(x: f32) -> u8 {
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let s = if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+/// sRGB transfer function, 8-bit code → linear.
+pub fn srgb8_to_linear(c: u8) -> f32 {
+    let s = c as f32 / 255.0;
+    if s <= 0.040_45 {
+        s / 12.92
+    } else {
+        ((s + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn encode_octahedral(n: Vec3) -> u32 {
+    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
+    if !(l1 > 1e-20) || !l1.is_finite() {
+        return encode_octahedral(Vec3::Z);
+    }
+    let p = n / l1;
+    let (mut x, mut y) = (p.x, p.y);
+    if p.z < 0.0 {
+        let (ox, oy) = (x, y);
+        x = (1.0 - oy.abs()) * sign_not_zero(ox);
+        y = (1.0 - ox.abs()) * sign_not_zero(oy);
+    }
+    let qx = (x.clamp(-1.0, 1.0) * 32767.0).round() as i16 as u16 as u32;
+    let qy = (y.clamp(-1.0, 1.0) * 32767.0).round() as i16 as u16 as u32;
+    qx | (qy << 16)
+}
+
+fn decode_octahedral(v: u32) -> Vec3 {
+    let x = ((v & 0xFFFF) as u16 as i16 as f32 / 32767.0).max(-1.0);
+    let y = ((v >> 16) as u16 as i16 as f32 / 32767.0).max(-1.0);
+    let z = 1.0 - x.abs() - y.abs();
+    let (mut nx, mut ny) = (x, y);
+    if z < 0.0 {
+        nx = (1.0 - y.abs()) * sign_not_zero(x);
+        ny = (1.0 - x.abs()) * sign_not_zero(y);
+    }
+    Vec3::new(nx, ny, z).normalize_or(Vec3::Z)
+}
+
+fn sign_not_zero(v: f32) -> f32 {
+    if v >= 0.0 {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+/// An axis-aligned cube: the space an SVO covers, in the part's (object) coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cube {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Edge length (> 0).
+    pub size: f32,
+}
+
+impl Cube {
+    /// Edge length of a voxel at `level` (level 0 = the whole cube).
+    pub fn voxel_size(&self, level: u32) -> f32 {
+        self.size / (1u64 << level) as f32
+    }
+    /// Maps a world/object-space point to the unit cube [0,1]³ in f64 (camera-relative
+    /// precision: subtract before rounding to f32).
+    pub fn to_unit(&self, p: DVec3) -> DVec3 {
+        (p - self.min.as_dvec3()) / self.size as f64
+    }
+    /// Centre of the cube.
+    pub fn centre(&self) -> Vec3 {
+        self.min + Vec3::splat(self.size * 0.5)
+    }
+}
+
+/// A built sparse voxel octree for one part.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Svo {
+    /// The cube the octree covers, in object coordinates.
+    pub bounds: Cube,
+    /// Number of levels below the root; leaves (voxels) sit at this level.
+    pub depth: u32,
+    /// Node slots; `nodes[0]` is the root's descriptor.
+    pub nodes: Vec<Node>,
+    /// Attributes; `attrs[0]` belongs to the root, the rest are reached through
+    /// [`Node::attr_base`].
+    pub attrs: Vec<Attr>,
+    /// Number of leaf voxels.
+    pub voxel_count: u64,
+}
+
+/// Size and memory figures of an [`Svo`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SvoStats {
+    /// Tree depth.
+    pub depth: u32,
+    /// Leaf voxels.
+    pub voxels: u64,
+    /// Node descriptors (internal nodes).
+    pub nodes: u64,
+    /// Far-pointer slots.
+    pub far_slots: u64,
+    /// Attribute records (every node and voxel, root included).
+    pub attributes: u64,
+    /// Bytes of the node array (descriptors, attribute bases, far slots).
+    pub geometry_bytes: u64,
+    /// Bytes of the attribute array.
+    pub attribute_bytes: u64,
+}
+
+impl SvoStats {
+    /// Geometry bytes per leaf voxel.
+    pub fn geometry_bytes_per_voxel(&self) -> f64 {
+        self.geometry_bytes as f64 / self.voxels.max(1) as f64
+    }
+    /// Attribute bytes per leaf voxel.
+    pub fn attribute_bytes_per_voxel(&self) -> f64 {
+        self.attribute_bytes as f64 / self.voxels.max(1) as f64
+    }
+}
+
+impl Svo {
+    /// Resolves the slot index of the child group of the node at `slot`, following a far
+    /// pointer when the descriptor says so. The caller guarantees a valid tree.
+    #[inline]
+    pub fn child_group(&self, slot: usize) -> usize {
+        let n = self.nodes[slot];
+        let p = slot + n.ptr() as usize;
+        if n.far() {
+            p + self.nodes[p].desc as usize
+        } else {
+            p
+        }
+    }
+
+    /// Slot of the descriptor of (non-leaf, valid) child `octant` of the node at `slot`.
+    #[inline]
+    pub fn child_slot(&self, slot: usize, octant: u32) -> usize {
+        let n = self.nodes[slot];
+        let inner = n.valid() & !n.leaf();
+        self.child_group(slot) + (inner as u32 & ((1u32 << octant) - 1)).count_ones() as usize
+    }
+
+    /// Attributes of valid child `octant` of the node at `slot`.
+    #[inline]
+    pub fn child_attr(&self, slot: usize, octant: u32) -> Attr {
+        let n = self.nodes[slot];
+        let i = n.attr_base as usize
+            + (n.valid() as u32 & ((1u32 << octant) - 1)).count_ones() as usize;
+        self.attrs[i]
+    }
+
+    /// Counts nodes, far slots and bytes.
+    pub fn stats(&self) -> SvoStats {
+        let far = self.count_far_slots();
+        SvoStats {
+            depth: self.depth,
+            voxels: self.voxel_count,
+            nodes: self.nodes.len() as u64 - far,
+            far_slots: far,
+            attributes: self.attrs.len() as u64,
+            geometry_bytes: (self.nodes.len() * std::mem::size_of::<Node>()) as u64,
+            attribute_bytes: (self.attrs.len() * std::mem::size_of::<Attr>()) as u64,
+        }
+    }
+
+    fn count_far_slots(&self) -> u64 {
+        let mut far = 0;
+        let mut stack = vec![0usize];
+        while let Some(slot) = stack.pop() {
+            let n = self.nodes[slot];
+            if n.far() {
+                far += 1;
+            }
+            let inner = n.valid() & !n.leaf();
+            if inner != 0 {
+                let g = self.child_group(slot);
+                for k in 0..inner.count_ones() as usize {
+                    stack.push(g + k);
+                }
+            }
+        }
+        far
+    }
+}
+
+/// Interleaves the low 21 bits of x, y, z into a Morton code (x in bit 0), so that the
+/// octant of a voxel at each level is three consecutive bits.
+pub fn morton_encode(x: u32, y: u32, z: u32) -> u64 {
+    spread(x) | (spread(y) << 1) | (spread(z) << 2)
+}
+
+/// Inverse of [`morton_encode`].
+pub fn morton_decode(code: u64) -> [u32; 3] {
+    [compact(code), compact(code >> 1), compact(code >> 2)]
+}
+
+fn spread(v: u32) -> u64 {
+    let mut x = v as u64 & 0x1F_FFFF;
+    x = (x | (x << 32)) & 0x1F_0000_0000_FFFF;
+    x = (x | (x << 16)) & 0x1F_0000_FF00_00FF;
+    x = (x | (x << 8)) & 0x100F_00F0_0F00_F00F;
+    x = (x | (x << 4)) & 0x10C3_0C30_C30C_30C3;
+    x = (x | (x << 2)) & 0x1249_2492_4924_9249;
+    x
+}
+
+fn compact(v: u64) -> u32 {
+    let mut x = v & 0x1249_2492_4924_9249;
+    x = (x | (x >> 2)) & 0x10C3_0C30_C30C_30C3;
+    x = (x | (x >> 4)) & 0x100F_00F0_0F00_F00F;
+    x = (x | (x >> 8)) & 0x1F_0000_FF00_00FF;
+    x = (x | (x >> 16)) & 0x1F_0000_0000_FFFF;
+    x = (x | (x >> 32)) & 0x1F_FFFF;
+    x as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn morton_round_trip() {
+        for &(x, y, z) in &[
+            (0, 0, 0),
+            (1, 2, 3),
+            (0x1F_FFFF, 0, 0x12345),
+            (7, 0x1F_FFFF, 9),
+        ] {
+            assert_eq!(morton_decode(morton_encode(x, y, z)), [x, y, z]);
+        }
+        assert_eq!(morton_encode(1, 0, 0), 1);
+        assert_eq!(morton_encode(0, 1, 0), 2);
+        assert_eq!(morton_encode(0, 0, 1), 4);
+    }
+
+    #[test]
+    fn descriptor_fields() {
+        let n = Node::new(0x7FFF, true, 0xA5, 0x81, 7);
+        assert_eq!(
+            (n.ptr(), n.far(), n.valid(), n.leaf()),
+            (0x7FFF, true, 0xA5, 0x81)
+        );
+    }
+
+    #[test]
+    fn attribute_round_trip() {
+        for n in [
+            Vec3::X,
+            -Vec3::Y,
+            Vec3::new(0.3, -0.5, -0.8).normalize(),
+            Vec3::new(-1.0, 2.0, 0.5).normalize(),
+        ] {
+            let a = Attr::pack(Vec3::new(0.2, 0.5, 0.9), n);
+            assert!(a.normal().dot(n) > 0.9999, "{n} -> {}", a.normal());
+            assert!(
+                (a.albedo_linear() - Vec3::new(0.2, 0.5, 0.9))
+                    .abs()
+                    .max_element()
+                    < 0.01
+            );
+        }
+        assert!(Attr::pack(Vec3::ONE, Vec3::ZERO).normal().is_finite());
+        assert!(Attr::pack(Vec3::ONE, Vec3::NAN).normal().is_finite());
+    }
+}

@@ -1,0 +1,9 @@
+//! Sparse voxel octrees: the node format, the builder and the `.svo` file format.
+
+pub mod build;
+pub mod format;
+pub mod io;
+
+pub use build::{build, BuildError};
+pub use format::{Attr, Cube, Node, Svo, SvoStats, MAX_DEPTH};
+pub use io::SvoFileError;
