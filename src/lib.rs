@@ -31,14 +31,23 @@
 //! ```
 
 #![warn(missing_docs)]
+// `!(x > y)` is deliberate throughout: it is true for NaN, so NaN input fails every check.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod cache;
+mod error;
 pub mod mesh;
+pub mod model;
 pub mod oracle;
+pub mod pipeline;
 pub mod ray;
+pub mod render;
 pub mod rng;
+pub mod scene;
 pub mod stability;
 pub mod svo;
 pub mod traverse;
 pub mod voxelize;
 
+pub use error::Error;
 pub use ray::Ray;

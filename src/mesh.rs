@@ -54,12 +54,7 @@ pub struct Material {
 impl Material {
     /// A plain material.
     pub fn new(name: &str, albedo: Vec3) -> Self {
-        Material {
-            name: name.into(),
-            albedo,
-            emission: Vec3::ZERO,
-            texture: None,
-        }
+        Material { name: name.into(), albedo, emission: Vec3::ZERO, texture: None }
     }
     /// Albedo at a texture coordinate (the texture if there is one and `uv` is given).
     pub fn albedo_at(&self, uv: Option<Vec2>) -> Vec3 {
@@ -127,10 +122,7 @@ impl Mesh {
 pub fn is_degenerate(p: &[Vec3; 3]) -> bool {
     let (a, b, c) = (p[0].as_dvec3(), p[1].as_dvec3(), p[2].as_dvec3());
     let cross = (b - a).cross(c - a).length_squared();
-    let scale = (b - a)
-        .length_squared()
-        .max((c - a).length_squared())
-        .max((c - b).length_squared());
+    let scale = (b - a).length_squared().max((c - a).length_squared()).max((c - b).length_squared());
     !(cross > 1e-24 * scale * scale)
 }
 
@@ -193,30 +185,17 @@ mod obj {
     pub fn load_obj(path: &Path) -> Result<Mesh, MeshError> {
         let label = path.display().to_string();
         let text = std::fs::read(path).map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => MeshError::NotFound {
-                path: label.clone(),
-            },
-            _ => MeshError::Io {
-                path: label.clone(),
-                source: e,
-            },
+            std::io::ErrorKind::NotFound => MeshError::NotFound { path: label.clone() },
+            _ => MeshError::Io { path: label.clone(), source: e },
         })?;
         let text = String::from_utf8_lossy(&text);
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        let stem = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let read_mtl = |name: &Path| -> Result<String, MeshError> {
             let p = dir.join(name);
             std::fs::read_to_string(&p).map_err(|e| match e.kind() {
-                std::io::ErrorKind::NotFound => MeshError::NotFound {
-                    path: p.display().to_string(),
-                },
-                _ => MeshError::Io {
-                    path: p.display().to_string(),
-                    source: e,
-                },
+                std::io::ErrorKind::NotFound => MeshError::NotFound { path: p.display().to_string() },
+                _ => MeshError::Io { path: p.display().to_string(), source: e },
             })
         };
         load_obj_text(&text, &label, &stem, Some(&dir), &read_mtl)
@@ -234,12 +213,8 @@ mod obj {
     ) -> Result<Mesh, MeshError> {
         prescan(text, label)?;
         let mut mtl_error: std::cell::RefCell<Option<MeshError>> = Default::default();
-        let opts = tobj::LoadOptions {
-            triangulate: true,
-            single_index: false,
-            ignore_points: true,
-            ignore_lines: true,
-        };
+        let opts =
+            tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
         let (models, materials) = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |p| {
             let src = match read_mtl(p) {
                 Ok(s) => s,
@@ -256,23 +231,17 @@ mod obj {
                 });
             })
         })
-        .map_err(|e| MeshError::Parse {
-            path: label.into(),
-            line: None,
-            message: e.to_string(),
-        })?;
+        .map_err(|e| MeshError::Parse { path: label.into(), line: None, message: e.to_string() })?;
         if let Some(e) = mtl_error.get_mut().take() {
             return Err(e);
         }
         let materials = materials.unwrap_or_default();
         let mut mesh = Mesh::default();
         for m in &materials {
-            mesh.materials
-                .push(convert_material(m, texture_dir, &mut mesh.warnings)?);
+            mesh.materials.push(convert_material(m, texture_dir, &mut mesh.warnings)?);
         }
         let default_mat = mesh.materials.len() as u32;
-        mesh.materials
-            .push(Material::new("default", Vec3::splat(0.7)));
+        mesh.materials.push(Material::new("default", Vec3::splat(0.7)));
 
         for model in &models {
             let name = if model.name.is_empty() || model.name == "unnamed_object" {
@@ -284,17 +253,12 @@ mod obj {
             let idx = match mesh.parts.iter().position(|p| p.name == name) {
                 Some(i) => i,
                 None => {
-                    mesh.parts.push(Part {
-                        name: name.clone(),
-                        triangles: Vec::new(),
-                    });
+                    mesh.parts.push(Part { name: name.clone(), triangles: Vec::new() });
                     mesh.parts.len() - 1
                 }
             };
             let m = &model.mesh;
-            let material = m
-                .material_id
-                .map_or(default_mat, |i| i.min(default_mat as usize) as u32);
+            let material = m.material_id.map_or(default_mat, |i| i.min(default_mat as usize) as u32);
             let pos = |i: u32| {
                 let i = i as usize * 3;
                 Vec3::new(m.positions[i], m.positions[i + 1], m.positions[i + 2])
@@ -310,19 +274,12 @@ mod obj {
                     let ti = &m.texcoord_indices[f * 3..f * 3 + 3];
                     ti.map_or_uv(&m.texcoords)
                 });
-                mesh.parts[idx].triangles.push(Triangle {
-                    positions,
-                    uvs,
-                    material,
-                });
+                mesh.parts[idx].triangles.push(Triangle { positions, uvs, material });
             }
         }
         mesh.parts.retain(|p| {
             if p.triangles.is_empty() {
-                mesh.warnings.push(format!(
-                    "{label}: part '{}' has no non-degenerate triangle; skipped",
-                    p.name
-                ));
+                mesh.warnings.push(format!("{label}: part '{}' has no non-degenerate triangle; skipped", p.name));
             }
             !p.triangles.is_empty()
         });
@@ -339,10 +296,7 @@ mod obj {
         fn map_or_uv(&self, tc: &[f32]) -> [Vec2; 3] {
             let at = |i: u32| {
                 let i = i as usize * 2;
-                Vec2::new(
-                    tc.get(i).copied().unwrap_or(0.0),
-                    tc.get(i + 1).copied().unwrap_or(0.0),
-                )
+                Vec2::new(tc.get(i).copied().unwrap_or(0.0), tc.get(i + 1).copied().unwrap_or(0.0))
             };
             [at(self[0]), at(self[1]), at(self[2])]
         }
@@ -358,10 +312,7 @@ mod obj {
             .unknown_param
             .get("Ke")
             .and_then(|s| {
-                let v: Vec<f32> = s
-                    .split_whitespace()
-                    .filter_map(|x| x.parse().ok())
-                    .collect();
+                let v: Vec<f32> = s.split_whitespace().filter_map(|x| x.parse().ok()).collect();
                 (v.len() >= 3).then(|| Vec3::new(v[0], v[1], v[2]))
             })
             .unwrap_or(Vec3::ZERO);
@@ -376,24 +327,14 @@ mod obj {
         if !emission.is_finite() || emission.min_element() < 0.0 {
             return Err(bad("Ke"));
         }
-        let mut out = Material {
-            name: m.name.clone(),
-            albedo,
-            emission,
-            texture: None,
-        };
+        let mut out = Material { name: m.name.clone(), albedo, emission, texture: None };
         if let Some(tex) = &m.diffuse_texture {
             match dir {
-                None => warnings.push(format!(
-                    "material '{}': texture '{tex}' not loaded (no folder to resolve it)",
-                    m.name
-                )),
+                None => warnings
+                    .push(format!("material '{}': texture '{tex}' not loaded (no folder to resolve it)", m.name)),
                 Some(d) => match load_texture(&d.join(tex)) {
                     Ok(t) => out.texture = Some(Arc::new(t)),
-                    Err(e) => warnings.push(format!(
-                        "material '{}': texture ignored, using Kd: {e}",
-                        m.name
-                    )),
+                    Err(e) => warnings.push(format!("material '{}': texture ignored, using Kd: {e}", m.name)),
                 },
             }
         }
@@ -402,26 +343,12 @@ mod obj {
 
     #[cfg(feature = "image-io")]
     fn load_texture(path: &Path) -> Result<Texture, String> {
-        let img = image::open(path)
-            .map_err(|e| format!("{}: {e}", path.display()))?
-            .to_rgb32f();
+        let img = image::open(path).map_err(|e| format!("{}: {e}", path.display()))?.to_rgb32f();
         let (width, height) = img.dimensions();
         // 8-bit images are sRGB-encoded; to_rgb32f only rescales, so decode here.
-        let texels = img
-            .pixels()
-            .map(|p| {
-                Vec3::new(
-                    srgb_to_linear(p[0]),
-                    srgb_to_linear(p[1]),
-                    srgb_to_linear(p[2]),
-                )
-            })
-            .collect();
-        Ok(Texture {
-            width,
-            height,
-            texels,
-        })
+        let texels =
+            img.pixels().map(|p| Vec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2]))).collect();
+        Ok(Texture { width, height, texels })
     }
 
     #[cfg(feature = "image-io")]
@@ -435,10 +362,7 @@ mod obj {
 
     #[cfg(not(feature = "image-io"))]
     fn load_texture(path: &Path) -> Result<Texture, String> {
-        Err(format!(
-            "{}: built without the `image-io` feature",
-            path.display()
-        ))
+        Err(format!("{}: built without the `image-io` feature", path.display()))
     }
 
     /// Checks vertex and face lines before tobj sees them, so errors carry a line number and
@@ -450,11 +374,7 @@ mod obj {
             let line = i + 1;
             let l = raw.trim();
             let mut it = l.split_whitespace();
-            let parse_err = |message: String| MeshError::Parse {
-                path: label.into(),
-                line: Some(line),
-                message,
-            };
+            let parse_err = |message: String| MeshError::Parse { path: label.into(), line: Some(line), message };
             match it.next() {
                 Some("o") | Some("g") => object = it.collect::<Vec<_>>().join(" "),
                 Some(kw @ ("v" | "vt")) => {
@@ -464,9 +384,7 @@ mod obj {
                         return Err(parse_err(format!("'{kw}' needs {want} numbers: {l}")));
                     }
                     for v in &vals[..vals.len().min(if kw == "v" { 3 } else { 2 })] {
-                        let x: f32 = v
-                            .parse()
-                            .map_err(|_| parse_err(format!("'{v}' is not a number: {l}")))?;
+                        let x: f32 = v.parse().map_err(|_| parse_err(format!("'{v}' is not a number: {l}")))?;
                         if !x.is_finite() {
                             return Err(MeshError::NonFinite {
                                 path: label.into(),
@@ -494,9 +412,8 @@ mod obj {
                             if s.is_empty() && k > 0 {
                                 continue;
                             }
-                            let idx: i64 = s.parse().map_err(|_| {
-                                parse_err(format!("bad vertex reference '{v}': {l}"))
-                            })?;
+                            let idx: i64 =
+                                s.parse().map_err(|_| parse_err(format!("bad vertex reference '{v}': {l}")))?;
                             let ok = (idx > 0 && idx <= count) || (idx < 0 && -idx <= count);
                             if !ok {
                                 return Err(parse_err(format!(

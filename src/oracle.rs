@@ -28,12 +28,7 @@ impl VoxelSet {
                 hi[i] = hi[i].max(c[i]);
             }
         }
-        VoxelSet {
-            depth,
-            cells,
-            lo,
-            hi,
-        }
+        VoxelSet { depth, cells, lo, hi }
     }
     /// The voxels of a grid.
     pub fn from_grid(grid: &VoxelGrid) -> Self {
@@ -42,10 +37,7 @@ impl VoxelSet {
     /// The set coarsened to `level` (a cell is occupied when any voxel inside it is).
     pub fn coarsen(&self, level: u32) -> Self {
         let s = self.depth - level.min(self.depth);
-        Self::new(
-            level.min(self.depth),
-            self.cells.iter().map(|c| c.map(|v| v >> s)),
-        )
+        Self::new(level.min(self.depth), self.cells.iter().map(|c| c.map(|v| v >> s)))
     }
     /// Whether a voxel is occupied.
     pub fn contains(&self, c: [u32; 3]) -> bool {
@@ -88,14 +80,7 @@ pub enum Contact {
 /// rule as the traversal ([`crate::ray::parallel_axes`]); at an exact edge or corner
 /// crossing all axes involved step together, after (in `Closed` mode) checking every cell
 /// touched at that point.
-pub fn dda(
-    set: &VoxelSet,
-    origin: DVec3,
-    dir: DVec3,
-    t_min: f64,
-    t_max: f64,
-    contact: Contact,
-) -> Option<OracleHit> {
+pub fn dda(set: &VoxelSet, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64, contact: Contact) -> Option<OracleHit> {
     if set.is_empty() || !origin.is_finite() || !dir.is_finite() || dir.abs().max_element() == 0.0 {
         return None;
     }
@@ -139,11 +124,7 @@ pub fn dda(
         } else {
             let q = p[i] + t_start * d[i];
             // On a boundary the ray is in the cell it leaves (closed boxes: a touch hits).
-            let ci = if d[i] > 0.0 {
-                q.ceil() as i64 - 1
-            } else {
-                q.floor() as i64
-            };
+            let ci = if d[i] > 0.0 { q.ceil() as i64 - 1 } else { q.floor() as i64 };
             ci.clamp(lo, hi)
         };
     }
@@ -170,11 +151,7 @@ pub fn dda(
                 Contact::MinOverlap(m) => t_next.min(t_end) - t_cell > m,
             };
             if counts {
-                return Some(OracleHit {
-                    t: t_cell,
-                    coord: c.map(|v| v as u32),
-                    face_axis: face,
-                });
+                return Some(OracleHit { t: t_cell, coord: c.map(|v| v as u32), face_axis: face });
             }
         }
         if t_next > t_end {
@@ -191,16 +168,8 @@ pub fn dda(
                     }
                 }
                 if occupied(cc) {
-                    let axis = ties
-                        .iter()
-                        .enumerate()
-                        .find(|(k, _)| mask & (1 << k) != 0)
-                        .map(|(_, &i)| i);
-                    return Some(OracleHit {
-                        t: t_next,
-                        coord: cc.map(|v| v as u32),
-                        face_axis: axis,
-                    });
+                    let axis = ties.iter().enumerate().find(|(k, _)| mask & (1 << k) != 0).map(|(_, &i)| i);
+                    return Some(OracleHit { t: t_next, coord: cc.map(|v| v as u32), face_axis: axis });
                 }
             }
         }

@@ -72,10 +72,7 @@ pub struct UnitRay {
 impl UnitRay {
     /// Prepares a ray given in SVO object space.
     pub fn from_object(cube: &Cube, ray: &Ray) -> Option<Self> {
-        Self::from_unit(
-            cube.to_unit(ray.origin.as_dvec3()),
-            ray.dir.as_dvec3() / cube.size as f64,
-        )
+        Self::from_unit(cube.to_unit(ray.origin.as_dvec3()), ray.dir.as_dvec3() / cube.size as f64)
     }
 
     /// Prepares a ray already mapped to the unit cube. The origin comes in f64 so callers can
@@ -94,13 +91,7 @@ impl UnitRay {
         let k = -(m.log2().floor() as i32);
         let t_scale = 2f64.powi(k);
         let d = dir * t_scale;
-        let mut out = UnitRay {
-            origin: [0.0; 3],
-            inv_dir: [0.0; 3],
-            mirror: 0,
-            parallel: 0,
-            t_scale,
-        };
+        let mut out = UnitRay { origin: [0.0; 3], inv_dir: [0.0; 3], mirror: 0, parallel: 0, t_scale };
         let parallel = parallel_axes(dir);
         for i in 0..3 {
             let o = origin[i] as f32;

@@ -41,11 +41,7 @@ impl Rng {
     /// A uniformly distributed unit vector.
     pub fn unit_vector(&mut self) -> glam::Vec3 {
         loop {
-            let v = glam::Vec3::new(
-                self.range(-1.0, 1.0),
-                self.range(-1.0, 1.0),
-                self.range(-1.0, 1.0),
-            );
+            let v = glam::Vec3::new(self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0));
             let l = v.length_squared();
             if l > 1e-4 && l <= 1.0 {
                 return v / l.sqrt();

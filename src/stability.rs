@@ -143,37 +143,24 @@ pub fn run_case(case: &Case) -> CaseReport {
         Some(l) if l < case.set.depth => case.set.coarsen(l),
         _ => case.set.clone(),
     };
-    let opts_of = |r: &CaseRay| TraceOptions {
-        t_min: r.t_min,
-        t_max: r.t_max,
-        max_level: case.max_level.unwrap_or(u32::MAX),
-    };
+    let opts_of =
+        |r: &CaseRay| TraceOptions { t_min: r.t_min, t_max: r.t_max, max_level: case.max_level.unwrap_or(u32::MAX) };
     let one = |r: &CaseRay| -> CaseReport {
-        let traced = UnitRay::from_unit(r.origin.as_dvec3(), r.dir.as_dvec3())
-            .map(|u| trace_unit(&case.svo, &u, &opts_of(r)));
-        let (hit, steps, aborted) =
-            traced.map_or((None, 0, false), |t| (t.hit, t.steps, t.aborted));
+        let traced =
+            UnitRay::from_unit(r.origin.as_dvec3(), r.dir.as_dvec3()).map(|u| trace_unit(&case.svo, &u, &opts_of(r)));
+        let (hit, steps, aborted) = traced.map_or((None, 0, false), |t| (t.hit, t.steps, t.aborted));
         let (o, d) = (r.origin.as_dvec3(), r.dir.as_dvec3());
         let (t0, t1) = (r.t_min as f64, r.t_max as f64);
         let want = dda(&oracle_set, o, d, t0, t1, Contact::Closed);
-        let (verdict, dt) =
-            match compare(&oracle_set, r, hit.as_ref(), want.as_ref(), want.as_ref()) {
-                (Verdict::Mismatch, _) => {
-                    let min_overlap = TOUCH_TOLERANCE * t0.abs().max(1.0 / d.abs().max_element());
-                    let lenient = dda(&oracle_set, o, d, t0, t1, Contact::MinOverlap(min_overlap));
-                    compare(
-                        &oracle_set,
-                        r,
-                        hit.as_ref(),
-                        want.as_ref(),
-                        lenient.as_ref(),
-                    )
-                }
-                ok => ok,
-            };
-        let nan = hit.is_some_and(|h| {
-            !h.t.is_finite() || !h.normal().is_finite() || !h.face_normal.is_finite()
-        });
+        let (verdict, dt) = match compare(&oracle_set, r, hit.as_ref(), want.as_ref(), want.as_ref()) {
+            (Verdict::Mismatch, _) => {
+                let min_overlap = TOUCH_TOLERANCE * t0.abs().max(1.0 / d.abs().max_element());
+                let lenient = dda(&oracle_set, o, d, t0, t1, Contact::MinOverlap(min_overlap));
+                compare(&oracle_set, r, hit.as_ref(), want.as_ref(), lenient.as_ref())
+            }
+            ok => ok,
+        };
+        let nan = hit.is_some_and(|h| !h.t.is_finite() || !h.normal().is_finite() || !h.face_normal.is_finite());
         CaseReport {
             rays: 1,
             hits: want.is_some() as u64,
@@ -183,12 +170,8 @@ pub fn run_case(case: &Case) -> CaseReport {
             max_rel_dt: dt,
             max_steps: steps,
             aborted: aborted as u64,
-            first_mismatch: (verdict == Verdict::Mismatch).then(|| {
-                format!(
-                    "ray {r:?}: traversal {:?}, oracle {want:?}",
-                    hit.map(|h| (h.t, h.coord))
-                )
-            }),
+            first_mismatch: (verdict == Verdict::Mismatch)
+                .then(|| format!("ray {r:?}: traversal {:?}, oracle {want:?}", hit.map(|h| (h.t, h.coord)))),
             ..Default::default()
         }
     };
@@ -207,10 +190,7 @@ pub fn run_case(case: &Case) -> CaseReport {
     #[cfg(feature = "parallel")]
     let mut report = {
         use rayon::prelude::*;
-        case.rays
-            .par_iter()
-            .map(one)
-            .reduce(CaseReport::default, merge)
+        case.rays.par_iter().map(one).reduce(CaseReport::default, merge)
     };
     #[cfg(not(feature = "parallel"))]
     let mut report = case.rays.iter().map(one).fold(CaseReport::default(), merge);
@@ -221,26 +201,11 @@ pub fn run_case(case: &Case) -> CaseReport {
 }
 
 /// Builds a case from voxel coordinates (unit-cube bounds).
-pub fn make_case(
-    name: &str,
-    depth: u32,
-    coords: Vec<[u32; 3]>,
-    rays: Vec<CaseRay>,
-    max_level: Option<u32>,
-) -> Case {
-    let unit = Cube {
-        min: Vec3::ZERO,
-        size: 1.0,
-    };
+pub fn make_case(name: &str, depth: u32, coords: Vec<[u32; 3]>, rays: Vec<CaseRay>, max_level: Option<u32>) -> Case {
+    let unit = Cube { min: Vec3::ZERO, size: 1.0 };
     let grid = VoxelGrid::from_coords(depth, unit, coords.iter().copied(), Vec3::splat(0.8));
     let svo = svo::build(&grid).expect("non-empty case scene");
-    Case {
-        name: name.into(),
-        set: VoxelSet::new(depth, coords),
-        svo,
-        rays,
-        max_level,
-    }
+    Case { name: name.into(), set: VoxelSet::new(depth, coords), svo, rays, max_level }
 }
 
 /// Scattered blobs and single voxels in a 2^depth grid.
@@ -249,16 +214,9 @@ pub fn scene_blobs(depth: u32, seed: u64) -> Vec<[u32; 3]> {
     let mut rng = Rng::new(seed);
     let mut out = Vec::new();
     for _ in 0..12 {
-        let c = Vec3::new(
-            rng.range(0.1, 0.9),
-            rng.range(0.1, 0.9),
-            rng.range(0.1, 0.9),
-        ) * n as f32;
+        let c = Vec3::new(rng.range(0.1, 0.9), rng.range(0.1, 0.9), rng.range(0.1, 0.9)) * n as f32;
         let r = rng.range(0.03, 0.12) * n as f32;
-        let (lo, hi) = (
-            (c - r).max(Vec3::ZERO),
-            (c + r).min(Vec3::splat(n as f32 - 1.0)),
-        );
+        let (lo, hi) = ((c - r).max(Vec3::ZERO), (c + r).min(Vec3::splat(n as f32 - 1.0)));
         for z in lo.z as u32..=hi.z as u32 {
             for y in lo.y as u32..=hi.y as u32 {
                 for x in lo.x as u32..=hi.x as u32 {
@@ -271,11 +229,7 @@ pub fn scene_blobs(depth: u32, seed: u64) -> Vec<[u32; 3]> {
         }
     }
     for _ in 0..(n * n / 8) {
-        out.push([
-            rng.below(n as u64) as u32,
-            rng.below(n as u64) as u32,
-            rng.below(n as u64) as u32,
-        ]);
+        out.push([rng.below(n as u64) as u32, rng.below(n as u64) as u32, rng.below(n as u64) as u32]);
     }
     out
 }
@@ -303,11 +257,7 @@ pub fn scene_shell(depth: u32) -> Vec<[u32; 3]> {
 /// A compact random blob 2^16 deep: a 64³ window placed far from the origin of the grid.
 pub fn scene_deep(depth: u32, seed: u64) -> Vec<[u32; 3]> {
     let mut rng = Rng::new(seed);
-    let base = [
-        (1u32 << depth) / 3 + 17,
-        (1u32 << depth) / 2 - 5,
-        (1u32 << depth) * 2 / 3 + 3,
-    ];
+    let base = [(1u32 << depth) / 3 + 17, (1u32 << depth) / 2 - 5, (1u32 << depth) * 2 / 3 + 3];
     let mut out = Vec::new();
     for _ in 0..6000 {
         out.push([0, 1, 2].map(|i| base[i] + rng.below(64) as u32));
@@ -324,12 +274,7 @@ fn voxel_point(c: [u32; 3], depth: u32, local: Vec3) -> Vec3 {
 }
 
 fn ray(origin: Vec3, dir: Vec3) -> CaseRay {
-    CaseRay {
-        origin,
-        dir,
-        t_min: 0.0,
-        t_max: f32::INFINITY,
-    }
+    CaseRay { origin, dir, t_min: 0.0, t_max: f32::INFINITY }
 }
 
 /// Every standard case. `random_rays` sets the size of the random families (the test uses
@@ -357,21 +302,9 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
             .collect::<Vec<_>>()
     };
     let r = random(&mut rng, &blobs, 6, random_rays / 2);
-    cases.push(make_case(
-        "random rays, blobs d6",
-        6,
-        blobs.clone(),
-        r,
-        None,
-    ));
+    cases.push(make_case("random rays, blobs d6", 6, blobs.clone(), r, None));
     let r = random(&mut rng, &shell, 7, random_rays / 2);
-    cases.push(make_case(
-        "random rays, shell d7",
-        7,
-        shell.clone(),
-        r,
-        None,
-    ));
+    cases.push(make_case("random rays, shell d7", 7, shell.clone(), r, None));
 
     // Random [t_min, t_max] intervals, including origins inside the cube.
     let mut r = random(&mut rng, &blobs, 6, 20_000);
@@ -405,25 +338,10 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
         d[axis] = if o[axis] < 0.0 { 1.0 } else { -1.0 };
         r.push(ray(o, d));
     }
-    cases.push(make_case(
-        "axis-parallel, ±0.0 others",
-        6,
-        blobs.clone(),
-        r,
-        None,
-    ));
+    cases.push(make_case("axis-parallel, ±0.0 others", 6, blobs.clone(), r, None));
 
     // ±0.0, denormal and minimum-normal components in otherwise random directions.
-    let specials = [
-        0.0f32,
-        -0.0,
-        1e-40,
-        -1e-40,
-        f32::MIN_POSITIVE,
-        -f32::MIN_POSITIVE,
-        1e-45,
-        -1e-45,
-    ];
+    let specials = [0.0f32, -0.0, 1e-40, -1e-40, f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1e-45, -1e-45];
     let mut r = random(&mut rng, &blobs, 6, 20_000);
     for x in &mut r {
         let k = 1 + rng.below(2) as usize;
@@ -434,13 +352,7 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
             x.dir.x = 1.0;
         }
     }
-    cases.push(make_case(
-        "±0.0 / denormal components",
-        6,
-        blobs.clone(),
-        r,
-        None,
-    ));
+    cases.push(make_case("±0.0 / denormal components", 6, blobs.clone(), r, None));
 
     // Along voxel faces: one coordinate exactly on a grid plane, no motion along it.
     let mut r = random(&mut rng, &blobs, 6, 20_000);
@@ -473,11 +385,7 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
     // corner; every coordinate is dyadic, so the ray meets corners exactly.
     let mut r = Vec::new();
     for _ in 0..20_000 {
-        let corner = Vec3::new(
-            rng.below(65) as f32,
-            rng.below(65) as f32,
-            rng.below(65) as f32,
-        ) / 64.0;
+        let corner = Vec3::new(rng.below(65) as f32, rng.below(65) as f32, rng.below(65) as f32) / 64.0;
         let sign = Vec3::new(
             if rng.below(2) == 0 { 1.0 } else { -1.0 },
             if rng.below(2) == 0 { 1.0 } else { -1.0 },
@@ -486,13 +394,7 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
         let back = rng.below(96) as f32 / 64.0;
         r.push(ray(corner - sign * back, sign));
     }
-    cases.push(make_case(
-        "through voxel corners",
-        6,
-        blobs.clone(),
-        r,
-        None,
-    ));
+    cases.push(make_case("through voxel corners", 6, blobs.clone(), r, None));
 
     // Origins on faces of occupied voxels, and inside occupied voxels.
     let (mut on_face, mut inside) = (Vec::new(), Vec::new());
@@ -502,25 +404,10 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
         local[rng.below(3) as usize] = rng.below(2) as f32;
         on_face.push(ray(voxel_point(c, 6, local), rng.unit_vector()));
         let c = blobs[rng.below(blobs.len() as u64) as usize];
-        inside.push(ray(
-            voxel_point(c, 6, random_point(&mut rng, 0.01, 0.99)),
-            rng.unit_vector(),
-        ));
+        inside.push(ray(voxel_point(c, 6, random_point(&mut rng, 0.01, 0.99)), rng.unit_vector()));
     }
-    cases.push(make_case(
-        "origins on voxel faces",
-        6,
-        blobs.clone(),
-        on_face,
-        None,
-    ));
-    cases.push(make_case(
-        "origins inside voxels",
-        6,
-        blobs.clone(),
-        inside,
-        None,
-    ));
+    cases.push(make_case("origins on voxel faces", 6, blobs.clone(), on_face, None));
+    cases.push(make_case("origins inside voxels", 6, blobs.clone(), inside, None));
 
     // Grazing angles: one component 10⁻³ … 10⁻⁹ of the others.
     let mut r = random(&mut rng, &shell, 7, 20_000);
@@ -532,13 +419,7 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
 
     // Level of detail: stop two levels above the leaves; the oracle walks the coarsened set.
     let r = random(&mut rng, &shell, 7, 20_000);
-    cases.push(make_case(
-        "LOD max_level = depth-2",
-        7,
-        shell.clone(),
-        r,
-        Some(5),
-    ));
+    cases.push(make_case("LOD max_level = depth-2", 7, shell.clone(), r, Some(5)));
 
     // Depth 16: a blob deep inside a 65536³ grid, rays aimed at it, some axis-parallel.
     let deep = scene_deep(16, 7);
@@ -565,16 +446,7 @@ pub fn table(reports: &[CaseReport]) -> String {
     for r in reports {
         s += &format!(
             "| {} | {} | {} | {} | {} | {} | {} | {:.2e} | {} | {} |\n",
-            r.name,
-            r.depth,
-            r.rays,
-            r.hits,
-            r.nan,
-            r.mismatches,
-            r.ties,
-            r.max_rel_dt,
-            r.max_steps,
-            r.step_bound
+            r.name, r.depth, r.rays, r.hits, r.nan, r.mismatches, r.ties, r.max_rel_dt, r.max_steps, r.step_bound
         );
     }
     s

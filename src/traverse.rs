@@ -30,11 +30,7 @@ pub struct TraceOptions {
 
 impl Default for TraceOptions {
     fn default() -> Self {
-        TraceOptions {
-            t_min: 0.0,
-            t_max: f32::INFINITY,
-            max_level: MAX_DEPTH,
-        }
+        TraceOptions { t_min: 0.0, t_max: f32::INFINITY, max_level: MAX_DEPTH }
     }
 }
 
@@ -166,11 +162,7 @@ fn argmax3(v: [f32; 3]) -> u32 {
 
 /// Traces a prepared ray; see [`UnitRay`].
 pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
-    let miss = |steps| Traced {
-        hit: None,
-        steps,
-        aborted: false,
-    };
+    let miss = |steps| Traced { hit: None, steps, aborted: false };
     let t_min = ray.to_internal(opts.t_min.max(f32::MIN));
     let t_max = ray.to_internal(opts.t_max);
     if !(t_min <= t_max) {
@@ -197,34 +189,19 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
     }
     if max_level == 0 {
         let t = t_enter.max(t_min);
-        return Traced {
-            hit: finish(ray, t, 0, [0; 3], svo.attrs[0], t_enter >= t_min, t0),
-            steps: 1,
-            aborted: false,
-        };
+        return Traced { hit: finish(ray, t, 0, [0; 3], svo.attrs[0], t_enter >= t_min, t0), steps: 1, aborted: false };
     }
 
     let mut stack = [Frame::default(); STACK];
     let tm = midpoints(ray, t0, t1, 0, [0; 3]);
-    stack[0] = Frame {
-        slot: 0,
-        child: first_node(tm, t_enter.max(t_min)),
-        coord: [0; 3],
-        t0,
-        t1,
-        tm,
-    };
+    stack[0] = Frame { slot: 0, child: first_node(tm, t_enter.max(t_min)), coord: [0; 3], t0, t1, tm };
     let mut sp = 1usize; // frames on the stack; the top is stack[sp - 1], at level sp - 1
     let bound = step_bound(svo.depth);
     let mut steps = 0u32;
     loop {
         steps += 1;
         if steps > bound {
-            return Traced {
-                hit: None,
-                steps,
-                aborted: true,
-            };
+            return Traced { hit: None, steps, aborted: true };
         }
         let level = (sp - 1) as u32;
         let f = stack[sp - 1];
@@ -263,11 +240,7 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
             continue;
         }
         let child_level = level + 1;
-        let coord = [
-            2 * f.coord[0] + (c & 1),
-            2 * f.coord[1] + ((c >> 1) & 1),
-            2 * f.coord[2] + ((c >> 2) & 1),
-        ];
+        let coord = [2 * f.coord[0] + (c & 1), 2 * f.coord[1] + ((c >> 1) & 1), 2 * f.coord[2] + ((c >> 2) & 1)];
         if node.leaf() as u32 & (1 << octant) != 0 || child_level >= max_level {
             let attr = svo.child_attr(f.slot as usize, octant);
             // The midpoint t-values carry a few ulps of the largest axis t; for the reported t
@@ -289,14 +262,7 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
         }
         let slot = svo.child_slot(f.slot as usize, octant) as u32;
         let tm = midpoints(ray, ct0, ct1, child_level, coord);
-        stack[sp] = Frame {
-            slot,
-            child: first_node(tm, te.max(t_min)),
-            coord,
-            t0: ct0,
-            t1: ct1,
-            tm,
-        };
+        stack[sp] = Frame { slot, child: first_node(tm, te.max(t_min)), coord, t0: ct0, t1: ct1, tm };
         sp += 1;
     }
 }
@@ -346,17 +312,7 @@ fn finish(
     if entered {
         let axis = argmax3(ct0) as usize;
         // Entering through the low face of a mirrored axis is entering the high face for real.
-        face_normal[axis] = if ray.mirror & (1 << axis) != 0 {
-            1.0
-        } else {
-            -1.0
-        };
+        face_normal[axis] = if ray.mirror & (1 << axis) != 0 { 1.0 } else { -1.0 };
     }
-    Some(Hit {
-        t,
-        level,
-        coord: real,
-        attr,
-        face_normal,
-    })
+    Some(Hit { t, level, coord: real, attr, face_normal })
 }

@@ -33,10 +33,7 @@ pub struct VoxelizeOptions {
 
 impl Default for VoxelizeOptions {
     fn default() -> Self {
-        VoxelizeOptions {
-            resolution: Resolution::Depth(9),
-            solid: false,
-        }
+        VoxelizeOptions { resolution: Resolution::Depth(9), solid: false }
     }
 }
 
@@ -49,6 +46,8 @@ pub struct Voxel {
     pub albedo: Vec3,
     /// Area-weighted mean normal (not necessarily unit length).
     pub normal: Vec3,
+    /// Area-weighted mean emitted radiance (MTL `Ke`).
+    pub emission: Vec3,
     /// Surface area inside the voxel (object units²); tiny for voxels only touched.
     pub weight: f32,
 }
@@ -67,32 +66,15 @@ pub struct VoxelGrid {
 impl VoxelGrid {
     /// A grid from integer coordinates (duplicates removed), with a uniform albedo and zero
     /// normals; used by tests and the stability suite.
-    pub fn from_coords(
-        depth: u32,
-        bounds: Cube,
-        coords: impl IntoIterator<Item = [u32; 3]>,
-        albedo: Vec3,
-    ) -> Self {
-        let mut codes: Vec<u64> = coords
-            .into_iter()
-            .map(|[x, y, z]| morton_encode(x, y, z))
-            .collect();
+    pub fn from_coords(depth: u32, bounds: Cube, coords: impl IntoIterator<Item = [u32; 3]>, albedo: Vec3) -> Self {
+        let mut codes: Vec<u64> = coords.into_iter().map(|[x, y, z]| morton_encode(x, y, z)).collect();
         codes.sort_unstable();
         codes.dedup();
         let voxels = codes
             .into_iter()
-            .map(|code| Voxel {
-                code,
-                albedo,
-                normal: Vec3::ZERO,
-                weight: 1.0,
-            })
+            .map(|code| Voxel { code, albedo, normal: Vec3::ZERO, emission: Vec3::ZERO, weight: 1.0 })
             .collect();
-        VoxelGrid {
-            depth,
-            bounds,
-            voxels,
-        }
+        VoxelGrid { depth, bounds, voxels }
     }
     /// Integer coordinates of every voxel.
     pub fn coords(&self) -> impl Iterator<Item = [u32; 3]> + '_ {
@@ -143,17 +125,13 @@ pub fn bounding_cube(part: &Part, resolution: Resolution) -> Result<(Cube, u32),
     let (size, depth) = match resolution {
         Resolution::Depth(d) => {
             if d == 0 || d > MAX_DEPTH {
-                return Err(VoxelizeError::Resolution(format!(
-                    "depth {d} outside 1..={MAX_DEPTH}"
-                )));
+                return Err(VoxelizeError::Resolution(format!("depth {d} outside 1..={MAX_DEPTH}")));
             }
             (padded, d)
         }
         Resolution::VoxelSize(v) => {
             if !(v.is_finite() && v > 0.0) {
-                return Err(VoxelizeError::Resolution(format!(
-                    "voxel size {v} must be finite and positive"
-                )));
+                return Err(VoxelizeError::Resolution(format!("voxel size {v} must be finite and positive")));
             }
             let d = (padded / v as f64).log2().ceil().max(1.0);
             if d > MAX_DEPTH as f64 {
@@ -165,13 +143,7 @@ pub fn bounding_cube(part: &Part, resolution: Resolution) -> Result<(Cube, u32),
         }
     };
     let min = centre - DVec3::splat(size * 0.5);
-    Ok((
-        Cube {
-            min: min.as_vec3(),
-            size: size as f32,
-        },
-        depth,
-    ))
+    Ok((Cube { min: min.as_vec3(), size: size as f32 }, depth))
 }
 
 /// Voxelizes one part. `progress(done, total)` is called now and then with triangle counts.
@@ -189,13 +161,7 @@ pub fn voxelize(
     let scale = (1u64 << depth) as f64 / bounds.size as f64;
     let origin = bounds.min.as_dvec3();
     let voxel_area = (bounds.size as f64 / (1u64 << depth) as f64).powi(2);
-    let ctx = Ctx {
-        depth,
-        scale,
-        origin,
-        voxel_area,
-        materials,
-    };
+    let ctx = Ctx { depth, scale, origin, voxel_area, materials };
 
     const CHUNK: usize = 2048;
     let done = std::sync::atomic::AtomicUsize::new(0);
@@ -211,10 +177,7 @@ pub fn voxelize(
     #[cfg(feature = "parallel")]
     let mut entries: Vec<Entry> = {
         use rayon::prelude::*;
-        part.triangles
-            .par_chunks(CHUNK)
-            .flat_map_iter(run_chunk)
-            .collect()
+        part.triangles.par_chunks(CHUNK).flat_map_iter(run_chunk).collect()
     };
     #[cfg(not(feature = "parallel"))]
     let mut entries: Vec<Entry> = part.triangles.chunks(CHUNK).flat_map(run_chunk).collect();
@@ -235,12 +198,9 @@ pub fn voxelize(
             Some(a) if a.code == e.code => {
                 a.weight += e.weight;
                 a.albedo_w += e.albedo_w;
+                a.emission_w += e.emission_w;
                 // Align orientations so the two faces of a thin wall do not cancel.
-                a.normal_w += if a.normal_w.dot(e.normal_w) < 0.0 {
-                    -e.normal_w
-                } else {
-                    e.normal_w
-                };
+                a.normal_w += if a.normal_w.dot(e.normal_w) < 0.0 { -e.normal_w } else { e.normal_w };
             }
             _ => {
                 if let Some(a) = acc.take() {
@@ -259,11 +219,7 @@ pub fn voxelize(
     if opts.solid {
         fill_solid(depth, &mut voxels);
     }
-    Ok(VoxelGrid {
-        depth,
-        bounds,
-        voxels,
-    })
+    Ok(VoxelGrid { depth, bounds, voxels })
 }
 
 #[derive(Clone, Copy)]
@@ -272,6 +228,7 @@ struct Entry {
     weight: f64,
     albedo_w: DVec3,
     normal_w: DVec3,
+    emission_w: DVec3,
 }
 
 impl Entry {
@@ -281,6 +238,7 @@ impl Entry {
             code: self.code,
             albedo: (self.albedo_w / w).as_vec3(),
             normal: (self.normal_w / w).as_vec3(),
+            emission: (self.emission_w / w).as_vec3(),
             weight: self.weight as f32,
         }
     }
@@ -298,9 +256,7 @@ impl Ctx<'_> {
     /// Emits an entry for every voxel the triangle overlaps, descending from the root and
     /// testing each node box so only the triangle's own voxels are visited.
     fn rasterize(&self, tri: &crate::mesh::Triangle, out: &mut Vec<Entry>) {
-        let v = tri
-            .positions
-            .map(|p| (p.as_dvec3() - self.origin) * self.scale);
+        let v = tri.positions.map(|p| (p.as_dvec3() - self.origin) * self.scale);
         let n = (v[1] - v[0]).cross(v[2] - v[0]);
         if !(n.length_squared() > 0.0) {
             return;
@@ -329,14 +285,7 @@ impl Ctx<'_> {
                 let area_obj = (area / (self.scale * self.scale)).max(1e-9 * self.voxel_area);
                 let albedo = mat.map_or(DVec3::splat(0.7), |m| {
                     let uv = tri.uvs.map(|uv| {
-                        let b = barycentric(
-                            &v,
-                            if area > 0.0 {
-                                centroid
-                            } else {
-                                (bmin + bmax) * 0.5
-                            },
-                        );
+                        let b = barycentric(&v, if area > 0.0 { centroid } else { (bmin + bmax) * 0.5 });
                         uv[0].as_dvec2() * b.x + uv[1].as_dvec2() * b.y + uv[2].as_dvec2() * b.z
                     });
                     m.albedo_at(uv.map(|p: DVec2| p.as_vec2())).as_dvec3()
@@ -346,18 +295,12 @@ impl Ctx<'_> {
                     weight: area_obj,
                     albedo_w: albedo * area_obj,
                     normal_w: normal * area_obj,
+                    emission_w: mat.map_or(DVec3::ZERO, |m| m.emission.as_dvec3()) * area_obj,
                 });
                 continue;
             }
             for oct in 0..8u64 {
-                stack.push((
-                    level + 1,
-                    [
-                        2 * c[0] + (oct & 1),
-                        2 * c[1] + ((oct >> 1) & 1),
-                        2 * c[2] + (oct >> 2),
-                    ],
-                ));
+                stack.push((level + 1, [2 * c[0] + (oct & 1), 2 * c[1] + ((oct >> 1) & 1), 2 * c[2] + (oct >> 2)]));
             }
         }
     }
@@ -380,10 +323,7 @@ pub fn tri_box_overlap(centre: DVec3, half: DVec3, tri: &[DVec3; 3]) -> bool {
         }
     }
     for i in 0..3 {
-        let (mn, mx) = (
-            v[0][i].min(v[1][i]).min(v[2][i]),
-            v[0][i].max(v[1][i]).max(v[2][i]),
-        );
+        let (mn, mx) = (v[0][i].min(v[1][i]).min(v[2][i]), v[0][i].max(v[1][i]).max(v[2][i]));
         if mn > half[i] || mx < -half[i] {
             return false;
         }
@@ -482,14 +422,7 @@ fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) {
     };
     for a in 0..n {
         for b in 0..n {
-            for (x, y, z) in [
-                (0, a, b),
-                (n - 1, a, b),
-                (a, 0, b),
-                (a, n - 1, b),
-                (a, b, 0),
-                (a, b, n - 1),
-            ] {
+            for (x, y, z) in [(0, a, b), (n - 1, a, b), (a, 0, b), (a, n - 1, b), (a, b, 0), (a, b, n - 1)] {
                 seed(x, y, z, &mut outside, &mut stack);
             }
         }
@@ -516,12 +449,7 @@ fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) {
             seed(x, y, z + 1, &mut outside, &mut stack)
         }
     }
-    let lookup = |code: u64, voxels: &[Voxel]| {
-        voxels
-            .binary_search_by_key(&code, |v| v.code)
-            .ok()
-            .map(|i| voxels[i])
-    };
+    let lookup = |code: u64, voxels: &[Voxel]| voxels.binary_search_by_key(&code, |v| v.code).ok().map(|i| voxels[i]);
     let mut interior = Vec::new();
     for y in 0..n {
         for x in 0..n {
@@ -533,12 +461,7 @@ fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) {
                     last = lookup(code, voxels);
                 } else if !outside[i] {
                     if let Some(s) = last {
-                        interior.push(Voxel {
-                            code,
-                            albedo: s.albedo,
-                            normal: s.normal,
-                            weight: s.weight * 1e-6,
-                        });
+                        interior.push(Voxel { code, weight: s.weight * 1e-6, ..s });
                     }
                 }
             }
@@ -554,40 +477,24 @@ mod tests {
 
     #[test]
     fn clip_area_of_a_triangle_inside_is_its_area() {
-        let t = [
-            DVec3::new(0.1, 0.1, 0.5),
-            DVec3::new(0.9, 0.1, 0.5),
-            DVec3::new(0.1, 0.9, 0.5),
-        ];
+        let t = [DVec3::new(0.1, 0.1, 0.5), DVec3::new(0.9, 0.1, 0.5), DVec3::new(0.1, 0.9, 0.5)];
         let (a, c) = clip_area(&t, DVec3::ZERO, DVec3::ONE);
         assert!((a - 0.32).abs() < 1e-12);
         assert!((c - (t[0] + t[1] + t[2]) / 3.0).length() < 1e-12);
         // Half of a right triangle cut by x = 0.5.
-        let t = [
-            DVec3::new(0.0, 0.0, 0.5),
-            DVec3::new(1.0, 0.0, 0.5),
-            DVec3::new(0.0, 1.0, 0.5),
-        ];
+        let t = [DVec3::new(0.0, 0.0, 0.5), DVec3::new(1.0, 0.0, 0.5), DVec3::new(0.0, 1.0, 0.5)];
         let (a, _) = clip_area(&t, DVec3::ZERO, DVec3::new(0.5, 1.0, 1.0));
         assert!((a - 0.375).abs() < 1e-12, "{a}");
     }
 
     #[test]
     fn sat_touching_counts_and_separated_does_not() {
-        let t = [
-            DVec3::new(1.0, 0.0, 0.0),
-            DVec3::new(1.0, 1.0, 0.0),
-            DVec3::new(1.0, 0.0, 1.0),
-        ];
+        let t = [DVec3::new(1.0, 0.0, 0.0), DVec3::new(1.0, 1.0, 0.0), DVec3::new(1.0, 0.0, 1.0)];
         assert!(tri_box_overlap(DVec3::splat(0.5), DVec3::splat(0.5), &t));
         let t2 = t.map(|p| p + DVec3::X * 1e-9);
         assert!(!tri_box_overlap(DVec3::splat(0.5), DVec3::splat(0.5), &t2));
         // A triangle whose AABB overlaps the box but which passes beside it (edge-axis case).
-        let t3 = [
-            DVec3::new(1.4, -0.5, 0.5),
-            DVec3::new(-0.5, 1.4, 0.5),
-            DVec3::new(2.0, 2.0, 0.5),
-        ];
+        let t3 = [DVec3::new(1.4, -0.5, 0.5), DVec3::new(-0.5, 1.4, 0.5), DVec3::new(2.0, 2.0, 0.5)];
         assert!(!tri_box_overlap(DVec3::splat(0.2), DVec3::splat(0.2), &t3));
     }
 }

@@ -43,13 +43,14 @@ struct LevelNode {
     first_child: u32,
     albedo_sum: Vec3,
     normal_sum: Vec3,
+    emission_sum: Vec3,
     weight: f32,
 }
 
 impl LevelNode {
     fn attr(&self) -> Attr {
         let w = self.weight.max(f32::MIN_POSITIVE);
-        Attr::pack(self.albedo_sum / w, self.normal_sum)
+        Attr::pack(self.albedo_sum / w, self.normal_sum, self.emission_sum / w)
     }
 }
 
@@ -61,10 +62,7 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
         return Err(BuildError::Depth(depth));
     }
     if !(grid.bounds.min.is_finite() && grid.bounds.size.is_finite() && grid.bounds.size > 0.0) {
-        return Err(BuildError::Bounds {
-            min: grid.bounds.min,
-            size: grid.bounds.size,
-        });
+        return Err(BuildError::Bounds { min: grid.bounds.min, size: grid.bounds.size });
     }
     if grid.voxels.is_empty() {
         return Err(BuildError::Empty);
@@ -74,34 +72,20 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
     let mut prev: Option<u64> = None;
     for (index, v) in grid.voxels.iter().enumerate() {
         if v.code >= limit || prev.is_some_and(|p| p >= v.code) {
-            return Err(BuildError::BadCode {
-                index,
-                code: v.code,
-                depth,
-            });
+            return Err(BuildError::BadCode { index, code: v.code, depth });
         }
         prev = Some(v.code);
-        let w = if v.weight.is_finite() && v.weight > 0.0 {
-            v.weight
-        } else {
-            f32::MIN_POSITIVE
-        };
-        let albedo = if v.albedo.is_finite() {
-            v.albedo
-        } else {
-            Vec3::splat(0.5)
-        };
-        let normal = if v.normal.is_finite() {
-            v.normal
-        } else {
-            Vec3::ZERO
-        };
+        let w = if v.weight.is_finite() && v.weight > 0.0 { v.weight } else { f32::MIN_POSITIVE };
+        let albedo = if v.albedo.is_finite() { v.albedo } else { Vec3::splat(0.5) };
+        let normal = if v.normal.is_finite() { v.normal } else { Vec3::ZERO };
+        let emission = if v.emission.is_finite() { v.emission.max(Vec3::ZERO) } else { Vec3::ZERO };
         leaves.push(LevelNode {
             code: v.code,
             valid: 0,
             first_child: 0,
             albedo_sum: albedo * w,
             normal_sum: normal.normalize_or_zero() * w,
+            emission_sum: emission * w,
             weight: w,
         });
     }
@@ -120,6 +104,7 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
                     p.valid |= 1 << octant;
                     p.albedo_sum += c.albedo_sum;
                     p.normal_sum += c.normal_sum;
+                    p.emission_sum += c.emission_sum;
                     p.weight += c.weight;
                 }
                 _ => parents.push(LevelNode {
@@ -128,6 +113,7 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
                     first_child: i as u32,
                     albedo_sum: c.albedo_sum,
                     normal_sum: c.normal_sum,
+                    emission_sum: c.emission_sum,
                     weight: c.weight,
                 }),
             }
@@ -157,10 +143,7 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
     };
     out.emit(0, 0, 0, None);
     Ok(Svo {
-        bounds: Cube {
-            min: grid.bounds.min,
-            size: grid.bounds.size,
-        },
+        bounds: Cube { min: grid.bounds.min, size: grid.bounds.size },
         depth,
         nodes: out.nodes,
         attrs: out.attrs,
@@ -203,11 +186,7 @@ impl Layout {
                 subtree[l][i] = m as u64 + f as u64 + kids.iter().sum::<u64>();
             }
         }
-        Layout {
-            subtree,
-            far_flags,
-            far_count,
-        }
+        Layout { subtree, far_flags, far_count }
     }
 }
 
@@ -266,10 +245,7 @@ impl Emitter<'_> {
                 Node::new((fs - slot) as u32, true, node.valid, 0, attr_base)
             }
             None => {
-                assert!(
-                    group - slot <= MAX_NEAR_POINTER as usize,
-                    "layout plan violated"
-                );
+                assert!(group - slot <= MAX_NEAR_POINTER as usize, "layout plan violated");
                 Node::new((group - slot) as u32, false, node.valid, 0, attr_base)
             }
         };
@@ -284,11 +260,7 @@ impl Emitter<'_> {
             };
             self.emit(level + 1, first + k, group + k, fs);
         }
-        debug_assert_eq!(
-            self.nodes.len() as u64,
-            group as u64 + self.layout.subtree[level][idx],
-            "subtree size plan"
-        );
+        debug_assert_eq!(self.nodes.len() as u64, group as u64 + self.layout.subtree[level][idx], "subtree size plan");
     }
 }
 

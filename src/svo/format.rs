@@ -33,10 +33,7 @@ impl Node {
     /// Packs a child descriptor. `ptr` must be at most [`MAX_NEAR_POINTER`].
     pub fn new(ptr: u32, far: bool, valid: u8, leaf: u8, attr_base: u32) -> Self {
         debug_assert!(ptr <= MAX_NEAR_POINTER);
-        Node {
-            desc: (ptr << 17) | ((far as u32) << 16) | ((valid as u32) << 8) | leaf as u32,
-            attr_base,
-        }
+        Node { desc: (ptr << 17) | ((far as u32) << 16) | ((valid as u32) << 8) | leaf as u32, attr_base }
     }
     /// Relative child pointer (to the child group, or to the far slot when [`Node::far`]).
     pub fn ptr(self) -> u32 {
@@ -62,24 +59,33 @@ impl Node {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct Attr {
-    /// R in the low byte, then G, B, A; RGB sRGB-encoded, A linear coverage (255 = opaque).
+    /// R in the low byte, then G, B, E: RGB the sRGB-encoded albedo, E the emission scale
+    /// (emitted radiance = albedo · E / 16; 0 = not emissive).
     pub albedo: u32,
     /// Octahedral normal: x in the low 16 bits, y in the high, both snorm16.
     pub normal: u32,
 }
 
 impl Attr {
-    /// Packs a linear albedo (clamped to [0, 1]) and a normal (normalized here; zero stays a
-    /// valid encoding of +Z so that decoding never yields NaN).
-    pub fn pack(albedo_linear: Vec3, normal: Vec3) -> Self {
-        let c = albedo_linear.clamp(Vec3::ZERO, Vec3::ONE);
+    /// Packs a linear albedo (clamped to [0, 1]), a normal (normalized here; zero stays a
+    /// valid encoding of +Z so that decoding never yields NaN) and an emitted radiance, stored
+    /// as a multiple of the albedo (its luminance ratio, in steps of 1/16 up to 15.9).
+    pub fn pack(albedo_linear: Vec3, normal: Vec3, emission: Vec3) -> Self {
+        let c = if albedo_linear.is_finite() { albedo_linear.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::splat(0.5) };
         let r = linear_to_srgb8(c.x) as u32;
         let g = linear_to_srgb8(c.y) as u32;
         let b = linear_to_srgb8(c.z) as u32;
-        Attr {
-            albedo: r | (g << 8) | (b << 16) | (255 << 24),
-            normal: encode_octahedral(normal),
-        }
+        let lum = |v: Vec3| v.dot(Vec3::new(0.2126, 0.7152, 0.0722));
+        let e = if emission.is_finite() && lum(emission) > 0.0 {
+            (lum(emission) / lum(c).max(1e-3) * 16.0).round().clamp(1.0, 255.0) as u32
+        } else {
+            0
+        };
+        Attr { albedo: r | (g << 8) | (b << 16) | (e << 24), normal: encode_octahedral(normal) }
+    }
+    /// Emitted radiance (linear RGB).
+    pub fn emission(self) -> Vec3 {
+        self.albedo_linear() * ((self.albedo >> 24) as f32 / 16.0)
     }
     /// Linear albedo in [0, 1].
     pub fn albedo_linear(self) -> Vec3 {
@@ -97,16 +103,8 @@ impl Attr {
 
 /// sRGB transfer function, linear → 8-bit code.
 pub fn linear_to_srgb8(x: f32) -> u8 {
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let s = if x <= 0.003_130_8 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    };
+    let x = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+    let s = if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 };
     (s * 255.0 + 0.5) as u8
 }
 
@@ -254,8 +252,7 @@ impl Svo {
     #[inline]
     pub fn child_attr(&self, slot: usize, octant: u32) -> Attr {
         let n = self.nodes[slot];
-        let i = n.attr_base as usize
-            + (n.valid() as u32 & ((1u32 << octant) - 1)).count_ones() as usize;
+        let i = n.attr_base as usize + (n.valid() as u32 & ((1u32 << octant) - 1)).count_ones() as usize;
         self.attrs[i]
     }
 
@@ -330,12 +327,7 @@ mod tests {
 
     #[test]
     fn morton_round_trip() {
-        for &(x, y, z) in &[
-            (0, 0, 0),
-            (1, 2, 3),
-            (0x1F_FFFF, 0, 0x12345),
-            (7, 0x1F_FFFF, 9),
-        ] {
+        for &(x, y, z) in &[(0, 0, 0), (1, 2, 3), (0x1F_FFFF, 0, 0x12345), (7, 0x1F_FFFF, 9)] {
             assert_eq!(morton_decode(morton_encode(x, y, z)), [x, y, z]);
         }
         assert_eq!(morton_encode(1, 0, 0), 1);
@@ -346,30 +338,20 @@ mod tests {
     #[test]
     fn descriptor_fields() {
         let n = Node::new(0x7FFF, true, 0xA5, 0x81, 7);
-        assert_eq!(
-            (n.ptr(), n.far(), n.valid(), n.leaf()),
-            (0x7FFF, true, 0xA5, 0x81)
-        );
+        assert_eq!((n.ptr(), n.far(), n.valid(), n.leaf()), (0x7FFF, true, 0xA5, 0x81));
     }
 
     #[test]
     fn attribute_round_trip() {
-        for n in [
-            Vec3::X,
-            -Vec3::Y,
-            Vec3::new(0.3, -0.5, -0.8).normalize(),
-            Vec3::new(-1.0, 2.0, 0.5).normalize(),
-        ] {
-            let a = Attr::pack(Vec3::new(0.2, 0.5, 0.9), n);
+        for n in [Vec3::X, -Vec3::Y, Vec3::new(0.3, -0.5, -0.8).normalize(), Vec3::new(-1.0, 2.0, 0.5).normalize()] {
+            let a = Attr::pack(Vec3::new(0.2, 0.5, 0.9), n, Vec3::ZERO);
+            assert_eq!(a.emission(), Vec3::ZERO);
             assert!(a.normal().dot(n) > 0.9999, "{n} -> {}", a.normal());
-            assert!(
-                (a.albedo_linear() - Vec3::new(0.2, 0.5, 0.9))
-                    .abs()
-                    .max_element()
-                    < 0.01
-            );
+            assert!((a.albedo_linear() - Vec3::new(0.2, 0.5, 0.9)).abs().max_element() < 0.01);
         }
-        assert!(Attr::pack(Vec3::ONE, Vec3::ZERO).normal().is_finite());
-        assert!(Attr::pack(Vec3::ONE, Vec3::NAN).normal().is_finite());
+        assert!(Attr::pack(Vec3::ONE, Vec3::ZERO, Vec3::ZERO).normal().is_finite());
+        assert!(Attr::pack(Vec3::ONE, Vec3::NAN, Vec3::NAN).normal().is_finite());
+        let e = Attr::pack(Vec3::new(0.9, 0.9, 0.8), Vec3::Z, Vec3::new(3.6, 3.6, 3.2)).emission();
+        assert!((e - Vec3::new(3.6, 3.6, 3.2)).abs().max_element() < 0.2, "{e}");
     }
 }

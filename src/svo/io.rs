@@ -33,9 +33,7 @@ pub enum SvoFileError {
     #[error("unsupported .svo version {0} (this build reads version {VERSION})")]
     Version(u32),
     /// File shorter or longer than its header says.
-    #[error(
-        "file is {actual} bytes but its header describes {expected} bytes (truncated or padded)"
-    )]
+    #[error("file is {actual} bytes but its header describes {expected} bytes (truncated or padded)")]
     Length {
         /// Length the header implies.
         expected: u64,
@@ -43,9 +41,7 @@ pub enum SvoFileError {
         actual: u64,
     },
     /// The stored checksum does not match the contents.
-    #[error(
-        "checksum mismatch: stored {stored:#010x}, computed {computed:#010x} (file corrupted)"
-    )]
+    #[error("checksum mismatch: stored {stored:#010x}, computed {computed:#010x} (file corrupted)")]
     Checksum {
         /// Checksum in the file.
         stored: u32,
@@ -71,12 +67,7 @@ pub fn to_bytes(svo: &Svo) -> Vec<u8> {
     b.extend_from_slice(&MAGIC);
     b.extend_from_slice(&VERSION.to_le_bytes());
     b.extend_from_slice(&svo.depth.to_le_bytes());
-    for v in [
-        svo.bounds.min.x,
-        svo.bounds.min.y,
-        svo.bounds.min.z,
-        svo.bounds.size,
-    ] {
+    for v in [svo.bounds.min.x, svo.bounds.min.y, svo.bounds.min.z, svo.bounds.size] {
         b.extend_from_slice(&v.to_le_bytes());
     }
     b.extend_from_slice(&svo.voxel_count.to_le_bytes());
@@ -99,10 +90,7 @@ pub fn to_bytes(svo: &Svo) -> Vec<u8> {
 /// Writes an SVO file atomically (temporary file, then rename), so a crash never leaves a
 /// half-written file behind under the final name.
 pub fn save(svo: &Svo, path: &Path) -> Result<(), SvoFileError> {
-    let io = |source| SvoFileError::Io {
-        path: path.display().to_string(),
-        source,
-    };
+    let io = |source| SvoFileError::Io { path: path.display().to_string(), source };
     let tmp = path.with_extension(format!("svo.tmp{}", std::process::id()));
     let mut f = std::fs::File::create(&tmp).map_err(io)?;
     f.write_all(&to_bytes(svo)).map_err(io)?;
@@ -113,15 +101,9 @@ pub fn save(svo: &Svo, path: &Path) -> Result<(), SvoFileError> {
 
 /// Reads and validates an SVO file.
 pub fn load(path: &Path) -> Result<Svo, SvoFileError> {
-    let io = |source| SvoFileError::Io {
-        path: path.display().to_string(),
-        source,
-    };
+    let io = |source| SvoFileError::Io { path: path.display().to_string(), source };
     let mut bytes = Vec::new();
-    std::fs::File::open(path)
-        .map_err(io)?
-        .read_to_end(&mut bytes)
-        .map_err(io)?;
+    std::fs::File::open(path).map_err(io)?.read_to_end(&mut bytes).map_err(io)?;
     from_bytes(&bytes)
 }
 
@@ -141,10 +123,7 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
         return Err(SvoFileError::BadMagic);
     }
     if b.len() < HEADER_LEN + 4 {
-        return Err(SvoFileError::Length {
-            expected: (HEADER_LEN + 4) as u64,
-            actual: b.len() as u64,
-        });
+        return Err(SvoFileError::Length { expected: (HEADER_LEN + 4) as u64, actual: b.len() as u64 });
     }
     let version = u32_at(b, 8);
     if version != VERSION {
@@ -158,10 +137,7 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
         .and_then(|n| n.checked_mul(8))
         .and_then(|n| n.checked_add(HEADER_LEN as u64 + 4));
     if expected != Some(b.len() as u64) {
-        return Err(SvoFileError::Length {
-            expected: expected.unwrap_or(u64::MAX),
-            actual: b.len() as u64,
-        });
+        return Err(SvoFileError::Length { expected: expected.unwrap_or(u64::MAX), actual: b.len() as u64 });
     }
     let body = b.len() - 4;
     let stored = u32_at(b, body);
@@ -171,16 +147,12 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     }
     let depth = u32_at(b, 12);
     if depth == 0 || depth > MAX_DEPTH {
-        return Err(SvoFileError::Header(format!(
-            "depth {depth} outside 1..={MAX_DEPTH}"
-        )));
+        return Err(SvoFileError::Header(format!("depth {depth} outside 1..={MAX_DEPTH}")));
     }
     let min = Vec3::new(f32_at(b, 16), f32_at(b, 20), f32_at(b, 24));
     let size = f32_at(b, 28);
     if !min.is_finite() || !size.is_finite() || size <= 0.0 {
-        return Err(SvoFileError::Header(format!(
-            "bounds min {min:?} size {size} not finite and positive"
-        )));
+        return Err(SvoFileError::Header(format!("bounds min {min:?} size {size} not finite and positive")));
     }
     let voxel_count = u64_at(b, 32);
     if node_count == 0 || attr_count == 0 {
@@ -189,27 +161,15 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     let mut o = HEADER_LEN;
     let mut nodes = Vec::with_capacity(node_count as usize);
     for _ in 0..node_count {
-        nodes.push(Node {
-            desc: u32_at(b, o),
-            attr_base: u32_at(b, o + 4),
-        });
+        nodes.push(Node { desc: u32_at(b, o), attr_base: u32_at(b, o + 4) });
         o += 8;
     }
     let mut attrs = Vec::with_capacity(attr_count as usize);
     for _ in 0..attr_count {
-        attrs.push(Attr {
-            albedo: u32_at(b, o),
-            normal: u32_at(b, o + 4),
-        });
+        attrs.push(Attr { albedo: u32_at(b, o), normal: u32_at(b, o + 4) });
         o += 8;
     }
-    let svo = Svo {
-        bounds: Cube { min, size },
-        depth,
-        nodes,
-        attrs,
-        voxel_count,
-    };
+    let svo = Svo { bounds: Cube { min, size }, depth, nodes, attrs, voxel_count };
     validate(&svo)?;
     Ok(svo)
 }
@@ -234,27 +194,17 @@ pub fn validate(svo: &Svo) -> Result<(), SvoFileError> {
             return Err(bad(slot, "empty valid mask".into()));
         }
         if leaf & !valid != 0 {
-            return Err(bad(
-                slot,
-                format!("leaf mask {leaf:#04x} not within valid mask {valid:#04x}"),
-            ));
+            return Err(bad(slot, format!("leaf mask {leaf:#04x} not within valid mask {valid:#04x}")));
         }
         let child_level = level + 1;
         if child_level == svo.depth && leaf != valid {
-            return Err(bad(
-                slot,
-                format!("children at the deepest level {child_level} must all be leaves"),
-            ));
+            return Err(bad(slot, format!("children at the deepest level {child_level} must all be leaves")));
         }
         let count = valid.count_ones() as u64;
         if node.attr_base as u64 + count > svo.attrs.len() as u64 || node.attr_base == 0 {
             return Err(bad(
                 slot,
-                format!(
-                    "attribute range {}+{count} outside 1..{}",
-                    node.attr_base,
-                    svo.attrs.len()
-                ),
+                format!("attribute range {}+{count} outside 1..{}", node.attr_base, svo.attrs.len()),
             ));
         }
         attrs_used += count;
@@ -269,10 +219,7 @@ pub fn validate(svo: &Svo) -> Result<(), SvoFileError> {
         }
         let p = slot as u64 + node.ptr() as u64;
         if node.ptr() == 0 || p >= n as u64 {
-            return Err(bad(
-                slot,
-                format!("child pointer {} out of range", node.ptr()),
-            ));
+            return Err(bad(slot, format!("child pointer {} out of range", node.ptr())));
         }
         let group = if node.far() {
             let fs = p as usize;
@@ -290,17 +237,11 @@ pub fn validate(svo: &Svo) -> Result<(), SvoFileError> {
         };
         let m = inner.count_ones() as usize;
         if group + m > n {
-            return Err(bad(
-                slot,
-                format!("child group {group}+{m} exceeds {n} slots"),
-            ));
+            return Err(bad(slot, format!("child group {group}+{m} exceeds {n} slots")));
         }
         for k in 0..m {
             if used[group + k] {
-                return Err(bad(
-                    slot,
-                    format!("child slot {} shared or overlapping", group + k),
-                ));
+                return Err(bad(slot, format!("child slot {} shared or overlapping", group + k)));
             }
             used[group + k] = true;
             stack.push((group + k, child_level));
@@ -316,10 +257,7 @@ pub fn validate(svo: &Svo) -> Result<(), SvoFileError> {
         )));
     }
     if voxels != svo.voxel_count {
-        return Err(SvoFileError::Header(format!(
-            "header says {} voxels, tree holds {voxels}",
-            svo.voxel_count
-        )));
+        return Err(SvoFileError::Header(format!("header says {} voxels, tree holds {voxels}", svo.voxel_count)));
     }
     Ok(())
 }
@@ -332,11 +270,7 @@ pub fn crc32(data: &[u8]) -> u32 {
         for (i, e) in t.iter_mut().enumerate() {
             let mut c = i as u32;
             for _ in 0..8 {
-                c = if c & 1 != 0 {
-                    0xEDB8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
+                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
             }
             *e = c;
         }

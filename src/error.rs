@@ -1,0 +1,35 @@
+//! The crate-wide error: every module's typed error, for callers that handle them alike.
+
+/// Any voxray error.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Loading a mesh.
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    /// Voxelizing.
+    #[error(transparent)]
+    Voxelize(#[from] crate::voxelize::VoxelizeError),
+    /// Building an SVO.
+    #[error(transparent)]
+    Build(#[from] crate::svo::BuildError),
+    /// Reading or writing an `.svo` file.
+    #[error(transparent)]
+    SvoFile(#[from] crate::svo::SvoFileError),
+    /// The camera.
+    #[error(transparent)]
+    Camera(#[from] crate::scene::CameraError),
+    /// The lights.
+    #[error(transparent)]
+    Lights(#[from] crate::scene::LightsError),
+    /// Writing images or AOVs.
+    #[error(transparent)]
+    Output(#[from] crate::render::output::OutputError),
+    /// Reading an input file (camera/lights JSON).
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The error.
+        source: std::io::Error,
+    },
+}

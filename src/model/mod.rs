@@ -1,0 +1,7 @@
+//! Procedural models shipped with voxray: the default car (`voxray model car` rewrites
+//! `models/car/`), plus OBJ/MTL writing for generated meshes.
+
+pub mod car;
+pub mod embedded;
+pub mod obj_writer;
+pub mod shapes;

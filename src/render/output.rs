@@ -1,0 +1,90 @@
+//! Writing frames: PNG (sRGB 8-bit of the linear radiance), EXR (linear float radiance) and
+//! the AOVs as `.npy` files (DESIGN.md: `t.npy`, `instance.npy`, `normal.npy`).
+
+use super::Frame;
+use crate::svo::format::linear_to_srgb8;
+use std::io::Write;
+use std::path::Path;
+
+/// Why output could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// File system failure.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path.
+        path: String,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// Encoding failure.
+    #[error("{path}: {message}")]
+    Encode {
+        /// The path.
+        path: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// Unknown image extension.
+    #[error("{0}: unknown image format (use .png or .exr)")]
+    Format(String),
+}
+
+/// 8-bit sRGB bytes (RGB) of the frame, radiance clamped to [0, 1] (no tone mapping).
+pub fn srgb8(frame: &Frame) -> Vec<u8> {
+    frame.radiance.iter().flat_map(|c| [linear_to_srgb8(c.x), linear_to_srgb8(c.y), linear_to_srgb8(c.z)]).collect()
+}
+
+/// Writes the frame as PNG or EXR, chosen by the extension.
+#[cfg(feature = "image-io")]
+pub fn write_image(frame: &Frame, path: &Path) -> Result<(), OutputError> {
+    let label = path.display().to_string();
+    let enc = |e: image::ImageError| OutputError::Encode { path: label.clone(), message: e.to_string() };
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("png") => image::RgbImage::from_raw(frame.width, frame.height, srgb8(frame))
+            .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?
+            .save(path)
+            .map_err(enc),
+        Some("exr") => {
+            let data: Vec<f32> = frame.radiance.iter().flat_map(|c| [c.x, c.y, c.z]).collect();
+            image::Rgb32FImage::from_raw(frame.width, frame.height, data)
+                .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?
+                .save(path)
+                .map_err(enc)
+        }
+        _ => Err(OutputError::Format(label)),
+    }
+}
+
+/// Writes `t.npy`, `instance.npy` and `normal.npy` into `dir` (created if missing).
+pub fn write_aovs(frame: &Frame, dir: &Path) -> Result<(), OutputError> {
+    let io = |p: &Path| {
+        let path = p.display().to_string();
+        move |source| OutputError::Io { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let (h, w) = (frame.height as usize, frame.width as usize);
+    let t: Vec<u8> = frame.t.iter().flat_map(|v| v.to_le_bytes()).collect();
+    write_npy(&dir.join("t.npy"), "<f4", &[h, w], &t).map_err(io(&dir.join("t.npy")))?;
+    let inst: Vec<u8> = frame.instance.iter().flat_map(|v| v.to_le_bytes()).collect();
+    write_npy(&dir.join("instance.npy"), "<i4", &[h, w], &inst).map_err(io(&dir.join("instance.npy")))?;
+    let n: Vec<u8> = frame.normal.iter().flat_map(|v| [v.x, v.y, v.z]).flat_map(|v| v.to_le_bytes()).collect();
+    write_npy(&dir.join("normal.npy"), "<f4", &[h, w, 3], &n).map_err(io(&dir.join("normal.npy")))
+}
+
+/// Writes one array in NumPy's `.npy` format (version 1.0, C order).
+pub fn write_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std::io::Result<()> {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape_s = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_s}, }}");
+    // Magic (6) + version (2) + length (2) + header + '\n' must be a multiple of 64.
+    let total = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - total % 64) % 64));
+    header.push('\n');
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    f.write_all(b"\x93NUMPY\x01\x00")?;
+    f.write_all(&(header.len() as u16).to_le_bytes())?;
+    f.write_all(header.as_bytes())?;
+    f.write_all(data)?;
+    f.flush()
+}

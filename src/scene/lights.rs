@@ -1,0 +1,95 @@
+//! Lights of DESIGN.md's interface: a sun (direction towards it, irradiance on a sun-facing
+//! plane), a uniform ambient sky (radiance), and MTL emitters.
+
+use glam::Vec3;
+
+/// A distant light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct Sun {
+    /// Direction towards the sun (normalized on validation).
+    pub to_sun: Vec3,
+    /// Irradiance on a plane facing the sun (linear RGB).
+    pub irradiance: Vec3,
+}
+
+/// Uniform sky.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct Ambient {
+    /// Radiance of the sky (linear RGB).
+    pub radiance: Vec3,
+}
+
+/// All lights of a scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct Lights {
+    /// The sun, if any.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub sun: Option<Sun>,
+    /// The sky, if any.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub ambient: Option<Ambient>,
+    /// Whether MTL `Ke` makes surfaces emissive.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub use_mtl_emitters: bool,
+}
+
+impl Default for Lights {
+    /// Afternoon sun from the front left, and a pale blue sky.
+    fn default() -> Self {
+        Lights {
+            sun: Some(Sun { to_sun: Vec3::new(0.55, 0.8, -0.35).normalize(), irradiance: Vec3::new(3.2, 3.0, 2.7) }),
+            ambient: Some(Ambient { radiance: Vec3::new(0.22, 0.27, 0.34) }),
+            use_mtl_emitters: false,
+        }
+    }
+}
+
+/// Why lights are unusable.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum LightsError {
+    /// A value is negative, NaN or infinite.
+    #[error("lights: {0} must be finite and non-negative")]
+    Value(&'static str),
+    /// The sun direction is zero or not finite.
+    #[error("lights: sun.to_sun must be a finite non-zero vector")]
+    Direction,
+    /// Malformed JSON.
+    #[error("lights JSON: {0}")]
+    Json(String),
+}
+
+impl Lights {
+    /// Checks values and normalizes the sun direction.
+    pub fn validated(mut self) -> Result<Self, LightsError> {
+        if let Some(sun) = &mut self.sun {
+            if !sun.irradiance.is_finite() || sun.irradiance.min_element() < 0.0 {
+                return Err(LightsError::Value("sun.irradiance"));
+            }
+            if !sun.to_sun.is_finite() || sun.to_sun.length_squared() == 0.0 {
+                return Err(LightsError::Direction);
+            }
+            sun.to_sun = sun.to_sun.normalize();
+        }
+        if let Some(a) = &self.ambient {
+            if !a.radiance.is_finite() || a.radiance.min_element() < 0.0 {
+                return Err(LightsError::Value("ambient.radiance"));
+            }
+        }
+        Ok(self)
+    }
+
+    /// Sky radiance (zero without an ambient light).
+    pub fn sky(&self) -> Vec3 {
+        self.ambient.map_or(Vec3::ZERO, |a| a.radiance)
+    }
+
+    /// Parses the lights JSON of DESIGN.md and validates it.
+    #[cfg(feature = "json")]
+    pub fn from_json(text: &str) -> Result<Lights, LightsError> {
+        let l: Lights = serde_json::from_str(text).map_err(|e| LightsError::Json(e.to_string()))?;
+        l.validated()
+    }
+}
