@@ -308,14 +308,7 @@ mod obj {
         warnings: &mut Vec<String>,
     ) -> Result<Material, MeshError> {
         let albedo = m.diffuse.map_or(Vec3::splat(0.7), Vec3::from);
-        let emission = m
-            .unknown_param
-            .get("Ke")
-            .and_then(|s| {
-                let v: Vec<f32> = s.split_whitespace().filter_map(|x| x.parse().ok()).collect();
-                (v.len() >= 3).then(|| Vec3::new(v[0], v[1], v[2]))
-            })
-            .unwrap_or(Vec3::ZERO);
+        let emission = m.emissive.map_or(Vec3::ZERO, Vec3::from);
         let bad = |what: &str| MeshError::Parse {
             path: format!("material '{}'", m.name),
             line: None,

@@ -22,7 +22,7 @@ const TRACK_Z: f32 = 0.79;
 /// Top of the lower body / bottom of the windows.
 const BELT: f32 = 0.98;
 /// Front door extent along x; the hinge is at the front edge.
-const DOOR_X: (f32, f32) = (-0.12, 0.98);
+const DOOR_X: (f32, f32) = (-0.12, 0.9);
 /// Door panel bottom.
 const DOOR_Y0: f32 = 0.42;
 /// How far door surfaces sit outside the body surface they cover.
@@ -284,7 +284,9 @@ fn wheel(centre: Vec3, outward: f32) -> Builder {
 /// Points of a door surface offset outward from the body (below the belt) or the cabin
 /// (above it).
 fn door_surface(x: f32, y: f32, side: f32, inset: f32) -> Vec3 {
-    let z = if y <= BELT { body_side_z(x, y) } else { cabin_half_w(y) };
+    // Below the belt follow the body's side, but never tuck under it (near the wheel arch the
+    // body's underside rises above the door's bottom edge).
+    let z = if y <= BELT { body_side_z(x, y).max(0.93 * body_section(x).2) } else { cabin_half_w(y) };
     Vec3::new(x, y, side * (z + DOOR_GAP - inset))
 }
 

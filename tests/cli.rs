@@ -1,0 +1,215 @@
+//! The `voxray` command line, end to end: images, AOVs in DESIGN.md's conventions, the SVO
+//! cache, and clear errors for bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn voxray(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_voxray")).args(args).output().expect("run voxray")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("voxray-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Reads a little-endian .npy file: (descr, shape, data bytes).
+fn read_npy(p: &Path) -> (String, Vec<usize>, Vec<u8>) {
+    let b = std::fs::read(p).unwrap();
+    assert_eq!(&b[..8], b"\x93NUMPY\x01\x00");
+    let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
+    assert_eq!((10 + hl) % 64, 0, "header padded to 64 bytes");
+    let header = std::str::from_utf8(&b[10..10 + hl]).unwrap();
+    let descr = header.split("'descr': '").nth(1).unwrap().split('\'').next().unwrap().to_string();
+    let shape_s = header.split("'shape': (").nth(1).unwrap().split(')').next().unwrap();
+    let shape = shape_s.split(',').filter(|x| !x.trim().is_empty()).map(|x| x.trim().parse().unwrap()).collect();
+    assert!(header.contains("'fortran_order': False"));
+    (descr, shape, b[10 + hl..].to_vec())
+}
+
+fn f32s(b: &[u8]) -> Vec<f32> {
+    b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
+
+#[test]
+fn help_lists_the_subcommands() {
+    let o = voxray(&["--help"]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    for cmd in ["render", "voxelize", "info", "stability", "model"] {
+        assert!(text.contains(cmd), "{cmd} missing from --help");
+    }
+}
+
+#[test]
+fn render_writes_image_and_aovs_by_the_conventions() {
+    let d = tmp("aov");
+    // Looking straight down at the 2x2 plane from 3 units up; 60° vertical field of view, so
+    // the image spans ±1.73 at the plane and the corners miss.
+    std::fs::write(
+        d.join("cam.json"),
+        r#"{"eye":[0,3,0],"target":[0,0,0],"up":[0,0,-1],"vfov_deg":60,"width":48,"height":32}"#,
+    )
+    .unwrap();
+    let (cache, cam, aov, png) = (d.join("cache"), d.join("cam.json"), d.join("aov"), d.join("plane.png"));
+    let args = [
+        "render",
+        "--obj",
+        "models/test/plane.obj",
+        "--camera-json",
+        s(&cam),
+        "--aov-dir",
+        s(&aov),
+        "--out",
+        s(&png),
+        "--cache-dir",
+        s(&cache),
+    ];
+    let o = voxray(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("Mrays/s") && err.contains("voxelize+build"), "timings printed: {err}");
+    let img = image::open(d.join("plane.png")).unwrap();
+    assert_eq!((img.width(), img.height()), (48, 32));
+
+    let (descr, shape, data) = read_npy(&d.join("aov/t.npy"));
+    assert_eq!((descr.as_str(), shape.as_slice()), ("<f4", &[32usize, 48][..]));
+    let t = f32s(&data);
+    let (_, ishape, idata) = read_npy(&d.join("aov/instance.npy"));
+    assert_eq!(ishape, [32, 48]);
+    let inst: Vec<i32> = idata.chunks_exact(4).map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    let (_, nshape, ndata) = read_npy(&d.join("aov/normal.npy"));
+    assert_eq!(nshape, [32, 48, 3]);
+    let n = f32s(&ndata);
+    // Centre pixel: hits the plane's top voxel layer (voxel 2/512) at t ≈ 3, normal +Y.
+    let c = 16 * 48 + 24;
+    let cos = {
+        // Pixel (24, 16) is half a pixel off the axis in each direction.
+        let tan_half = (30f64).to_radians().tan();
+        let sx = (2.0 * 24.5 / 48.0 - 1.0) * tan_half * 48.0 / 32.0;
+        let sy = (1.0 - 2.0 * 16.5 / 32.0) * tan_half;
+        1.0 / (1.0 + sx * sx + sy * sy).sqrt()
+    };
+    let expect = 3.0 / cos;
+    assert!((t[c] as f64 - expect).abs() < 2.0 * 2.0 / 512.0 / cos, "t {} expected ≈ {expect}", t[c]);
+    assert_eq!(inst[c], 0);
+    assert!((n[3 * c + 1] - 1.0).abs() < 1e-3, "normal {:?}", &n[3 * c..3 * c + 3]);
+    // Corners: misses are +inf, −1 and a zero normal.
+    assert!(t[0].is_infinite() && t[0] > 0.0);
+    assert_eq!(inst[0], -1);
+    assert_eq!(&n[0..3], &[0.0, 0.0, 0.0]);
+    assert!(t.iter().all(|v| !v.is_nan()) && n.iter().all(|v| v.is_finite()));
+
+    // A second run loads the SVO from the cache.
+    let o = voxray(&args);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cached"));
+    // A corrupted cache entry is reported and rebuilt, not fatal.
+    for e in std::fs::read_dir(&cache).unwrap() {
+        let p = e.unwrap().path();
+        let mut b = std::fs::read(&p).unwrap();
+        let last = b.len() - 10;
+        b[last] ^= 0xFF;
+        std::fs::write(&p, b).unwrap();
+    }
+    let o = voxray(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("checksum mismatch") && err.contains("rebuilding"), "{err}");
+}
+
+#[test]
+fn exr_holds_linear_radiance() {
+    let d = tmp("exr");
+    std::fs::write(
+        d.join("cam.json"),
+        r#"{"eye":[0,3,0],"target":[0,0,0],"up":[0,0,-1],"vfov_deg":60,"width":16,"height":16}"#,
+    )
+    .unwrap();
+    // Sun straight above with irradiance π: a default-grey (0.7) plane reflects 0.7·π·1/π = 0.7
+    // plus ambient 0.1·0.7; a miss shows the sky radiance 0.1.
+    std::fs::write(d.join("lights.json"), r#"{"sun":{"to_sun":[0,1,0],"irradiance":[3.14159265,3.14159265,3.14159265]},"ambient":{"radiance":[0.1,0.1,0.1]}}"#).unwrap();
+    let o = voxray(&[
+        "render",
+        "--obj",
+        "models/test/plane.obj",
+        "--camera-json",
+        s(&d.join("cam.json")),
+        "--lights-json",
+        s(&d.join("lights.json")),
+        "--out",
+        s(&d.join("p.exr")),
+        "--no-cache",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::open(d.join("p.exr")).unwrap().to_rgb32f();
+    let centre = img.get_pixel(8, 8)[0];
+    assert!((centre - 0.77).abs() < 0.01, "centre radiance {centre}");
+    assert!((img.get_pixel(0, 0)[0] - 0.1).abs() < 1e-6);
+}
+
+#[test]
+fn bad_input_gives_clear_errors() {
+    let d = tmp("bad");
+    let run = |args: &[&str]| {
+        let o = voxray(args);
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    let (code, err) = run(&["render", "--obj", "does/not/exist.obj", "--no-cache"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("does/not/exist.obj: file not found"), "{err}");
+
+    std::fs::write(
+        d.join("cam.json"),
+        r#"{"eye":[0,0,0],"target":[0,0,0],"up":[0,1,0],"vfov_deg":60,"width":8,"height":8}"#,
+    )
+    .unwrap();
+    let (code, err) =
+        run(&["render", "--obj", "models/test/cube.obj", "--camera-json", s(&d.join("cam.json")), "--no-cache"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("eye and target coincide"), "{err}");
+
+    std::fs::write(d.join("broken.json"), "{ not json").unwrap();
+    let (code, err) =
+        run(&["render", "--obj", "models/test/cube.obj", "--lights-json", s(&d.join("broken.json")), "--no-cache"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("broken.json") && err.contains("lights JSON"), "{err}");
+
+    std::fs::write(d.join("junk.svo"), b"VOXRSVO\0 truncated").unwrap();
+    let (code, err) = run(&["info", s(&d.join("junk.svo"))]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("truncated"), "{err}");
+
+    let (code, _) = run(&["render", "--depth", "0"]);
+    assert_eq!(code, Some(2), "clap rejects out-of-range depth");
+    let (code, err) = run(&[
+        "render",
+        "--obj",
+        "models/test/cube.obj",
+        "--out",
+        s(&d.join("x.bmp")),
+        "--no-cache",
+        "--width",
+        "8",
+        "--height",
+        "8",
+    ]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("unknown image format"), "{err}");
+}
+
+#[test]
+fn voxelize_and_info_round_trip() {
+    let d = tmp("vox");
+    let o =
+        voxray(&["voxelize", "--obj", "models/test/two_parts.obj", "--depth", "6", "--out-dir", s(&d), "--no-cache"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for part in ["left", "right"] {
+        let o = voxray(&["info", s(&d.join(format!("{part}.svo")))]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success() && out.contains("valid") && out.contains("B/voxel"), "{out}");
+    }
+}

@@ -1,0 +1,126 @@
+//! OBJ/MTL loading: parts, materials, textures, and clear typed errors for bad input.
+
+use glam::{Vec2, Vec3};
+use std::path::{Path, PathBuf};
+use voxray::mesh::{load_obj, MeshError};
+use voxray::voxelize::{voxelize, Resolution, VoxelizeOptions};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("voxray-mesh-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn parts_materials_and_degenerates() {
+    let m = load_obj(Path::new("models/test/two_parts.obj")).unwrap();
+    let names: Vec<&str> = m.parts.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["left", "right"]);
+    assert_eq!(m.parts[0].triangles.len(), 2, "material change must not split the part");
+    assert_eq!(m.degenerate_skipped, 1);
+    let mat = |p: usize, t: usize| &m.materials[m.parts[p].triangles[t].material as usize];
+    assert_eq!(mat(0, 0).name, "red");
+    assert_eq!(mat(0, 1).name, "green");
+    assert_eq!(mat(1, 0).emission, Vec3::splat(5.0));
+    let cube = load_obj(Path::new("models/test/cube.obj")).unwrap();
+    assert_eq!(cube.triangle_count(), 12);
+    assert_eq!(cube.materials[cube.parts[0].triangles[0].material as usize].albedo, Vec3::new(0.1, 0.2, 0.8));
+}
+
+#[test]
+fn missing_files_name_the_file() {
+    let e = load_obj(Path::new("models/test/nope.obj")).unwrap_err();
+    assert!(matches!(&e, MeshError::NotFound { path } if path.contains("nope.obj")), "{e}");
+    let d = tmp("mtl");
+    let p = write(&d, "a.obj", "mtllib gone.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let e = load_obj(&p).unwrap_err();
+    assert!(e.to_string().contains("gone.mtl"), "{e}");
+}
+
+#[test]
+fn parse_errors_carry_line_numbers() {
+    let d = tmp("parse");
+    let cases = [
+        ("v 0 0 0\nv 1 zero 0\n", 2, "not a number"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "out of range"),
+        ("v 0 0 0\nv 1 0 0\nf 1 2\n", 3, "at least 3"),
+        ("v 0 0\n", 1, "needs 3"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", 4, "out of range"),
+    ];
+    for (i, (text, line, what)) in cases.iter().enumerate() {
+        let p = write(&d, &format!("bad{i}.obj"), text);
+        let e = load_obj(&p).unwrap_err();
+        let msg = e.to_string();
+        assert!(matches!(e, MeshError::Parse { line: Some(l), .. } if l == *line), "case {i}: {msg}");
+        assert!(msg.contains(what) && msg.contains(&format!("bad{i}.obj:{line}")), "case {i}: {msg}");
+    }
+}
+
+#[test]
+fn non_finite_coordinates_name_line_and_object() {
+    let d = tmp("nan");
+    for bad in ["nan", "inf", "-inf", "NaN"] {
+        let p = write(&d, "n.obj", &format!("o good\nv 0 0 0\no wheel\nv 1 {bad} 0\nv 0 1 0\nf 1 2 3\n"));
+        let e = load_obj(&p).unwrap_err();
+        assert!(matches!(&e, MeshError::NonFinite { line: 4, object, .. } if object == "wheel"), "{bad}: {e}");
+    }
+}
+
+#[test]
+fn empty_and_all_degenerate_meshes_are_errors() {
+    let d = tmp("empty");
+    for (name, text) in
+        [("e1.obj", ""), ("e2.obj", "# only a comment\nv 0 0 0\n"), ("e3.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n")]
+    {
+        let p = write(&d, name, text);
+        assert!(matches!(load_obj(&p), Err(MeshError::Empty { .. })), "{name}");
+    }
+}
+
+#[test]
+fn textures_are_sampled_at_the_triangle_uvs() {
+    let d = tmp("tex");
+    // 4x1 texture: left half pure red, right half pure blue (sRGB 255 → linear 1).
+    let img =
+        image::RgbImage::from_fn(4, 1, |x, _| if x < 2 { image::Rgb([255, 0, 0]) } else { image::Rgb([0, 0, 255]) });
+    img.save(d.join("t.png")).unwrap();
+    write(&d, "t.mtl", "newmtl tex\nKd 1 1 1\nmap_Kd t.png\n");
+    // Two quads side by side: the left one maps to u in [0.2, 0.35] (bilinear footprint within
+    // the red texels), the right one to [0.65, 0.8] (blue).
+    let p = write(
+        &d,
+        "t.obj",
+        "mtllib t.mtl\nusemtl tex\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 3 0 0\nv 3 1 0\nv 2 1 0\n\
+         vt 0.2 0\nvt 0.35 0\nvt 0.35 1\nvt 0.2 1\nvt 0.65 0\nvt 0.8 0\nvt 0.8 1\nvt 0.65 1\n\
+         f 1/1 2/2 3/3 4/4\nf 5/5 6/6 7/7 8/8\n",
+    );
+    let m = load_obj(&p).unwrap();
+    assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    let tex = m.materials[0].texture.as_ref().expect("texture loaded");
+    assert_eq!((tex.width, tex.height), (4, 1));
+    assert!((tex.sample(Vec2::new(0.3, 0.5)) - Vec3::X).length() < 1e-6);
+    assert!((tex.sample(Vec2::new(0.7, 0.5)) - Vec3::Z).length() < 1e-6);
+    let opts = VoxelizeOptions { resolution: Resolution::Depth(4), solid: false };
+    let g = voxelize(&m.parts[0], &m.materials, &opts, &|_, _| {}).unwrap();
+    let (mut red, mut blue) = (0, 0);
+    for (v, c) in g.voxels.iter().zip(g.coords()) {
+        // Cube covers x in [-0.5, 3.5): voxels 0..=5 hold the left quad, 10..16 the right.
+        if c[0] <= 5 && v.albedo.x > 0.9 && v.albedo.z < 0.1 {
+            red += 1;
+        }
+        if c[0] >= 10 && v.albedo.z > 0.9 && v.albedo.x < 0.1 {
+            blue += 1;
+        }
+    }
+    assert!(red > 10 && blue > 10, "red {red} blue {blue}");
+    // A missing texture is a warning and the material falls back to Kd.
+    write(&d, "t.mtl", "newmtl tex\nKd 0.3 0.3 0.3\nmap_Kd missing.png\n");
+    let m = load_obj(&p).unwrap();
+    assert!(m.materials[0].texture.is_none() && m.warnings.len() == 1, "{:?}", m.warnings);
+}

@@ -1,0 +1,168 @@
+//! The .svo format: round trips, far pointers, depth limits, and corrupted files giving typed
+//! errors (never a panic, never a huge allocation).
+
+use glam::{DVec3, Vec3};
+use voxray::oracle::{dda, Contact, VoxelSet};
+use voxray::ray::UnitRay;
+use voxray::rng::Rng;
+use voxray::svo::io::{crc32, from_bytes, to_bytes, validate, SvoFileError, HEADER_LEN};
+use voxray::svo::{self, Cube, Svo};
+use voxray::traverse::{trace_unit, TraceOptions};
+use voxray::voxelize::VoxelGrid;
+
+fn unit() -> Cube {
+    Cube { min: Vec3::ZERO, size: 1.0 }
+}
+
+fn random_svo(depth: u32, n: usize, seed: u64) -> (Svo, Vec<[u32; 3]>) {
+    let mut rng = Rng::new(seed);
+    let side = 1u64 << depth;
+    let coords: Vec<[u32; 3]> = (0..n).map(|_| [0; 3].map(|_: u32| rng.below(side) as u32)).collect();
+    let grid = VoxelGrid::from_coords(depth, unit(), coords.iter().copied(), Vec3::splat(0.5));
+    (svo::build(&grid).unwrap(), coords)
+}
+
+/// Re-seals bytes after tampering so that structural validation, not the checksum, is tested.
+fn reseal(b: &mut [u8]) {
+    let n = b.len() - 4;
+    let c = crc32(&b[..n]);
+    b[n..].copy_from_slice(&c.to_le_bytes());
+}
+
+#[test]
+fn round_trip_is_identical() {
+    let (s, _) = random_svo(6, 3000, 1);
+    let back = from_bytes(&to_bytes(&s)).unwrap();
+    assert_eq!(back, s);
+    let dir = std::env::temp_dir().join(format!("voxray-svo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("a.svo");
+    svo::io::save(&s, &p).unwrap();
+    assert_eq!(svo::io::load(&p).unwrap(), s);
+    assert!(matches!(svo::io::load(&dir.join("missing.svo")), Err(SvoFileError::Io { .. })));
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn every_single_byte_flip_and_truncation_is_an_error() {
+    let (s, _) = random_svo(4, 60, 2);
+    let bytes = to_bytes(&s);
+    for i in 0..bytes.len() {
+        for bit in [0x01u8, 0x80] {
+            let mut b = bytes.clone();
+            b[i] ^= bit;
+            assert!(from_bytes(&b).is_err(), "flip of bit {bit:#x} at byte {i} accepted");
+        }
+    }
+    for len in 0..bytes.len() {
+        assert!(from_bytes(&bytes[..len]).is_err(), "truncation to {len} accepted");
+    }
+    let mut longer = bytes.clone();
+    longer.push(0);
+    assert!(matches!(from_bytes(&longer), Err(SvoFileError::Length { .. })));
+}
+
+#[test]
+fn hostile_headers_and_structures_are_refused() {
+    let (s, _) = random_svo(5, 400, 3);
+    let bytes = to_bytes(&s);
+    // Absurd counts: must not allocate, must say the length is wrong.
+    let mut b = bytes.clone();
+    b[40..48].copy_from_slice(&u64::MAX.to_le_bytes());
+    reseal(&mut b);
+    assert!(matches!(from_bytes(&b), Err(SvoFileError::Length { .. })));
+    // Version, depth and bounds.
+    let mut b = bytes.clone();
+    b[8] = 9;
+    reseal(&mut b);
+    assert!(matches!(from_bytes(&b), Err(SvoFileError::Version(9))));
+    let mut b = bytes.clone();
+    b[12..16].copy_from_slice(&40u32.to_le_bytes());
+    reseal(&mut b);
+    assert!(matches!(from_bytes(&b), Err(SvoFileError::Header(_))));
+    let mut b = bytes.clone();
+    b[28..32].copy_from_slice(&f32::NAN.to_le_bytes());
+    reseal(&mut b);
+    assert!(matches!(from_bytes(&b), Err(SvoFileError::Header(_))));
+    assert!(matches!(from_bytes(b"not an svo file at all"), Err(SvoFileError::BadMagic)));
+    // Every corruption of a descriptor or attribute base that keeps the checksum valid must be
+    // caught by the structural checks or leave a tree that still validates (e.g. a changed
+    // attribute base that points at other valid attributes is harmless).
+    let mut rng = Rng::new(9);
+    let mut caught = 0;
+    for _ in 0..2000 {
+        let mut b = bytes.clone();
+        let slot = rng.below(s.nodes.len() as u64) as usize;
+        let off = HEADER_LEN + slot * 8 + rng.below(8) as usize;
+        b[off] ^= 1 << rng.below(8);
+        reseal(&mut b);
+        match from_bytes(&b) {
+            Err(SvoFileError::Node { .. }) | Err(SvoFileError::Header(_)) => caught += 1,
+            Err(e) => panic!("unexpected error kind {e}"),
+            Ok(t) => validate(&t).unwrap(),
+        }
+    }
+    assert!(caught > 1000, "only {caught} of 2000 structural corruptions detected");
+}
+
+#[test]
+fn far_pointers_are_used_and_traverse_correctly() {
+    // ~120k voxels at depth 9: subtrees exceed the 15-bit pointer range.
+    let (s, coords) = random_svo(9, 120_000, 4);
+    let stats = s.stats();
+    assert!(stats.far_slots > 0, "expected far pointers, stats {stats:?}");
+    validate(&s).unwrap();
+    assert_eq!(from_bytes(&to_bytes(&s)).unwrap(), s);
+    let set = VoxelSet::new(9, coords);
+    let mut rng = Rng::new(5);
+    for _ in 0..3000 {
+        let o = Vec3::new(rng.range(-0.5, 1.5), rng.range(-0.5, 1.5), rng.range(-0.5, 1.5));
+        let d = rng.unit_vector();
+        let got = UnitRay::from_unit(o.as_dvec3(), d.as_dvec3())
+            .and_then(|u| trace_unit(&s, &u, &TraceOptions::default()).hit);
+        let want = dda(&set, o.as_dvec3(), d.as_dvec3(), 0.0, f64::INFINITY, Contact::Closed);
+        assert_eq!(got.map(|h| h.coord), want.map(|w| w.coord), "ray {o} {d}");
+    }
+}
+
+#[test]
+fn depth_16_and_20_trees_build_and_trace() {
+    for depth in [16u32, 20] {
+        // A diagonal line of voxels through the whole grid plus a blob near the far corner.
+        let n = 1u32 << depth;
+        let mut coords: Vec<[u32; 3]> = (0..4096u32).map(|i| [i * (n / 4096); 3]).collect();
+        coords.extend((0..512u32).map(|i| [n - 1 - i % 8, n - 1 - (i / 8) % 8, n - 1 - i / 64]));
+        let grid = VoxelGrid::from_coords(depth, unit(), coords.iter().copied(), Vec3::ONE);
+        let s = svo::build(&grid).unwrap();
+        assert_eq!(s.depth, depth);
+        assert_eq!(from_bytes(&to_bytes(&s)).unwrap(), s);
+        // Aim axis-parallel rays at individual voxels of the line; each must hit exactly it.
+        for &c in coords[..4096].iter().step_by(97) {
+            let centre = DVec3::new(c[0] as f64 + 0.5, c[1] as f64 + 0.5, c[2] as f64 + 0.5) / n as f64;
+            let o = DVec3::new(centre.x, centre.y, -0.25);
+            let u = UnitRay::from_unit(o, DVec3::Z).unwrap();
+            let hit = trace_unit(&s, &u, &TraceOptions::default()).hit.expect("hit");
+            assert_eq!(hit.coord, c, "depth {depth}");
+            let expect_t = 0.25 + c[2] as f64 / n as f64;
+            assert!((hit.t as f64 - expect_t).abs() <= 1e-6 * expect_t, "depth {depth}: t {} vs {expect_t}", hit.t);
+        }
+    }
+    // Beyond the supported depth: a clear error.
+    let grid = VoxelGrid::from_coords(21, unit(), [[0, 0, 0]], Vec3::ONE);
+    assert_eq!(svo::build(&grid), Err(svo::BuildError::Depth(21)));
+}
+
+#[test]
+fn interior_nodes_average_their_children() {
+    let mut grid = VoxelGrid::from_coords(1, unit(), [[0, 0, 0], [1, 1, 1]], Vec3::ZERO);
+    grid.voxels[0].albedo = Vec3::new(1.0, 0.0, 0.0);
+    grid.voxels[1].albedo = Vec3::new(0.0, 0.0, 1.0);
+    let s = svo::build(&grid).unwrap();
+    let root = s.attrs[0].albedo_linear();
+    assert!((root - Vec3::new(0.5, 0.0, 0.5)).abs().max_element() < 0.01, "{root}");
+    // LOD 0 returns the root with the averaged colour.
+    let u = UnitRay::from_unit(DVec3::new(0.5, 0.5, -1.0), DVec3::Z).unwrap();
+    let hit = trace_unit(&s, &u, &TraceOptions { max_level: 0, ..Default::default() }).hit.unwrap();
+    assert_eq!(hit.level, 0);
+    assert!((hit.t - 1.0).abs() < 1e-6);
+}
