@@ -36,6 +36,18 @@ pub const PARALLEL_RATIO: f32 = 1.0 / (1u64 << 40) as f32;
 /// as misses): the cube subtends less than 2⁻⁴⁰ of their view and f32 cannot resolve it.
 pub const MAX_UNIT_ORIGIN: f32 = (1u64 << 40) as f32;
 
+/// 2^-floor(log2 m) for a positive finite m, read off the exponent bits (this runs per ray
+/// and part; `log2` was a fifth of the render time).
+fn inverse_pow2_floor(m: f64) -> f64 {
+    let biased = ((m.to_bits() >> 52) & 0x7FF) as i64;
+    if (2..2046).contains(&biased) {
+        // m = 1.f × 2^(biased − 1023)  →  2^(1023 − biased) has biased exponent 2046 − biased.
+        f64::from_bits(((2046 - biased) as u64) << 52)
+    } else {
+        2f64.powi(-(m.log2().floor() as i32))
+    }
+}
+
 /// Bit i set: direction component i counts as parallel (see [`PARALLEL_RATIO`]). Shared by
 /// the traversal and the DDA oracle so both classify a ray the same way.
 pub fn parallel_axes(dir: DVec3) -> u32 {
@@ -84,12 +96,12 @@ impl UnitRay {
             return None;
         }
         let m = dir.abs().max_element();
-        if m <= 0.0 {
+        // Below 1e-300 the rescale would leave f64's normal range; such a ray does not move.
+        if !(m >= 1e-300) {
             return None;
         }
         // Power-of-two rescale: exact, so t converts back without rounding.
-        let k = -(m.log2().floor() as i32);
-        let t_scale = 2f64.powi(k);
+        let t_scale = inverse_pow2_floor(m);
         let d = dir * t_scale;
         let mut out = UnitRay { origin: [0.0; 3], inv_dir: [0.0; 3], mirror: 0, parallel: 0, t_scale };
         let parallel = parallel_axes(dir);
@@ -143,6 +155,15 @@ mod tests {
         assert!(UnitRay::from_unit(DVec3::NAN, DVec3::X).is_none());
         assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::new(f64::INFINITY, 0.0, 0.0)).is_none());
         assert!(UnitRay::from_unit(DVec3::splat(1e13), DVec3::X).is_none());
+        assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::new(1e-310, 0.0, 0.0)).is_none());
+    }
+
+    #[test]
+    fn inverse_pow2_matches_log2() {
+        for m in [1.0, 1.5, 0.75, 3e-30, 7e20, 2f64.powi(-1021), 1e-300, 1e300, 0.999_999_999] {
+            assert_eq!(inverse_pow2_floor(m), 2f64.powi(-(m.log2().floor() as i32)), "{m}");
+            assert!((1.0..2.0).contains(&(m * inverse_pow2_floor(m))), "{m}");
+        }
     }
 
     #[test]

@@ -108,14 +108,17 @@ pub fn linear_to_srgb8(x: f32) -> u8 {
     (s * 255.0 + 0.5) as u8
 }
 
-/// sRGB transfer function, 8-bit code → linear.
+/// sRGB transfer function, 8-bit code → linear (a table: this runs for every shaded hit).
 pub fn srgb8_to_linear(c: u8) -> f32 {
-    let s = c as f32 / 255.0;
-    if s <= 0.040_45 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
+    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = [0.0; 256];
+        for (i, v) in t.iter_mut().enumerate() {
+            let s = i as f32 / 255.0;
+            *v = if s <= 0.040_45 { s / 12.92 } else { ((s + 0.055) / 1.055).powf(2.4) };
+        }
+        t
+    })[c as usize]
 }
 
 fn encode_octahedral(n: Vec3) -> u32 {
