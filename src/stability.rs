@@ -254,6 +254,15 @@ pub fn scene_shell(depth: u32) -> Vec<[u32; 3]> {
     out
 }
 
+/// The default car's body voxelized at `depth` (a real surface: thin walls, curved panels).
+pub fn scene_car_body(depth: u32) -> Vec<[u32; 3]> {
+    let mesh = crate::model::car::mesh();
+    let opts = crate::voxelize::VoxelizeOptions { resolution: crate::voxelize::Resolution::Depth(depth), solid: false };
+    crate::voxelize::voxelize(&mesh.parts[0], &mesh.materials, &opts, &|_, _| {})
+        .map(|g| g.coords().collect())
+        .unwrap_or_default()
+}
+
 /// A compact random blob 2^16 deep: a 64³ window placed far from the origin of the grid.
 pub fn scene_deep(depth: u32, seed: u64) -> Vec<[u32; 3]> {
     let mut rng = Rng::new(seed);
@@ -301,10 +310,13 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
             })
             .collect::<Vec<_>>()
     };
-    let r = random(&mut rng, &blobs, 6, random_rays / 2);
+    let r = random(&mut rng, &blobs, 6, random_rays * 2 / 5);
     cases.push(make_case("random rays, blobs d6", 6, blobs.clone(), r, None));
-    let r = random(&mut rng, &shell, 7, random_rays / 2);
+    let r = random(&mut rng, &shell, 7, random_rays * 2 / 5);
     cases.push(make_case("random rays, shell d7", 7, shell.clone(), r, None));
+    let car = scene_car_body(8);
+    let r = random(&mut rng, &car, 8, random_rays - 2 * (random_rays * 2 / 5));
+    cases.push(make_case("random rays, car body d8", 8, car, r, None));
 
     // Random [t_min, t_max] intervals, including origins inside the cube.
     let mut r = random(&mut rng, &blobs, 6, 20_000);

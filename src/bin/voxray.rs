@@ -359,9 +359,20 @@ fn stability_cmd(rays: usize, out: Option<PathBuf>) -> Result<(), Error> {
     );
     if let Some(p) = out {
         let md = format!(
-            "# Stability suite\n\nProduced by `voxray stability --rays {rays} --out {}` (release build). Each row traces \
-             a family of rays through an SVO and compares every ray with the brute-force DDA oracle \
-             (`src/oracle.rs`); see the rules at the top of `src/stability.rs`.\n\n{tbl}",
+            "# Stability suite\n\nProduced by `voxray stability --rays {rays} --out {}` (release build; `cargo test` runs \
+             the same cases through `tests/stability.rs` and fails on any NaN, mismatch or aborted loop).\n\n\
+             Each row traces a family of stiff or adversarial rays through an SVO and compares every ray with the \
+             brute-force Amanatides–Woo DDA oracle (`src/oracle.rs`, f64, no octree). Columns:\n\n\
+             - **oracle hits**: rays the oracle says hit a voxel (the rest must miss).\n\
+             - **NaN**: results with a non-finite t or normal.\n\
+             - **misses vs oracle**: wrong voxel, wrong t, or hit/miss disagreement.\n\
+             - **accepted ties**: the ray passes exactly through an edge or corner (or starts on a face), so several \
+             voxels are touched at the same t; the answer is accepted only if the voxel named is occupied, touched \
+             within 10⁻⁶ (relative) at that t, and no voxel is entered for longer than that before it.\n\
+             - **max rel. |Δt|**: largest |t − exact f64 entry t of the voxel| / max(|t|, one cube width in t); the \
+             bound is 10⁻⁵.\n\
+             - **max loop count / loop bound**: iterations of the traversal loop against the proven bound \
+             5·(3·(2^depth − 1) + depth) + 1 (`traverse::step_bound`).\n\n{tbl}",
             p.display()
         );
         std::fs::write(&p, md).map_err(|source| Error::Io { path: p.display().to_string(), source })?;
