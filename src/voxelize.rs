@@ -13,6 +13,11 @@ use glam::{DVec2, DVec3, Vec3};
 /// cells (512³ = 16 MiB) and may create tens of millions of interior voxels.
 pub const SOLID_MAX_DEPTH: u32 = 9;
 
+/// Largest number of voxels one part may produce: building costs about 200 bytes per voxel
+/// at peak (entries, levels, the node and attribute arrays), so this keeps a build under
+/// ~12 GiB on a 24 GiB machine instead of letting the system kill it.
+pub const MAX_VOXELS: u64 = 60_000_000;
+
 /// How fine to voxelize.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Resolution {
@@ -94,6 +99,16 @@ pub enum VoxelizeError {
     /// Solid fill asked for a grid finer than [`SOLID_MAX_DEPTH`].
     #[error("solid fill supports depth ≤ {SOLID_MAX_DEPTH}, asked for {0} (use a surface voxelization or a coarser voxel size)")]
     SolidTooDeep(u32),
+    /// The part would produce more than [`MAX_VOXELS`] voxels.
+    #[error("part '{part}' at depth {depth} would have about {estimate} million voxels (the limit is {} million); use a smaller --depth or a larger --voxel-size", MAX_VOXELS / 1_000_000)]
+    TooManyVoxels {
+        /// Part name.
+        part: String,
+        /// Grid depth asked for.
+        depth: u32,
+        /// Estimated voxels, in millions.
+        estimate: u64,
+    },
     /// Non-finite vertex coordinates.
     #[error("part '{0}' has non-finite vertex coordinates")]
     NonFinite(String),
@@ -159,6 +174,23 @@ pub fn voxelize(
     }
     let total = part.triangles.len();
     let scale = (1u64 << depth) as f64 / bounds.size as f64;
+    // A surface of area A covers at least A / voxel² voxels; refuse before allocating.
+    let area: f64 = part
+        .triangles
+        .iter()
+        .map(|t| {
+            let p = t.positions.map(|v| v.as_dvec3());
+            (p[1] - p[0]).cross(p[2] - p[0]).length() * 0.5
+        })
+        .sum();
+    let estimate = area * scale * scale + total as f64;
+    if estimate > MAX_VOXELS as f64 {
+        return Err(VoxelizeError::TooManyVoxels {
+            part: part.name.clone(),
+            depth,
+            estimate: (estimate / 1e6).round() as u64,
+        });
+    }
     let origin = bounds.min.as_dvec3();
     let voxel_area = (bounds.size as f64 / (1u64 << depth) as f64).powi(2);
     let ctx = Ctx { depth, scale, origin, voxel_area, materials };
@@ -222,24 +254,26 @@ pub fn voxelize(
     Ok(VoxelGrid { depth, bounds, voxels })
 }
 
+/// One triangle's contribution to one voxel (48 bytes: there are tens of millions of these
+/// in a deep build).
 #[derive(Clone, Copy)]
 struct Entry {
     code: u64,
-    weight: f64,
-    albedo_w: DVec3,
-    normal_w: DVec3,
-    emission_w: DVec3,
+    weight: f32,
+    albedo_w: Vec3,
+    normal_w: Vec3,
+    emission_w: Vec3,
 }
 
 impl Entry {
     fn finish(self) -> Voxel {
-        let w = self.weight.max(1e-300);
+        let w = self.weight.max(f32::MIN_POSITIVE);
         Voxel {
             code: self.code,
-            albedo: (self.albedo_w / w).as_vec3(),
-            normal: (self.normal_w / w).as_vec3(),
-            emission: (self.emission_w / w).as_vec3(),
-            weight: self.weight as f32,
+            albedo: self.albedo_w / w,
+            normal: self.normal_w / w,
+            emission: self.emission_w / w,
+            weight: self.weight,
         }
     }
 }
@@ -290,12 +324,13 @@ impl Ctx<'_> {
                     });
                     m.albedo_at(uv.map(|p: DVec2| p.as_vec2())).as_dvec3()
                 });
+                let w = area_obj as f32;
                 out.push(Entry {
                     code: morton_encode(c[0] as u32, c[1] as u32, c[2] as u32),
-                    weight: area_obj,
-                    albedo_w: albedo * area_obj,
-                    normal_w: normal * area_obj,
-                    emission_w: mat.map_or(DVec3::ZERO, |m| m.emission.as_dvec3()) * area_obj,
+                    weight: w,
+                    albedo_w: albedo.as_vec3() * w,
+                    normal_w: normal.as_vec3() * w,
+                    emission_w: mat.map_or(Vec3::ZERO, |m| m.emission) * w,
                 });
                 continue;
             }

@@ -26,6 +26,9 @@ to voxray.png (the same as `voxray render`).")]
 struct Cli {
     #[command(subcommand)]
     cmd: Option<Cmd>,
+    /// Worker threads (default: one per core).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
 }
 
 #[derive(Subcommand)]
@@ -122,6 +125,11 @@ struct VoxelizeArgs {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(n) = cli.threads {
+        if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
+            eprintln!("warning: could not set {n} threads: {e}");
+        }
+    }
     let result = match cli.cmd {
         None => render_cmd(RenderArgs::parse_from(["render"])),
         Some(Cmd::Render(a)) => render_cmd(a),

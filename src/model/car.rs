@@ -415,10 +415,8 @@ pub fn build() -> Vec<CarPart> {
 /// rounding), for callers built without OBJ support.
 pub fn mesh() -> crate::mesh::Mesh {
     use crate::mesh::{Material, Mesh, Part, Triangle};
-    let materials: Vec<Material> = MATERIALS
-        .iter()
-        .map(|m| Material { emission: m.ke, ..Material::new(m.name, m.kd) })
-        .collect();
+    let materials: Vec<Material> =
+        MATERIALS.iter().map(|m| Material { emission: m.ke, ..Material::new(m.name, m.kd) }).collect();
     let index = |name: &str| MATERIALS.iter().position(|m| m.name == name).unwrap_or(0) as u32;
     let parts = build()
         .into_iter()

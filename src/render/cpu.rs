@@ -44,6 +44,9 @@ pub struct Frame {
     pub shadow_rays: u64,
 }
 
+/// One row of each frame buffer, as rayon's zipped chunk iterators hand them out.
+type RowBuffers<'a> = (((&'a mut [Vec3], &'a mut [f32]), &'a mut [i32]), &'a mut [Vec3]);
+
 struct Nearest {
     t: f32,
     part: usize,
@@ -87,78 +90,85 @@ pub fn render(
     let sky = lights.sky();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
     let done = std::sync::atomic::AtomicU32::new(0);
-    let row = |py: u32| -> Vec<(Vec3, f32, i32, Vec3, u64)> {
-        let out = (0..w)
-            .map(|px| {
-                let dir = camera.ray_dir(&basis, px, py);
-                let Some(n) = nearest(parts, camera.eye, dir, &trace_opts) else {
-                    return (sky, f32::INFINITY, -1, Vec3::ZERO, 0);
+    let shadow_rays = std::sync::atomic::AtomicU64::new(0);
+    let pixel = |px: u32, py: u32| -> (Vec3, f32, i32, Vec3) {
+        let dir = camera.ray_dir(&basis, px, py);
+        let Some(n) = nearest(parts, camera.eye, dir, &trace_opts) else {
+            return (sky, f32::INFINITY, -1, Vec3::ZERO);
+        };
+        let part = &parts[n.part];
+        let dir32 = dir.as_vec3();
+        let mut normal = n.hit.normal();
+        if !(normal.length_squared() > 0.5) {
+            normal = if n.hit.face_normal != Vec3::ZERO { n.hit.face_normal } else { -dir32 };
+        }
+        // Two-sided surfaces: shade the side facing the camera.
+        if normal.dot(dir32) > 0.0 {
+            normal = -normal;
+        }
+        let albedo = n.hit.albedo();
+        let mut radiance = albedo * sky;
+        if let Some(sun) = lights.sun {
+            let cos = normal.dot(sun.to_sun);
+            if cos > 0.0 {
+                let p = camera.eye + dir * n.t as f64;
+                let visible = !opts.shadows || {
+                    shadow_rays.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    // Leave the hit voxel: one voxel along the normal, a little along the
+                    // entered face, so the voxel does not shadow itself.
+                    let voxel = part.bounds.voxel_size(n.hit.level) as f64;
+                    let start = p + normal.as_dvec3() * voxel + n.hit.face_normal.as_dvec3() * (0.1 * voxel);
+                    !occluded(parts, start, sun.to_sun.as_dvec3())
                 };
-                let part = &parts[n.part];
-                let dir32 = dir.as_vec3();
-                let mut normal = n.hit.normal();
-                if !(normal.length_squared() > 0.5) {
-                    normal = if n.hit.face_normal != Vec3::ZERO { n.hit.face_normal } else { -dir32 };
+                if visible {
+                    radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
                 }
-                // Two-sided surfaces: shade the side facing the camera.
-                if normal.dot(dir32) > 0.0 {
-                    normal = -normal;
-                }
-                let albedo = n.hit.albedo();
-                let mut radiance = albedo * sky;
-                let mut shadow_rays = 0;
-                if let Some(sun) = lights.sun {
-                    let cos = normal.dot(sun.to_sun);
-                    if cos > 0.0 {
-                        let p = camera.eye + dir * n.t as f64;
-                        let visible = !opts.shadows || {
-                            shadow_rays = 1;
-                            // Leave the hit voxel: one voxel along the normal, a little along
-                            // the entered face, so the voxel does not shadow itself.
-                            let voxel = part.bounds.voxel_size(n.hit.level) as f64;
-                            let start = p + normal.as_dvec3() * voxel + n.hit.face_normal.as_dvec3() * (0.1 * voxel);
-                            !occluded(parts, start, sun.to_sun.as_dvec3())
-                        };
-                        if visible {
-                            radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
-                        }
-                    }
-                }
-                if lights.use_mtl_emitters {
-                    radiance += n.hit.attr.emission();
-                }
-                (radiance, n.t, n.part as i32, normal, shadow_rays)
-            })
-            .collect();
+            }
+        }
+        if lights.use_mtl_emitters {
+            radiance += n.hit.attr.emission();
+        }
+        (radiance, n.t, n.part as i32, normal)
+    };
+    // Rows are written straight into the frame's buffers (no per-row temporaries).
+    let row = |py: usize, (((rad, t), inst), nrm): RowBuffers| {
+        for px in 0..w as usize {
+            (rad[px], t[px], inst[px], nrm[px]) = pixel(px as u32, py as u32);
+        }
         let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
         progress(d, h);
-        out
     };
-    #[cfg(feature = "parallel")]
-    let rows: Vec<Vec<_>> = {
-        use rayon::prelude::*;
-        (0..h).into_par_iter().map(row).collect()
-    };
-    #[cfg(not(feature = "parallel"))]
-    let rows: Vec<Vec<_>> = (0..h).map(row).collect();
-
-    let n = (w * h) as usize;
+    let n = w as usize * h as usize;
     let mut f = Frame {
         width: w,
         height: h,
-        radiance: Vec::with_capacity(n),
-        t: Vec::with_capacity(n),
-        instance: Vec::with_capacity(n),
-        normal: Vec::with_capacity(n),
+        radiance: vec![Vec3::ZERO; n],
+        t: vec![f32::INFINITY; n],
+        instance: vec![-1; n],
+        normal: vec![Vec3::ZERO; n],
         primary_rays: n as u64,
         shadow_rays: 0,
     };
-    for (radiance, t, inst, normal, s) in rows.into_iter().flatten() {
-        f.radiance.push(radiance);
-        f.t.push(t);
-        f.instance.push(inst);
-        f.normal.push(normal);
-        f.shadow_rays += s;
+    let wu = w as usize;
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        f.radiance
+            .par_chunks_mut(wu)
+            .zip(f.t.par_chunks_mut(wu))
+            .zip(f.instance.par_chunks_mut(wu))
+            .zip(f.normal.par_chunks_mut(wu))
+            .enumerate()
+            .for_each(|(py, bufs)| row(py, bufs));
     }
+    #[cfg(not(feature = "parallel"))]
+    f.radiance
+        .chunks_mut(wu)
+        .zip(f.t.chunks_mut(wu))
+        .zip(f.instance.chunks_mut(wu))
+        .zip(f.normal.chunks_mut(wu))
+        .enumerate()
+        .for_each(|(py, bufs)| row(py, bufs));
+    f.shadow_rays = shadow_rays.into_inner();
     f
 }

@@ -6,6 +6,8 @@ use glam::{DVec3, Vec3};
 
 /// Largest accepted image side.
 pub const MAX_SIDE: u32 = 16384;
+/// Largest accepted pixel count (a frame with its AOVs takes 32 bytes per pixel).
+pub const MAX_PIXELS: u64 = 1 << 26;
 
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,7 +43,7 @@ pub enum CameraError {
     #[error("vfov_deg {0} must lie strictly between 0 and 180")]
     Fov(f64),
     /// Image size zero or too large.
-    #[error("image size {0}x{1} must be between 1 and {MAX_SIDE} per side")]
+    #[error("image size {0}x{1} must be between 1 and {MAX_SIDE} per side and at most {MAX_PIXELS} pixels")]
     Size(u32, u32),
     /// Malformed JSON.
     #[error("camera JSON: {0}")]
@@ -88,7 +90,9 @@ impl Camera {
         if !(self.vfov_deg > 0.0 && self.vfov_deg < 180.0) {
             return Err(CameraError::Fov(self.vfov_deg));
         }
-        if self.width == 0 || self.height == 0 || self.width > MAX_SIDE || self.height > MAX_SIDE {
+        let pixels = self.width as u64 * self.height as u64;
+        if self.width == 0 || self.height == 0 || self.width > MAX_SIDE || self.height > MAX_SIDE || pixels > MAX_PIXELS
+        {
             return Err(CameraError::Size(self.width, self.height));
         }
         let f = self.target - self.eye;
@@ -151,6 +155,7 @@ mod tests {
         assert_eq!(Camera { target: DVec3::ZERO, ..ok }.validate(), Err(CameraError::NoDirection));
         assert_eq!(Camera { vfov_deg: 180.0, ..ok }.validate(), Err(CameraError::Fov(180.0)));
         assert_eq!(Camera { width: 0, ..ok }.validate(), Err(CameraError::Size(0, 4)));
+        assert_eq!(Camera { width: 16384, height: 16384, ..ok }.validate(), Err(CameraError::Size(16384, 16384)));
         assert_eq!(Camera { eye: DVec3::NAN, ..ok }.validate(), Err(CameraError::NonFinite("eye")));
     }
 }

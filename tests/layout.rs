@@ -1,0 +1,78 @@
+//! Every struct in wgsl/layout.wgsl has the size and field offsets of its Rust twin.
+//! Offsets on the WGSL side follow the WGSL layout rules for the scalar and vector types
+//! used there (an unknown type fails the test rather than being guessed).
+
+use std::mem::{offset_of, size_of};
+use voxray::svo::{Attr, Node};
+
+/// (struct name, [(field, WGSL type)]) parsed from WGSL source.
+fn wgsl_structs(src: &str) -> Vec<(String, Vec<(String, String)>)> {
+    let code: String = src.lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n");
+    let mut out = Vec::new();
+    let mut rest = code.as_str();
+    while let Some(i) = rest.find("struct ") {
+        rest = &rest[i + 7..];
+        let name = rest[..rest.find('{').unwrap()].trim().to_string();
+        let body = &rest[rest.find('{').unwrap() + 1..rest.find('}').unwrap()];
+        let fields = body
+            .split(',')
+            .filter(|f| !f.trim().is_empty())
+            .map(|f| {
+                let (n, t) = f.split_once(':').expect("field: type");
+                (n.trim().to_string(), t.trim().to_string())
+            })
+            .collect();
+        out.push((name, fields));
+        rest = &rest[rest.find('}').unwrap() + 1..];
+    }
+    out
+}
+
+/// WGSL (align, size) of a type.
+fn align_size(t: &str) -> (usize, usize) {
+    match t {
+        "u32" | "i32" | "f32" => (4, 4),
+        "vec2<f32>" | "vec2<u32>" | "vec2<i32>" => (8, 8),
+        "vec3<f32>" | "vec3<u32>" | "vec3<i32>" => (16, 12),
+        "vec4<f32>" | "vec4<u32>" | "vec4<i32>" => (16, 16),
+        other => panic!("layout test does not know WGSL type {other}"),
+    }
+}
+
+/// (size, [(field, offset)]) by the WGSL rules.
+fn wgsl_layout(fields: &[(String, String)]) -> (usize, Vec<(String, usize)>) {
+    let (mut off, mut max_align, mut offs) = (0usize, 1usize, Vec::new());
+    for (n, t) in fields {
+        let (a, s) = align_size(t);
+        off = off.div_ceil(a) * a;
+        offs.push((n.clone(), off));
+        off += s;
+        max_align = max_align.max(a);
+    }
+    (off.div_ceil(max_align) * max_align, offs)
+}
+
+#[test]
+fn wgsl_structs_match_rust() {
+    let rust: Vec<(&str, usize, Vec<(&str, usize)>)> = vec![
+        ("Node", size_of::<Node>(), vec![("desc", offset_of!(Node, desc)), ("attr_base", offset_of!(Node, attr_base))]),
+        ("Attr", size_of::<Attr>(), vec![("albedo", offset_of!(Attr, albedo)), ("normal", offset_of!(Attr, normal))]),
+    ];
+    let parsed = wgsl_structs(include_str!("../wgsl/layout.wgsl"));
+    assert_eq!(parsed.len(), rust.len(), "every WGSL struct needs a Rust twin in this test");
+    for (name, size, fields) in rust {
+        let (_, wfields) = parsed.iter().find(|(n, _)| n == name).unwrap_or_else(|| panic!("{name} missing in WGSL"));
+        let (wsize, woffs) = wgsl_layout(wfields);
+        assert_eq!(wsize, size, "{name}: size");
+        let woffs: Vec<(&str, usize)> = woffs.iter().map(|(n, o)| (n.as_str(), *o)).collect();
+        assert_eq!(woffs, fields, "{name}: fields and offsets");
+    }
+}
+
+#[test]
+fn layout_rules_are_applied() {
+    // A vec3 after a scalar aligns to 16 and the struct rounds up to its alignment.
+    let f = |v: &[(&str, &str)]| v.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect::<Vec<_>>();
+    assert_eq!(wgsl_layout(&f(&[("a", "u32"), ("b", "vec3<f32>")])), (32, vec![("a".into(), 0), ("b".into(), 16)]));
+    assert_eq!(wgsl_layout(&f(&[("a", "vec3<f32>"), ("b", "f32")])).0, 16);
+}

@@ -1,0 +1,183 @@
+//! The CPU renderer against unoptimized references and analytic expectations, and under
+//! extreme cameras.
+
+use glam::{DVec3, Vec3};
+use voxray::mesh::{Material, Mesh, Part, Triangle};
+use voxray::ray::UnitRay;
+use voxray::render::{render, RenderOptions};
+use voxray::scene::lights::{Ambient, Sun};
+use voxray::scene::{Camera, Lights};
+use voxray::svo::{self, Svo};
+use voxray::traverse::{trace_unit, TraceOptions};
+use voxray::voxelize::{voxelize, Resolution, VoxelizeOptions};
+
+fn quad(name: &str, y: f32, half: f32) -> Part {
+    let p = |x: f32, z: f32| Vec3::new(x, y, z);
+    let (a, b, c, d) = (p(-half, -half), p(half, -half), p(half, half), p(-half, half));
+    Part {
+        name: name.into(),
+        triangles: vec![
+            Triangle { positions: [a, b, c], uvs: None, material: 0 },
+            Triangle { positions: [a, c, d], uvs: None, material: 0 },
+        ],
+    }
+}
+
+fn build(parts: Vec<Part>, voxel: f32) -> Vec<Svo> {
+    let mesh = Mesh { parts, materials: vec![Material::new("grey", Vec3::splat(0.5))], ..Default::default() };
+    let opts = VoxelizeOptions { resolution: Resolution::VoxelSize(voxel), solid: false };
+    mesh.parts.iter().map(|p| svo::build(&voxelize(p, &mesh.materials, &opts, &|_, _| {}).unwrap()).unwrap()).collect()
+}
+
+fn top_down(width: u32) -> Camera {
+    Camera {
+        eye: DVec3::new(0.0, 5.0, 0.0),
+        target: DVec3::ZERO,
+        up: DVec3::new(0.0, 0.0, -1.0),
+        vfov_deg: 60.0,
+        width,
+        height: width,
+    }
+}
+
+#[test]
+fn nearest_part_matches_brute_force_over_all_parts() {
+    // Overlapping parts at different heights and positions, traced from an oblique camera.
+    let parts = build(vec![quad("ground", 0.0, 1.0), quad("mid", 0.4, 0.4), quad("top", 0.8, 0.2)], 1.0 / 64.0);
+    let cam = Camera {
+        eye: DVec3::new(1.0, 1.6, 1.3),
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        vfov_deg: 60.0,
+        width: 64,
+        height: 48,
+    };
+    let f = render(&parts, &cam, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+    let b = cam.basis();
+    let mut hits = 0;
+    for py in 0..cam.height {
+        for px in 0..cam.width {
+            let dir = cam.ray_dir(&b, px, py);
+            // Unoptimized: every part, full interval, keep the smallest t.
+            let mut best: Option<(f32, i32)> = None;
+            for (i, s) in parts.iter().enumerate() {
+                let u = UnitRay::from_unit(s.bounds.to_unit(cam.eye), dir / s.bounds.size as f64).unwrap();
+                if let Some(h) = trace_unit(s, &u, &TraceOptions::default()).hit {
+                    if best.is_none_or(|(t, _)| h.t < t) {
+                        best = Some((h.t, i as i32));
+                    }
+                }
+            }
+            let k = (py * cam.width + px) as usize;
+            match best {
+                Some((t, i)) => {
+                    hits += 1;
+                    assert_eq!((f.t[k], f.instance[k]), (t, i), "pixel {px},{py}");
+                }
+                None => assert_eq!((f.t[k], f.instance[k]), (f32::INFINITY, -1)),
+            }
+        }
+    }
+    assert!(hits > 1000, "{hits} hits");
+    for i in 0..3 {
+        assert!(f.instance.contains(&i), "part {i} never visible: the test would not test overlap");
+    }
+}
+
+#[test]
+fn shadows_fall_where_the_occluder_blocks_the_sun() {
+    // Sun at 45° towards +x: the occluder (|x|,|z| ≤ 0.25 at y = 0.5) shadows x ∈ [−0.75, −0.25].
+    let parts = build(vec![quad("ground", 0.0, 1.0), quad("occluder", 0.5, 0.25)], 1.0 / 128.0);
+    let irr = std::f32::consts::PI * std::f32::consts::SQRT_2; // so ρ·E·cos45°/π = ρ
+    let lights = Lights {
+        sun: Some(Sun { to_sun: Vec3::new(1.0, 1.0, 0.0).normalize(), irradiance: Vec3::splat(irr) }),
+        ambient: Some(Ambient { radiance: Vec3::splat(0.1) }),
+        use_mtl_emitters: false,
+    };
+    let cam = top_down(64);
+    let f = render(&parts, &cam, &lights, &RenderOptions::default(), &|_, _| {});
+    let at = |px: u32| f.radiance[(32 * 64 + px) as usize].x;
+    // Pixel 26 sees x ≈ −0.50 (in the shadow), pixel 38 sees x ≈ +0.59 (lit).
+    let albedo = voxray::svo::format::srgb8_to_linear(voxray::svo::format::linear_to_srgb8(0.5));
+    assert!((at(26) - 0.1 * albedo).abs() < 1e-3, "shadowed: {}", at(26));
+    assert!((at(38) - 1.1 * albedo).abs() < 1e-2, "lit: {}", at(38));
+    assert!(f.shadow_rays > 0);
+    // Without shadow rays the same pixel is lit.
+    let f2 = render(&parts, &cam, &lights, &RenderOptions { shadows: false, ..Default::default() }, &|_, _| {});
+    assert!(f2.radiance[(32 * 64 + 26) as usize].x > 1.0 * albedo);
+    assert_eq!(f2.shadow_rays, 0);
+}
+
+#[test]
+fn extreme_cameras_give_no_nan() {
+    let parts = build(vec![quad("ground", 0.0, 1.0)], 1.0 / 32.0);
+    let sky = Lights::default().sky();
+    let cams = [
+        // So far away that the part is far below a pixel: all sky.
+        Camera { eye: DVec3::new(1e15, 1e15, 0.0), ..top_down(16) },
+        // A sliver of a field of view.
+        Camera { vfov_deg: 1e-6, ..top_down(16) },
+        // Almost a hemisphere.
+        Camera { vfov_deg: 179.9, ..top_down(16) },
+        // Inside the part's cube, looking along the surface.
+        Camera {
+            eye: DVec3::new(0.0, 0.0, 0.5),
+            target: DVec3::new(0.0, 0.0, -1.0),
+            up: DVec3::Y,
+            vfov_deg: 90.0,
+            width: 16,
+            height: 16,
+        },
+    ];
+    for c in cams {
+        c.validate().unwrap();
+        let f = render(&parts, &c, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+        assert!(f.radiance.iter().all(|r| r.is_finite()), "{c:?}");
+        assert!(f.t.iter().all(|t| !t.is_nan()) && f.normal.iter().all(|n| n.is_finite()), "{c:?}");
+        if c.eye.x > 1e14 {
+            assert!(f.instance.iter().all(|&i| i == -1) && f.radiance.iter().all(|&r| r == sky));
+        }
+    }
+}
+
+#[test]
+fn far_from_the_origin_renders_like_at_the_origin() {
+    // The same quad and camera, translated by 10⁶: camera-relative f64 keeps the image.
+    let off = 1.0e6f32;
+    let near = build(vec![quad("q", 0.0, 1.0)], 1.0 / 64.0);
+    let mut far_part = quad("q", 0.0, 1.0);
+    for t in &mut far_part.triangles {
+        for p in &mut t.positions {
+            p.x += off;
+        }
+    }
+    let far = build(vec![far_part], 1.0 / 64.0);
+    let cam = Camera {
+        eye: DVec3::new(0.7, 3.0, 1.9),
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        vfov_deg: 50.0,
+        width: 48,
+        height: 48,
+    };
+    let cam_far = Camera { eye: cam.eye + DVec3::X * off as f64, target: DVec3::X * off as f64, ..cam };
+    let a = render(&near, &cam, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+    let b = render(&far, &cam_far, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+    let same = a.instance.iter().zip(&b.instance).filter(|(x, y)| x == y).count();
+    // f32 bounds at 10⁶ move the voxel grid by up to 1/16 unit; allow edge pixels to differ.
+    assert!(same as f64 >= 0.97 * a.instance.len() as f64, "{same} of {} pixels agree", a.instance.len());
+}
+
+#[test]
+fn absurd_resolutions_are_refused_before_allocating() {
+    let mesh =
+        Mesh { parts: vec![quad("q", 0.0, 1.0)], materials: vec![Material::new("m", Vec3::ONE)], ..Default::default() };
+    let e = voxelize(
+        &mesh.parts[0],
+        &mesh.materials,
+        &VoxelizeOptions { resolution: Resolution::Depth(20), solid: false },
+        &|_, _| {},
+    );
+    let msg = e.unwrap_err().to_string();
+    assert!(msg.contains("million voxels") && msg.contains("--depth"), "{msg}");
+}
