@@ -52,9 +52,12 @@ fn wgsl_layout(fields: &[(String, String)]) -> (usize, Vec<(String, usize)>) {
     (off.div_ceil(max_align) * max_align, offs)
 }
 
+/// (name, size, [(field, offset)]) of a Rust struct.
+type RustStruct = (&'static str, usize, Vec<(&'static str, usize)>);
+
 #[test]
 fn wgsl_structs_match_rust() {
-    let rust: Vec<(&str, usize, Vec<(&str, usize)>)> = vec![
+    let rust: Vec<RustStruct> = vec![
         ("Node", size_of::<Node>(), vec![("desc", offset_of!(Node, desc)), ("attr_base", offset_of!(Node, attr_base))]),
         ("Attr", size_of::<Attr>(), vec![("albedo", offset_of!(Attr, albedo)), ("normal", offset_of!(Attr, normal))]),
     ];
