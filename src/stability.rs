@@ -14,7 +14,7 @@ use crate::rng::Rng;
 use crate::svo::{self, Cube, Svo};
 use crate::traverse::{step_bound, trace_unit, Hit, TraceOptions};
 use crate::voxelize::VoxelGrid;
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 
 /// Largest accepted relative t error against the oracle.
 pub const T_TOLERANCE: f64 = 1e-5;
@@ -462,9 +462,4 @@ pub fn table(reports: &[CaseReport]) -> String {
         );
     }
     s
-}
-
-/// Convenience for callers with a world-space ray: the unit-cube origin in f64.
-pub fn unit_origin(cube: &Cube, p: DVec3) -> DVec3 {
-    cube.to_unit(p)
 }
