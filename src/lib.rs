@@ -34,6 +34,7 @@
 // `!(x > y)` is deliberate throughout: it is true for NaN, so NaN input fails every check.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod bench;
 pub mod cache;
 mod error;
 pub mod mesh;

@@ -73,7 +73,7 @@ fn render_writes_image_and_aovs_by_the_conventions() {
     let o = voxray(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("Mrays/s") && err.contains("voxelize+build"), "timings printed: {err}");
+    assert!(err.contains("Mrays/s") && err.contains("setup (load, voxelize, build)"), "timings printed: {err}");
     let img = image::open(d.join("plane.png")).unwrap();
     assert_eq!((img.width(), img.height()), (48, 32));
 

@@ -2,11 +2,12 @@
 //! extreme cameras.
 
 use glam::{DVec3, Vec3};
+use std::sync::Arc;
 use voxray::mesh::{Material, Mesh, Part, Triangle};
 use voxray::ray::UnitRay;
-use voxray::render::{render, RenderOptions};
+use voxray::render::{render, Features, Frame, FramePlan, RenderOptions};
 use voxray::scene::lights::{Ambient, Sun};
-use voxray::scene::{Camera, Lights};
+use voxray::scene::{Camera, Instance, Lights, Scene, Transform};
 use voxray::svo::{self, Svo};
 use voxray::traverse::{trace_unit, TraceOptions};
 use voxray::voxelize::{voxelize, Resolution, VoxelizeOptions};
@@ -27,6 +28,23 @@ fn build(parts: Vec<Part>, voxel: f32) -> Vec<Svo> {
     let mesh = Mesh { parts, materials: vec![Material::new("grey", Vec3::splat(0.5))], ..Default::default() };
     let opts = VoxelizeOptions { resolution: Resolution::VoxelSize(voxel), solid: false };
     mesh.parts.iter().map(|p| svo::build(&voxelize(p, &mesh.materials, &opts, &|_, _| {}).unwrap()).unwrap()).collect()
+}
+
+/// The parts at the identity, one instance each.
+fn scene(parts: &[Svo]) -> Scene {
+    let mut s = Scene::new(parts.iter().cloned().map(Arc::new).collect());
+    for part in 0..parts.len() {
+        s.add(Instance { part, parent: None, local: Transform::IDENTITY }).unwrap();
+    }
+    s.update().unwrap();
+    s
+}
+
+/// One frame with the given features and no hit buffer.
+fn frame(parts: &[Svo], cam: &Camera, lights: &Lights, features: Features) -> Frame {
+    let s = scene(parts);
+    let plan = FramePlan::new(&s, cam, lights, &features, None);
+    render(&s, cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {})
 }
 
 fn top_down(width: u32) -> Camera {
@@ -52,7 +70,7 @@ fn nearest_part_matches_brute_force_over_all_parts() {
         width: 64,
         height: 48,
     };
-    let f = render(&parts, &cam, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+    let f = frame(&parts, &cam, &Lights::default(), Features::default());
     let b = cam.basis();
     let mut hits = 0;
     for py in 0..cam.height {
@@ -95,7 +113,7 @@ fn shadows_fall_where_the_occluder_blocks_the_sun() {
         use_mtl_emitters: false,
     };
     let cam = top_down(64);
-    let f = render(&parts, &cam, &lights, &RenderOptions::default(), &|_, _| {});
+    let f = frame(&parts, &cam, &lights, Features::default());
     let at = |px: u32| f.radiance[(32 * 64 + px) as usize].x;
     // Pixel 26 sees x ≈ −0.50 (in the shadow), pixel 38 sees x ≈ +0.59 (lit).
     let albedo = voxray::svo::format::srgb8_to_linear(voxray::svo::format::linear_to_srgb8(0.5));
@@ -103,7 +121,7 @@ fn shadows_fall_where_the_occluder_blocks_the_sun() {
     assert!((at(38) - 1.1 * albedo).abs() < 1e-2, "lit: {}", at(38));
     assert!(f.shadow_rays > 0);
     // Without shadow rays the same pixel is lit.
-    let f2 = render(&parts, &cam, &lights, &RenderOptions { shadows: false, ..Default::default() }, &|_, _| {});
+    let f2 = frame(&parts, &cam, &lights, Features { shadows: false, ..Features::default() });
     assert!(f2.radiance[(32 * 64 + 26) as usize].x > 1.0 * albedo);
     assert_eq!(f2.shadow_rays, 0);
 }
@@ -131,7 +149,7 @@ fn extreme_cameras_give_no_nan() {
     ];
     for c in cams {
         c.validate().unwrap();
-        let f = render(&parts, &c, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+        let f = frame(&parts, &c, &Lights::default(), Features::default());
         assert!(f.radiance.iter().all(|r| r.is_finite()), "{c:?}");
         assert!(f.t.iter().all(|t| !t.is_nan()) && f.normal.iter().all(|n| n.is_finite()), "{c:?}");
         if c.eye.x > 1e14 {
@@ -161,8 +179,8 @@ fn far_from_the_origin_renders_like_at_the_origin() {
         height: 48,
     };
     let cam_far = Camera { eye: cam.eye + DVec3::X * off as f64, target: DVec3::X * off as f64, ..cam };
-    let a = render(&near, &cam, &Lights::default(), &RenderOptions::default(), &|_, _| {});
-    let b = render(&far, &cam_far, &Lights::default(), &RenderOptions::default(), &|_, _| {});
+    let a = frame(&near, &cam, &Lights::default(), Features::default());
+    let b = frame(&far, &cam_far, &Lights::default(), Features::default());
     let same = a.instance.iter().zip(&b.instance).filter(|(x, y)| x == y).count();
     // f32 bounds at 10⁶ move the voxel grid by up to 1/16 unit; allow edge pixels to differ.
     assert!(same as f64 >= 0.97 * a.instance.len() as f64, "{same} of {} pixels agree", a.instance.len());

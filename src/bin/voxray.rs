@@ -5,12 +5,15 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::Instant;
 use voxray::cache::SvoCache;
 use voxray::mesh::Mesh;
+use voxray::mesh::Part;
 use voxray::pipeline::{build_part, shared_resolution};
-use voxray::render::{output, render, RenderOptions};
-use voxray::scene::{Camera, Lights};
+use voxray::render::{output, render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
+use voxray::scene::car::{add_car, clip_bounds, layout, pose, Car};
+use voxray::scene::{Camera, Instance, Lights, Scene, Transform};
 use voxray::svo::Svo;
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 use voxray::Error;
@@ -51,6 +54,8 @@ enum Cmd {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Time the animated car: static vs animated vs animated+optimized, and instance counts.
+    Bench(BenchArgs),
     /// Regenerate a built-in model's files.
     Model {
         /// Which model (only `car`).
@@ -88,7 +93,7 @@ struct SourceArgs {
 struct RenderArgs {
     #[command(flatten)]
     source: SourceArgs,
-    /// Camera JSON (eye, target, up, vfov_deg, width, height). Default: a three-quarter view framing the model.
+    /// Camera JSON (eye, target, up, vfov_deg, width, height). Default: a three-quarter view framing the scene.
     #[arg(long)]
     camera_json: Option<PathBuf>,
     /// Lights JSON (sun, ambient, use_mtl_emitters). Default: afternoon sun and a pale sky.
@@ -100,18 +105,87 @@ struct RenderArgs {
     /// Image height (overrides the camera JSON).
     #[arg(long)]
     height: Option<u32>,
-    /// Output image: .png (sRGB 8-bit) or .exr (linear float radiance).
+    /// Output: .png (sRGB 8-bit) or .exr (linear float radiance); with --frames, name_0000.png … or one animated .gif.
     #[arg(long, default_value = "voxray.png")]
     out: PathBuf,
-    /// Write t.npy, instance.npy and normal.npy into this folder.
+    /// Write t.npy, instance.npy and normal.npy into this folder (with --frames: DIR/frame_0000/ …).
     #[arg(long)]
     aov_dir: Option<PathBuf>,
-    /// No shadow rays.
-    #[arg(long)]
-    no_shadows: bool,
     /// Level-of-detail: stop this many levels below the root.
     #[arg(long)]
     lod: Option<u32>,
+    /// Frames to render (the car animates; other scenes stay still).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    frames: u32,
+    /// Frames per second of the clip.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// Clip time of the first frame, in seconds.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    time: f64,
+    /// Cars (default car only): each a figure-eight of its own, with its own time offset.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    cars: u32,
+    /// Keep the car(s) in place (wheels, steering and doors still move).
+    #[arg(long)]
+    in_place: bool,
+    /// The whole car merged into one static SVO (the static baseline; no animation).
+    #[arg(long)]
+    static_car: bool,
+    /// No ground under the default car.
+    #[arg(long)]
+    no_ground: bool,
+    /// Orbit the camera about its target at this many degrees per second (a moving camera).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    orbit: f64,
+    /// No bounding-sphere culling.
+    #[arg(long)]
+    no_cull: bool,
+    /// No depth-sorted early-out.
+    #[arg(long)]
+    no_sort: bool,
+    /// No instance BVH.
+    #[arg(long)]
+    no_bvh: bool,
+    /// No per-pixel hit buffer.
+    #[arg(long)]
+    no_hit_buffer: bool,
+    /// No shadow rays.
+    #[arg(long)]
+    no_shadows: bool,
+    /// Print the frame plan (first frame, and whenever it changes).
+    #[arg(long)]
+    explain: bool,
+}
+
+#[derive(Args, Clone)]
+struct BenchArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Timed frames per scenario (after one warm-up frame).
+    #[arg(long, default_value_t = 30)]
+    frames: usize,
+    /// Image width of the static/animated comparison.
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Image height of the static/animated comparison.
+    #[arg(long, default_value_t = 768)]
+    height: u32,
+    /// Car counts of the instance sweep (8 instances per car).
+    #[arg(long, value_delimiter = ',', default_value = "1,10,100,1000,10000")]
+    sweep_cars: Vec<usize>,
+    /// Frames per sweep point.
+    #[arg(long, default_value_t = 3)]
+    sweep_frames: usize,
+    /// Image width of the sweep.
+    #[arg(long, default_value_t = 320)]
+    sweep_width: u32,
+    /// Image height of the sweep.
+    #[arg(long, default_value_t = 192)]
+    sweep_height: u32,
+    /// Write the records as JSON here.
+    #[arg(long, default_value = "docs/data/bench-cpu.json")]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -136,6 +210,7 @@ fn main() -> ExitCode {
         Some(Cmd::Voxelize(a)) => voxelize_cmd(a),
         Some(Cmd::Info { file }) => info_cmd(&file),
         Some(Cmd::Stability { rays, out }) => stability_cmd(rays, out),
+        Some(Cmd::Bench(a)) => bench_cmd(a),
         Some(Cmd::Model { out_dir, .. }) => model_cmd(&out_dir),
     };
     match result {
@@ -189,7 +264,7 @@ fn load_mesh(src: &SourceArgs) -> Result<Mesh, Error> {
 }
 
 /// Voxelizes and builds every part, printing a statistics table.
-fn build_parts(mesh: &Mesh, src: &SourceArgs) -> Result<Vec<Svo>, Error> {
+fn build_parts(mesh: &Mesh, src: &SourceArgs) -> Result<Vec<Arc<Svo>>, Error> {
     let res = match src.voxel_size {
         Some(v) => Resolution::VoxelSize(v),
         None => Resolution::Depth(src.depth),
@@ -229,7 +304,7 @@ fn build_parts(mesh: &Mesh, src: &SourceArgs) -> Result<Vec<Svo>, Error> {
             s.attribute_bytes_per_voxel(),
             time
         );
-        out.push(built.svo);
+        out.push(Arc::new(built.svo));
     }
     Ok(out)
 }
@@ -238,69 +313,295 @@ fn read_text(p: &Path) -> Result<String, Error> {
     std::fs::read_to_string(p).map_err(|source| Error::Io { path: p.display().to_string(), source })
 }
 
+/// The scene to render and the cars in it.
+struct Staged {
+    scene: Scene,
+    cars: Vec<Car>,
+    bounds: (glam::DVec3, glam::DVec3),
+}
+
+/// Loads the parts and places them: the default car animated (or merged into one static SVO),
+/// or the given OBJ parts at the identity.
+fn stage(src: &SourceArgs, cars: u32, in_place: bool, static_car: bool, with_ground: bool) -> Result<Staged, Error> {
+    let default_car = src.obj.is_empty();
+    if !default_car && (cars > 1 || static_car || in_place) {
+        return Err(usage("--cars, --in-place and --static-car apply to the default car only"));
+    }
+    let mut mesh = load_mesh(src)?;
+    if static_car {
+        let merged: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
+        mesh.parts = vec![Part { name: "car (static)".into(), triangles: merged }];
+    }
+    let parts = build_parts(&mesh, src)?;
+    let mut scene = Scene::new(parts);
+    let mut placed = Vec::new();
+    if default_car && !static_car {
+        for (origin, phase) in layout(cars as usize) {
+            placed.push(add_car(&mut scene, 0, origin, phase, !in_place).map_err(scene_err)?);
+        }
+    } else {
+        for part in 0..scene.parts.len() {
+            scene.add(Instance { part, parent: None, local: Transform::IDENTITY }).map_err(scene_err)?;
+        }
+    }
+    scene.update().map_err(scene_err)?;
+    let bounds = if placed.is_empty() || in_place { scene.bounds() } else { clip_bounds(cars as usize) };
+    if default_car && with_ground {
+        // Tiles of 1 m under the whole clip, voxels of at least 5 cm.
+        let (lo, hi) = (bounds.0 - glam::DVec3::splat(3.0), bounds.1 + glam::DVec3::splat(3.0));
+        let g = voxray::scene::ground::ground(lo, hi, 1.0, 0.05)?;
+        scene.parts.push(Arc::new(g));
+        let part = scene.parts.len() - 1;
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY }).map_err(scene_err)?;
+        scene.update().map_err(scene_err)?;
+    }
+    Ok(Staged { scene, cars: placed, bounds })
+}
+
+fn usage(msg: &str) -> Error {
+    Error::Io {
+        path: "arguments".into(),
+        source: std::io::Error::new(std::io::ErrorKind::InvalidInput, msg.to_string()),
+    }
+}
+
+fn scene_err(e: voxray::scene::SceneError) -> Error {
+    Error::Io { path: "scene".into(), source: std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string()) }
+}
+
+/// World bounds of the car instances only (not the ground), or of everything if no cars.
+fn cars_bounds(st: &Staged) -> (glam::DVec3, glam::DVec3) {
+    if st.cars.is_empty() {
+        return st.scene.bounds();
+    }
+    st.scene.bounds_of(
+        st.cars.iter().flat_map(|c| {
+            [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering]
+        }),
+    )
+}
+
+/// `car.png` → `car_0007.png` for frame 7 of a sequence.
+fn numbered(path: &Path, frame: u32) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    path.with_file_name(format!("{stem}_{frame:04}{ext}"))
+}
+
+fn orbit(camera: &Camera, degrees: f64) -> Camera {
+    let q = glam::DQuat::from_axis_angle(camera.up.normalize(), degrees.to_radians());
+    Camera { eye: camera.target + q * (camera.eye - camera.target), ..*camera }
+}
+
 fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let t0 = Instant::now();
-    let mesh = load_mesh(&a.source)?;
-    let mut camera = match &a.camera_json {
-        Some(p) => Camera::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
-        None => {
-            let (mut lo, mut hi) = (glam::Vec3::splat(f32::INFINITY), glam::Vec3::splat(f32::NEG_INFINITY));
-            for t in mesh.parts.iter().flat_map(|p| &p.triangles) {
-                for v in t.positions {
-                    lo = lo.min(v);
-                    hi = hi.max(v);
-                }
-            }
-            Camera::framing(lo, hi, 1280, 768)
-        }
-    };
-    camera.width = a.width.unwrap_or(camera.width);
-    camera.height = a.height.unwrap_or(camera.height);
-    camera.validate()?;
+    let is_gif = a.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"));
+    if is_gif && a.frames < 2 {
+        return Err(usage("a .gif output needs --frames 2 or more"));
+    }
+    if !(a.fps.is_finite() && a.fps > 0.0 && a.time.is_finite() && a.orbit.is_finite()) {
+        return Err(usage("--fps must be positive; --time and --orbit finite"));
+    }
     let lights = match &a.lights_json {
         Some(p) => Lights::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
         None => Lights::default(),
     };
-    let t_load = t0.elapsed();
+    let camera_json = a
+        .camera_json
+        .as_ref()
+        .map(|p| read_text(p).and_then(|t| Camera::from_json(&t).map_err(|e| with_path(p, e))))
+        .transpose()?;
+    let mut st = stage(&a.source, a.cars, a.in_place, a.static_car, !a.no_ground)?;
+    let mut camera = camera_json.unwrap_or_else(|| {
+        if a.frames == 1 {
+            // One frame: frame the car(s) as posed, seen from the front left of the first car.
+            for car in &st.cars {
+                let _ = pose(&mut st.scene, car, a.time);
+            }
+            let _ = st.scene.update();
+            let heading = st
+                .cars
+                .first()
+                .map_or(glam::DQuat::IDENTITY, |c| st.scene.world(c.body).to_scale_rotation_translation().1);
+            let (lo, hi) = cars_bounds(&st);
+            Camera::framing_from(lo.as_vec3(), hi.as_vec3(), 1280, 768, heading * glam::DVec3::new(0.95, 0.36, -0.9))
+        } else {
+            Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 1280, 768)
+        }
+    });
+    camera.width = a.width.unwrap_or(camera.width);
+    camera.height = a.height.unwrap_or(camera.height);
+    camera.validate()?;
+    let t_setup = t0.elapsed();
 
-    let t1 = Instant::now();
-    let parts = build_parts(&mesh, &a.source)?;
-    let t_build = t1.elapsed();
-
-    let t2 = Instant::now();
-    let pb = bar(camera.height as u64, "rendering rows");
-    let opts = RenderOptions { shadows: !a.no_shadows, max_level: a.lod.unwrap_or(u32::MAX) };
-    let frame = render(&parts, &camera, &lights, &opts, &|d, _| pb.set_position(d as u64));
-    pb.finish_and_clear();
-    let t_render = t2.elapsed();
-
-    let t3 = Instant::now();
-    output::write_image(&frame, &a.out)?;
-    if let Some(dir) = &a.aov_dir {
-        output::write_aovs(&frame, dir)?;
+    let features = Features {
+        cull: !a.no_cull,
+        sort: !a.no_sort,
+        bvh: !a.no_bvh,
+        hit_buffer: !a.no_hit_buffer,
+        shadows: !a.no_shadows,
+    };
+    let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
+    let mut hits = HitBuffer::new();
+    let mut last_plan: Option<FramePlan> = None;
+    let mut gif_frames = Vec::new();
+    let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
+    let pb = if a.frames > 1 { bar(a.frames as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
+    for f in 0..a.frames {
+        let start = Instant::now();
+        let t = a.time + f as f64 / a.fps;
+        for car in &st.cars {
+            pose(&mut st.scene, car, t).map_err(scene_err)?;
+        }
+        st.scene.update().map_err(scene_err)?;
+        let cam = orbit(&camera, a.orbit * (t - a.time));
+        let plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&hits));
+        if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
+            pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
+        }
+        let frame = render(&st.scene, &cam, &lights, &plan, &opts, Some(&mut hits), &|d, _| {
+            if a.frames == 1 {
+                pb.set_position(d as u64)
+            }
+        });
+        times.push(start.elapsed().as_secs_f64());
+        traced += frame.primary_rays - frame.reused + frame.shadow_rays;
+        reused += frame.reused;
+        last_plan = Some(plan);
+        write_frame(&a, &frame, f, is_gif, &mut gif_frames)?;
+        if a.frames > 1 {
+            pb.inc(1);
+        }
     }
-    let t_write = t3.elapsed();
-    let rays = frame.primary_rays + frame.shadow_rays;
+    pb.finish_and_clear();
+    if is_gif {
+        output::write_gif(&a.out, camera.width, camera.height, a.fps, gif_frames)?;
+    }
+    let total: f64 = times.iter().sum();
+    let (median, p95, _) = voxray::bench::summarize(&times);
+    let pixels = camera.width as u64 * camera.height as u64 * a.frames as u64;
     eprintln!(
-        "timings: load {:.2}s | voxelize+build {:.2}s | render {:.3}s | write {:.2}s",
-        t_load.as_secs_f64(),
-        t_build.as_secs_f64(),
-        t_render.as_secs_f64(),
-        t_write.as_secs_f64()
+        "timings: setup (load, voxelize, build) {:.2}s | {} frame(s) {:.3}s, median {:.1} ms, p95 {:.1} ms",
+        t_setup.as_secs_f64(),
+        a.frames,
+        total,
+        median * 1e3,
+        p95 * 1e3
     );
     eprintln!(
-        "rays: {} primary + {} shadow = {:.2} Mrays/s on {} threads ({}x{})",
-        frame.primary_rays,
-        frame.shadow_rays,
-        rays as f64 / t_render.as_secs_f64() / 1e6,
+        "rays: {traced} traced ({:.1}% of pixels reused from the hit buffer) = {:.2} Mrays/s on {} threads ({}x{}, {} instances)",
+        100.0 * reused as f64 / pixels as f64,
+        traced as f64 / total / 1e6,
         rayon::current_num_threads(),
         camera.width,
-        camera.height
+        camera.height,
+        st.scene.instances().len()
     );
-    println!("wrote {}", a.out.display());
-    if let Some(dir) = &a.aov_dir {
-        println!("wrote {}/{{t,instance,normal}}.npy", dir.display());
+    Ok(())
+}
+
+fn write_frame(a: &RenderArgs, frame: &Frame, f: u32, is_gif: bool, gif: &mut Vec<Vec<u8>>) -> Result<(), Error> {
+    if is_gif {
+        gif.push(output::srgb8(frame));
+    } else {
+        let path = if a.frames > 1 { numbered(&a.out, f) } else { a.out.clone() };
+        output::write_image(frame, &path)?;
+        if a.frames == 1 {
+            println!("wrote {}", path.display());
+        } else if f + 1 == a.frames {
+            println!("wrote {} … {}", numbered(&a.out, 0).display(), path.display());
+        }
     }
+    if let Some(dir) = &a.aov_dir {
+        let d = if a.frames > 1 { dir.join(format!("frame_{f:04}")) } else { dir.clone() };
+        output::write_aovs(frame, &d)?;
+        if f + 1 == a.frames {
+            println!("wrote AOVs (t, instance, normal .npy) under {}", dir.display());
+        }
+    }
+    Ok(())
+}
+
+fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
+    use voxray::bench::{machine, run_clip, Record};
+    if !a.source.obj.is_empty() {
+        return Err(usage("bench uses the default car"));
+    }
+    let lights = Lights::default();
+    let mut records: Vec<Record> = Vec::new();
+    let total = 3 + 2 * a.sweep_cars.len();
+    let pb = bar(total as u64, "scenarios");
+    // (a) the car merged into one static SVO; (b) and (c) the animated parts, in place so the
+    // camera frames the same car in all three.
+    let mut st_a = pb.suspend(|| stage(&a.source, 1, true, true, false))?;
+    let mut st_b = pb.suspend(|| stage(&a.source, 1, true, false, false))?;
+    let camera = Camera::framing(st_b.bounds.0.as_vec3(), st_b.bounds.1.as_vec3(), a.width, a.height);
+    let no_shadow = |f: Features| Features { shadows: false, ..f };
+    let scenarios = [
+        ("a: static single-SVO car", Features { hit_buffer: false, ..no_shadow(Features::default()) }, true),
+        ("b: animated parts, no optimizations", Features::NONE, false),
+        (
+            "c: animated, culling + sorting + hit buffer",
+            Features { bvh: false, ..no_shadow(Features::default()) },
+            false,
+        ),
+    ];
+    for (name, features, is_static) in scenarios {
+        let st = if is_static { &mut st_a } else { &mut st_b };
+        let r = run_clip(name, &mut st.scene, &st.cars, &camera, &lights, &features, a.frames, 30.0, &|_| {})
+            .map_err(scene_err)?;
+        pb.inc(1);
+        records.push(r);
+    }
+    let base = records[0].median_ms;
+    let mut md = format!(
+        "Machine: {}. Command: `voxray bench --frames {}` (release). Primary rays only (no shadows), static camera, {}×{}.\n\n\
+         | scenario | instances | median ms | p95 ms | min ms | ratio to a | reused | Mrays/s traced |\n|---|---|---|---|---|---|---|---|\n",
+        machine(), a.frames, a.width, a.height
+    );
+    for r in &records {
+        md += &format!(
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.2} | {:.1}% | {:.2} |\n",
+            r.name,
+            r.instances,
+            r.median_ms,
+            r.p95_ms,
+            r.min_ms,
+            r.median_ms / base,
+            100.0 * r.reused_fraction,
+            r.mrays_per_s
+        );
+    }
+    md += &format!(
+        "\nInstance sweep: {} cars × 8 instances, each car driving its own figure-eight, {}×{}, {} frames each, no shadows, no hit buffer.\n\n\
+         | cars | instances | with BVH: median ms | without BVH (sorted spheres): median ms | BVH speed-up |\n|---|---|---|---|---|\n",
+        a.sweep_cars.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(", "), a.sweep_width, a.sweep_height, a.sweep_frames
+    );
+    for &cars in &a.sweep_cars {
+        let mut st = pb.suspend(|| stage(&a.source, cars as u32, false, false, false))?;
+        let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), a.sweep_width, a.sweep_height);
+        let mut pair = Vec::new();
+        for bvh in [true, false] {
+            let features = Features { bvh, hit_buffer: false, shadows: false, ..Features::default() };
+            // The BVH switches on only above a threshold; force it on for the sweep by features alone.
+            let name = format!("sweep: {cars} cars, {}", if bvh { "BVH" } else { "no BVH" });
+            let r = run_clip(&name, &mut st.scene, &st.cars, &cam, &lights, &features, a.sweep_frames, 30.0, &|_| {})
+                .map_err(scene_err)?;
+            pb.inc(1);
+            pair.push(r.median_ms);
+            records.push(r);
+        }
+        md += &format!("| {cars} | {} | {:.1} | {:.1} | {:.2}× |\n", cars * 8, pair[0], pair[1], pair[1] / pair[0]);
+    }
+    pb.finish_and_clear();
+    println!("{md}");
+    if let Some(dir) = a.out.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
+    }
+    let json = serde_json::json!({ "machine": machine(), "command": format!("voxray bench --frames {}", a.frames), "records": records });
+    std::fs::write(&a.out, serde_json::to_string_pretty(&json).unwrap_or_default())
+        .map_err(|source| Error::Io { path: a.out.display().to_string(), source })?;
+    println!("wrote {}", a.out.display());
     Ok(())
 }
 

@@ -383,31 +383,58 @@ fn steering_wheel() -> Builder {
     b
 }
 
+/// Part names in load order (the embedded car's instance numbering).
+pub const PART_NAMES: [&str; 8] =
+    ["body", "wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr", "door_l", "door_r", "steering_wheel"];
+
+/// Pivot point and unit axis of every part, in [`PART_NAMES`] order (what `rig.json` records).
+pub fn rig() -> [(Vec3, Vec3); 8] {
+    let wheel = |x: f32, z: f32| (Vec3::new(x, WHEEL_R, z), Vec3::Z);
+    let hinge = |side: f32| (Vec3::new(DOOR_X.1, 0.0, side * (body_side_z(DOOR_X.1, 0.7) + DOOR_GAP)), Vec3::Y * side);
+    [
+        (Vec3::ZERO, Vec3::Y),
+        wheel(AXLE_X[0], -TRACK_Z),
+        wheel(AXLE_X[0], TRACK_Z),
+        wheel(AXLE_X[1], -TRACK_Z),
+        wheel(AXLE_X[1], TRACK_Z),
+        hinge(-1.0),
+        hinge(1.0),
+        steering_pivot(),
+    ]
+}
+
+/// Wheel radius (m).
+pub const WHEEL_RADIUS: f32 = WHEEL_R;
+/// Distance between the axles (m).
+pub const WHEELBASE: f32 = AXLE_X[0] - AXLE_X[1];
+
 /// Builds every part of the car.
 pub fn build() -> Vec<CarPart> {
-    let mut parts = vec![CarPart { name: "body", mesh: body(), pivot: Vec3::ZERO, axis: Vec3::Y, joint: "chassis" }];
-    for (name, x, z) in [
-        ("wheel_fl", AXLE_X[0], -TRACK_Z),
-        ("wheel_fr", AXLE_X[0], TRACK_Z),
-        ("wheel_rl", AXLE_X[1], -TRACK_Z),
-        ("wheel_rr", AXLE_X[1], TRACK_Z),
-    ] {
-        let centre = Vec3::new(x, WHEEL_R, z);
-        parts.push(CarPart {
-            name,
-            mesh: wheel(centre, z.signum()),
-            pivot: centre,
-            axis: Vec3::Z,
-            joint: "axle (spin); front wheels also steer about +Y",
-        });
+    let rig = rig();
+    let meshes = [
+        body(),
+        wheel(rig[1].0, -1.0),
+        wheel(rig[2].0, 1.0),
+        wheel(rig[3].0, -1.0),
+        wheel(rig[4].0, 1.0),
+        door(-1.0),
+        door(1.0),
+        steering_wheel(),
+    ];
+    let joints = [
+        "chassis",
+        "axle (spin); front wheels also steer about +Y",
+        "axle (spin); front wheels also steer about +Y",
+        "axle (spin)",
+        "axle (spin)",
+        "hinge (positive angles open)",
+        "hinge (positive angles open)",
+        "column",
+    ];
+    let mut parts = Vec::new();
+    for (i, mesh) in meshes.into_iter().enumerate() {
+        parts.push(CarPart { name: PART_NAMES[i], mesh, pivot: rig[i].0, axis: rig[i].1, joint: joints[i] });
     }
-    for (name, side) in [("door_l", -1.0f32), ("door_r", 1.0)] {
-        let hinge = Vec3::new(DOOR_X.1, 0.0, side * (body_side_z(DOOR_X.1, 0.7) + DOOR_GAP));
-        // Positive angles open the door outward.
-        parts.push(CarPart { name, mesh: door(side), pivot: hinge, axis: Vec3::Y * side, joint: "hinge" });
-    }
-    let (c, axis) = steering_pivot();
-    parts.push(CarPart { name: "steering_wheel", mesh: steering_wheel(), pivot: c, axis, joint: "column" });
     parts
 }
 

@@ -1,25 +1,27 @@
-//! The CPU renderer: one primary ray per pixel through every part, the nearest hit shaded
-//! with the sun (with a shadow ray through the SVOs), the ambient sky and MTL emitters.
-//! Rays are formed camera-relative in f64 and rounded to f32 only in each SVO's unit cube.
+//! The CPU renderer, in two passes like the GPU's: **trace** finds each pixel's primary hit
+//! (or reuses it from the hit buffer), **shade** lights it with the sun (with a shadow ray),
+//! the sky and MTL emitters. Rays start at the camera in camera-relative f64 coordinates.
 
-use crate::ray::UnitRay;
-use crate::scene::{Camera, Lights};
-use crate::svo::Svo;
-use crate::traverse::{trace_unit, TraceOptions};
+use super::bvh::Bvh;
+use super::hitbuffer::{HitBuffer, HitRecord};
+use super::instances::{prepare, Prepared};
+use super::plan::FramePlan;
+use super::visibility::{nearest, occluded, FrameInstances, InstanceHit};
+use crate::scene::{Camera, Lights, Scene};
+use crate::traverse::TraceOptions;
 use glam::{DVec3, Vec3};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
-/// Renderer settings.
+/// Renderer settings that are not part of the frame plan.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderOptions {
-    /// Trace shadow rays towards the sun.
-    pub shadows: bool,
     /// Level-of-detail limit (levels below the root); `u32::MAX` for full detail.
     pub max_level: u32,
 }
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        RenderOptions { shadows: true, max_level: u32::MAX }
+        RenderOptions { max_level: u32::MAX }
     }
 }
 
@@ -34,141 +36,143 @@ pub struct Frame {
     pub radiance: Vec<Vec3>,
     /// Ray parameter along the unit-length camera ray; +∞ for a miss.
     pub t: Vec<f32>,
-    /// Part/instance index hit; −1 for a miss.
+    /// Instance index hit; −1 for a miss.
     pub instance: Vec<i32>,
     /// World-space unit normal facing the camera; zero for a miss.
     pub normal: Vec<Vec3>,
-    /// Primary rays traced (pixels × parts tested is not counted; one per pixel).
+    /// Primary rays (one per pixel).
     pub primary_rays: u64,
+    /// Pixels whose primary hit came from the hit buffer (no ray traced).
+    pub reused: u64,
     /// Shadow rays traced.
     pub shadow_rays: u64,
 }
 
-/// One row of each frame buffer, as rayon's zipped chunk iterators hand them out.
-type RowBuffers<'a> = (((&'a mut [Vec3], &'a mut [f32]), &'a mut [i32]), &'a mut [Vec3]);
-
-struct Nearest {
-    t: f32,
-    part: usize,
-    hit: crate::traverse::Hit,
-}
-
-fn nearest(parts: &[Svo], origin: DVec3, dir: DVec3, opts: &TraceOptions) -> Option<Nearest> {
-    let mut best: Option<Nearest> = None;
-    for (i, p) in parts.iter().enumerate() {
-        let cube = &p.bounds;
-        let Some(ur) = UnitRay::from_unit(cube.to_unit(origin), dir / cube.size as f64) else { continue };
-        // Only hits closer than the best so far matter.
-        let o = TraceOptions { t_max: best.as_ref().map_or(opts.t_max, |b| b.t), ..*opts };
-        if let Some(hit) = trace_unit(p, &ur, &o).hit {
-            if best.as_ref().is_none_or(|b| hit.t < b.t) {
-                best = Some(Nearest { t: hit.t, part: i, hit });
-            }
-        }
-    }
-    best
-}
-
-fn occluded(parts: &[Svo], origin: DVec3, dir: DVec3) -> bool {
-    parts.iter().any(|p| {
-        let cube = &p.bounds;
-        UnitRay::from_unit(cube.to_unit(origin), dir / cube.size as f64)
-            .is_some_and(|ur| trace_unit(p, &ur, &TraceOptions::default()).hit.is_some())
-    })
-}
-
-/// Renders the parts. `progress(rows_done, rows)` is called as rows finish.
-pub fn render(
-    parts: &[Svo],
-    camera: &Camera,
-    lights: &Lights,
-    opts: &RenderOptions,
-    progress: &(dyn Fn(u32, u32) + Sync),
-) -> Frame {
-    let (w, h) = (camera.width, camera.height);
-    let basis = camera.basis();
-    let sky = lights.sky();
-    let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
-    let done = std::sync::atomic::AtomicU32::new(0);
-    let shadow_rays = std::sync::atomic::AtomicU64::new(0);
-    let pixel = |px: u32, py: u32| -> (Vec3, f32, i32, Vec3) {
-        let dir = camera.ray_dir(&basis, px, py);
-        let Some(n) = nearest(parts, camera.eye, dir, &trace_opts) else {
-            return (sky, f32::INFINITY, -1, Vec3::ZERO);
-        };
-        let part = &parts[n.part];
-        let dir32 = dir.as_vec3();
-        let mut normal = n.hit.normal();
-        if !(normal.length_squared() > 0.5) {
-            normal = if n.hit.face_normal != Vec3::ZERO { n.hit.face_normal } else { -dir32 };
-        }
-        // Two-sided surfaces: shade the side facing the camera.
-        if normal.dot(dir32) > 0.0 {
-            normal = -normal;
-        }
-        let albedo = n.hit.albedo();
-        let mut radiance = albedo * sky;
-        if let Some(sun) = lights.sun {
-            let cos = normal.dot(sun.to_sun);
-            if cos > 0.0 {
-                let p = camera.eye + dir * n.t as f64;
-                let visible = !opts.shadows || {
-                    shadow_rays.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    // Leave the hit voxel: one voxel along the normal, a little along the
-                    // entered face, so the voxel does not shadow itself.
-                    let voxel = part.bounds.voxel_size(n.hit.level) as f64;
-                    let start = p + normal.as_dvec3() * voxel + n.hit.face_normal.as_dvec3() * (0.1 * voxel);
-                    !occluded(parts, start, sun.to_sun.as_dvec3())
-                };
-                if visible {
-                    radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
-                }
-            }
-        }
-        if lights.use_mtl_emitters {
-            radiance += n.hit.attr.emission();
-        }
-        (radiance, n.t, n.part as i32, normal)
-    };
-    // Rows are written straight into the frame's buffers (no per-row temporaries).
-    let row = |py: usize, (((rad, t), inst), nrm): RowBuffers| {
-        for px in 0..w as usize {
-            (rad[px], t[px], inst[px], nrm[px]) = pixel(px as u32, py as u32);
-        }
-        let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        progress(d, h);
-    };
-    let n = w as usize * h as usize;
-    let mut f = Frame {
-        width: w,
-        height: h,
-        radiance: vec![Vec3::ZERO; n],
-        t: vec![f32::INFINITY; n],
-        instance: vec![-1; n],
-        normal: vec![Vec3::ZERO; n],
-        primary_rays: n as u64,
-        shadow_rays: 0,
-    };
-    let wu = w as usize;
+/// Runs `f(row, row_slice)` over the rows of a per-pixel buffer, in parallel when enabled.
+fn for_rows<T: Send>(buf: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + Sync + Send) {
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;
-        f.radiance
-            .par_chunks_mut(wu)
-            .zip(f.t.par_chunks_mut(wu))
-            .zip(f.instance.par_chunks_mut(wu))
-            .zip(f.normal.par_chunks_mut(wu))
-            .enumerate()
-            .for_each(|(py, bufs)| row(py, bufs));
+        buf.par_chunks_mut(width).enumerate().for_each(|(y, row)| f(y, row));
     }
     #[cfg(not(feature = "parallel"))]
-    f.radiance
-        .chunks_mut(wu)
-        .zip(f.t.chunks_mut(wu))
-        .zip(f.instance.chunks_mut(wu))
-        .zip(f.normal.chunks_mut(wu))
-        .enumerate()
-        .for_each(|(py, bufs)| row(py, bufs));
+    buf.chunks_mut(width).enumerate().for_each(|(y, row)| f(y, row));
+}
+
+fn record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
+    let p = &prepared[h.instance];
+    let to_world = |n: Vec3| (p.normal_to_world * n.as_dvec3()).normalize_or_zero().as_vec3();
+    let mut normal = to_world(h.hit.normal());
+    let face_normal = to_world(h.hit.face_normal);
+    if !(normal.length_squared() > 0.5) {
+        normal = if face_normal != Vec3::ZERO { face_normal } else { -d.as_vec3() };
+    }
+    // Two-sided surfaces: shade the side facing the camera.
+    if normal.dot(d.as_vec3()) > 0.0 {
+        normal = -normal;
+    }
+    let voxel = scene.parts[p.part].bounds.voxel_size(h.hit.level) as f64 * p.max_stretch;
+    HitRecord { t: h.hit.t, instance: h.instance as i32, normal, face_normal, attr: h.hit.attr, voxel: voxel as f32 }
+}
+
+/// Renders one frame of `scene` as `plan` says. With a hit buffer, pixels are reused where
+/// the plan allows it and the buffer is refreshed for the next frame. `progress(rows, of)` is
+/// called as rows finish (both passes count).
+pub fn render(
+    scene: &Scene,
+    camera: &Camera,
+    lights: &Lights,
+    plan: &FramePlan,
+    opts: &RenderOptions,
+    hits: Option<&mut HitBuffer>,
+    progress: &(dyn Fn(u32, u32) + Sync),
+) -> Frame {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let basis = camera.basis();
+    let prepared = prepare(scene, camera.eye, plan.transform);
+    let bvh = plan.bvh.then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+    let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref() };
+    let search = plan.search();
+    let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
+    let previous = hits.as_deref().filter(|_| plan.hit_buffer);
+    let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared));
+    let done = AtomicU32::new(0);
+    let reused = AtomicU64::new(0);
+    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
+
+    // Pass 1: primary visibility.
+    let mut records = vec![HitRecord::MISS; w * h];
+    for_rows(&mut records, w, |y, row| {
+        for (x, rec) in row.iter_mut().enumerate() {
+            let d = camera.ray_dir(&basis, x as u32, y as u32);
+            if let (Some(r), Some(prev)) = (&reuse, previous) {
+                let old = prev.records[y * w + x];
+                if r.valid(&old, d) {
+                    *rec = old;
+                    reused.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
+            }
+            *rec = match nearest(&fi, DVec3::ZERO, d, search, &trace_opts) {
+                Some(hit) => record(scene, &prepared, &hit, d),
+                None => HitRecord::MISS,
+            };
+        }
+        tick();
+    });
+
+    // Pass 2: shading.
+    let sky = lights.sky();
+    let shadow_rays = AtomicU64::new(0);
+    let n = w * h;
+    let mut f = Frame {
+        width: camera.width,
+        height: camera.height,
+        radiance: vec![sky; n],
+        t: records.iter().map(|r| r.t).collect(),
+        instance: records.iter().map(|r| r.instance).collect(),
+        normal: records.iter().map(|r| r.normal).collect(),
+        primary_rays: n as u64,
+        reused: 0,
+        shadow_rays: 0,
+    };
+    for_rows(&mut f.radiance, w, |y, row| {
+        for (x, out) in row.iter_mut().enumerate() {
+            let r = &records[y * w + x];
+            if r.instance < 0 {
+                continue;
+            }
+            let albedo = r.attr.albedo_linear();
+            let mut radiance = albedo * sky;
+            if let Some(sun) = lights.sun {
+                let cos = r.normal.dot(sun.to_sun);
+                if cos > 0.0 {
+                    let visible = !plan.shadows || {
+                        shadow_rays.fetch_add(1, Ordering::Relaxed);
+                        let d = camera.ray_dir(&basis, x as u32, y as u32);
+                        // Leave the hit voxel: one voxel along the normal, a little along the
+                        // entered face, so the voxel does not shadow itself.
+                        let v = r.voxel as f64;
+                        let start = d * r.t as f64 + r.normal.as_dvec3() * v + r.face_normal.as_dvec3() * (0.1 * v);
+                        !occluded(&fi, start, sun.to_sun.as_dvec3(), search)
+                    };
+                    if visible {
+                        radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
+                    }
+                }
+            }
+            if lights.use_mtl_emitters {
+                radiance += r.attr.emission();
+            }
+            *out = radiance;
+        }
+        tick();
+    });
+    f.reused = reused.into_inner();
     f.shadow_rays = shadow_rays.into_inner();
+    if let Some(b) = hits {
+        b.reused = f.reused;
+        b.store(camera, scene, &prepared, records);
+    }
     f
 }

@@ -1,6 +1,14 @@
-//! Rendering: the CPU renderer and the image/AOV writers.
+//! Rendering: per-frame instance preparation, the instance BVH, visibility searches, the
+//! hit buffer, the frame plan, the CPU renderer and the image/AOV writers.
 
+pub mod bvh;
 pub mod cpu;
+pub mod hitbuffer;
+pub mod instances;
 pub mod output;
+pub mod plan;
+pub mod visibility;
 
 pub use cpu::{render, Frame, RenderOptions};
+pub use hitbuffer::HitBuffer;
+pub use plan::{Features, FramePlan};

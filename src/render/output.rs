@@ -56,6 +56,25 @@ pub fn write_image(frame: &Frame, path: &Path) -> Result<(), OutputError> {
     }
 }
 
+/// Writes an animated GIF from 8-bit sRGB RGB frames (looping).
+#[cfg(feature = "image-io")]
+pub fn write_gif(path: &Path, width: u32, height: u32, fps: f64, frames: Vec<Vec<u8>>) -> Result<(), OutputError> {
+    use image::codecs::gif::{GifEncoder, Repeat};
+    let label = path.display().to_string();
+    let enc = |e: image::ImageError| OutputError::Encode { path: label.clone(), message: e.to_string() };
+    let file = std::fs::File::create(path).map_err(|source| OutputError::Io { path: label.clone(), source })?;
+    let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+    encoder.set_repeat(Repeat::Infinite).map_err(enc)?;
+    let delay = image::Delay::from_numer_denom_ms((1000.0 / fps).round().max(10.0) as u32, 1);
+    for rgb in frames {
+        let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+        let img = image::RgbaImage::from_raw(width, height, rgba)
+            .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?;
+        encoder.encode_frame(image::Frame::from_parts(img, 0, 0, delay)).map_err(enc)?;
+    }
+    Ok(())
+}
+
 /// Writes `t.npy`, `instance.npy` and `normal.npy` into `dir` (created if missing).
 pub fn write_aovs(frame: &Frame, dir: &Path) -> Result<(), OutputError> {
     let io = |p: &Path| {

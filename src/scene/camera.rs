@@ -67,13 +67,19 @@ impl Camera {
     /// A camera looking at a bounding box from the front-left, three-quarters above, framed
     /// to fit it.
     pub fn framing(lo: Vec3, hi: Vec3, width: u32, height: u32) -> Camera {
+        Self::framing_from(lo, hi, width, height, DVec3::new(0.95, 0.36, -0.9))
+    }
+
+    /// A camera looking at a bounding box from direction `from` (towards the eye), framed to
+    /// fit it.
+    pub fn framing_from(lo: Vec3, hi: Vec3, width: u32, height: u32, from: DVec3) -> Camera {
         let centre = ((lo + hi) * 0.5).as_dvec3();
         let radius = ((hi - lo).length() as f64 * 0.5).max(1e-6);
         let vfov_deg: f64 = 30.0;
         let aspect = width as f64 / height.max(1) as f64;
         let half = (vfov_deg.to_radians() * 0.5).tan() * aspect.min(1.0);
-        let dist = radius / half.atan().sin() * 0.78;
-        let dir = DVec3::new(0.95, 0.36, -0.9).normalize();
+        let dist = radius / half.atan().sin() * 0.68;
+        let dir = from.normalize();
         Camera { eye: centre + dir * dist, target: centre, up: DVec3::Y, vfov_deg, width, height }
     }
 

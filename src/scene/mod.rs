@@ -1,7 +1,13 @@
-//! What is rendered: the camera and the lights (and, with animation, instances).
+//! What is rendered: parts placed as instances with transforms, the camera and the lights.
 
 pub mod camera;
+pub mod car;
+pub mod ground;
+pub mod instances;
 pub mod lights;
+pub mod transform;
 
 pub use camera::{Camera, CameraError};
+pub use instances::{Instance, Scene, SceneError};
 pub use lights::{Lights, LightsError, Sun};
+pub use transform::{Transform, TransformError};

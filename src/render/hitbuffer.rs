@@ -1,0 +1,124 @@
+//! The per-pixel hit buffer: last frame's primary hit per pixel, reused only when that is
+//! provably the same answer (DESIGN.md, "The hit buffer must be exact"):
+//!
+//! - the camera is bit-for-bit the same,
+//! - the instance hit did not move (its world transform is bit-for-bit the same), and
+//! - no moved instance's old or new bounding sphere crosses the ray before the hit (for a
+//!   miss: anywhere on the ray).
+//!
+//! Only primary visibility is cached; shading and shadow rays run every frame, so rendering
+//! with the buffer gives the same image as rendering without it.
+
+use super::instances::{sphere_interval, Prepared};
+use crate::scene::{Camera, Scene};
+use crate::svo::Attr;
+use glam::{DAffine3, DVec3, Vec3};
+
+/// One pixel's primary hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HitRecord {
+    /// Ray parameter along the unit camera ray; +∞ for a miss.
+    pub t: f32,
+    /// Instance hit; −1 for a miss.
+    pub instance: i32,
+    /// World-space unit normal, facing the camera.
+    pub normal: Vec3,
+    /// World-space normal of the voxel face entered (zero when the ray started inside).
+    pub face_normal: Vec3,
+    /// The voxel's attributes.
+    pub attr: Attr,
+    /// The voxel's edge length in world units (largest stretch), for shadow-ray offsets.
+    pub voxel: f32,
+}
+
+impl HitRecord {
+    /// A miss.
+    pub const MISS: HitRecord = HitRecord {
+        t: f32::INFINITY,
+        instance: -1,
+        normal: Vec3::ZERO,
+        face_normal: Vec3::ZERO,
+        attr: Attr { albedo: 0, normal: 0 },
+        voxel: 0.0,
+    };
+}
+
+/// Hit records of the previous frame and what they were computed under.
+#[derive(Clone, Debug, Default)]
+pub struct HitBuffer {
+    /// The camera of the stored frame.
+    pub camera: Option<Camera>,
+    /// Instance world transforms of the stored frame.
+    pub worlds: Vec<DAffine3>,
+    /// Instance parts of the stored frame.
+    pub parts: Vec<usize>,
+    /// Bounding spheres (camera-relative centre, radius) of the stored frame.
+    pub spheres: Vec<(DVec3, f64)>,
+    /// One record per pixel, row 0 at the top.
+    pub records: Vec<HitRecord>,
+    /// Pixels reused in the last frame rendered with this buffer.
+    pub reused: u64,
+}
+
+/// What the current frame may reuse.
+pub struct Reuse {
+    /// Per instance: moved since the stored frame.
+    pub moved: Vec<bool>,
+    /// Old and new spheres of every moved instance.
+    pub moved_spheres: Vec<(DVec3, f64)>,
+}
+
+impl HitBuffer {
+    /// An empty buffer.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Whether the stored frame was seen by exactly this camera.
+    pub fn same_camera(&self, camera: &Camera) -> bool {
+        self.camera.as_ref() == Some(camera) && self.records.len() == (camera.width * camera.height) as usize
+    }
+
+    /// The reuse conditions for the current frame, or None if nothing can be reused (other
+    /// camera, other instances).
+    pub fn reuse(&self, camera: &Camera, scene: &Scene, prepared: &[Prepared]) -> Option<Reuse> {
+        let parts: Vec<usize> = scene.instances().iter().map(|i| i.part).collect();
+        if !self.same_camera(camera) || self.parts != parts {
+            return None;
+        }
+        let mut moved = vec![false; parts.len()];
+        let mut moved_spheres = Vec::new();
+        for (i, w) in scene.worlds().iter().enumerate() {
+            if *w != self.worlds[i] {
+                moved[i] = true;
+                moved_spheres.push(self.spheres[i]);
+                moved_spheres.push((prepared[i].centre, prepared[i].radius));
+            }
+        }
+        Some(Reuse { moved, moved_spheres })
+    }
+
+    /// Stores a frame's records and conditions.
+    pub fn store(&mut self, camera: &Camera, scene: &Scene, prepared: &[Prepared], records: Vec<HitRecord>) {
+        self.camera = Some(*camera);
+        self.worlds = scene.worlds().to_vec();
+        self.parts = scene.instances().iter().map(|i| i.part).collect();
+        self.spheres = prepared.iter().map(|p| (p.centre, p.radius)).collect();
+        self.records = records;
+    }
+}
+
+impl Reuse {
+    /// Whether the stored record for a pixel with ray direction `d` (from the eye) holds.
+    #[inline]
+    pub fn valid(&self, r: &HitRecord, d: DVec3) -> bool {
+        if r.instance >= 0 && self.moved[r.instance as usize] {
+            return false;
+        }
+        let t_hit = r.t as f64;
+        !self
+            .moved_spheres
+            .iter()
+            .any(|&(c, rad)| sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit))
+    }
+}

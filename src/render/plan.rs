@@ -1,0 +1,136 @@
+//! The frame plan: from the scene, the camera, the lights, the user's switches and the
+//! previous frame, which passes and features this frame needs. Everything it leaves out is
+//! skipped ("leave out what a scene does not need").
+
+use super::hitbuffer::HitBuffer;
+use super::visibility::Search;
+use crate::scene::{Camera, Lights, Scene};
+
+/// Instances below this count are searched without a BVH (sorting a handful of spheres is
+/// cheaper than building and walking a tree; see docs/benchmarks.md for the sweep).
+pub const BVH_MIN_INSTANCES: usize = 32;
+
+/// What the user allows (all on by default; the CLI's `--no-*` switches turn them off).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize))]
+pub struct Features {
+    /// Bounding-sphere culling.
+    pub cull: bool,
+    /// Depth-sorted early-out.
+    pub sort: bool,
+    /// Instance BVH.
+    pub bvh: bool,
+    /// Per-pixel hit buffer.
+    pub hit_buffer: bool,
+    /// Shadow rays.
+    pub shadows: bool,
+}
+
+impl Default for Features {
+    fn default() -> Self {
+        Features { cull: true, sort: true, bvh: true, hit_buffer: true, shadows: true }
+    }
+}
+
+impl Features {
+    /// Everything off: the plain oracle path.
+    pub const NONE: Features = Features { cull: false, sort: false, bvh: false, hit_buffer: false, shadows: false };
+}
+
+/// What this frame does.
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize))]
+pub struct FramePlan {
+    /// Instances in the scene.
+    pub instances: usize,
+    /// Rays are transformed into each instance (some world transform is not the identity).
+    pub transform: bool,
+    /// Bounding-sphere culling.
+    pub cull: bool,
+    /// Depth-sorted early-out.
+    pub sort: bool,
+    /// Instance BVH.
+    pub bvh: bool,
+    /// Reuse last frame's hits.
+    pub hit_buffer: bool,
+    /// Shadow rays.
+    pub shadows: bool,
+    /// Why each choice was made, one line each.
+    pub reasons: Vec<String>,
+}
+
+impl FramePlan {
+    /// Decides the plan.
+    pub fn new(
+        scene: &Scene,
+        camera: &Camera,
+        lights: &Lights,
+        features: &Features,
+        prev: Option<&HitBuffer>,
+    ) -> FramePlan {
+        let n = scene.instances().len();
+        let mut reasons = Vec::new();
+        let transform = scene.worlds().iter().any(|w| *w != glam::DAffine3::IDENTITY);
+        reasons.push(if transform {
+            "transform: on (instances have non-identity transforms)".into()
+        } else {
+            "transform: off (every instance at the identity: rays map by the cube offset and scale only)".into()
+        });
+        let many = n > 1;
+        let cull = features.cull && many;
+        reasons.push(match (features.cull, many) {
+            (false, _) => "cull: off (switched off)".into(),
+            (true, false) => "cull: off (one instance: nothing to cull)".into(),
+            _ => "cull: on".into(),
+        });
+        let bvh = features.bvh && features.cull && n >= BVH_MIN_INSTANCES;
+        reasons.push(if !features.bvh || !features.cull {
+            "bvh: off (switched off)".into()
+        } else if bvh {
+            format!("bvh: on ({n} instances ≥ {BVH_MIN_INSTANCES})")
+        } else {
+            format!("bvh: off ({n} instances < {BVH_MIN_INSTANCES})")
+        });
+        let sort = features.sort && cull && !bvh;
+        reasons.push(if bvh {
+            "sort: off (the BVH visits instances near to far)".into()
+        } else if sort {
+            "sort: on (depth-sorted early-out)".into()
+        } else if !features.sort {
+            "sort: off (switched off)".into()
+        } else {
+            "sort: off (needs culling)".into()
+        });
+        let camera_static = prev.is_some_and(|p| p.same_camera(camera));
+        let hit_buffer = features.hit_buffer && camera_static;
+        reasons.push(match (features.hit_buffer, prev.is_some(), camera_static) {
+            (false, _, _) => "hit_buffer: off (switched off)".into(),
+            (true, false, _) => "hit_buffer: off (first frame)".into(),
+            (true, true, false) => "hit_buffer: off (camera moved)".into(),
+            _ => "hit_buffer: on (camera static)".into(),
+        });
+        let sun = lights.sun.is_some_and(|s| s.irradiance.max_element() > 0.0);
+        let shadows = features.shadows && sun;
+        reasons.push(match (features.shadows, sun) {
+            (false, _) => "shadows: off (switched off)".into(),
+            (true, false) => "shadows: off (no sun)".into(),
+            _ => "shadows: on".into(),
+        });
+        FramePlan { instances: n, transform, cull, sort, bvh, hit_buffer, shadows, reasons }
+    }
+
+    /// The instance search this plan implies.
+    pub fn search(&self) -> Search {
+        match (self.cull, self.sort, self.bvh) {
+            (_, _, true) => Search::Bvh,
+            (true, true, _) => Search::CullSort,
+            (true, false, _) => Search::Cull,
+            _ => Search::Plain,
+        }
+    }
+
+    /// Human-readable plan (`--explain`).
+    pub fn explain(&self) -> String {
+        format!("frame plan ({} instances):\n  {}", self.instances, self.reasons.join("\n  "))
+    }
+}

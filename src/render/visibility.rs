@@ -1,0 +1,198 @@
+//! Which instance a ray hits first. Four ways, chosen by the frame plan, that must give
+//! bit-identical answers:
+//!
+//! - **plain** (the oracle): trace every instance over the whole ray, keep the nearest;
+//! - **culling**: trace only instances whose bounding sphere the ray crosses;
+//! - **culling + depth sort**: visit those instances by sphere entry t, trace each only up to
+//!   the best t so far, and stop once the next entry lies beyond it (early-out);
+//! - **BVH**: descend the instance BVH nearer box first, skipping boxes entered beyond the
+//!   best t.
+//!
+//! The nearest hit wins; equal t goes to the lower instance index, in every mode.
+
+use super::bvh::{box_entry, Bvh};
+use super::instances::{sphere_interval, Prepared};
+use crate::ray::UnitRay;
+use crate::svo::Svo;
+use crate::traverse::{trace_unit, Hit, TraceOptions};
+use glam::DVec3;
+use std::sync::Arc;
+
+/// How to find the nearest instance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Search {
+    /// Every instance, whole ray.
+    Plain,
+    /// Bounding-sphere culling.
+    Cull,
+    /// Culling plus depth-sorted early-out.
+    CullSort,
+    /// Instance BVH with early-out.
+    Bvh,
+}
+
+/// The instances of one frame.
+pub struct FrameInstances<'a> {
+    /// Part octrees.
+    pub parts: &'a [Arc<Svo>],
+    /// Prepared instances.
+    pub prepared: &'a [Prepared],
+    /// The BVH, when the plan uses one.
+    pub bvh: Option<&'a Bvh>,
+}
+
+/// The nearest hit of a ray among the instances.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstanceHit {
+    /// Instance index.
+    pub instance: usize,
+    /// The voxel hit (t along the camera-relative ray).
+    pub hit: Hit,
+}
+
+#[inline]
+fn trace_one(fi: &FrameInstances, i: usize, o: DVec3, d: DVec3, opts: &TraceOptions) -> Option<Hit> {
+    let p = &fi.prepared[i];
+    let ur = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d))?;
+    trace_unit(&fi.parts[p.part], &ur, opts).hit
+}
+
+#[inline]
+fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
+    let better = match best {
+        None => true,
+        Some(b) => hit.t < b.hit.t || (hit.t == b.hit.t && i < b.instance),
+    };
+    if better {
+        *best = Some(InstanceHit { instance: i, hit });
+    }
+}
+
+/// The nearest instance hit along `o + t·d` (camera-relative origin, unit direction).
+pub fn nearest(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search, opts: &TraceOptions) -> Option<InstanceHit> {
+    let mut best: Option<InstanceHit> = None;
+    let bound = |best: &Option<InstanceHit>| best.map_or(opts.t_max, |b| b.hit.t);
+    match search {
+        Search::Plain => {
+            for i in 0..fi.prepared.len() {
+                if let Some(h) = trace_one(fi, i, o, d, opts) {
+                    keep(&mut best, i, h);
+                }
+            }
+        }
+        Search::Cull => {
+            for (i, p) in fi.prepared.iter().enumerate() {
+                if sphere_interval(p.centre, p.radius, o, d).is_some() {
+                    if let Some(h) = trace_one(fi, i, o, d, opts) {
+                        keep(&mut best, i, h);
+                    }
+                }
+            }
+        }
+        Search::CullSort => {
+            let mut cands: Vec<(f64, usize)> = fi
+                .prepared
+                .iter()
+                .enumerate()
+                .filter_map(|(i, p)| sphere_interval(p.centre, p.radius, o, d).map(|(t0, _)| (t0, i)))
+                .collect();
+            cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            for (entry, i) in cands {
+                let t_max = bound(&best);
+                if entry > t_max as f64 {
+                    break; // every later sphere starts beyond the nearest hit
+                }
+                if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
+                    keep(&mut best, i, h);
+                }
+            }
+        }
+        Search::Bvh => {
+            let Some(bvh) = fi.bvh else { return nearest(fi, o, d, Search::CullSort, opts) };
+            if bvh.nodes.is_empty() {
+                return None;
+            }
+            let inv = d.recip();
+            let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+            if let Some(t) = box_entry(bvh.nodes[0].lo, bvh.nodes[0].hi, o, inv, f64::INFINITY) {
+                stack.push((0, t));
+            }
+            while let Some((n, entry)) = stack.pop() {
+                let t_max = bound(&best);
+                if entry > t_max as f64 {
+                    continue;
+                }
+                let node = bvh.nodes[n as usize];
+                if node.count > 0 {
+                    for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
+                        let i = i as usize;
+                        let p = &fi.prepared[i];
+                        let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, d) else { continue };
+                        let t_max = bound(&best);
+                        if t0 > t_max as f64 {
+                            continue;
+                        }
+                        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
+                            keep(&mut best, i, h);
+                        }
+                    }
+                } else {
+                    let t_max = bound(&best) as f64;
+                    let (l, r) = (node.first, node.first + 1);
+                    let el = box_entry(bvh.nodes[l as usize].lo, bvh.nodes[l as usize].hi, o, inv, t_max);
+                    let er = box_entry(bvh.nodes[r as usize].lo, bvh.nodes[r as usize].hi, o, inv, t_max);
+                    // Push the farther child first so the nearer one is popped first.
+                    match (el, er) {
+                        (Some(a), Some(b)) if a <= b => {
+                            stack.push((r, b));
+                            stack.push((l, a));
+                        }
+                        (Some(a), Some(b)) => {
+                            stack.push((l, a));
+                            stack.push((r, b));
+                        }
+                        (Some(a), None) => stack.push((l, a)),
+                        (None, Some(b)) => stack.push((r, b)),
+                        (None, None) => {}
+                    }
+                }
+            }
+        }
+    }
+    best
+}
+
+/// Whether anything blocks `o + t·d` for t in (0, ∞) (shadow rays): any hit ends the search.
+pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search) -> bool {
+    let opts = TraceOptions::default();
+    match (search, fi.bvh) {
+        (Search::Plain, _) => (0..fi.prepared.len()).any(|i| trace_one(fi, i, o, d, &opts).is_some()),
+        (Search::Bvh, Some(bvh)) if !bvh.nodes.is_empty() => {
+            let inv = d.recip();
+            let mut stack = vec![0u32];
+            while let Some(n) = stack.pop() {
+                let node = bvh.nodes[n as usize];
+                if box_entry(node.lo, node.hi, o, inv, f64::INFINITY).is_none() {
+                    continue;
+                }
+                if node.count == 0 {
+                    stack.push(node.first);
+                    stack.push(node.first + 1);
+                    continue;
+                }
+                for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
+                    let p = &fi.prepared[i as usize];
+                    if sphere_interval(p.centre, p.radius, o, d).is_some()
+                        && trace_one(fi, i as usize, o, d, &opts).is_some()
+                    {
+                        return true;
+                    }
+                }
+            }
+            false
+        }
+        _ => fi.prepared.iter().enumerate().any(|(i, p)| {
+            sphere_interval(p.centre, p.radius, o, d).is_some() && trace_one(fi, i, o, d, &opts).is_some()
+        }),
+    }
+}
