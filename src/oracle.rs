@@ -189,12 +189,18 @@ pub fn dda(set: &VoxelSet, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64, co
 /// 2^depth grid (empty when `enter > exit`). Parallel axes use half-open cells, as the
 /// traversal does.
 pub fn voxel_interval(depth: u32, coord: [u32; 3], origin: DVec3, dir: DVec3) -> (f64, f64) {
+    voxel_interval_grown(depth, coord, origin, dir, 0.0)
+}
+
+/// [`voxel_interval`] of the voxel grown by `grow` (unit-cube units) on every side.
+pub fn voxel_interval_grown(depth: u32, coord: [u32; 3], origin: DVec3, dir: DVec3, grow: f64) -> (f64, f64) {
     let n = (1u64 << depth) as f64;
     let (p, d) = (origin * n, dir * n);
     let par = parallel_axes(dir);
+    let g = grow * n;
     let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
     for i in 0..3 {
-        let (lo, hi) = (coord[i] as f64, coord[i] as f64 + 1.0);
+        let (lo, hi) = (coord[i] as f64 - g, coord[i] as f64 + 1.0 + g);
         if par & (1 << i) != 0 {
             if !(p[i] >= lo && p[i] < hi) {
                 return (f64::INFINITY, f64::NEG_INFINITY);

@@ -32,8 +32,9 @@ impl Ray {
 /// cannot change voxel at any supported depth (≤ 2⁻²⁰) except by sitting on a boundary.
 pub const PARALLEL_RATIO: f32 = 1.0 / (1u64 << 40) as f32;
 
-/// Rays whose unit-cube origin lies further than this from the cube are refused (returned
-/// as misses): the cube subtends less than 2⁻⁴⁰ of their view and f32 cannot resolve it.
+/// After moving the origin to the cube (see [`UnitRay::from_unit`]) its coordinates are
+/// within a few units of it; anything beyond this (only possible on parallel axes, which
+/// are not moved) is refused as a miss.
 pub const MAX_UNIT_ORIGIN: f32 = (1u64 << 40) as f32;
 
 /// 2^-floor(log2 m) for a positive finite m, read off the exponent bits (this runs per ray
@@ -77,8 +78,16 @@ pub struct UnitRay {
     pub mirror: u32,
     /// Bit i: axis i is treated as parallel (no motion along it).
     pub parallel: u32,
-    /// The direction was multiplied by this power of two, so internal t = world t / `t_scale`.
+    /// The direction was multiplied by this power of two, so internal t = (world t −
+    /// `t_offset`) / `t_scale`.
     pub t_scale: f64,
+    /// The origin was moved this far along the ray (to where it enters the cube).
+    pub t_offset: f64,
+    /// `origin` before rounding to f32 (mirrored, moved to the cube): the reported hit t is
+    /// computed from it, so rounding the origin never shows in t.
+    pub origin64: [f64; 3],
+    /// The rescaled, mirrored direction in f64 (0 on parallel axes).
+    pub dir64: [f64; 3],
 }
 
 impl UnitRay {
@@ -100,11 +109,44 @@ impl UnitRay {
         if !(m >= 1e-300) {
             return None;
         }
+        let parallel = parallel_axes(dir);
+        // Move the origin (in f64) to where the line enters the cube, so that rays from far
+        // away keep f32's precision inside it; a line that misses the cube misses.
+        let (mut t_enter, mut t_exit) = (f64::NEG_INFINITY, f64::INFINITY);
+        for i in 0..3 {
+            if parallel & (1 << i) != 0 {
+                if !(origin[i] >= 0.0 && origin[i] < 1.0) {
+                    return None;
+                }
+            } else {
+                let (a, b) = (-origin[i] / dir[i], (1.0 - origin[i]) / dir[i]);
+                t_enter = t_enter.max(a.min(b));
+                t_exit = t_exit.min(a.max(b));
+            }
+        }
+        if !(t_enter <= t_exit) {
+            return None;
+        }
+        let t_offset = if t_enter > 0.0 || t_exit < 0.0 { t_enter } else { 0.0 };
+        let mut origin = origin;
+        for i in 0..3 {
+            if parallel & (1 << i) == 0 {
+                origin[i] += t_offset * dir[i];
+            }
+        }
         // Power-of-two rescale: exact, so t converts back without rounding.
         let t_scale = inverse_pow2_floor(m);
         let d = dir * t_scale;
-        let mut out = UnitRay { origin: [0.0; 3], inv_dir: [0.0; 3], mirror: 0, parallel: 0, t_scale };
-        let parallel = parallel_axes(dir);
+        let mut out = UnitRay {
+            origin: [0.0; 3],
+            inv_dir: [0.0; 3],
+            mirror: 0,
+            parallel: 0,
+            t_scale,
+            t_offset,
+            origin64: [0.0; 3],
+            dir64: [0.0; 3],
+        };
         for i in 0..3 {
             let o = origin[i] as f32;
             if !(o.abs() <= MAX_UNIT_ORIGIN) {
@@ -114,13 +156,18 @@ impl UnitRay {
             if parallel & (1 << i) != 0 {
                 out.parallel |= 1 << i;
                 out.origin[i] = o;
+                out.origin64[i] = origin[i];
             } else if di.is_sign_negative() {
                 out.mirror |= 1 << i;
                 out.origin[i] = 1.0 - o;
                 out.inv_dir[i] = 1.0 / -di;
+                out.origin64[i] = 1.0 - origin[i];
+                out.dir64[i] = -d[i];
             } else {
                 out.origin[i] = o;
                 out.inv_dir[i] = 1.0 / di;
+                out.origin64[i] = origin[i];
+                out.dir64[i] = d[i];
             }
         }
         Some(out)
@@ -128,11 +175,11 @@ impl UnitRay {
 
     /// Converts a world/object t to this ray's internal t.
     pub fn to_internal(&self, t: f32) -> f32 {
-        (t as f64 / self.t_scale) as f32
+        ((t as f64 - self.t_offset) / self.t_scale) as f32
     }
     /// Converts an internal t back to world/object t.
     pub fn to_world(&self, t: f32) -> f32 {
-        (t as f64 * self.t_scale) as f32
+        (self.t_offset + t as f64 * self.t_scale) as f32
     }
 }
 
@@ -154,6 +201,10 @@ mod tests {
         assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::ZERO).is_none());
         assert!(UnitRay::from_unit(DVec3::NAN, DVec3::X).is_none());
         assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::new(f64::INFINITY, 0.0, 0.0)).is_none());
+        // Far away but aimed at the cube: moved to the cube, not refused.
+        let far = UnitRay::from_unit(DVec3::new(-1e13, 0.5, 0.5), DVec3::X).unwrap();
+        assert!(far.origin[0].abs() < 1e-3 && far.t_offset > 9.9e12);
+        // Far away and beside it: a miss.
         assert!(UnitRay::from_unit(DVec3::splat(1e13), DVec3::X).is_none());
         assert!(UnitRay::from_unit(DVec3::ZERO, DVec3::new(1e-310, 0.0, 0.0)).is_none());
     }

@@ -8,7 +8,7 @@
 //! a walk reports first depends on rounding; such an answer is a *tie*, accepted only if the
 //! voxel reported is occupied and its closed box is touched at that t.
 
-use crate::oracle::{dda, voxel_interval, Contact, OracleHit, VoxelSet};
+use crate::oracle::{dda, voxel_interval, voxel_interval_grown, Contact, OracleHit, VoxelSet};
 use crate::ray::UnitRay;
 use crate::rng::Rng;
 use crate::svo::{self, Cube, Svo};
@@ -87,14 +87,21 @@ pub struct CaseReport {
     pub first_mismatch: Option<String>,
 }
 
-/// How close (relative to max(|t|, one cube width in t)) a ray must pass to a voxel to count
-/// as touching it: the traversal's f32 arithmetic decides contacts to about this precision.
+/// How close (relative to max(|t|, one cube width in t)) in t two contacts must be to count
+/// as simultaneous.
 pub const TOUCH_TOLERANCE: f64 = 1e-6;
+
+/// How close (in unit-cube units) a ray must pass to a voxel to count as touching it: the
+/// traversal decides contacts in f32, whose origin coordinates carry about 2⁻²⁴ of error, so a
+/// contact is only resolvable to a few times that as a *distance* — in t it is larger by the
+/// inverse of the direction component, which is why this is not a t tolerance.
+pub const TOUCH_DISTANCE: f64 = 1.0 / (1u64 << 20) as f64;
 
 /// Compares a traversal result with the oracle for one ray. `strict` is the oracle under
 /// closed-box contact, `lenient` the oracle counting only voxels the ray stays inside for
-/// longer than [`TOUCH_TOLERANCE`]. Returns the verdict and the relative error of the hit's
-/// t against the exact (f64) entry of the voxel it names.
+/// longer than [`TOUCH_TOLERANCE`]. The hit must name an occupied voxel the ray passes within
+/// [`TOUCH_DISTANCE`] of, at its t. Returns the verdict and the relative error of the hit's t
+/// against the exact (f64) entry of the voxel it names.
 pub fn compare(
     set: &VoxelSet,
     ray: &CaseRay,
@@ -118,12 +125,13 @@ pub fn compare(
             0.0,
         );
     };
-    let (enter, exit) = voxel_interval(set.depth, h.coord, o, d);
+    let (enter, _) = voxel_interval(set.depth, h.coord, o, d);
     let t = h.t as f64;
     let exact_t = enter.max(ray.t_min as f64);
     let dt = (t - exact_t).abs() / scale(exact_t);
     let touch = TOUCH_TOLERANCE * scale(t);
-    let contact = set.contains(h.coord) && enter <= t + touch && exit >= t - touch;
+    let (g_enter, g_exit) = voxel_interval_grown(set.depth, h.coord, o, d, TOUCH_DISTANCE);
+    let contact = set.contains(h.coord) && g_enter <= t + touch && g_exit >= t - touch;
     if !contact || dt > T_TOLERANCE || t > ray.t_max as f64 + touch {
         return (Verdict::Mismatch, dt);
     }

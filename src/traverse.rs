@@ -188,8 +188,7 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
         return miss(0);
     }
     if max_level == 0 {
-        let t = t_enter.max(t_min);
-        return Traced { hit: finish(ray, t, 0, [0; 3], svo.attrs[0], t_enter >= t_min, t0), steps: 1, aborted: false };
+        return Traced { hit: finish(ray, t_enter, t_min, 0, [0; 3], svo.attrs[0], t0), steps: 1, aborted: false };
     }
 
     let mut stack = [Frame::default(); STACK];
@@ -243,19 +242,8 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
         let coord = [2 * f.coord[0] + (c & 1), 2 * f.coord[1] + ((c >> 1) & 1), 2 * f.coord[2] + ((c >> 2) & 1)];
         if node.leaf() as u32 & (1 << octant) != 0 || child_level >= max_level {
             let attr = svo.child_attr(f.slot as usize, octant);
-            // The midpoint t-values carry a few ulps of the largest axis t; for the reported t
-            // take the entry planes of this voxel directly (a few ulps of t itself).
-            let te = entry_t(ray, child_level, coord);
             return Traced {
-                hit: finish(
-                    ray,
-                    te.max(t_min),
-                    child_level,
-                    coord,
-                    attr,
-                    te >= t_min,
-                    te_axes(ray, child_level, coord),
-                ),
+                hit: finish(ray, te, t_min, child_level, coord, attr, ct0),
                 steps,
                 aborted: false,
             };
@@ -267,37 +255,21 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
     }
 }
 
-/// t at which the ray crosses each lower (mirrored) face plane of voxel `coord` at `level`;
-/// −∞ on parallel axes.
-#[inline]
-fn te_axes(ray: &UnitRay, level: u32, coord: [u32; 3]) -> [f32; 3] {
-    let inv_size = 1.0 / (1u64 << level) as f32;
-    let mut t = [f32::NEG_INFINITY; 3];
+/// Converts a mirrored-space hit back to object space. `te` is the voxel's entry t from the
+/// traversal's f32 arithmetic (it decides whether the ray started inside); the reported t is
+/// recomputed in f64 from the unrounded ray and the voxel's own entry planes, so neither the
+/// midpoint recursion nor rounding the origin to f32 shows in it.
+fn finish(ray: &UnitRay, te: f32, t_min: f32, level: u32, coord: [u32; 3], attr: Attr, ct0: [f32; 3]) -> Option<Hit> {
+    let inv_size = 1.0 / (1u64 << level) as f64;
+    let mut t_entry = f64::NEG_INFINITY;
     for i in 0..3 {
         if ray.parallel & (1 << i) == 0 {
-            t[i] = (coord[i] as f32 * inv_size - ray.origin[i]) * ray.inv_dir[i];
+            t_entry = t_entry.max((coord[i] as f64 * inv_size - ray.origin64[i]) / ray.dir64[i]);
         }
     }
-    t
-}
-
-/// Entry t of voxel `coord` at `level` (mirrored space).
-#[inline]
-fn entry_t(ray: &UnitRay, level: u32, coord: [u32; 3]) -> f32 {
-    max3(te_axes(ray, level, coord))
-}
-
-/// Converts a mirrored-space hit back to object space.
-fn finish(
-    ray: &UnitRay,
-    t_internal: f32,
-    level: u32,
-    coord: [u32; 3],
-    attr: Attr,
-    entered: bool,
-    ct0: [f32; 3],
-) -> Option<Hit> {
-    let t = ray.to_world(t_internal);
+    let entered = te >= t_min;
+    let t_internal = if entered { t_entry.max(t_min as f64) } else { t_min as f64 };
+    let t = (ray.t_offset + t_internal * ray.t_scale) as f32;
     if !t.is_finite() {
         return None;
     }

@@ -72,6 +72,8 @@ fn nearest_part_matches_brute_force_over_all_parts() {
     };
     let f = frame(&parts, &cam, &Lights::default(), Features::default());
     let b = cam.basis();
+    let sc = scene(&parts);
+    let prepared = voxray::render::instances::prepare(&sc, cam.eye, false);
     let mut hits = 0;
     for py in 0..cam.height {
         for px in 0..cam.width {
@@ -79,7 +81,8 @@ fn nearest_part_matches_brute_force_over_all_parts() {
             // Unoptimized: every part, full interval, keep the smallest t.
             let mut best: Option<(f32, i32)> = None;
             for (i, s) in parts.iter().enumerate() {
-                let u = UnitRay::from_unit(s.bounds.to_unit(cam.eye), dir / s.bounds.size as f64).unwrap();
+                let p = &prepared[i];
+                let Some(u) = UnitRay::from_unit(p.to_unit.point(DVec3::ZERO), p.to_unit.vector(dir)) else { continue };
                 if let Some(h) = trace_unit(s, &u, &TraceOptions::default()).hit {
                     if best.is_none_or(|(t, _)| h.t < t) {
                         best = Some((h.t, i as i32));

@@ -35,6 +35,11 @@ impl Default for Features {
 impl Features {
     /// Everything off: the plain oracle path.
     pub const NONE: Features = Features { cull: false, sort: false, bvh: false, hit_buffer: false, shadows: false };
+
+    /// The same switches with shadow rays on (the oracle path of a lit image).
+    pub fn with_shadows(self) -> Features {
+        Features { shadows: true, ..self }
+    }
 }
 
 /// What this frame does.

@@ -1,0 +1,296 @@
+//! Rigid-body animation: every optimization (culling, depth-sorted early-out, BVH, hit
+//! buffer) against the plain oracle path, instances against brute-force oriented boxes, far
+//! from the origin, and bad transforms.
+
+use glam::{DAffine3, DQuat, DVec3, Vec3};
+use std::sync::{Arc, OnceLock};
+use voxray::pipeline::shared_resolution;
+use voxray::render::instances::prepare;
+use voxray::render::visibility::{nearest, FrameInstances, Search};
+use voxray::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
+use voxray::rng::Rng;
+use voxray::scene::car::{add_car, pose, Car};
+use voxray::scene::{Camera, Instance, Lights, Scene, SceneError, Transform, TransformError};
+use voxray::svo::{self, Cube, Svo};
+use voxray::traverse::TraceOptions;
+use voxray::voxelize::{voxelize, Resolution, VoxelGrid, VoxelizeOptions};
+
+/// The default car's parts at a coarse voxel size (built once per test binary).
+fn car_parts() -> Vec<Arc<Svo>> {
+    static PARTS: OnceLock<Vec<Arc<Svo>>> = OnceLock::new();
+    PARTS
+        .get_or_init(|| {
+            let mesh = voxray::model::car::mesh();
+            let res = shared_resolution(&mesh, Resolution::Depth(6)).unwrap();
+            let opts = VoxelizeOptions { resolution: res, solid: false };
+            mesh.parts
+                .iter()
+                .map(|p| Arc::new(svo::build(&voxelize(p, &mesh.materials, &opts, &|_, _| {}).unwrap()).unwrap()))
+                .collect()
+        })
+        .clone()
+}
+
+/// A parked car at the origin and `n_driving` cars driving figure-eights centred in front of
+/// it (towards +z, where the camera is), so they cross in front of the parked one.
+fn cars_scene(n_driving: usize) -> (Scene, Vec<Car>) {
+    let mut scene = Scene::new(car_parts());
+    let mut cars = vec![add_car(&mut scene, 0, DVec3::ZERO, 0.0, false).unwrap()];
+    for k in 0..n_driving {
+        cars.push(add_car(&mut scene, 0, DVec3::new(0.0, 0.0, 8.0 + 3.0 * k as f64), 1.3 * k as f64, true).unwrap());
+    }
+    scene.update().unwrap();
+    (scene, cars)
+}
+
+fn camera() -> Camera {
+    Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 64,
+        height: 40,
+    }
+}
+
+/// Renders `frames` frames at 30 fps with the given features, carrying a hit buffer.
+fn clip(scene: &mut Scene, cars: &[Car], features: Features, frames: usize, orbit_deg_per_s: f64) -> Vec<Frame> {
+    let lights = Lights::default();
+    let mut hits = HitBuffer::new();
+    (0..frames)
+        .map(|f| {
+            let t = f as f64 / 30.0;
+            for c in cars {
+                pose(scene, c, t).unwrap();
+            }
+            scene.update().unwrap();
+            let base = camera();
+            let q = DQuat::from_rotation_y((orbit_deg_per_s * t).to_radians());
+            let cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
+            let plan = FramePlan::new(scene, &cam, &lights, &features, (f > 0).then_some(&hits));
+            render(scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {})
+        })
+        .collect()
+}
+
+fn assert_same_hits(a: &[Frame], b: &[Frame]) {
+    for (f, (x, y)) in a.iter().zip(b).enumerate() {
+        for k in 0..x.t.len() {
+            assert_eq!(x.t[k].to_bits(), y.t[k].to_bits(), "frame {f} pixel {k}: t");
+            assert_eq!(x.instance[k], y.instance[k], "frame {f} pixel {k}: instance");
+            assert_eq!(x.normal[k].to_array().map(f32::to_bits), y.normal[k].to_array().map(f32::to_bits), "frame {f} pixel {k}: normal");
+        }
+        assert_eq!(x.radiance, y.radiance, "frame {f}: image");
+    }
+}
+
+#[test]
+fn all_optimizations_match_the_plain_path_static_camera() {
+    let (mut s1, cars) = cars_scene(1);
+    let fast = clip(&mut s1, &cars, Features::default(), 60, 0.0);
+    let (mut s2, cars2) = cars_scene(1);
+    let plain = clip(&mut s2, &cars2, Features::NONE.with_shadows(), 60, 0.0);
+    assert_same_hits(&fast, &plain);
+    let reused: u64 = fast.iter().map(|f| f.reused).sum();
+    let pixels = (fast.len() * fast[0].t.len()) as u64;
+    assert!(reused > pixels / 4, "the static camera should reuse many pixels ({reused} of {pixels})");
+    assert!(reused < pixels, "moving parts must force some pixels to be traced again");
+    // The driving car really crosses in front of the parked one: some pixel shows a parked
+    // instance (0..8) in one frame and a driving one (8..16) in another.
+    let crossed = (0..fast[0].t.len())
+        .any(|k| fast.iter().any(|f| (0..8).contains(&f.instance[k])) && fast.iter().any(|f| (8..16).contains(&f.instance[k])));
+    assert!(crossed, "no moving part crossed in front of a static one");
+}
+
+#[test]
+fn all_optimizations_match_the_plain_path_moving_camera() {
+    let (mut s1, cars) = cars_scene(1);
+    let fast = clip(&mut s1, &cars, Features::default(), 60, 20.0);
+    let (mut s2, cars2) = cars_scene(1);
+    let plain = clip(&mut s2, &cars2, Features::NONE.with_shadows(), 60, 20.0);
+    assert_same_hits(&fast, &plain);
+    assert_eq!(fast.iter().map(|f| f.reused).sum::<u64>(), 0, "a moving camera turns the hit buffer off");
+}
+
+#[test]
+fn bvh_matches_the_plain_path_with_many_instances() {
+    let (mut s1, cars) = cars_scene(5); // 48 instances: the plan turns the BVH on
+    let plan = FramePlan::new(&s1, &camera(), &Lights::default(), &Features::default(), None);
+    assert!(plan.bvh, "{}", plan.explain());
+    let fast = clip(&mut s1, &cars, Features::default(), 8, 0.0);
+    let (mut s2, cars2) = cars_scene(5);
+    let plain = clip(&mut s2, &cars2, Features::NONE.with_shadows(), 8, 0.0);
+    assert_same_hits(&fast, &plain);
+}
+
+/// Nearest voxel by brute force: every voxel's oriented box, in f64.
+fn brute_force(set: &[[u32; 3]], cube: &Cube, depth: u32, m: &DAffine3, o: DVec3, d: DVec3) -> Option<(f64, [u32; 3])> {
+    let inv = m.inverse();
+    let (oo, dd) = (inv.transform_point3(o), inv.transform_vector3(d));
+    let v = cube.size as f64 / (1u64 << depth) as f64;
+    let mut best: Option<(f64, [u32; 3])> = None;
+    for &c in set {
+        let lo = cube.min.as_dvec3() + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * v;
+        let hi = lo + DVec3::splat(v);
+        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+        for i in 0..3 {
+            if dd[i] == 0.0 {
+                if oo[i] < lo[i] || oo[i] > hi[i] {
+                    t0 = f64::INFINITY;
+                }
+            } else {
+                let (a, b) = ((lo[i] - oo[i]) / dd[i], (hi[i] - oo[i]) / dd[i]);
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b));
+            }
+        }
+        if t0 <= t1 && best.is_none_or(|(t, _)| t0 < t) {
+            best = Some((t0, c));
+        }
+    }
+    best
+}
+
+fn interval(cube: &Cube, depth: u32, m: &DAffine3, o: DVec3, d: DVec3, c: [u32; 3]) -> (f64, f64) {
+    let inv = m.inverse();
+    let (oo, dd) = (inv.transform_point3(o), inv.transform_vector3(d));
+    let v = cube.size as f64 / (1u64 << depth) as f64;
+    let lo = cube.min.as_dvec3() + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * v;
+    let hi = lo + DVec3::splat(v);
+    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+    for i in 0..3 {
+        let (a, b) = ((lo[i] - oo[i]) / dd[i], (hi[i] - oo[i]) / dd[i]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    (t0, t1)
+}
+
+#[test]
+fn transformed_instances_hit_where_brute_force_oriented_boxes_say() {
+    let mut rng = Rng::new(77);
+    let depth = 4;
+    let coords: Vec<[u32; 3]> = (0..80).map(|_| [0; 3].map(|_: u32| rng.below(16) as u32)).collect();
+    let cube = Cube { min: Vec3::new(-1.0, -0.5, -2.0), size: 2.0 };
+    let part = Arc::new(svo::build(&VoxelGrid::from_coords(depth, cube, coords.iter().copied(), Vec3::ONE)).unwrap());
+    let (mut hits, mut checked) = (0, 0);
+    for _ in 0..60 {
+        let scale = DVec3::new(10f64.powf(rng.f64() * 6.0 - 3.0), 10f64.powf(rng.f64() * 6.0 - 3.0), 10f64.powf(rng.f64() * 6.0 - 3.0));
+        let axis = rng.unit_vector().as_dvec3();
+        let rot = DQuat::from_axis_angle(axis, rng.f64() * 6.28);
+        let tr = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * 200.0;
+        let t = Transform::new(tr, rot, scale).unwrap();
+        let mut scene = Scene::new(vec![part.clone()]);
+        scene.add(Instance { part: 0, parent: None, local: t }).unwrap();
+        scene.update().unwrap();
+        let m = scene.world(0);
+        for _ in 0..50 {
+            // Aim at a random voxel from outside the instance's bounding sphere.
+            let c = coords[rng.below(coords.len() as u64) as usize];
+            let v = cube.size as f64 / 16.0;
+            let target_obj = cube.min.as_dvec3() + (DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) + DVec3::new(rng.f64(), rng.f64(), rng.f64())) * v;
+            let target = m.transform_point3(target_obj);
+            let radius = scale.max_element() * 2.0;
+            let o = target + rng.unit_vector().as_dvec3() * radius * 3.0;
+            let d = (target - o).normalize();
+            let prepared = prepare(&scene, o, true);
+            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None };
+            let got = nearest(&fi, DVec3::ZERO, d, Search::Plain, &TraceOptions::default());
+            let want = brute_force(&coords, &cube, depth, &m, o, d);
+            checked += 1;
+            match (got, want) {
+                (Some(g), Some((t, voxel))) => {
+                    hits += 1;
+                    let rel = (g.hit.t as f64 - t).abs() / t;
+                    assert!(rel <= 1e-5, "scale {scale}: t {} vs {t} (rel {rel:e})", g.hit.t);
+                    if g.hit.coord != voxel {
+                        // Only acceptable for a voxel entered at the same t (edge/corner contact).
+                        let other = brute_force(&[g.hit.coord], &cube, depth, &m, o, d).expect("hit voxel is crossed");
+                        assert!((other.0 - t).abs() <= 1e-5 * t, "scale {scale}: voxel {:?} vs {voxel:?}", g.hit.coord);
+                    }
+                }
+                (None, None) => {}
+                (g, w) => {
+                    let (t0, t1) = interval(&cube, depth, &m, o, d, w.map_or(g.map_or([0; 3], |g| g.hit.coord), |w| w.1));
+                    panic!("scale {scale}: traversal {:?} vs brute force {w:?}; interval {t0} {t1} len {:e}; o {o} d {d}", g.map(|g| (g.hit.t, g.hit.coord)), t1 - t0)
+                }
+            }
+        }
+    }
+    assert!(hits * 10 >= checked * 9, "rays are aimed at voxels: {hits} of {checked} hit");
+}
+
+#[test]
+fn a_car_a_million_units_away_renders_like_one_at_the_origin() {
+    let lights = Lights::default();
+    let render_at = |offset: DVec3| {
+        let mut scene = Scene::new(car_parts());
+        let car = add_car(&mut scene, 0, offset, 0.0, false).unwrap();
+        pose(&mut scene, &car, 2.0).unwrap();
+        scene.update().unwrap();
+        let base = camera();
+        let cam = Camera { eye: DVec3::new(5.0, 2.0, -4.5) + offset, target: DVec3::new(0.0, 0.7, 0.0) + offset, width: 96, height: 64, ..base };
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+        render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {})
+    };
+    let a = render_at(DVec3::ZERO);
+    let b = render_at(DVec3::new(1e6, 0.0, -1e6));
+    let n = a.t.len();
+    let same_instance = a.instance.iter().zip(&b.instance).filter(|(x, y)| x == y).count();
+    let max_diff = a.radiance.iter().zip(&b.radiance).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max);
+    let mean_diff: f32 = a.radiance.iter().zip(&b.radiance).map(|(x, y)| (*x - *y).abs().max_element()).sum::<f32>() / n as f32;
+    // Camera-relative f64 transforms: the same pixels hit the same parts; shading may differ
+    // by f32 rounding only.
+    assert!(same_instance * 1000 >= n * 999, "{same_instance} of {n} pixels hit the same instance");
+    assert!(mean_diff < 1e-3 && max_diff < 0.05, "mean {mean_diff}, max {max_diff}");
+    assert!(a.instance.iter().filter(|&&i| i >= 0).count() > n / 10, "the car should fill part of the image");
+}
+
+#[test]
+fn singular_and_nan_transforms_are_refused_and_leave_no_nan() {
+    let mut scene = Scene::new(car_parts());
+    let body = scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY }).unwrap();
+    let wheel = scene.add(Instance { part: 1, parent: Some(body), local: Transform::IDENTITY }).unwrap();
+    scene.update().unwrap();
+    let bad = [
+        Transform { translation: DVec3::NAN, ..Transform::IDENTITY },
+        Transform { scale: DVec3::new(1.0, 0.0, 1.0), ..Transform::IDENTITY },
+        Transform { scale: DVec3::splat(f64::INFINITY), ..Transform::IDENTITY },
+        Transform { rotation: DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0), ..Transform::IDENTITY },
+        Transform { rotation: DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0), ..Transform::IDENTITY },
+    ];
+    for t in bad {
+        assert!(matches!(scene.set_local(wheel, t), Err(SceneError::Transform(_))), "{t:?} accepted");
+    }
+    assert!(matches!(scene.add(Instance { part: 99, parent: None, local: Transform::IDENTITY }), Err(SceneError::Part(99))));
+    assert!(matches!(scene.add(Instance { part: 0, parent: Some(7), local: Transform::IDENTITY }), Err(SceneError::Instance(7))));
+    // Each scale alone is acceptable, the product through the hierarchy is near-singular.
+    let tiny = Transform { scale: DVec3::splat(2e-6), ..Transform::IDENTITY };
+    scene.set_local(body, tiny).unwrap();
+    scene.set_local(wheel, tiny).unwrap();
+    assert_eq!(scene.update(), Err(SceneError::Transform(TransformError::Singular(wheel))));
+    // The scene keeps its last good transforms: rendering gives no NaN.
+    assert_eq!(scene.world(wheel), DAffine3::IDENTITY);
+    let cam = camera();
+    let lights = Lights::default();
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let f = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    assert!(f.radiance.iter().all(|r| r.is_finite()) && f.t.iter().all(|t| !t.is_nan()));
+}
+
+#[test]
+fn wheels_follow_the_body_through_the_hierarchy() {
+    let mut scene = Scene::new(car_parts());
+    let car = add_car(&mut scene, 0, DVec3::new(100.0, 0.0, 0.0), 0.0, true).unwrap();
+    for t in [0.0, 3.7, 11.2] {
+        pose(&mut scene, &car, t).unwrap();
+        scene.update().unwrap();
+        let body = scene.world(car.body);
+        let pivot = voxray::model::car::rig()[1].0.as_dvec3();
+        // The front-left axle stays where the body carries it, whatever the wheel's spin/steer.
+        let expect = body.transform_point3(pivot);
+        let got = scene.world(car.wheels[0]).transform_point3(pivot);
+        assert!((expect - got).length() < 1e-9, "t {t}: {expect} vs {got}");
+    }
+}
