@@ -14,7 +14,8 @@ use crate::rng::Rng;
 use crate::svo::{self, Cube, Svo};
 use crate::traverse::{step_bound, trace_unit, Hit, TraceOptions};
 use crate::voxelize::VoxelGrid;
-use glam::Vec3;
+use glam::{DQuat, DVec3, Vec3};
+use std::sync::Arc;
 
 /// Largest accepted relative t error against the oracle.
 pub const T_TOLERANCE: f64 = 1e-5;
@@ -30,6 +31,25 @@ pub struct CaseRay {
     pub t_min: f32,
     /// Interval end.
     pub t_max: f32,
+}
+
+/// A ray in the unit cube of an SVO, in f64, with its interval.
+#[derive(Clone, Copy, Debug)]
+pub struct Ray64 {
+    /// Origin.
+    pub origin: DVec3,
+    /// Direction.
+    pub dir: DVec3,
+    /// Interval start.
+    pub t_min: f64,
+    /// Interval end.
+    pub t_max: f64,
+}
+
+impl From<&CaseRay> for Ray64 {
+    fn from(r: &CaseRay) -> Self {
+        Ray64 { origin: r.origin.as_dvec3(), dir: r.dir.as_dvec3(), t_min: r.t_min as f64, t_max: r.t_max as f64 }
+    }
 }
 
 /// A scene plus a family of rays.
@@ -104,12 +124,12 @@ pub const TOUCH_DISTANCE: f64 = 1.0 / (1u64 << 20) as f64;
 /// against the exact (f64) entry of the voxel it names.
 pub fn compare(
     set: &VoxelSet,
-    ray: &CaseRay,
+    ray: &Ray64,
     got: Option<&Hit>,
     strict: Option<&OracleHit>,
     lenient: Option<&OracleHit>,
 ) -> (Verdict, f64) {
-    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+    let (o, d) = (ray.origin, ray.dir);
     let t_unit = 1.0 / d.abs().max_element().max(1e-300);
     let scale = |t: f64| t.abs().max(t_unit);
     let Some(h) = got else {
@@ -145,6 +165,47 @@ pub fn compare(
     }
 }
 
+/// Checks one traversal result against the oracle (strict, then lenient) and makes a
+/// one-ray report.
+fn check(set: &VoxelSet, r: &Ray64, hit: Option<Hit>, steps: u32, aborted: bool) -> CaseReport {
+    let want = dda(set, r.origin, r.dir, r.t_min, r.t_max, Contact::Closed);
+    let (verdict, dt) = match compare(set, r, hit.as_ref(), want.as_ref(), want.as_ref()) {
+        (Verdict::Mismatch, _) => {
+            let min_overlap = TOUCH_TOLERANCE * r.t_min.abs().max(1.0 / r.dir.abs().max_element());
+            let lenient = dda(set, r.origin, r.dir, r.t_min, r.t_max, Contact::MinOverlap(min_overlap));
+            compare(set, r, hit.as_ref(), want.as_ref(), lenient.as_ref())
+        }
+        ok => ok,
+    };
+    let nan = hit.is_some_and(|h| !h.t.is_finite() || !h.normal().is_finite() || !h.face_normal.is_finite());
+    CaseReport {
+        rays: 1,
+        hits: want.is_some() as u64,
+        nan: nan as u64,
+        mismatches: (verdict == Verdict::Mismatch) as u64,
+        ties: (verdict == Verdict::Tie) as u64,
+        max_rel_dt: dt,
+        max_steps: steps,
+        aborted: aborted as u64,
+        first_mismatch: (verdict == Verdict::Mismatch)
+            .then(|| format!("ray {r:?}: traversal {:?}, oracle {want:?}", hit.map(|h| (h.t, h.coord)))),
+        ..Default::default()
+    }
+}
+
+fn merge(mut a: CaseReport, b: CaseReport) -> CaseReport {
+    a.rays += b.rays;
+    a.hits += b.hits;
+    a.nan += b.nan;
+    a.mismatches += b.mismatches;
+    a.ties += b.ties;
+    a.max_rel_dt = a.max_rel_dt.max(b.max_rel_dt);
+    a.max_steps = a.max_steps.max(b.max_steps);
+    a.aborted += b.aborted;
+    a.first_mismatch = a.first_mismatch.or(b.first_mismatch);
+    a
+}
+
 /// Runs one case.
 pub fn run_case(case: &Case) -> CaseReport {
     let oracle_set = match case.max_level {
@@ -157,43 +218,7 @@ pub fn run_case(case: &Case) -> CaseReport {
         let traced =
             UnitRay::from_unit(r.origin.as_dvec3(), r.dir.as_dvec3()).map(|u| trace_unit(&case.svo, &u, &opts_of(r)));
         let (hit, steps, aborted) = traced.map_or((None, 0, false), |t| (t.hit, t.steps, t.aborted));
-        let (o, d) = (r.origin.as_dvec3(), r.dir.as_dvec3());
-        let (t0, t1) = (r.t_min as f64, r.t_max as f64);
-        let want = dda(&oracle_set, o, d, t0, t1, Contact::Closed);
-        let (verdict, dt) = match compare(&oracle_set, r, hit.as_ref(), want.as_ref(), want.as_ref()) {
-            (Verdict::Mismatch, _) => {
-                let min_overlap = TOUCH_TOLERANCE * t0.abs().max(1.0 / d.abs().max_element());
-                let lenient = dda(&oracle_set, o, d, t0, t1, Contact::MinOverlap(min_overlap));
-                compare(&oracle_set, r, hit.as_ref(), want.as_ref(), lenient.as_ref())
-            }
-            ok => ok,
-        };
-        let nan = hit.is_some_and(|h| !h.t.is_finite() || !h.normal().is_finite() || !h.face_normal.is_finite());
-        CaseReport {
-            rays: 1,
-            hits: want.is_some() as u64,
-            nan: nan as u64,
-            mismatches: (verdict == Verdict::Mismatch) as u64,
-            ties: (verdict == Verdict::Tie) as u64,
-            max_rel_dt: dt,
-            max_steps: steps,
-            aborted: aborted as u64,
-            first_mismatch: (verdict == Verdict::Mismatch)
-                .then(|| format!("ray {r:?}: traversal {:?}, oracle {want:?}", hit.map(|h| (h.t, h.coord)))),
-            ..Default::default()
-        }
-    };
-    let merge = |mut a: CaseReport, b: CaseReport| {
-        a.rays += b.rays;
-        a.hits += b.hits;
-        a.nan += b.nan;
-        a.mismatches += b.mismatches;
-        a.ties += b.ties;
-        a.max_rel_dt = a.max_rel_dt.max(b.max_rel_dt);
-        a.max_steps = a.max_steps.max(b.max_steps);
-        a.aborted += b.aborted;
-        a.first_mismatch = a.first_mismatch.or(b.first_mismatch);
-        a
+        check(&oracle_set, &Ray64::from(r), hit, steps, aborted)
     };
     #[cfg(feature = "parallel")]
     let mut report = {
@@ -456,6 +481,175 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
     }
     cases.push(make_case("depth-16 tree", 16, deep, r, None));
     cases
+}
+
+/// An SVO placed by a transform (or a parent and a child transform), traced the way the
+/// renderer traces instances: camera-relative f64 maps, the search of `render::visibility`.
+pub struct TransformCase {
+    /// Short name (table row).
+    pub name: String,
+    /// The voxels.
+    pub set: VoxelSet,
+    /// Their SVO (unit-cube bounds).
+    pub part: Arc<Svo>,
+    /// (parent transform, optional child transform, world rays (origin, unit direction)).
+    pub batches: Vec<(crate::scene::Transform, Option<crate::scene::Transform>, Vec<(DVec3, DVec3)>)>,
+}
+
+/// Runs a transform case: each ray through the renderer's instance path, each compared with
+/// the DDA on the ray mapped into the unit cube in f64.
+pub fn run_transform_case(case: &TransformCase) -> CaseReport {
+    use crate::render::instances::prepare;
+    use crate::render::visibility::{nearest, FrameInstances, Search};
+    use crate::scene::{Instance, Scene};
+    let mut report = CaseReport::default();
+    for (parent, child, rays) in &case.batches {
+        let mut scene = Scene::new(vec![case.part.clone()]);
+        let Ok(p) = scene.add(Instance { part: 0, parent: None, local: *parent }) else { continue };
+        let leaf = match child {
+            Some(c) => match scene.add(Instance { part: 0, parent: Some(p), local: *c }) {
+                Ok(i) => i,
+                Err(_) => continue,
+            },
+            None => p,
+        };
+        if scene.update().is_err() {
+            continue;
+        }
+        let world = scene.world(leaf);
+        let to_unit = world.inverse();
+        let one = |&(o, d): &(DVec3, DVec3)| {
+            let prepared = prepare(&scene, o, true);
+            // Only the instance under test (the parent of a hierarchy is a helper).
+            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared[leaf..leaf + 1], bvh: None };
+            let got = nearest(&fi, DVec3::ZERO, d, Search::Plain, &TraceOptions::default()).map(|h| h.hit);
+            let r = Ray64 {
+                origin: to_unit.transform_point3(o),
+                dir: to_unit.transform_vector3(d),
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            };
+            check(&case.set, &r, got, 0, false)
+        };
+        #[cfg(feature = "parallel")]
+        let part = {
+            use rayon::prelude::*;
+            rays.par_iter().map(one).reduce(CaseReport::default, merge)
+        };
+        #[cfg(not(feature = "parallel"))]
+        let part = rays.iter().map(one).fold(CaseReport::default(), merge);
+        report = merge(report, part);
+    }
+    report.name = case.name.clone();
+    report.depth = case.part.depth;
+    report.step_bound = step_bound(case.part.depth);
+    report
+}
+
+/// The transform families: extreme and anisotropic scales, large translations, rotations at
+/// and near 90°, mirroring, and a parent–child pair whose product shears. `rays_per_case`
+/// rays each, aimed at occupied voxels from outside the instance.
+pub fn transform_cases(rays_per_case: usize) -> Vec<TransformCase> {
+    use crate::scene::Transform;
+    let coords = scene_blobs(6, 5);
+    let unit = Cube { min: Vec3::ZERO, size: 1.0 };
+    let part =
+        Arc::new(svo::build(&VoxelGrid::from_coords(6, unit, coords.iter().copied(), Vec3::ONE)).expect("scene"));
+    let set = VoxelSet::new(6, coords.iter().copied());
+    let mut rng = Rng::new(99);
+    let random_scale = |rng: &mut Rng| {
+        DVec3::new(
+            10f64.powf(rng.f64() * 6.0 - 3.0),
+            10f64.powf(rng.f64() * 6.0 - 3.0),
+            10f64.powf(rng.f64() * 6.0 - 3.0),
+        )
+    };
+    let random_rot =
+        |rng: &mut Rng| DQuat::from_axis_angle(rng.unit_vector().as_dvec3(), rng.f64() * std::f64::consts::TAU);
+    let families: Vec<(&str, Box<dyn Fn(&mut Rng, usize) -> (Transform, Option<Transform>)>)> = vec![
+        (
+            "instance: anisotropic scale 1e-3…1e3",
+            Box::new(move |rng, _| {
+                (Transform { translation: DVec3::ZERO, rotation: random_rot(rng), scale: random_scale(rng) }, None)
+            }),
+        ),
+        (
+            "instance: translation 1e6 and 1e9",
+            Box::new(move |rng, k| {
+                let far = if k % 2 == 0 { 1e6 } else { 1e9 };
+                let t = rng.unit_vector().as_dvec3() * far;
+                (Transform { translation: t, rotation: random_rot(rng), scale: DVec3::splat(0.5 + rng.f64()) }, None)
+            }),
+        ),
+        (
+            "instance: rotation at and near 90°",
+            Box::new(move |rng, k| {
+                let axis = [DVec3::X, DVec3::Y, DVec3::Z, rng.unit_vector().as_dvec3()][k % 4];
+                let eps = [0.0, 1e-9, 1e-6, 1e-3][(k / 4) % 4];
+                let angle = std::f64::consts::FRAC_PI_2 * (1 + k % 3) as f64 + eps;
+                (
+                    Transform {
+                        translation: DVec3::ZERO,
+                        rotation: DQuat::from_axis_angle(axis, angle),
+                        scale: DVec3::ONE,
+                    },
+                    None,
+                )
+            }),
+        ),
+        (
+            "instance: mirrored (negative scale)",
+            Box::new(move |rng, _| {
+                let s = DVec3::new(
+                    if rng.below(2) == 0 { -1.0 } else { 1.0 },
+                    if rng.below(2) == 0 { -1.0 } else { 1.0 },
+                    -1.0,
+                ) * (0.5 + rng.f64());
+                (Transform { translation: DVec3::ZERO, rotation: random_rot(rng), scale: s }, None)
+            }),
+        ),
+        (
+            "instance: sheared parent × child",
+            Box::new(move |rng, _| {
+                let parent = Transform {
+                    translation: DVec3::splat(3.0),
+                    rotation: random_rot(rng),
+                    scale: DVec3::new(4.0, 0.25, 1.0),
+                };
+                let child =
+                    Transform { translation: DVec3::ZERO, rotation: random_rot(rng), scale: DVec3::new(0.3, 2.0, 1.5) };
+                (parent, Some(child))
+            }),
+        ),
+    ];
+    let batches = 24;
+    families
+        .into_iter()
+        .map(|(name, make)| {
+            let batches = (0..batches)
+                .map(|k| {
+                    let (parent, child) = make(&mut rng, k);
+                    let world = parent.to_affine() * child.map_or(glam::DAffine3::IDENTITY, |c| c.to_affine());
+                    let radius = (0..3).map(|i| world.matrix3.col(i).length()).fold(0.0, f64::max) * 2.0;
+                    let rays = (0..rays_per_case / batches)
+                        .map(|i| {
+                            let c = coords[rng.below(coords.len() as u64) as usize];
+                            let local =
+                                DVec3::new(c[0] as f64 + rng.f64(), c[1] as f64 + rng.f64(), c[2] as f64 + rng.f64())
+                                    / 64.0;
+                            let target = world.transform_point3(local);
+                            let o = target + rng.unit_vector().as_dvec3() * radius * (1.5 + 3.0 * rng.f64());
+                            // A quarter of the rays go anywhere: mostly misses, some grazing.
+                            let d = if i % 4 == 0 { rng.unit_vector().as_dvec3() } else { (target - o).normalize() };
+                            (o, d)
+                        })
+                        .collect();
+                    (parent, child, rays)
+                })
+                .collect();
+            TransformCase { name: name.into(), set: set.clone(), part: part.clone(), batches }
+        })
+        .collect()
 }
 
 /// Formats reports as a Markdown table.

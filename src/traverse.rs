@@ -242,11 +242,7 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
         let coord = [2 * f.coord[0] + (c & 1), 2 * f.coord[1] + ((c >> 1) & 1), 2 * f.coord[2] + ((c >> 2) & 1)];
         if node.leaf() as u32 & (1 << octant) != 0 || child_level >= max_level {
             let attr = svo.child_attr(f.slot as usize, octant);
-            return Traced {
-                hit: finish(ray, te, t_min, child_level, coord, attr, ct0),
-                steps,
-                aborted: false,
-            };
+            return Traced { hit: finish(ray, te, t_min, child_level, coord, attr, ct0), steps, aborted: false };
         }
         let slot = svo.child_slot(f.slot as usize, octant) as u32;
         let tm = midpoints(ray, ct0, ct1, child_level, coord);

@@ -79,7 +79,11 @@ fn assert_same_hits(a: &[Frame], b: &[Frame]) {
         for k in 0..x.t.len() {
             assert_eq!(x.t[k].to_bits(), y.t[k].to_bits(), "frame {f} pixel {k}: t");
             assert_eq!(x.instance[k], y.instance[k], "frame {f} pixel {k}: instance");
-            assert_eq!(x.normal[k].to_array().map(f32::to_bits), y.normal[k].to_array().map(f32::to_bits), "frame {f} pixel {k}: normal");
+            assert_eq!(
+                x.normal[k].to_array().map(f32::to_bits),
+                y.normal[k].to_array().map(f32::to_bits),
+                "frame {f} pixel {k}: normal"
+            );
         }
         assert_eq!(x.radiance, y.radiance, "frame {f}: image");
     }
@@ -98,8 +102,9 @@ fn all_optimizations_match_the_plain_path_static_camera() {
     assert!(reused < pixels, "moving parts must force some pixels to be traced again");
     // The driving car really crosses in front of the parked one: some pixel shows a parked
     // instance (0..8) in one frame and a driving one (8..16) in another.
-    let crossed = (0..fast[0].t.len())
-        .any(|k| fast.iter().any(|f| (0..8).contains(&f.instance[k])) && fast.iter().any(|f| (8..16).contains(&f.instance[k])));
+    let crossed = (0..fast[0].t.len()).any(|k| {
+        fast.iter().any(|f| (0..8).contains(&f.instance[k])) && fast.iter().any(|f| (8..16).contains(&f.instance[k]))
+    });
     assert!(crossed, "no moving part crossed in front of a static one");
 }
 
@@ -176,7 +181,11 @@ fn transformed_instances_hit_where_brute_force_oriented_boxes_say() {
     let part = Arc::new(svo::build(&VoxelGrid::from_coords(depth, cube, coords.iter().copied(), Vec3::ONE)).unwrap());
     let (mut hits, mut checked) = (0, 0);
     for _ in 0..60 {
-        let scale = DVec3::new(10f64.powf(rng.f64() * 6.0 - 3.0), 10f64.powf(rng.f64() * 6.0 - 3.0), 10f64.powf(rng.f64() * 6.0 - 3.0));
+        let scale = DVec3::new(
+            10f64.powf(rng.f64() * 6.0 - 3.0),
+            10f64.powf(rng.f64() * 6.0 - 3.0),
+            10f64.powf(rng.f64() * 6.0 - 3.0),
+        );
         let axis = rng.unit_vector().as_dvec3();
         let rot = DQuat::from_axis_angle(axis, rng.f64() * 6.28);
         let tr = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * 200.0;
@@ -189,7 +198,8 @@ fn transformed_instances_hit_where_brute_force_oriented_boxes_say() {
             // Aim at a random voxel from outside the instance's bounding sphere.
             let c = coords[rng.below(coords.len() as u64) as usize];
             let v = cube.size as f64 / 16.0;
-            let target_obj = cube.min.as_dvec3() + (DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) + DVec3::new(rng.f64(), rng.f64(), rng.f64())) * v;
+            let target_obj = cube.min.as_dvec3()
+                + (DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) + DVec3::new(rng.f64(), rng.f64(), rng.f64())) * v;
             let target = m.transform_point3(target_obj);
             let radius = scale.max_element() * 2.0;
             let o = target + rng.unit_vector().as_dvec3() * radius * 3.0;
@@ -212,8 +222,13 @@ fn transformed_instances_hit_where_brute_force_oriented_boxes_say() {
                 }
                 (None, None) => {}
                 (g, w) => {
-                    let (t0, t1) = interval(&cube, depth, &m, o, d, w.map_or(g.map_or([0; 3], |g| g.hit.coord), |w| w.1));
-                    panic!("scale {scale}: traversal {:?} vs brute force {w:?}; interval {t0} {t1} len {:e}; o {o} d {d}", g.map(|g| (g.hit.t, g.hit.coord)), t1 - t0)
+                    let (t0, t1) =
+                        interval(&cube, depth, &m, o, d, w.map_or(g.map_or([0; 3], |g| g.hit.coord), |w| w.1));
+                    panic!(
+                        "scale {scale}: traversal {:?} vs brute force {w:?}; interval {t0} {t1} len {:e}; o {o} d {d}",
+                        g.map(|g| (g.hit.t, g.hit.coord)),
+                        t1 - t0
+                    )
                 }
             }
         }
@@ -230,7 +245,13 @@ fn a_car_a_million_units_away_renders_like_one_at_the_origin() {
         pose(&mut scene, &car, 2.0).unwrap();
         scene.update().unwrap();
         let base = camera();
-        let cam = Camera { eye: DVec3::new(5.0, 2.0, -4.5) + offset, target: DVec3::new(0.0, 0.7, 0.0) + offset, width: 96, height: 64, ..base };
+        let cam = Camera {
+            eye: DVec3::new(5.0, 2.0, -4.5) + offset,
+            target: DVec3::new(0.0, 0.7, 0.0) + offset,
+            width: 96,
+            height: 64,
+            ..base
+        };
         let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
         render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {})
     };
@@ -239,7 +260,8 @@ fn a_car_a_million_units_away_renders_like_one_at_the_origin() {
     let n = a.t.len();
     let same_instance = a.instance.iter().zip(&b.instance).filter(|(x, y)| x == y).count();
     let max_diff = a.radiance.iter().zip(&b.radiance).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0, f32::max);
-    let mean_diff: f32 = a.radiance.iter().zip(&b.radiance).map(|(x, y)| (*x - *y).abs().max_element()).sum::<f32>() / n as f32;
+    let mean_diff: f32 =
+        a.radiance.iter().zip(&b.radiance).map(|(x, y)| (*x - *y).abs().max_element()).sum::<f32>() / n as f32;
     // Camera-relative f64 transforms: the same pixels hit the same parts; shading may differ
     // by f32 rounding only.
     assert!(same_instance * 1000 >= n * 999, "{same_instance} of {n} pixels hit the same instance");
@@ -263,8 +285,14 @@ fn singular_and_nan_transforms_are_refused_and_leave_no_nan() {
     for t in bad {
         assert!(matches!(scene.set_local(wheel, t), Err(SceneError::Transform(_))), "{t:?} accepted");
     }
-    assert!(matches!(scene.add(Instance { part: 99, parent: None, local: Transform::IDENTITY }), Err(SceneError::Part(99))));
-    assert!(matches!(scene.add(Instance { part: 0, parent: Some(7), local: Transform::IDENTITY }), Err(SceneError::Instance(7))));
+    assert!(matches!(
+        scene.add(Instance { part: 99, parent: None, local: Transform::IDENTITY }),
+        Err(SceneError::Part(99))
+    ));
+    assert!(matches!(
+        scene.add(Instance { part: 0, parent: Some(7), local: Transform::IDENTITY }),
+        Err(SceneError::Instance(7))
+    ));
     // Each scale alone is acceptable, the product through the hierarchy is near-singular.
     let tiny = Transform { scale: DVec3::splat(2e-6), ..Transform::IDENTITY };
     scene.set_local(body, tiny).unwrap();

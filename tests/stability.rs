@@ -1,14 +1,15 @@
 //! The stability suite against the brute-force DDA oracle (≥ 10⁶ random rays plus the
 //! adversarial families). See `voxray::stability` and docs/stability.md.
 
-use voxray::stability::{run_case, standard_cases, table};
+use voxray::stability::{run_case, run_transform_case, standard_cases, table, transform_cases};
 
 #[test]
 fn traversal_matches_dda_oracle_on_every_case() {
     let cases = standard_cases(1_000_000);
     let total: usize = cases.iter().map(|c| c.rays.len()).sum();
     assert!(total >= 1_000_000);
-    let reports: Vec<_> = cases.iter().map(run_case).collect();
+    let mut reports: Vec<_> = cases.iter().map(run_case).collect();
+    reports.extend(transform_cases(24_000).iter().map(run_transform_case));
     println!("{}", table(&reports));
     for r in &reports {
         assert_eq!(r.nan, 0, "{}: NaN results", r.name);
