@@ -147,12 +147,12 @@ pub fn compare(
     };
     let (enter, _) = voxel_interval(set.depth, h.coord, o, d);
     let t = h.t as f64;
-    let exact_t = enter.max(ray.t_min as f64);
+    let exact_t = enter.max(ray.t_min);
     let dt = (t - exact_t).abs() / scale(exact_t);
     let touch = TOUCH_TOLERANCE * scale(t);
     let (g_enter, g_exit) = voxel_interval_grown(set.depth, h.coord, o, d, TOUCH_DISTANCE);
     let contact = set.contains(h.coord) && g_enter <= t + touch && g_exit >= t - touch;
-    if !contact || dt > T_TOLERANCE || t > ray.t_max as f64 + touch {
+    if !contact || dt > T_TOLERANCE || t > ray.t_max + touch {
         return (Verdict::Mismatch, dt);
     }
     match (strict, lenient) {
@@ -483,6 +483,10 @@ pub fn standard_cases(random_rays: usize) -> Vec<Case> {
     cases
 }
 
+/// One placement: parent transform, optional child transform (the traced instance is the
+/// child when there is one), and world rays (origin, unit direction).
+pub type TransformBatch = (crate::scene::Transform, Option<crate::scene::Transform>, Vec<(DVec3, DVec3)>);
+
 /// An SVO placed by a transform (or a parent and a child transform), traced the way the
 /// renderer traces instances: camera-relative f64 maps, the search of `render::visibility`.
 pub struct TransformCase {
@@ -492,8 +496,8 @@ pub struct TransformCase {
     pub set: VoxelSet,
     /// Their SVO (unit-cube bounds).
     pub part: Arc<Svo>,
-    /// (parent transform, optional child transform, world rays (origin, unit direction)).
-    pub batches: Vec<(crate::scene::Transform, Option<crate::scene::Transform>, Vec<(DVec3, DVec3)>)>,
+    /// Placements and their rays.
+    pub batches: Vec<TransformBatch>,
 }
 
 /// Runs a transform case: each ray through the renderer's instance path, each compared with
