@@ -33,6 +33,8 @@
 #![warn(missing_docs)]
 // `!(x > y)` is deliberate throughout: it is true for NaN, so NaN input fails every check.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Loops over the three axes index several per-axis arrays at once, as the WGSL twins do.
+#![allow(clippy::needless_range_loop)]
 
 pub mod bench;
 pub mod cache;

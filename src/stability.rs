@@ -570,7 +570,8 @@ pub fn transform_cases(rays_per_case: usize) -> Vec<TransformCase> {
     };
     let random_rot =
         |rng: &mut Rng| DQuat::from_axis_angle(rng.unit_vector().as_dvec3(), rng.f64() * std::f64::consts::TAU);
-    let families: Vec<(&str, Box<dyn Fn(&mut Rng, usize) -> (Transform, Option<Transform>)>)> = vec![
+    type Family = (&'static str, Box<dyn Fn(&mut Rng, usize) -> (Transform, Option<Transform>)>);
+    let families: Vec<Family> = vec![
         (
             "instance: anisotropic scale 1e-3…1e3",
             Box::new(move |rng, _| {
