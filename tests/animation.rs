@@ -187,7 +187,7 @@ fn transformed_instances_hit_where_brute_force_oriented_boxes_say() {
             10f64.powf(rng.f64() * 6.0 - 3.0),
         );
         let axis = rng.unit_vector().as_dvec3();
-        let rot = DQuat::from_axis_angle(axis, rng.f64() * 6.28);
+        let rot = DQuat::from_axis_angle(axis, rng.f64() * std::f64::consts::TAU);
         let tr = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * 200.0;
         let t = Transform::new(tr, rot, scale).unwrap();
         let mut scene = Scene::new(vec![part.clone()]);
