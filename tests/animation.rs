@@ -322,3 +322,36 @@ fn wheels_follow_the_body_through_the_hierarchy() {
         assert!((expect - got).length() < 1e-9, "t {t}: {expect} vs {got}");
     }
 }
+
+#[test]
+fn screen_rectangles_contain_every_pixel_a_sphere_can_touch() {
+    use voxray::render::hitbuffer::screen_rect;
+    use voxray::render::instances::sphere_interval;
+    let mut rng = Rng::new(5);
+    let mut tight = 0;
+    for _ in 0..200 {
+        let cam = Camera {
+            eye: DVec3::ZERO,
+            target: rng.unit_vector().as_dvec3(),
+            up: DVec3::Y,
+            vfov_deg: 20.0 + rng.f64() * 100.0,
+            width: 40 + rng.below(40) as u32,
+            height: 30 + rng.below(30) as u32,
+        };
+        let b = cam.basis();
+        let centre = b.forward * (rng.f64() * 20.0 - 2.0) + rng.unit_vector().as_dvec3() * rng.f64() * 10.0;
+        let radius = 0.1 + rng.f64() * 3.0;
+        let [x0, y0, x1, y1] = screen_rect(&cam, centre, radius);
+        if (x1 + 1 - x0.min(x1 + 1)) * (y1 + 1 - y0.min(y1 + 1)) < cam.width * cam.height / 2 {
+            tight += 1;
+        }
+        for y in 0..cam.height {
+            for x in 0..cam.width {
+                if sphere_interval(centre, radius, DVec3::ZERO, cam.ray_dir(&b, x, y)).is_some() {
+                    assert!(x >= x0 && x <= x1 && y >= y0 && y <= y1, "pixel {x},{y} outside {:?}", [x0, y0, x1, y1]);
+                }
+            }
+        }
+    }
+    assert!(tight > 50, "rectangles should usually be much smaller than the image ({tight} of 200)");
+}

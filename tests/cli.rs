@@ -213,3 +213,87 @@ fn voxelize_and_info_round_trip() {
         assert!(o.status.success() && out.contains("valid") && out.contains("B/voxel"), "{out}");
     }
 }
+
+#[test]
+fn frame_sequences_gifs_and_per_frame_aovs() {
+    let d = tmp("seq");
+    let cache = d.join("cache");
+    let common = ["--depth", "6", "--width", "48", "--height", "32", "--cache-dir", s(&cache)];
+    let png = d.join("car.png");
+    let aov = d.join("aov");
+    let mut args = vec!["render", "--frames", "3", "--fps", "10", "--out", s(&png), "--aov-dir", s(&aov), "--explain"];
+    args.extend(common);
+    let o = voxray(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    for f in 0..3 {
+        assert!(d.join(format!("car_{f:04}.png")).exists(), "frame {f} image");
+        for a in ["t", "instance", "normal"] {
+            assert!(aov.join(format!("frame_{f:04}/{a}.npy")).exists(), "frame {f} {a}.npy");
+        }
+    }
+    // The plan is printed for the first frame and again when it changes (the hit buffer
+    // turns on once there is a previous frame).
+    assert!(
+        err.contains("frame 0: frame plan (9 instances)") && err.contains("hit_buffer: off (first frame)"),
+        "{err}"
+    );
+    assert!(err.contains("frame 1: frame plan") && err.contains("hit_buffer: on (camera static)"), "{err}");
+
+    let gif = d.join("car.gif");
+    let mut args = vec!["render", "--frames", "4", "--out", s(&gif), "--orbit", "30"];
+    args.extend(common);
+    let o = voxray(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    use image::AnimationDecoder;
+    let dec = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    assert_eq!(dec.into_frames().count(), 4);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("0.0% of pixels reused"), "a moving camera reuses nothing");
+}
+
+#[test]
+fn switches_static_car_and_many_cars() {
+    let d = tmp("switch");
+    let cache = d.join("cache");
+    let out = d.join("x.png");
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "render",
+            "--depth",
+            "6",
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--cache-dir",
+            s(&cache),
+            "--out",
+            s(&out),
+        ];
+        args.extend(extra);
+        let o = voxray(&args);
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    let (code, err) =
+        run(&["--explain", "--no-cull", "--no-sort", "--no-bvh", "--no-hit-buffer", "--no-shadows", "--frames", "2"]);
+    assert_eq!(code, Some(0), "{err}");
+    for f in ["cull", "bvh", "sort", "hit_buffer", "shadows"] {
+        assert!(err.contains(&format!("{f}: off (switched off)")), "{f}: {err}");
+    }
+    let (code, err) = run(&["--static-car", "--no-ground", "--explain"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        err.contains("1 instances") && err.contains("car (static)") && err.contains("cull: off (one instance"),
+        "{err}"
+    );
+    assert!(err.contains("transform: off"), "a single identity instance needs no ray transformation: {err}");
+    let (code, err) = run(&["--cars", "5", "--explain"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("41 instances") && err.contains("bvh: on"), "{err}");
+    let (code, err) = run(&["--cars", "2", "--obj", "models/test/cube.obj"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("default car only"), "{err}");
+    let (code, err) = run(&["--out", "x.gif"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("--frames 2 or more"), "{err}");
+}

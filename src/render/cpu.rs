@@ -107,7 +107,7 @@ pub fn render(
             let d = camera.ray_dir(&basis, x as u32, y as u32);
             if let (Some(r), Some(prev)) = (&reuse, previous) {
                 let old = prev.records[y * w + x];
-                if r.valid(&old, d) {
+                if r.valid(&old, d, x as u32, y as u32) {
                     *rec = old;
                     reused.fetch_add(1, Ordering::Relaxed);
                     continue;

@@ -64,8 +64,53 @@ pub struct HitBuffer {
 pub struct Reuse {
     /// Per instance: moved since the stored frame.
     pub moved: Vec<bool>,
-    /// Old and new spheres of every moved instance.
-    pub moved_spheres: Vec<(DVec3, f64)>,
+    /// Old and new spheres of every moved instance, with the pixel rectangle
+    /// `[x0, y0, x1, y1]` (inclusive) outside which no pixel's ray can meet the sphere.
+    pub moved_spheres: Vec<(DVec3, f64, [u32; 4])>,
+}
+
+/// A conservative pixel rectangle of a sphere: the projection of the corners of its bounding
+/// box (a convex set in front of the camera projects inside their hull), one pixel wider on
+/// every side. A box reaching behind the image plane covers the whole image.
+pub fn screen_rect(camera: &Camera, centre: DVec3, radius: f64) -> [u32; 4] {
+    let b = camera.basis();
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let full = [0, 0, camera.width - 1, camera.height - 1];
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+    for k in 0..8 {
+        let s = DVec3::new(
+            if k & 1 == 0 { -1.0 } else { 1.0 },
+            if k & 2 == 0 { -1.0 } else { 1.0 },
+            if k & 4 == 0 { -1.0 } else { 1.0 },
+        );
+        let p = centre + s * radius;
+        let z = p.dot(b.forward);
+        if !(z > 1e-9 * p.length()) {
+            return full;
+        }
+        let sx = p.dot(b.right) / z / (b.tan_half * w / h);
+        let sy = p.dot(b.up) / z / b.tan_half;
+        // Inverse of the camera's pixel-centre mapping: sx = 2(px + 0.5)/W − 1, sy = 1 − 2(py + 0.5)/H.
+        let px = (sx + 1.0) * 0.5 * w - 0.5;
+        let py = (1.0 - sy) * 0.5 * h - 0.5;
+        x0 = x0.min(px);
+        x1 = x1.max(px);
+        y0 = y0.min(py);
+        y1 = y1.max(py);
+    }
+    if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
+        return full;
+    }
+    let clamp = |v: f64, hi: u32| v.clamp(0.0, hi as f64) as u32;
+    if x1 < -1.0 || y1 < -1.0 || x0 > w || y0 > h {
+        return [1, 1, 0, 0]; // off screen: an empty rectangle
+    }
+    [
+        clamp(x0.floor() - 1.0, camera.width - 1),
+        clamp(y0.floor() - 1.0, camera.height - 1),
+        clamp(x1.ceil() + 1.0, camera.width - 1),
+        clamp(y1.ceil() + 1.0, camera.height - 1),
+    ]
 }
 
 impl HitBuffer {
@@ -91,8 +136,9 @@ impl HitBuffer {
         for (i, w) in scene.worlds().iter().enumerate() {
             if *w != self.worlds[i] {
                 moved[i] = true;
-                moved_spheres.push(self.spheres[i]);
-                moved_spheres.push((prepared[i].centre, prepared[i].radius));
+                for (c, r) in [self.spheres[i], (prepared[i].centre, prepared[i].radius)] {
+                    moved_spheres.push((c, r, screen_rect(camera, c, r)));
+                }
             }
         }
         Some(Reuse { moved, moved_spheres })
@@ -109,16 +155,20 @@ impl HitBuffer {
 }
 
 impl Reuse {
-    /// Whether the stored record for a pixel with ray direction `d` (from the eye) holds.
+    /// Whether the stored record of pixel (x, y), whose ray from the eye has direction `d`,
+    /// still holds.
     #[inline]
-    pub fn valid(&self, r: &HitRecord, d: DVec3) -> bool {
+    pub fn valid(&self, r: &HitRecord, d: DVec3, x: u32, y: u32) -> bool {
         if r.instance >= 0 && self.moved[r.instance as usize] {
             return false;
         }
         let t_hit = r.t as f64;
-        !self
-            .moved_spheres
-            .iter()
-            .any(|&(c, rad)| sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit))
+        !self.moved_spheres.iter().any(|&(c, rad, [x0, y0, x1, y1])| {
+            x >= x0
+                && x <= x1
+                && y >= y0
+                && y <= y1
+                && sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit)
+        })
     }
 }
