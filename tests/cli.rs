@@ -293,7 +293,21 @@ fn switches_static_car_and_many_cars() {
     let (code, err) = run(&["--cars", "2", "--obj", "models/test/cube.obj"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("default car only"), "{err}");
-    let (code, err) = run(&["--out", "x.gif"]);
-    assert_eq!(code, Some(1));
+    let gif = d.join("one.gif");
+    let o = voxray(&[
+        "render",
+        "--depth",
+        "6",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--cache-dir",
+        s(&cache),
+        "--out",
+        s(&gif),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("--frames 2 or more"), "{err}");
 }
