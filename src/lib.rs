@@ -39,6 +39,8 @@
 pub mod bench;
 pub mod cache;
 mod error;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod mesh;
 pub mod model;
 pub mod oracle;

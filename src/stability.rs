@@ -129,6 +129,18 @@ pub fn compare(
     strict: Option<&OracleHit>,
     lenient: Option<&OracleHit>,
 ) -> (Verdict, f64) {
+    compare_with(set, ray, got, strict, lenient, T_TOLERANCE)
+}
+
+/// [`compare`] with another bound on the relative t error (the GPU reports t in f32).
+pub fn compare_with(
+    set: &VoxelSet,
+    ray: &Ray64,
+    got: Option<&Hit>,
+    strict: Option<&OracleHit>,
+    lenient: Option<&OracleHit>,
+    t_tolerance: f64,
+) -> (Verdict, f64) {
     let (o, d) = (ray.origin, ray.dir);
     let t_unit = 1.0 / d.abs().max_element().max(1e-300);
     let scale = |t: f64| t.abs().max(t_unit);
@@ -152,14 +164,14 @@ pub fn compare(
     let touch = TOUCH_TOLERANCE * scale(t);
     let (g_enter, g_exit) = voxel_interval_grown(set.depth, h.coord, o, d, TOUCH_DISTANCE);
     let contact = set.contains(h.coord) && g_enter <= t + touch && g_exit >= t - touch;
-    if !contact || dt > T_TOLERANCE || t > ray.t_max + touch {
+    if !contact || dt > t_tolerance || t > ray.t_max + touch {
         return (Verdict::Mismatch, dt);
     }
     match (strict, lenient) {
         (Some(s), _) if s.coord == h.coord => (Verdict::Match, dt),
         // Another voxel touched first or at the same time (an edge/corner/face contact), but no
         // voxel is robustly entered before this one.
-        (_, Some(l)) if t <= l.t + T_TOLERANCE * scale(l.t) => (Verdict::Tie, dt),
+        (_, Some(l)) if t <= l.t + t_tolerance * scale(l.t) => (Verdict::Tie, dt),
         (_, None) => (Verdict::Tie, dt),
         _ => (Verdict::Mismatch, dt),
     }
@@ -167,13 +179,26 @@ pub fn compare(
 
 /// Checks one traversal result against the oracle (strict, then lenient) and makes a
 /// one-ray report.
-fn check(set: &VoxelSet, r: &Ray64, hit: Option<Hit>, steps: u32, aborted: bool) -> CaseReport {
+/// Checks one result against the oracle; see [`compare`].
+pub fn check(set: &VoxelSet, r: &Ray64, hit: Option<Hit>, steps: u32, aborted: bool) -> CaseReport {
+    check_with(set, r, hit, steps, aborted, T_TOLERANCE)
+}
+
+/// [`check`] with another t tolerance.
+pub fn check_with(
+    set: &VoxelSet,
+    r: &Ray64,
+    hit: Option<Hit>,
+    steps: u32,
+    aborted: bool,
+    t_tolerance: f64,
+) -> CaseReport {
     let want = dda(set, r.origin, r.dir, r.t_min, r.t_max, Contact::Closed);
-    let (verdict, dt) = match compare(set, r, hit.as_ref(), want.as_ref(), want.as_ref()) {
+    let (verdict, dt) = match compare_with(set, r, hit.as_ref(), want.as_ref(), want.as_ref(), t_tolerance) {
         (Verdict::Mismatch, _) => {
             let min_overlap = TOUCH_TOLERANCE * r.t_min.abs().max(1.0 / r.dir.abs().max_element());
             let lenient = dda(set, r.origin, r.dir, r.t_min, r.t_max, Contact::MinOverlap(min_overlap));
-            compare(set, r, hit.as_ref(), want.as_ref(), lenient.as_ref())
+            compare_with(set, r, hit.as_ref(), want.as_ref(), lenient.as_ref(), t_tolerance)
         }
         ok => ok,
     };
@@ -193,7 +218,8 @@ fn check(set: &VoxelSet, r: &Ray64, hit: Option<Hit>, steps: u32, aborted: bool)
     }
 }
 
-fn merge(mut a: CaseReport, b: CaseReport) -> CaseReport {
+/// Adds up two reports.
+pub fn merge(mut a: CaseReport, b: CaseReport) -> CaseReport {
     a.rays += b.rays;
     a.hits += b.hits;
     a.nan += b.nan;

@@ -1,8 +1,10 @@
 //! Every struct in wgsl/layout.wgsl has the size and field offsets of its Rust twin.
+#![cfg(feature = "gpu")]
 //! Offsets on the WGSL side follow the WGSL layout rules for the scalar and vector types
 //! used there (an unknown type fails the test rather than being guessed).
 
 use std::mem::{offset_of, size_of};
+use voxray::gpu::layout::*;
 use voxray::svo::{Attr, Node};
 
 /// (struct name, [(field, WGSL type)]) parsed from WGSL source.
@@ -60,6 +62,104 @@ fn wgsl_structs_match_rust() {
     let rust: Vec<RustStruct> = vec![
         ("Node", size_of::<Node>(), vec![("desc", offset_of!(Node, desc)), ("attr_base", offset_of!(Node, attr_base))]),
         ("Attr", size_of::<Attr>(), vec![("albedo", offset_of!(Attr, albedo)), ("normal", offset_of!(Attr, normal))]),
+        (
+            "Part",
+            size_of::<GpuPart>(),
+            vec![
+                ("node_base", offset_of!(GpuPart, node_base)),
+                ("attr_base", offset_of!(GpuPart, attr_base)),
+                ("depth", offset_of!(GpuPart, depth)),
+                ("pad", offset_of!(GpuPart, pad)),
+            ],
+        ),
+        (
+            "Inst",
+            size_of::<GpuInstance>(),
+            vec![
+                ("to_unit_x", offset_of!(GpuInstance, to_unit_x)),
+                ("to_unit_y", offset_of!(GpuInstance, to_unit_y)),
+                ("to_unit_z", offset_of!(GpuInstance, to_unit_z)),
+                ("normal_x", offset_of!(GpuInstance, normal_x)),
+                ("normal_y", offset_of!(GpuInstance, normal_y)),
+                ("normal_z", offset_of!(GpuInstance, normal_z)),
+                ("sphere", offset_of!(GpuInstance, sphere)),
+                ("part", offset_of!(GpuInstance, part)),
+                ("stretch_size", offset_of!(GpuInstance, stretch_size)),
+                ("moved", offset_of!(GpuInstance, moved)),
+                ("pad", offset_of!(GpuInstance, pad)),
+            ],
+        ),
+        (
+            "Frame",
+            size_of::<GpuFrame>(),
+            vec![
+                ("forward", offset_of!(GpuFrame, forward)),
+                ("right", offset_of!(GpuFrame, right)),
+                ("up", offset_of!(GpuFrame, up)),
+                ("sun_dir", offset_of!(GpuFrame, sun_dir)),
+                ("sun_irradiance", offset_of!(GpuFrame, sun_irradiance)),
+                ("sky", offset_of!(GpuFrame, sky)),
+                ("width", offset_of!(GpuFrame, width)),
+                ("height", offset_of!(GpuFrame, height)),
+                ("instances", offset_of!(GpuFrame, instances)),
+                ("max_level", offset_of!(GpuFrame, max_level)),
+                ("moved", offset_of!(GpuFrame, moved)),
+                ("bvh_nodes", offset_of!(GpuFrame, bvh_nodes)),
+                ("pad0", offset_of!(GpuFrame, pad0)),
+                ("pad1", offset_of!(GpuFrame, pad1)),
+            ],
+        ),
+        (
+            "BvhNode",
+            size_of::<GpuBvhNode>(),
+            vec![("lo", offset_of!(GpuBvhNode, lo)), ("hi", offset_of!(GpuBvhNode, hi))],
+        ),
+        (
+            "Hit",
+            size_of::<GpuHit>(),
+            vec![
+                ("t", offset_of!(GpuHit, t)),
+                ("instance", offset_of!(GpuHit, instance)),
+                ("albedo", offset_of!(GpuHit, albedo)),
+                ("voxel", offset_of!(GpuHit, voxel)),
+                ("nx", offset_of!(GpuHit, nx)),
+                ("ny", offset_of!(GpuHit, ny)),
+                ("nz", offset_of!(GpuHit, nz)),
+                ("fx", offset_of!(GpuHit, fx)),
+                ("fy", offset_of!(GpuHit, fy)),
+                ("fz", offset_of!(GpuHit, fz)),
+                ("pad", offset_of!(GpuHit, pad)),
+                ("reused", offset_of!(GpuHit, reused)),
+            ],
+        ),
+        (
+            "MovedSphere",
+            size_of::<GpuSphere>(),
+            vec![("sphere", offset_of!(GpuSphere, sphere)), ("rect", offset_of!(GpuSphere, rect))],
+        ),
+        (
+            "RayIn",
+            size_of::<GpuRay>(),
+            vec![
+                ("origin", offset_of!(GpuRay, origin)),
+                ("dir", offset_of!(GpuRay, dir)),
+                ("t_min", offset_of!(GpuRay, t_min)),
+                ("t_max", offset_of!(GpuRay, t_max)),
+                ("max_level", offset_of!(GpuRay, max_level)),
+                ("pad", offset_of!(GpuRay, pad)),
+            ],
+        ),
+        (
+            "RayOut",
+            size_of::<GpuRayHit>(),
+            vec![
+                ("t", offset_of!(GpuRayHit, t)),
+                ("level", offset_of!(GpuRayHit, level)),
+                ("hit", offset_of!(GpuRayHit, hit)),
+                ("steps", offset_of!(GpuRayHit, steps)),
+                ("coord", offset_of!(GpuRayHit, coord)),
+            ],
+        ),
     ];
     let parsed = wgsl_structs(include_str!("../wgsl/layout.wgsl"));
     assert_eq!(parsed.len(), rust.len(), "every WGSL struct needs a Rust twin in this test");

@@ -16,3 +16,101 @@ struct Attr {
     // Octahedral unit normal, snorm16 x in the low half, y in the high half.
     normal: u32,
 }
+
+// Mirrors voxray::gpu::layout::GpuPart: where one part's SVO lives in the pools.
+struct Part {
+    node_base: u32,
+    attr_base: u32,
+    depth: u32,
+    pad: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuInstance: one instance for this frame, camera-relative.
+struct Inst {
+    // Rows of the map camera-relative world -> unit cube: unit_i = dot(row.xyz, p) + row.w.
+    to_unit_x: vec4<f32>,
+    to_unit_y: vec4<f32>,
+    to_unit_z: vec4<f32>,
+    // Rows of the inverse transpose (object normals -> world normals).
+    normal_x: vec4<f32>,
+    normal_y: vec4<f32>,
+    normal_z: vec4<f32>,
+    // Bounding sphere: camera-relative centre and radius.
+    sphere: vec4<f32>,
+    part: u32,
+    // Largest stretch of the world transform times the cube size (object -> world voxel size).
+    stretch_size: f32,
+    // 1 when the instance moved since the frame in the hit buffer.
+    moved: u32,
+    pad: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuFrame: per-frame uniforms.
+struct Frame {
+    // Camera basis; forward.w = tan(vfov/2), right.w = width / height.
+    forward: vec4<f32>,
+    right: vec4<f32>,
+    up: vec4<f32>,
+    // Direction towards the sun (w = 1 with a sun), its irradiance, the sky radiance
+    // (w = 1 when MTL emitters are on).
+    sun_dir: vec4<f32>,
+    sun_irradiance: vec4<f32>,
+    sky: vec4<f32>,
+    width: u32,
+    height: u32,
+    instances: u32,
+    max_level: u32,
+    moved: u32,
+    bvh_nodes: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuBvhNode: lo.w / hi.w hold first / count as bits.
+struct BvhNode {
+    lo: vec4<f32>,
+    hi: vec4<f32>,
+}
+
+// Mirrors voxray::gpu::layout::GpuHit: one pixel's primary hit (the hit buffer).
+struct Hit {
+    t: f32,
+    instance: i32,
+    albedo: u32,
+    voxel: f32,
+    nx: f32,
+    ny: f32,
+    nz: f32,
+    fx: f32,
+    fy: f32,
+    fz: f32,
+    pad: u32,
+    // 1 when this frame reused the record.
+    reused: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuSphere: a moved instance's old or new sphere and the
+// pixel rectangle outside which it cannot meet a ray.
+struct MovedSphere {
+    sphere: vec4<f32>,
+    rect: vec4<u32>,
+}
+
+// Mirrors voxray::gpu::layout::GpuRay: one ray of a ray list, in a part's unit cube.
+struct RayIn {
+    origin: vec4<f32>,
+    dir: vec4<f32>,
+    t_min: f32,
+    t_max: f32,
+    max_level: u32,
+    pad: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuRayHit: what a ray-list trace returns.
+struct RayOut {
+    t: f32,
+    level: u32,
+    hit: u32,
+    steps: u32,
+    coord: vec4<u32>,
+}

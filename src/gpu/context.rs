@@ -1,0 +1,90 @@
+//! The wgpu device: Vulkan (or Metal / DX12) only — never the GL backend, which silently
+//! writes nothing to 3D storage textures — with the adapter's real limits and timestamp
+//! queries where the adapter has them.
+
+/// Why the GPU path cannot run.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter on the allowed backends.
+    #[error("no GPU adapter found on Vulkan/Metal/DX12 ({0}); on Linux without a GPU install Mesa's software Vulkan driver (Debian: mesa-vulkan-drivers), or use --backend cpu")]
+    NoAdapter(String),
+    /// Device creation failed.
+    #[error("GPU device: {0}")]
+    Device(String),
+    /// A buffer would exceed a device limit.
+    #[error("{what} needs {size} bytes, more than this device allows in one binding ({limit} bytes)")]
+    TooLarge {
+        /// The buffer.
+        what: &'static str,
+        /// Bytes needed.
+        size: u64,
+        /// Device limit.
+        limit: u64,
+    },
+    /// Reading results back failed.
+    #[error("GPU readback: {0}")]
+    Readback(String),
+}
+
+/// A device, its queue and what it can do.
+pub struct GpuContext {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// Adapter name, backend, driver.
+    pub info: wgpu::AdapterInfo,
+    /// The limits requested (the adapter's own).
+    pub limits: wgpu::Limits,
+    /// Whether timestamp queries are available.
+    pub timestamps: bool,
+}
+
+impl GpuContext {
+    /// A headless device. `WGPU_BACKEND` may narrow the backends; GL is always excluded.
+    pub fn headless() -> Result<GpuContext, GpuError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        let allowed = wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12;
+        desc.backends &= allowed;
+        if desc.backends.is_empty() {
+            desc.backends = allowed;
+        }
+        let backends = desc.backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            // We want the adapter's real limits (lavapipe allows 1024 invocations, not 256).
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| GpuError::NoAdapter(format!("{backends:?}: {e}")))?;
+        let limits = adapter.limits();
+        let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let required_features = if timestamps { wgpu::Features::TIMESTAMP_QUERY } else { wgpu::Features::empty() };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("voxray"),
+            required_features,
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+        Ok(GpuContext { device, queue, info: adapter.get_info(), limits, timestamps })
+    }
+
+    /// One line naming the adapter.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?}, {:?}, {})", self.info.name, self.info.backend, self.info.device_type, self.info.driver_info)
+    }
+
+    /// Checks a storage binding's size against the device limit.
+    pub fn check_binding(&self, what: &'static str, size: u64) -> Result<(), GpuError> {
+        let limit = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        if size > limit {
+            return Err(GpuError::TooLarge { what, size, limit });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,10 @@
+//! The GPU path (feature `gpu`): a wgpu device, the shared buffer layouts, the frame renderer
+//! and the ray-list tracer, all running the WGSL twins of the CPU code in `wgsl/`.
+
+pub mod context;
+pub mod layout;
+pub mod rays;
+pub mod renderer;
+
+pub use context::{GpuContext, GpuError};
+pub use renderer::{GpuRenderer, GpuTimes};

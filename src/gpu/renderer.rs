@@ -1,0 +1,457 @@
+//! The GPU renderer: the same frame as `render::cpu` (plan, hit buffer, trace then shade),
+//! in WGSL. All parts share one node pool and one attribute pool (uploaded once); instances,
+//! the BVH and the hit-buffer conditions are uploaded per frame; the hit records stay on the
+//! GPU between frames. Pipelines are built per plan variant (WGSL `override` constants) and
+//! cached.
+
+use super::context::{GpuContext, GpuError};
+use super::layout::*;
+use crate::render::bvh::Bvh;
+use crate::render::hitbuffer::{HitBuffer, HitRecord};
+use crate::render::instances::{prepare, Prepared, ToUnit};
+use crate::render::visibility::Search;
+use crate::render::{Frame, FramePlan, RenderOptions};
+use crate::scene::{Camera, Lights, Scene};
+use crate::svo::{Attr, Node, Svo};
+use glam::{DMat3, Vec3};
+use std::collections::HashMap;
+use std::sync::Arc;
+use wgpu::util::DeviceExt;
+
+/// The WGSL sources, concatenated (WGSL has no includes).
+pub fn trace_source() -> String {
+    [
+        include_str!("../../wgsl/layout.wgsl"),
+        include_str!("../../wgsl/traverse.wgsl"),
+        include_str!("../../wgsl/trace.wgsl"),
+    ]
+    .join("\n")
+}
+
+/// The ray-list shader.
+pub fn rays_source() -> String {
+    [
+        include_str!("../../wgsl/layout.wgsl"),
+        include_str!("../../wgsl/traverse.wgsl"),
+        include_str!("../../wgsl/rays.wgsl"),
+    ]
+    .join("\n")
+}
+
+/// GPU times of one frame (from timestamp queries, when the adapter has them).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GpuTimes {
+    /// Trace pass, milliseconds.
+    pub trace_ms: f64,
+    /// Shade pass, milliseconds.
+    pub shade_ms: f64,
+}
+
+struct Pools {
+    parts: Vec<*const Svo>,
+    nodes: wgpu::Buffer,
+    attrs: wgpu::Buffer,
+    infos: wgpu::Buffer,
+}
+
+/// Renders frames on the GPU.
+pub struct GpuRenderer {
+    /// The device.
+    pub ctx: Arc<GpuContext>,
+    module: wgpu::ShaderModule,
+    layout: wgpu::BindGroupLayout,
+    pipeline_layout: wgpu::PipelineLayout,
+    pipelines: HashMap<(u32, bool, bool), (wgpu::ComputePipeline, wgpu::ComputePipeline)>,
+    pools: Option<Pools>,
+    hits: Option<(wgpu::Buffer, u32, u32)>,
+    /// The CPU-side record of the frame in the GPU hit buffer (camera, transforms, spheres).
+    pub state: HitBuffer,
+    /// GPU pass times of the last frame, if timestamps are available.
+    pub times: Option<GpuTimes>,
+}
+
+fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn f4(v: glam::DVec3, w: f64) -> [f32; 4] {
+    [v.x as f32, v.y as f32, v.z as f32, w as f32]
+}
+
+impl GpuRenderer {
+    /// A renderer on a device.
+    pub fn new(ctx: Arc<GpuContext>) -> GpuRenderer {
+        let device = &ctx.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("trace.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(trace_source().into()),
+        });
+        let mut entries: Vec<wgpu::BindGroupLayoutEntry> =
+            [(0, true), (1, true), (2, true), (3, true)].iter().map(|&(b, r)| storage(b, r)).collect();
+        entries.push(wgpu::BindGroupLayoutEntry {
+            binding: 4,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        });
+        entries.extend([(5, true), (6, true), (7, false), (8, true), (9, false)].iter().map(|&(b, r)| storage(b, r)));
+        let layout = device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("trace"), entries: &entries });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("trace"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        GpuRenderer {
+            ctx,
+            module,
+            layout,
+            pipeline_layout,
+            pipelines: HashMap::new(),
+            pools: None,
+            hits: None,
+            state: HitBuffer::new(),
+            times: None,
+        }
+    }
+
+    fn pipelines(
+        &mut self,
+        search: u32,
+        reuse: bool,
+        shadows: bool,
+    ) -> &(wgpu::ComputePipeline, wgpu::ComputePipeline) {
+        let (device, module, layout) = (&self.ctx.device, &self.module, &self.pipeline_layout);
+        self.pipelines.entry((search, reuse, shadows)).or_insert_with(|| {
+            let constants =
+                [("SEARCH", search as f64), ("REUSE", reuse as u32 as f64), ("SHADOWS", shadows as u32 as f64)];
+            let make = |entry: &str| {
+                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: Some(layout),
+                    module,
+                    entry_point: Some(entry),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        zero_initialize_workgroup_memory: false,
+                    },
+                    cache: None,
+                })
+            };
+            (make("trace_main"), make("shade_main"))
+        })
+    }
+
+    /// Uploads the part pools if the scene's parts changed.
+    fn upload_parts(&mut self, parts: &[Arc<Svo>]) -> Result<(), GpuError> {
+        let ids: Vec<*const Svo> = parts.iter().map(Arc::as_ptr).collect();
+        if self.pools.as_ref().is_some_and(|p| p.parts == ids) {
+            return Ok(());
+        }
+        let (mut nodes, mut attrs, mut infos): (Vec<Node>, Vec<Attr>, Vec<GpuPart>) =
+            (Vec::new(), Vec::new(), Vec::new());
+        for p in parts {
+            infos.push(GpuPart {
+                node_base: nodes.len() as u32,
+                attr_base: attrs.len() as u32,
+                depth: p.depth,
+                pad: 0,
+            });
+            nodes.extend_from_slice(&p.nodes);
+            attrs.extend_from_slice(&p.attrs);
+        }
+        self.ctx.check_binding("the node pool", (nodes.len() * 8) as u64)?;
+        self.ctx.check_binding("the attribute pool", (attrs.len() * 8) as u64)?;
+        let device = &self.ctx.device;
+        let buf = |label, contents: &[u8]| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        self.pools = Some(Pools {
+            parts: ids,
+            nodes: buf("nodes", bytemuck::cast_slice(&nodes)),
+            attrs: buf("attrs", bytemuck::cast_slice(&attrs)),
+            infos: buf("parts", bytemuck::cast_slice(&infos)),
+        });
+        Ok(())
+    }
+
+    /// Renders one frame of `scene` as `plan` says (the same contract as `render::render`
+    /// with a hit buffer: the GPU keeps the records for the next frame).
+    pub fn render(
+        &mut self,
+        scene: &Scene,
+        camera: &Camera,
+        lights: &Lights,
+        plan: &FramePlan,
+        opts: &RenderOptions,
+    ) -> Result<Frame, GpuError> {
+        self.upload_parts(&scene.parts)?;
+        let (w, h) = (camera.width, camera.height);
+        let n = (w * h) as usize;
+        let prepared = prepare(scene, camera.eye, plan.transform);
+        let reuse = if plan.hit_buffer && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
+            self.state.reuse(camera, scene, &prepared)
+        } else {
+            None
+        };
+        let insts: Vec<GpuInstance> = prepared
+            .iter()
+            .enumerate()
+            .map(|(i, p)| gpu_instance(scene, p, reuse.as_ref().is_some_and(|r| r.moved[i])))
+            .collect();
+        let moved: Vec<GpuSphere> = reuse.as_ref().map_or(Vec::new(), |r| {
+            r.moved_spheres.iter().map(|&(c, rad, rect)| GpuSphere { sphere: f4(c, rad), rect }).collect()
+        });
+        let bvh = plan.bvh.then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+        let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), |b| {
+            b.nodes
+                .iter()
+                .map(|nd| GpuBvhNode {
+                    lo: [nd.lo.x as f32, nd.lo.y as f32, nd.lo.z as f32, f32::from_bits(nd.first)],
+                    hi: [nd.hi.x as f32, nd.hi.y as f32, nd.hi.z as f32, f32::from_bits(nd.count)],
+                })
+                .collect()
+        });
+        let items: Vec<u32> = bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
+        let basis = camera.basis();
+        let frame = GpuFrame {
+            forward: f4(basis.forward, basis.tan_half),
+            right: f4(basis.right, w as f64 / h as f64),
+            up: f4(basis.up, 0.0),
+            sun_dir: lights.sun.map_or([0.0; 4], |s| [s.to_sun.x, s.to_sun.y, s.to_sun.z, 1.0]),
+            sun_irradiance: lights.sun.map_or([0.0; 4], |s| [s.irradiance.x, s.irradiance.y, s.irradiance.z, 0.0]),
+            sky: {
+                let s = lights.sky();
+                [s.x, s.y, s.z, lights.use_mtl_emitters as u32 as f32]
+            },
+            width: w,
+            height: h,
+            instances: insts.len() as u32,
+            max_level: opts.max_level.min(64),
+            moved: moved.len() as u32,
+            bvh_nodes: bvh_nodes.len() as u32,
+            pad0: 0,
+            pad1: 0,
+        };
+        self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
+        if !self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
+            let buf = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("hits"),
+                size: (n * std::mem::size_of::<GpuHit>()) as u64,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            self.hits = Some((buf, w, h));
+        }
+        let search = match plan.search() {
+            Search::Plain => 0,
+            Search::Cull => 1,
+            Search::CullSort => 2,
+            Search::Bvh => 3,
+        };
+        let reuse_on = reuse.is_some();
+        self.pipelines(search, reuse_on, plan.shadows);
+        let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
+        let device = &self.ctx.device;
+        // Bindings must not be empty: pad with one zeroed element.
+        fn nonempty<T: bytemuck::Pod + Default>(v: &[T]) -> Vec<T> {
+            if v.is_empty() {
+                vec![T::default()]
+            } else {
+                v.to_vec()
+            }
+        }
+        let storage_buf = |label, contents: &[u8], extra| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE | extra,
+            })
+        };
+        let inst_buf = storage_buf("instances", bytemuck::cast_slice(&nonempty(&insts)), wgpu::BufferUsages::empty());
+        let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("frame"),
+            contents: bytemuck::bytes_of(&frame),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let bvh_buf = storage_buf("bvh", bytemuck::cast_slice(&nonempty(&bvh_nodes)), wgpu::BufferUsages::empty());
+        let item_buf = storage_buf("bvh items", bytemuck::cast_slice(&nonempty(&items)), wgpu::BufferUsages::empty());
+        let moved_buf = storage_buf("moved", bytemuck::cast_slice(&nonempty(&moved)), wgpu::BufferUsages::empty());
+        let radiance_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("radiance"),
+            size: (n * 16) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
+        let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
+        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("trace"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: pools.nodes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: pools.attrs.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: pools.infos.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: inst_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: frame_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: bvh_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: item_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 7, resource: hits_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 8, resource: moved_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 9, resource: radiance_buf.as_entire_binding() },
+            ],
+        });
+        let queries = self.ctx.timestamps.then(|| {
+            let set = device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("passes"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 4,
+            });
+            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps"),
+                size: 32,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (set, resolve)
+        });
+        let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        let groups = (w.div_ceil(8), h.div_ceil(8));
+        for (k, pipe) in [trace_pipe, shade_pipe].into_iter().enumerate() {
+            let timestamp_writes = queries.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+                query_set: set,
+                beginning_of_pass_write_index: Some(2 * k as u32),
+                end_of_pass_write_index: Some(2 * k as u32 + 1),
+            });
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(if k == 0 { "trace" } else { "shade" }),
+                timestamp_writes,
+            });
+            pass.set_pipeline(pipe);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        let readback = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer, size: u64| {
+            let dst = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            enc.copy_buffer_to_buffer(src, 0, &dst, 0, size);
+            dst
+        };
+        let hits_rb = readback(&mut enc, hits_buf, (n * std::mem::size_of::<GpuHit>()) as u64);
+        let rad_rb = readback(&mut enc, &radiance_buf, (n * 16) as u64);
+        let ts_rb = queries.as_ref().map(|(set, resolve)| {
+            enc.resolve_query_set(set, 0..4, resolve, 0);
+            readback(&mut enc, resolve, 32)
+        });
+        self.ctx.queue.submit([enc.finish()]);
+        let hits: Vec<GpuHit> = read(&self.ctx, &hits_rb)?;
+        let rad: Vec<[f32; 4]> = read(&self.ctx, &rad_rb)?;
+        self.times = match ts_rb {
+            Some(b) => {
+                let ts: Vec<u64> = read(&self.ctx, &b)?;
+                let period = self.ctx.queue.get_timestamp_period() as f64 * 1e-6;
+                Some(GpuTimes {
+                    trace_ms: ts[1].saturating_sub(ts[0]) as f64 * period,
+                    shade_ms: ts[3].saturating_sub(ts[2]) as f64 * period,
+                })
+            }
+            None => None,
+        };
+
+        let records: Vec<HitRecord> = hits
+            .iter()
+            .map(|g| {
+                if g.instance < 0 {
+                    HitRecord::MISS
+                } else {
+                    HitRecord {
+                        t: g.t,
+                        instance: g.instance,
+                        normal: Vec3::new(g.nx, g.ny, g.nz),
+                        face_normal: Vec3::new(g.fx, g.fy, g.fz),
+                        attr: Attr { albedo: g.albedo, normal: 0 },
+                        voxel: g.voxel,
+                    }
+                }
+            })
+            .collect();
+        let shadow_rays = match lights.sun.filter(|_| plan.shadows) {
+            Some(sun) => records.iter().filter(|r| r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0).count() as u64,
+            None => 0,
+        };
+        let f = Frame {
+            width: w,
+            height: h,
+            radiance: rad.iter().map(|c| Vec3::new(c[0], c[1], c[2])).collect(),
+            t: records.iter().map(|r| r.t).collect(),
+            instance: records.iter().map(|r| r.instance).collect(),
+            normal: records.iter().map(|r| r.normal).collect(),
+            primary_rays: n as u64,
+            reused: hits.iter().filter(|g| g.reused != 0).count() as u64,
+            shadow_rays,
+        };
+        self.state.reused = f.reused;
+        self.state.store(camera, scene, &prepared, records);
+        Ok(f)
+    }
+}
+
+fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
+    let (m, t) = match p.to_unit {
+        ToUnit::Affine(a) => (a.matrix3, a.translation),
+        ToUnit::Scale { offset, inv_size } => (DMat3::from_diagonal(glam::DVec3::splat(inv_size)), offset),
+    };
+    let row = |i: usize| [m.col(0)[i] as f32, m.col(1)[i] as f32, m.col(2)[i] as f32, t[i] as f32];
+    let n = p.normal_to_world;
+    let nrow = |i: usize| [n.col(0)[i] as f32, n.col(1)[i] as f32, n.col(2)[i] as f32, 0.0];
+    GpuInstance {
+        to_unit_x: row(0),
+        to_unit_y: row(1),
+        to_unit_z: row(2),
+        normal_x: nrow(0),
+        normal_y: nrow(1),
+        normal_z: nrow(2),
+        sphere: f4(p.centre, p.radius),
+        part: p.part as u32,
+        stretch_size: (p.max_stretch * scene.parts[p.part].bounds.size as f64) as f32,
+        moved: moved as u32,
+        pad: 0,
+    }
+}
+
+/// Maps a MAP_READ buffer and copies it out.
+pub(crate) fn read<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
+    let slice = buf.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    ctx.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+    rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+    let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+    let out = bytemuck::cast_slice(&data).to_vec();
+    drop(data);
+    buf.unmap();
+    Ok(out)
+}

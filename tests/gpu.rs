@@ -1,0 +1,186 @@
+//! The GPU path against the CPU, on whatever adapter wgpu finds (Mesa's software Vulkan
+//! driver in CI). In CI (CI=true) a missing adapter fails these tests; elsewhere they are
+//! skipped with a message.
+#![cfg(feature = "gpu")]
+
+use glam::{DQuat, DVec3};
+use std::sync::{Arc, OnceLock};
+use voxray::gpu::layout::GpuRay;
+use voxray::gpu::rays::trace_rays;
+use voxray::gpu::{GpuContext, GpuRenderer};
+use voxray::pipeline::shared_resolution;
+use voxray::ray::UnitRay;
+use voxray::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
+use voxray::scene::car::{add_car, pose, Car};
+use voxray::scene::{Camera, Lights, Scene};
+use voxray::stability::{check_with, merge, standard_cases, CaseReport, Ray64};
+use voxray::svo::{self, Svo};
+use voxray::traverse::{trace_unit, Hit, TraceOptions};
+use voxray::voxelize::{voxelize, Resolution, VoxelizeOptions};
+
+fn context() -> Option<Arc<GpuContext>> {
+    static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
+    match CTX.get_or_init(|| GpuContext::headless().map(Arc::new).map_err(|e| e.to_string())) {
+        Ok(c) => Some(c.clone()),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => {
+            panic!("CI needs a GPU adapter (software Vulkan): {e}")
+        }
+        Err(e) => {
+            eprintln!("skipping GPU test: {e}");
+            None
+        }
+    }
+}
+
+/// GPU t is computed in f32 from an f32 ray (the CPU uses f64): allow 10⁻⁴ relative.
+const GPU_T_TOLERANCE: f64 = 1e-4;
+
+#[test]
+fn gpu_traces_the_stability_suite_like_the_cpu() {
+    let Some(ctx) = context() else { return };
+    eprintln!("GPU: {}", ctx.describe());
+    for case in standard_cases(100_000) {
+        let max_level = case.max_level.unwrap_or(u32::MAX);
+        let rays: Vec<GpuRay> = case
+            .rays
+            .iter()
+            .map(|r| GpuRay {
+                origin: [r.origin.x, r.origin.y, r.origin.z, 0.0],
+                dir: [r.dir.x, r.dir.y, r.dir.z, 0.0],
+                t_min: r.t_min,
+                t_max: r.t_max,
+                max_level: max_level.min(64),
+                pad: 0,
+            })
+            .collect();
+        let gpu = trace_rays(&ctx, &case.svo, &rays).unwrap();
+        let oracle_set = match case.max_level {
+            Some(l) => case.set.coarsen(l),
+            None => case.set.clone(),
+        };
+        let (mut same, mut report) = (0u64, CaseReport::default());
+        for (r, g) in case.rays.iter().zip(&gpu) {
+            let cpu = UnitRay::from_unit(r.origin.as_dvec3(), r.dir.as_dvec3()).and_then(|u| {
+                trace_unit(&case.svo, &u, &TraceOptions { t_min: r.t_min, t_max: r.t_max, max_level }).hit
+            });
+            let gh = (g.hit == 1).then(|| Hit {
+                t: g.t,
+                level: g.level,
+                coord: [g.coord[0], g.coord[1], g.coord[2]],
+                attr: Default::default(),
+                face_normal: glam::Vec3::ZERO,
+            });
+            let agree = match (&cpu, &gh) {
+                (None, None) => true,
+                (Some(c), Some(g)) => {
+                    c.coord == g.coord && ((c.t - g.t).abs() as f64) <= GPU_T_TOLERANCE * (c.t.abs() as f64).max(1.0)
+                }
+                _ => false,
+            };
+            if agree {
+                same += 1;
+            } else {
+                // Where they differ, the GPU's answer must itself satisfy the oracle.
+                report = merge(report, check_with(&oracle_set, &Ray64::from(r), gh, g.steps, false, GPU_T_TOLERANCE));
+            }
+        }
+        let n = case.rays.len() as u64;
+        assert_eq!(report.mismatches, 0, "{}: {:?}", case.name, report.first_mismatch);
+        assert!(same * 1000 >= n * 999, "{}: only {same} of {n} rays identical to the CPU", case.name);
+        eprintln!("{}: {same} of {n} identical, {} differ but valid", case.name, report.rays);
+    }
+}
+
+fn car_parts() -> Vec<Arc<Svo>> {
+    let mesh = voxray::model::car::mesh();
+    let res = shared_resolution(&mesh, Resolution::Depth(6)).unwrap();
+    let opts = VoxelizeOptions { resolution: res, solid: false };
+    mesh.parts
+        .iter()
+        .map(|p| Arc::new(svo::build(&voxelize(p, &mesh.materials, &opts, &|_, _| {}).unwrap()).unwrap()))
+        .collect()
+}
+
+fn scene(cars: usize) -> (Scene, Vec<Car>) {
+    let mut scene = Scene::new(car_parts());
+    let mut placed = vec![add_car(&mut scene, 0, DVec3::ZERO, 0.0, false).unwrap()];
+    for k in 0..cars {
+        placed.push(add_car(&mut scene, 0, DVec3::new(0.0, 0.0, 8.0 + 3.0 * k as f64), 1.3 * k as f64, true).unwrap());
+    }
+    scene.update().unwrap();
+    (scene, placed)
+}
+
+fn assert_close(cpu: &Frame, gpu: &Frame, what: &str) {
+    let n = cpu.t.len();
+    let same = cpu.instance.iter().zip(&gpu.instance).filter(|(a, b)| a == b).count();
+    assert!(same as f64 >= 0.9999 * n as f64, "{what}: instance ids agree on {same} of {n} pixels");
+    for k in 0..n {
+        assert!(!gpu.t[k].is_nan() && gpu.radiance[k].is_finite(), "{what}: NaN at pixel {k}");
+        if cpu.instance[k] >= 0 && cpu.instance[k] == gpu.instance[k] {
+            let rel = ((cpu.t[k] - gpu.t[k]) / cpu.t[k]).abs();
+            assert!(rel <= 1e-4, "{what}: pixel {k}: t {} vs {} (rel {rel:e})", cpu.t[k], gpu.t[k]);
+        }
+    }
+    let mean: f32 =
+        cpu.radiance.iter().zip(&gpu.radiance).map(|(a, b)| (*a - *b).abs().max_element()).sum::<f32>() / n as f32;
+    assert!(mean < 0.01, "{what}: mean radiance difference {mean}");
+}
+
+/// Renders a clip on both renderers and compares every frame.
+fn compare_clip(cars: usize, frames: usize, orbit: f64, features: Features) {
+    let Some(ctx) = context() else { return };
+    let (mut s_cpu, cars_cpu) = scene(cars);
+    let (mut s_gpu, cars_gpu) = scene(cars);
+    let lights = Lights::default();
+    let mut cpu_hits = HitBuffer::new();
+    let mut gpu = GpuRenderer::new(ctx);
+    let base = Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 160,
+        height: 100,
+    };
+    for f in 0..frames {
+        let t = f as f64 / 30.0;
+        for (a, b) in cars_cpu.iter().zip(&cars_gpu) {
+            pose(&mut s_cpu, a, t).unwrap();
+            pose(&mut s_gpu, b, t).unwrap();
+        }
+        s_cpu.update().unwrap();
+        s_gpu.update().unwrap();
+        let q = DQuat::from_rotation_y((orbit * t).to_radians());
+        let cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
+        let plan_cpu = FramePlan::new(&s_cpu, &cam, &lights, &features, (f > 0).then_some(&cpu_hits));
+        let plan_gpu = FramePlan::new(&s_gpu, &cam, &lights, &features, (f > 0).then_some(&gpu.state));
+        assert_eq!(plan_cpu, plan_gpu);
+        let c = render(&s_cpu, &cam, &lights, &plan_cpu, &RenderOptions::default(), Some(&mut cpu_hits), &|_, _| {});
+        let g = gpu.render(&s_gpu, &cam, &lights, &plan_gpu, &RenderOptions::default()).unwrap();
+        assert_close(&c, &g, &format!("{cars} driving cars, frame {f}, plan {:?}", plan_gpu.search()));
+        if plan_gpu.hit_buffer && orbit == 0.0 {
+            assert!(g.reused > 0, "frame {f}: the GPU hit buffer reused nothing");
+        }
+    }
+}
+
+#[test]
+fn gpu_matches_cpu_static_camera_with_hit_buffer() {
+    compare_clip(1, 4, 0.0, Features::default());
+}
+
+#[test]
+fn gpu_matches_cpu_moving_camera() {
+    compare_clip(1, 3, 25.0, Features::default());
+}
+
+#[test]
+fn gpu_matches_cpu_without_optimizations() {
+    compare_clip(1, 2, 0.0, Features::NONE.with_shadows());
+}
+
+#[test]
+fn gpu_matches_cpu_with_many_cars_and_the_bvh() {
+    compare_clip(5, 2, 0.0, Features::default());
+}

@@ -1,0 +1,356 @@
+// Per-pixel passes: trace_main finds each pixel's primary hit (or keeps last frame's under the
+// exact hit-buffer rule), shade_main lights it. The WGSL twin of src/render/visibility.rs,
+// src/render/hitbuffer.rs and src/render/cpu.rs. Needs layout.wgsl and traverse.wgsl.
+
+// Which instance search (render::visibility::Search): 0 plain, 1 cull, 2 cull + sort, 3 BVH.
+override SEARCH: u32 = 0u;
+// Reuse last frame's hits where the rule allows (plan.hit_buffer).
+override REUSE: bool = false;
+// Shadow rays (plan.shadows).
+override SHADOWS: bool = true;
+
+@group(0) @binding(0) var<storage, read> nodes: array<Node>;
+@group(0) @binding(1) var<storage, read> attrs: array<Attr>;
+@group(0) @binding(2) var<storage, read> parts: array<Part>;
+@group(0) @binding(3) var<storage, read> insts: array<Inst>;
+@group(0) @binding(4) var<uniform> frame: Frame;
+@group(0) @binding(5) var<storage, read> bvh: array<BvhNode>;
+@group(0) @binding(6) var<storage, read> bvh_items: array<u32>;
+@group(0) @binding(7) var<storage, read_write> hits: array<Hit>;
+@group(0) @binding(8) var<storage, read> moved: array<MovedSphere>;
+@group(0) @binding(9) var<storage, read_write> radiance: array<vec4<f32>>;
+
+// Candidates kept per ray for the depth sort; more falls back to culling without sorting.
+const MAX_CANDIDATES: u32 = 16u;
+
+// render::instances::sphere_interval: (t0, t1), or (BIG, -BIG) for a miss.
+fn sphere_interval(c: vec3<f32>, radius: f32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    let oc = c - o;
+    let b = dot(oc, d);
+    let cc = dot(oc, oc) - radius * radius;
+    let disc = b * b - cc;
+    if !(disc >= 0.0) {
+        return vec2<f32>(BIG, -BIG);
+    }
+    let s = sqrt(disc);
+    if b + s < 0.0 {
+        return vec2<f32>(BIG, -BIG);
+    }
+    return vec2<f32>(b - s, b + s);
+}
+
+fn inst_sphere(i: u32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    let s = insts[i].sphere;
+    return sphere_interval(s.xyz, s.w, o, d);
+}
+
+fn to_unit_point(inst: Inst, p: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(dot(inst.to_unit_x.xyz, p) + inst.to_unit_x.w, dot(inst.to_unit_y.xyz, p) + inst.to_unit_y.w, dot(inst.to_unit_z.xyz, p) + inst.to_unit_z.w);
+}
+
+fn to_unit_vector(inst: Inst, d: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(dot(inst.to_unit_x.xyz, d), dot(inst.to_unit_y.xyz, d), dot(inst.to_unit_z.xyz, d));
+}
+
+// visibility::trace_one
+fn trace_one(i: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> Traced {
+    let inst = insts[i];
+    let r = unit_ray(to_unit_point(inst, o), to_unit_vector(inst, d));
+    if !r.ok {
+        var miss: Traced;
+        miss.hit = false;
+        return miss;
+    }
+    return trace_unit(parts[inst.part], r, 0.0, t_max, frame.max_level);
+}
+
+struct Nearest {
+    found: bool,
+    inst: u32,
+    tr: Traced,
+}
+
+// visibility::keep: nearest t, ties to the lower instance index.
+fn keep(best: ptr<function, Nearest>, i: u32, tr: Traced) {
+    if !tr.hit {
+        return;
+    }
+    if !(*best).found || tr.t < (*best).tr.t || (tr.t == (*best).tr.t && i < (*best).inst) {
+        (*best).found = true;
+        (*best).inst = i;
+        (*best).tr = tr;
+    }
+}
+
+fn bound(best: Nearest) -> f32 {
+    return select(BIG, best.tr.t, best.found);
+}
+
+fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
+    var t0 = 0.0;
+    var t1 = t_max;
+    for (var i = 0u; i < 3u; i++) {
+        if d[i] == 0.0 {
+            if o[i] < lo[i] || o[i] > hi[i] {
+                return BIG;
+            }
+        } else {
+            let a = (lo[i] - o[i]) / d[i];
+            let b = (hi[i] - o[i]) / d[i];
+            t0 = max(t0, min(a, b));
+            t1 = min(t1, max(a, b));
+        }
+    }
+    return select(BIG, t0, t0 <= t1);
+}
+
+fn nearest_cull(o: vec3<f32>, d: vec3<f32>) -> Nearest {
+    var best: Nearest;
+    best.found = false;
+    for (var i = 0u; i < frame.instances; i++) {
+        let s = inst_sphere(i, o, d);
+        if s.x <= s.y {
+            keep(&best, i, trace_one(i, o, d, BIG));
+        }
+    }
+    return best;
+}
+
+// visibility::nearest
+fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
+    var best: Nearest;
+    best.found = false;
+    if SEARCH == 0u {
+        for (var i = 0u; i < frame.instances; i++) {
+            keep(&best, i, trace_one(i, o, d, BIG));
+        }
+    } else if SEARCH == 1u {
+        best = nearest_cull(o, d);
+    } else if SEARCH == 2u {
+        var entry: array<f32, 16>;
+        var index: array<u32, 16>;
+        var n = 0u;
+        var overflow = false;
+        for (var i = 0u; i < frame.instances; i++) {
+            let s = inst_sphere(i, o, d);
+            if s.x > s.y {
+                continue;
+            }
+            if n == MAX_CANDIDATES {
+                overflow = true;
+                break;
+            }
+            // Insertion sort by (entry, index).
+            var k = n;
+            while k > 0u && (entry[k - 1u] > s.x || (entry[k - 1u] == s.x && index[k - 1u] > i)) {
+                entry[k] = entry[k - 1u];
+                index[k] = index[k - 1u];
+                k -= 1u;
+            }
+            entry[k] = s.x;
+            index[k] = i;
+            n += 1u;
+        }
+        if overflow {
+            return nearest_cull(o, d);
+        }
+        for (var k = 0u; k < n; k++) {
+            let t_max = bound(best);
+            if entry[k] > t_max {
+                break;
+            }
+            keep(&best, index[k], trace_one(index[k], o, d, t_max));
+        }
+    } else {
+        var stack_node: array<u32, 64>;
+        var stack_t: array<f32, 64>;
+        var sp = 0u;
+        let root = box_entry(bvh[0].lo.xyz, bvh[0].hi.xyz, o, d, BIG);
+        if frame.bvh_nodes > 0u && root < BIG {
+            stack_node[0] = 0u;
+            stack_t[0] = root;
+            sp = 1u;
+        }
+        while sp > 0u {
+            sp -= 1u;
+            let n = stack_node[sp];
+            if stack_t[sp] > bound(best) {
+                continue;
+            }
+            let node = bvh[n];
+            let first = bitcast<u32>(node.lo.w);
+            let count = bitcast<u32>(node.hi.w);
+            if count > 0u {
+                for (var k = first; k < first + count; k++) {
+                    let i = bvh_items[k];
+                    let s = inst_sphere(i, o, d);
+                    let t_max = bound(best);
+                    if s.x > s.y || s.x > t_max {
+                        continue;
+                    }
+                    keep(&best, i, trace_one(i, o, d, t_max));
+                }
+            } else {
+                let t_max = bound(best);
+                let el = box_entry(bvh[first].lo.xyz, bvh[first].hi.xyz, o, d, t_max);
+                let er = box_entry(bvh[first + 1u].lo.xyz, bvh[first + 1u].hi.xyz, o, d, t_max);
+                // Push the farther child first so the nearer one is popped first.
+                if el < BIG && er < BIG && sp + 2u <= 64u {
+                    if el <= er {
+                        stack_node[sp] = first + 1u; stack_t[sp] = er;
+                        stack_node[sp + 1u] = first; stack_t[sp + 1u] = el;
+                    } else {
+                        stack_node[sp] = first; stack_t[sp] = el;
+                        stack_node[sp + 1u] = first + 1u; stack_t[sp + 1u] = er;
+                    }
+                    sp += 2u;
+                } else if el < BIG && sp < 64u {
+                    stack_node[sp] = first; stack_t[sp] = el;
+                    sp += 1u;
+                } else if er < BIG && sp < 64u {
+                    stack_node[sp] = first + 1u; stack_t[sp] = er;
+                    sp += 1u;
+                }
+            }
+        }
+    }
+    return best;
+}
+
+// visibility::occluded: any hit ends the search.
+fn occluded(o: vec3<f32>, d: vec3<f32>) -> bool {
+    for (var i = 0u; i < frame.instances; i++) {
+        if SEARCH != 0u {
+            let s = inst_sphere(i, o, d);
+            if s.x > s.y {
+                continue;
+            }
+        }
+        if trace_one(i, o, d, BIG).hit {
+            return true;
+        }
+    }
+    return false;
+}
+
+fn decode_normal(v: u32) -> vec3<f32> {
+    let x = max(f32(bitcast<i32>(v << 16u) >> 16u) / 32767.0, -1.0);
+    let y = max(f32(bitcast<i32>(v) >> 16u) / 32767.0, -1.0);
+    let z = 1.0 - abs(x) - abs(y);
+    var n = vec3<f32>(x, y, z);
+    if z < 0.0 {
+        n.x = (1.0 - abs(y)) * select(-1.0, 1.0, x >= 0.0);
+        n.y = (1.0 - abs(x)) * select(-1.0, 1.0, y >= 0.0);
+    }
+    let l = length(n);
+    return select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
+}
+
+fn srgb_to_linear(c: u32) -> f32 {
+    let s = f32(c) / 255.0;
+    return select(pow((s + 0.055) / 1.055, 2.4), s / 12.92, s <= 0.04045);
+}
+
+fn albedo_of(a: u32) -> vec3<f32> {
+    return vec3<f32>(srgb_to_linear(a & 0xFFu), srgb_to_linear((a >> 8u) & 0xFFu), srgb_to_linear((a >> 16u) & 0xFFu));
+}
+
+fn ray_dir(x: u32, y: u32) -> vec3<f32> {
+    let w = f32(frame.width);
+    let h = f32(frame.height);
+    let sx = (2.0 * (f32(x) + 0.5) / w - 1.0) * frame.forward.w * frame.right.w;
+    let sy = (1.0 - 2.0 * (f32(y) + 0.5) / h) * frame.forward.w;
+    return normalize(frame.forward.xyz + sx * frame.right.xyz + sy * frame.up.xyz);
+}
+
+// HitBuffer::Reuse::valid
+fn reuse_valid(old: Hit, d: vec3<f32>, x: u32, y: u32) -> bool {
+    if old.instance >= 0 && insts[u32(old.instance)].moved != 0u {
+        return false;
+    }
+    for (var k = 0u; k < frame.moved; k++) {
+        let m = moved[k];
+        if x >= m.rect.x && x <= m.rect.z && y >= m.rect.y && y <= m.rect.w {
+            let s = sphere_interval(m.sphere.xyz, m.sphere.w, vec3<f32>(0.0), d);
+            if s.x <= s.y && s.x <= old.t {
+                return false;
+            }
+        }
+    }
+    return true;
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= frame.width || gid.y >= frame.height {
+        return;
+    }
+    let idx = gid.y * frame.width + gid.x;
+    let d = ray_dir(gid.x, gid.y);
+    if REUSE {
+        if reuse_valid(hits[idx], d, gid.x, gid.y) {
+            hits[idx].reused = 1u;
+            return;
+        }
+    }
+    var h: Hit;
+    h.t = BIG;
+    h.instance = -1;
+    h.reused = 0u;
+    let best = nearest(vec3<f32>(0.0), d);
+    if best.found {
+        let inst = insts[best.inst];
+        let to_world = mat3x3<f32>(inst.normal_x.xyz, inst.normal_y.xyz, inst.normal_z.xyz);
+        // The rows were uploaded as columns of the transpose: n_world = M^-T n.
+        var n = normalize(decode_normal(best.tr.attr.normal) * to_world);
+        var f = best.tr.face_normal * to_world;
+        f = select(vec3<f32>(0.0), normalize(f), dot(f, f) > 0.0);
+        if !(dot(n, n) > 0.5) {
+            n = select(-d, f, dot(f, f) > 0.0);
+        }
+        if dot(n, d) > 0.0 {
+            n = -n;
+        }
+        h.t = best.tr.t;
+        h.instance = i32(best.inst);
+        h.albedo = best.tr.attr.albedo;
+        h.voxel = inst.stretch_size / f32(1u << best.tr.level);
+        h.nx = n.x; h.ny = n.y; h.nz = n.z;
+        h.fx = f.x; h.fy = f.y; h.fz = f.z;
+    }
+    hits[idx] = h;
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= frame.width || gid.y >= frame.height {
+        return;
+    }
+    let idx = gid.y * frame.width + gid.x;
+    let h = hits[idx];
+    if h.instance < 0 {
+        radiance[idx] = vec4<f32>(frame.sky.xyz, 1.0);
+        return;
+    }
+    let albedo = albedo_of(h.albedo);
+    var c = albedo * frame.sky.xyz;
+    let n = vec3<f32>(h.nx, h.ny, h.nz);
+    if frame.sun_dir.w > 0.0 {
+        let cosv = dot(n, frame.sun_dir.xyz);
+        if cosv > 0.0 {
+            var visible = true;
+            if SHADOWS {
+                let d = ray_dir(gid.x, gid.y);
+                let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
+                visible = !occluded(start, frame.sun_dir.xyz);
+            }
+            if visible {
+                c += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
+            }
+        }
+    }
+    if frame.sky.w > 0.0 {
+        c += albedo * (f32(h.albedo >> 24u) / 16.0);
+    }
+    radiance[idx] = vec4<f32>(c, 1.0);
+}
