@@ -1,7 +1,8 @@
 //! The frame-time benchmark harness (CPU): animation clips rendered with a static camera,
 //! per-frame wall times summarized as median / p95 / min, with the frame plan in every record.
 
-use crate::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+use crate::backend::Backend;
+use crate::render::{Features, FramePlan, RenderOptions};
 use crate::scene::car::{pose, Car};
 use crate::scene::{Camera, Lights, Scene, SceneError};
 use std::time::Instant;
@@ -32,6 +33,12 @@ pub struct Record {
     pub reused_fraction: f64,
     /// The plan of the last frame.
     pub plan: FramePlan,
+    /// Backend (CPU, or the GPU adapter).
+    pub backend: String,
+    /// Median GPU time of the trace pass (ms), from timestamp queries.
+    pub gpu_trace_ms: Option<f64>,
+    /// Median GPU time of the shade pass (ms).
+    pub gpu_shade_ms: Option<f64>,
 }
 
 /// Median, 95th percentile and minimum of a list of times.
@@ -50,6 +57,8 @@ pub fn summarize(times: &[f64]) -> (f64, f64, f64) {
 #[allow(clippy::too_many_arguments)]
 pub fn run_clip(
     name: &str,
+    backend: &mut Backend,
+    backend_name: &str,
     scene: &mut Scene,
     cars: &[Car],
     camera: &Camera,
@@ -58,21 +67,27 @@ pub fn run_clip(
     frames: usize,
     fps: f64,
     progress: &dyn Fn(usize),
-) -> Result<Record, SceneError> {
-    let mut hits = HitBuffer::new();
+) -> Result<Record, crate::Error> {
+    let scene_err =
+        |e: SceneError| crate::Error::Io { path: "scene".into(), source: std::io::Error::other(e.to_string()) };
     let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
+    let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
     let mut plan = None;
     for f in 0..=frames {
         let start = Instant::now();
         let t = f as f64 / fps;
         for car in cars {
-            pose(scene, car, t)?;
+            pose(scene, car, t).map_err(scene_err)?;
         }
-        scene.update()?;
-        let p = FramePlan::new(scene, camera, lights, features, (f > 0).then_some(&hits));
-        let frame = render(scene, camera, lights, &p, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+        scene.update().map_err(scene_err)?;
+        let p = backend.plan(scene, camera, lights, features, f == 0);
+        let frame = backend.render(scene, camera, lights, &p, &RenderOptions::default(), &|_, _| {})?;
         let secs = start.elapsed().as_secs_f64();
         if f > 0 {
+            if let Some((tr, sh)) = backend.pass_times() {
+                trace_ms.push(tr);
+                shade_ms.push(sh);
+            }
             times.push(secs * 1e3);
             rays += frame.primary_rays - frame.reused + frame.shadow_rays;
             reused += frame.reused;
@@ -95,6 +110,9 @@ pub fn run_clip(
         mrays_per_s: rays as f64 / busy.max(1e-9) / 1e6,
         reused_fraction: reused as f64 / pixels.max(1.0),
         plan: plan.unwrap_or_else(|| FramePlan::new(scene, camera, lights, features, None)),
+        backend: backend_name.to_string(),
+        gpu_trace_ms: (!trace_ms.is_empty()).then(|| summarize(&trace_ms).0),
+        gpu_shade_ms: (!shade_ms.is_empty()).then(|| summarize(&shade_ms).0),
     })
 }
 

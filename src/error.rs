@@ -24,6 +24,10 @@ pub enum Error {
     /// Writing images or AOVs.
     #[error(transparent)]
     Output(#[from] crate::render::output::OutputError),
+    /// The GPU path.
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
     /// Reading an input file (camera/lights JSON).
     #[error("{path}: {source}")]
     Io {

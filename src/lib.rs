@@ -36,6 +36,7 @@
 // Loops over the three axes index several per-axis arrays at once, as the WGSL twins do.
 #![allow(clippy::needless_range_loop)]
 
+pub mod backend;
 pub mod bench;
 pub mod cache;
 mod error;

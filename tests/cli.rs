@@ -311,3 +311,57 @@ fn switches_static_car_and_many_cars() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("--frames 2 or more"), "{err}");
 }
+
+#[test]
+fn gpu_backend_writes_the_same_aovs_as_the_cpu() {
+    let d = tmp("backend");
+    let cache = d.join("cache");
+    let run = |backend: &str| {
+        let aov = d.join(format!("aov_{backend}"));
+        let png = d.join(format!("{backend}.png"));
+        let o = voxray(&[
+            "render",
+            "--backend",
+            backend,
+            "--depth",
+            "6",
+            "--width",
+            "64",
+            "--height",
+            "40",
+            "--frames",
+            "2",
+            "--cache-dir",
+            s(&cache),
+            "--out",
+            s(&png),
+            "--aov-dir",
+            s(&aov),
+        ]);
+        (o, aov)
+    };
+    let (cpu, cpu_aov) = run("cpu");
+    assert!(cpu.status.success(), "{}", String::from_utf8_lossy(&cpu.stderr));
+    let (gpu, gpu_aov) = run("gpu");
+    let err = String::from_utf8_lossy(&gpu.stderr);
+    if !gpu.status.success() && err.contains("no GPU adapter") && std::env::var("CI").map_or(true, |v| v != "true") {
+        eprintln!("skipping: {err}");
+        return;
+    }
+    assert!(gpu.status.success(), "{err}");
+    assert!(err.contains("backend: GPU"), "{err}");
+    for f in 0..2 {
+        let frame = format!("frame_{f:04}");
+        let (_, _, ic) = read_npy(&cpu_aov.join(&frame).join("instance.npy"));
+        let (_, _, ig) = read_npy(&gpu_aov.join(&frame).join("instance.npy"));
+        let (tc, tg) = (
+            f32s(&read_npy(&cpu_aov.join(&frame).join("t.npy")).2),
+            f32s(&read_npy(&gpu_aov.join(&frame).join("t.npy")).2),
+        );
+        let same = ic.chunks(4).zip(ig.chunks(4)).filter(|(a, b)| a == b).count();
+        assert!(same * 10_000 >= (ic.len() / 4) * 9_999, "frame {f}: {same} of {} instance ids agree", ic.len() / 4);
+        for (a, b) in tc.iter().zip(&tg) {
+            assert!(a == b || ((a - b) / a).abs() <= 1e-4, "frame {f}: t {a} vs {b}");
+        }
+    }
+}

@@ -7,11 +7,12 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Instant;
+use voxray::backend::Backend;
 use voxray::cache::SvoCache;
 use voxray::mesh::Mesh;
 use voxray::mesh::Part;
 use voxray::pipeline::{build_part, shared_resolution};
-use voxray::render::{output, render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
+use voxray::render::{output, Features, Frame, FramePlan, RenderOptions};
 use voxray::scene::car::{add_car, clip_bounds, layout, pose, Car};
 use voxray::scene::{Camera, Instance, Lights, Scene, Transform};
 use voxray::svo::Svo;
@@ -156,6 +157,9 @@ struct RenderArgs {
     /// Print the frame plan (first frame, and whenever it changes).
     #[arg(long)]
     explain: bool,
+    /// Where to render: cpu, gpu (an error without an adapter) or auto (the GPU on a hardware adapter, else the CPU).
+    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
+    backend: voxray::backend::BackendKind,
 }
 
 #[derive(Args, Clone)]
@@ -183,9 +187,12 @@ struct BenchArgs {
     /// Image height of the sweep.
     #[arg(long, default_value_t = 192)]
     sweep_height: u32,
-    /// Write the records as JSON here.
-    #[arg(long, default_value = "docs/data/bench-cpu.json")]
-    out: PathBuf,
+    /// Write the records as JSON here (default: docs/data/bench-cpu.json or bench-gpu.json).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Where to render: cpu, gpu or auto.
+    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
+    backend: voxray::backend::BackendKind,
 }
 
 #[derive(Args)]
@@ -442,7 +449,9 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         shadows: !a.no_shadows,
     };
     let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
-    let mut hits = HitBuffer::new();
+    let (mut backend, backend_name) = Backend::open(a.backend)?;
+    eprintln!("backend: {backend_name}");
+    let mut gpu_times = Vec::new();
     let mut last_plan: Option<FramePlan> = None;
     let mut gif_frames = Vec::new();
     let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
@@ -455,16 +464,19 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         }
         st.scene.update().map_err(scene_err)?;
         let cam = orbit(&camera, a.orbit * (t - a.time));
-        let plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&hits));
+        let plan = backend.plan(&st.scene, &cam, &lights, &features, f == 0);
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
         }
-        let frame = render(&st.scene, &cam, &lights, &plan, &opts, Some(&mut hits), &|d, _| {
+        let frame = backend.render(&st.scene, &cam, &lights, &plan, &opts, &|d, _| {
             if a.frames == 1 {
                 pb.set_position(d as u64)
             }
-        });
+        })?;
         times.push(start.elapsed().as_secs_f64());
+        if let Some(t) = backend.pass_times() {
+            gpu_times.push(t);
+        }
         traced += frame.primary_rays - frame.reused + frame.shadow_rays;
         reused += frame.reused;
         last_plan = Some(plan);
@@ -488,11 +500,16 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         median * 1e3,
         p95 * 1e3
     );
+    if !gpu_times.is_empty() {
+        let (tr, _, _) = voxray::bench::summarize(&gpu_times.iter().map(|t| t.0).collect::<Vec<_>>());
+        let (sh, _, _) = voxray::bench::summarize(&gpu_times.iter().map(|t| t.1).collect::<Vec<_>>());
+        eprintln!("GPU passes (timestamp queries, median): trace {tr:.2} ms, shade {sh:.2} ms");
+    }
     eprintln!(
-        "rays: {traced} traced ({:.1}% of pixels reused from the hit buffer) = {:.2} Mrays/s on {} threads ({}x{}, {} instances)",
+        "rays: {traced} traced ({:.1}% of pixels reused from the hit buffer) = {:.2} Mrays/s on {} ({}x{}, {} instances)",
         100.0 * reused as f64 / pixels as f64,
         traced as f64 / total / 1e6,
-        rayon::current_num_threads(),
+        if matches!(backend, Backend::Cpu(_)) { format!("{} threads", rayon::current_num_threads()) } else { "the GPU".into() },
         camera.width,
         camera.height,
         st.scene.instances().len()
@@ -528,6 +545,15 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         return Err(usage("bench uses the default car"));
     }
     let lights = Lights::default();
+    let (mut backend, backend_name) = Backend::open(a.backend)?;
+    eprintln!("backend: {backend_name}");
+    let out = a.out.clone().unwrap_or_else(|| {
+        PathBuf::from(if matches!(backend, Backend::Cpu(_)) {
+            "docs/data/bench-cpu.json"
+        } else {
+            "docs/data/bench-gpu.json"
+        })
+    });
     let mut records: Vec<Record> = Vec::new();
     let total = 3 + 2 * a.sweep_cars.len();
     let pb = bar(total as u64, "scenarios");
@@ -548,16 +574,27 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     ];
     for (name, features, is_static) in scenarios {
         let st = if is_static { &mut st_a } else { &mut st_b };
-        let r = run_clip(name, &mut st.scene, &st.cars, &camera, &lights, &features, a.frames, 30.0, &|_| {})
-            .map_err(scene_err)?;
+        let r = run_clip(
+            name,
+            &mut backend,
+            &backend_name,
+            &mut st.scene,
+            &st.cars,
+            &camera,
+            &lights,
+            &features,
+            a.frames,
+            30.0,
+            &|_| {},
+        )?;
         pb.inc(1);
         records.push(r);
     }
     let base = records[0].median_ms;
     let mut md = format!(
-        "Machine: {}. Command: `voxray bench --frames {}` (release). Primary rays only (no shadows), static camera, {}×{}.\n\n\
-         | scenario | instances | median ms | p95 ms | min ms | ratio to a | reused | Mrays/s traced |\n|---|---|---|---|---|---|---|---|\n",
-        machine(), a.frames, a.width, a.height
+        "Machine: {}. Backend: {backend_name}. Command: `voxray bench --frames {} --backend {:?}` (release). Primary rays only (no shadows), static camera, {}×{}.\n\n\
+         | scenario | instances | median ms | p95 ms | min ms | ratio to a | reused | Mrays/s traced | GPU trace ms | GPU shade ms |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        machine(), a.frames, a.backend, a.width, a.height
     );
     for r in &records {
         md += &format!(
@@ -585,8 +622,19 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             let features = Features { bvh, hit_buffer: false, shadows: false, ..Features::default() };
             // The BVH switches on only above a threshold; force it on for the sweep by features alone.
             let name = format!("sweep: {cars} cars, {}", if bvh { "BVH" } else { "no BVH" });
-            let r = run_clip(&name, &mut st.scene, &st.cars, &cam, &lights, &features, a.sweep_frames, 30.0, &|_| {})
-                .map_err(scene_err)?;
+            let r = run_clip(
+                &name,
+                &mut backend,
+                &backend_name,
+                &mut st.scene,
+                &st.cars,
+                &cam,
+                &lights,
+                &features,
+                a.sweep_frames,
+                30.0,
+                &|_| {},
+            )?;
             pb.inc(1);
             pair.push(r.median_ms);
             records.push(r);
@@ -595,13 +643,18 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     }
     pb.finish_and_clear();
     println!("{md}");
-    if let Some(dir) = a.out.parent() {
+    if let Some(dir) = out.parent() {
         std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
     }
-    let json = serde_json::json!({ "machine": machine(), "command": format!("voxray bench --frames {}", a.frames), "records": records });
-    std::fs::write(&a.out, serde_json::to_string_pretty(&json).unwrap_or_default())
-        .map_err(|source| Error::Io { path: a.out.display().to_string(), source })?;
-    println!("wrote {}", a.out.display());
+    let json = serde_json::json!({
+        "machine": machine(),
+        "backend": backend_name,
+        "command": format!("voxray bench --frames {} --backend {:?}", a.frames, a.backend),
+        "records": records
+    });
+    std::fs::write(&out, serde_json::to_string_pretty(&json).unwrap_or_default())
+        .map_err(|source| Error::Io { path: out.display().to_string(), source })?;
+    println!("wrote {}", out.display());
     Ok(())
 }
 

@@ -1,0 +1,106 @@
+//! Where frames are rendered: the CPU renderer or the GPU renderer, behind one call with the
+//! same contract (plan from the previous frame, hit buffer kept between frames).
+
+use crate::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
+use crate::scene::{Camera, Lights, Scene};
+
+/// Which backend to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BackendKind {
+    /// The CPU renderer.
+    Cpu,
+    /// The GPU renderer (an error if there is no adapter).
+    Gpu,
+    /// The GPU renderer on a hardware adapter; otherwise the CPU renderer (a software
+    /// Vulkan driver such as lavapipe runs the GPU path ~20× slower than the CPU renderer).
+    Auto,
+}
+
+impl std::str::FromStr for BackendKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "cpu" => Ok(BackendKind::Cpu),
+            "gpu" => Ok(BackendKind::Gpu),
+            "auto" => Ok(BackendKind::Auto),
+            other => Err(format!("unknown backend '{other}' (use cpu, gpu or auto)")),
+        }
+    }
+}
+
+/// A renderer with its state between frames.
+pub enum Backend {
+    /// CPU, with its hit buffer.
+    Cpu(HitBuffer),
+    /// GPU.
+    #[cfg(feature = "gpu")]
+    Gpu(Box<crate::gpu::GpuRenderer>),
+}
+
+impl Backend {
+    /// Opens a backend; returns it and a line describing it (or why the GPU was not used).
+    pub fn open(kind: BackendKind) -> Result<(Backend, String), crate::Error> {
+        match kind {
+            BackendKind::Cpu => Ok((Backend::Cpu(HitBuffer::new()), "CPU".into())),
+            #[cfg(feature = "gpu")]
+            BackendKind::Gpu | BackendKind::Auto => match crate::gpu::GpuContext::headless() {
+                Ok(ctx) if kind == BackendKind::Auto && ctx.info.device_type == wgpu::DeviceType::Cpu => Ok((
+                    Backend::Cpu(HitBuffer::new()),
+                    format!(
+                        "CPU (the only GPU adapter is the software {}; use --backend gpu to run the GPU path on it)",
+                        ctx.info.name
+                    ),
+                )),
+                Ok(ctx) => {
+                    let d = format!("GPU: {}", ctx.describe());
+                    Ok((Backend::Gpu(Box::new(crate::gpu::GpuRenderer::new(std::sync::Arc::new(ctx)))), d))
+                }
+                Err(e) if kind == BackendKind::Auto => Ok((Backend::Cpu(HitBuffer::new()), format!("CPU ({e})"))),
+                Err(e) => Err(e.into()),
+            },
+            #[cfg(not(feature = "gpu"))]
+            BackendKind::Gpu => Err(crate::Error::Io {
+                path: "backend".into(),
+                source: std::io::Error::other("this build has no GPU support (feature `gpu`)"),
+            }),
+            #[cfg(not(feature = "gpu"))]
+            BackendKind::Auto => Ok((Backend::Cpu(HitBuffer::new()), "CPU (built without the `gpu` feature)".into())),
+        }
+    }
+
+    /// The frame plan for the next frame (`first`: no previous frame to reuse).
+    pub fn plan(&self, scene: &Scene, camera: &Camera, lights: &Lights, features: &Features, first: bool) -> FramePlan {
+        let prev = match self {
+            Backend::Cpu(h) => h,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => &g.state,
+        };
+        FramePlan::new(scene, camera, lights, features, (!first).then_some(prev))
+    }
+
+    /// Renders a frame.
+    pub fn render(
+        &mut self,
+        scene: &Scene,
+        camera: &Camera,
+        lights: &Lights,
+        plan: &FramePlan,
+        opts: &RenderOptions,
+        progress: &(dyn Fn(u32, u32) + Sync),
+    ) -> Result<Frame, crate::Error> {
+        match self {
+            Backend::Cpu(h) => Ok(render(scene, camera, lights, plan, opts, Some(h), progress)),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Ok(g.render(scene, camera, lights, plan, opts)?),
+        }
+    }
+
+    /// GPU pass times of the last frame (trace, shade) in milliseconds, when measured.
+    pub fn pass_times(&self) -> Option<(f64, f64)> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.times.map(|t| (t.trace_ms, t.shade_ms)),
+        }
+    }
+}
