@@ -597,8 +597,9 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         machine(), a.frames, a.backend, a.width, a.height
     );
     for r in &records {
+        let ms = |v: Option<f64>| v.map_or("–".to_string(), |x| format!("{x:.1}"));
         md += &format!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.2} | {:.1}% | {:.2} |\n",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.2} | {:.1}% | {:.2} | {} | {} |\n",
             r.name,
             r.instances,
             r.median_ms,
@@ -606,7 +607,9 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             r.min_ms,
             r.median_ms / base,
             100.0 * r.reused_fraction,
-            r.mrays_per_s
+            r.mrays_per_s,
+            ms(r.gpu_trace_ms),
+            ms(r.gpu_shade_ms)
         );
     }
     md += &format!(

@@ -128,12 +128,16 @@ impl GpuRenderer {
         }
     }
 
-    fn pipelines(
-        &mut self,
-        search: u32,
-        reuse: bool,
-        shadows: bool,
-    ) -> &(wgpu::ComputePipeline, wgpu::ComputePipeline) {
+    /// Builds (once) the pipelines of a plan variant. Both hit-buffer variants are built
+    /// together: the second frame of a clip needs the other one, and compiling it then would
+    /// show up as a multi-second frame on a software driver.
+    fn pipelines(&mut self, search: u32, shadows: bool) {
+        for reuse in [false, true] {
+            self.pipeline(search, reuse, shadows);
+        }
+    }
+
+    fn pipeline(&mut self, search: u32, reuse: bool, shadows: bool) -> &(wgpu::ComputePipeline, wgpu::ComputePipeline) {
         let (device, module, layout) = (&self.ctx.device, &self.module, &self.pipeline_layout);
         self.pipelines.entry((search, reuse, shadows)).or_insert_with(|| {
             let constants =
@@ -267,7 +271,7 @@ impl GpuRenderer {
             Search::Bvh => 3,
         };
         let reuse_on = reuse.is_some();
-        self.pipelines(search, reuse_on, plan.shadows);
+        self.pipelines(search, plan.shadows);
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
         let device = &self.ctx.device;
         // Bindings must not be empty: pad with one zeroed element.
