@@ -184,3 +184,40 @@ fn gpu_matches_cpu_without_optimizations() {
 fn gpu_matches_cpu_with_many_cars_and_the_bvh() {
     compare_clip(5, 2, 0.0, Features::default());
 }
+
+#[test]
+fn pools_split_across_two_bindings_render_the_same() {
+    let Some(ctx) = context() else { return };
+    let (mut scene_a, cars) = scene(1);
+    let lights = Lights::default();
+    let cam = Camera {
+        eye: DVec3::new(5.0, 3.0, 9.0),
+        target: DVec3::new(0.0, 0.5, 2.0),
+        up: DVec3::Y,
+        vfov_deg: 50.0,
+        width: 96,
+        height: 64,
+    };
+    for c in &cars {
+        pose(&mut scene_a, c, 1.0).unwrap();
+    }
+    scene_a.update().unwrap();
+    let plan = FramePlan::new(&scene_a, &cam, &lights, &Features::default(), None);
+    let mut whole = GpuRenderer::new(ctx.clone());
+    let a = whole.render(&scene_a, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    // Lower the binding limit so the attribute pool (always the larger) splits about in half.
+    let attrs: usize = scene_a.parts.iter().map(|p| p.attrs.len()).sum();
+    let mut split = GpuRenderer::new(ctx.clone());
+    split.max_binding = (attrs as u64 * 8).div_ceil(2) + 8;
+    let b = split.render(&scene_a, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    assert_ne!(split.splits().1, u32::MAX, "the attribute pool should have been split");
+    assert_eq!(whole.splits(), (u32::MAX, u32::MAX));
+    let first_diff =
+        (0..a.t.len()).find(|&k| a.instance[k] != b.instance[k] || a.t[k] != b.t[k] || a.radiance[k] != b.radiance[k]);
+    assert_eq!(first_diff, None, "split pools render differently (first differing pixel)");
+    // Too large even for two bindings: a clear error, not a crash.
+    let mut tiny = GpuRenderer::new(ctx);
+    tiny.max_binding = 64;
+    let e = tiny.render(&scene_a, &cam, &lights, &plan, &RenderOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("pool needs"), "{e}");
+}

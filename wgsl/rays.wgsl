@@ -6,6 +6,9 @@
 @group(0) @binding(2) var<storage, read> parts: array<Part>;
 @group(0) @binding(3) var<storage, read> rays_in: array<RayIn>;
 @group(0) @binding(4) var<storage, read_write> rays_out: array<RayOut>;
+// One SVO: a single binding each; the `_hi` halves are unused placeholders.
+@group(0) @binding(5) var<storage, read> nodes_hi: array<Node>;
+@group(0) @binding(6) var<storage, read> attrs_hi: array<Attr>;
 
 @compute @workgroup_size(64, 1, 1)
 fn rays_main(@builtin(global_invocation_id) gid: vec3<u32>) {

@@ -19,6 +19,8 @@ override SHADOWS: bool = true;
 @group(0) @binding(7) var<storage, read_write> hits: array<Hit>;
 @group(0) @binding(8) var<storage, read> moved: array<MovedSphere>;
 @group(0) @binding(9) var<storage, read_write> radiance: array<vec4<f32>>;
+@group(0) @binding(10) var<storage, read> nodes_hi: array<Node>;
+@group(0) @binding(11) var<storage, read> attrs_hi: array<Attr>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;

@@ -2,7 +2,26 @@
 // UnitRay::from_unit in src/ray.rs. Same function names, same order of steps; comments
 // point at the differences (f32 only: no f64 rebasing or f64 hit t on the GPU).
 //
-// Needs: layout.wgsl, and the bindings `nodes: array<Node>`, `attrs: array<Attr>`.
+// Needs: layout.wgsl, and the bindings `nodes`, `nodes_hi` (array<Node>) and `attrs`,
+// `attrs_hi` (array<Attr>): a pool larger than one binding continues in its `_hi` half.
+
+// First pool index held by the `_hi` bindings (u32::MAX: everything in the first binding).
+override NODE_SPLIT: u32 = 4294967295u;
+override ATTR_SPLIT: u32 = 4294967295u;
+
+fn pool_node(i: u32) -> Node {
+    if i < NODE_SPLIT {
+        return nodes[i];
+    }
+    return nodes_hi[i - NODE_SPLIT];
+}
+
+fn pool_attr(i: u32) -> Attr {
+    if i < ATTR_SPLIT {
+        return attrs[i];
+    }
+    return attrs_hi[i - ATTR_SPLIT];
+}
 
 const MAX_DEPTH: u32 = 20u;
 // Direction components below this fraction of the largest are parallel (Revelles §3.3).
@@ -173,7 +192,7 @@ fn first_node(tm: vec3<f32>, t_entry: f32) -> u32 {
 }
 
 fn node_at(part: Part, slot: u32) -> Node {
-    return nodes[part.node_base + slot];
+    return pool_node(part.node_base + slot);
 }
 
 // Svo::child_slot (with far pointers)
@@ -193,7 +212,7 @@ fn child_slot(part: Part, slot: u32, octant: u32) -> u32 {
 fn child_attr(part: Part, slot: u32, octant: u32) -> Attr {
     let n = node_at(part, slot);
     let valid = (n.desc >> 8u) & 0xFFu;
-    return attrs[part.attr_base + n.attr_base + countOneBits(valid & ((1u << octant) - 1u))];
+    return pool_attr(part.attr_base + n.attr_base + countOneBits(valid & ((1u << octant) - 1u)));
 }
 
 fn step_bound(depth: u32) -> u32 {
@@ -268,7 +287,7 @@ fn trace_unit(part: Part, r: UnitRay, t_min_w: f32, t_max_w: f32, max_level_in: 
         return miss;
     }
     if max_level == 0u {
-        var h = finish(r, t_enter, t_min, 0u, vec3<u32>(0u), attrs[part.attr_base], t0);
+        var h = finish(r, t_enter, t_min, 0u, vec3<u32>(0u), pool_attr(part.attr_base), t0);
         h.steps = 1u;
         return h;
     }

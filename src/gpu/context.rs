@@ -12,7 +12,7 @@ pub enum GpuError {
     #[error("GPU device: {0}")]
     Device(String),
     /// A buffer would exceed a device limit.
-    #[error("{what} needs {size} bytes, more than this device allows in one binding ({limit} bytes)")]
+    #[error("{what} needs {size} bytes, more than this device allows ({limit} bytes)")]
     TooLarge {
         /// The buffer.
         what: &'static str,

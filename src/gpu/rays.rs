@@ -13,6 +13,7 @@ pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<Gp
         return Ok(Vec::new());
     }
     ctx.check_binding("the node pool", (svo.nodes.len() * 8) as u64)?;
+    ctx.check_binding("the attribute pool", (svo.attrs.len() * 8) as u64)?;
     ctx.check_binding("the ray list", std::mem::size_of_val(rays) as u64)?;
     let device = &ctx.device;
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -35,6 +36,8 @@ pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<Gp
     let attrs = buf("attrs", bytemuck::cast_slice(&svo.attrs), wgpu::BufferUsages::STORAGE);
     let parts = buf("parts", bytemuck::cast_slice(&part), wgpu::BufferUsages::STORAGE);
     let input = buf("rays", bytemuck::cast_slice(rays), wgpu::BufferUsages::STORAGE);
+    let nodes_hi = buf("nodes (unused)", bytemuck::bytes_of(&crate::svo::Node::default()), wgpu::BufferUsages::STORAGE);
+    let attrs_hi = buf("attrs (unused)", bytemuck::bytes_of(&crate::svo::Attr::default()), wgpu::BufferUsages::STORAGE);
     let size = std::mem::size_of_val(rays) as u64 / std::mem::size_of::<GpuRay>() as u64
         * std::mem::size_of::<GpuRayHit>() as u64;
     let output = device.create_buffer(&wgpu::BufferDescriptor {
@@ -58,6 +61,8 @@ pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<Gp
             wgpu::BindGroupEntry { binding: 2, resource: parts.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 3, resource: input.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 4, resource: output.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 5, resource: nodes_hi.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 6, resource: attrs_hi.as_entire_binding() },
         ],
     });
     let mut enc = device.create_command_encoder(&Default::default());

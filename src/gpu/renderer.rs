@@ -50,8 +50,31 @@ pub struct GpuTimes {
 struct Pools {
     parts: Vec<*const Svo>,
     nodes: wgpu::Buffer,
+    nodes_hi: wgpu::Buffer,
     attrs: wgpu::Buffer,
+    attrs_hi: wgpu::Buffer,
     infos: wgpu::Buffer,
+    /// First element of each pool in its `_hi` binding (u32::MAX when not split).
+    node_split: u32,
+    attr_split: u32,
+}
+
+/// Splits a pool into at most two bindings of at most `limit` bytes each; returns the two
+/// halves and the first index of the second (u32::MAX when it fits in one).
+fn split_pool<T: bytemuck::Pod + Default>(
+    what: &'static str,
+    v: &[T],
+    limit: u64,
+) -> Result<(Vec<T>, Vec<T>, u32), GpuError> {
+    let size = std::mem::size_of::<T>() as u64;
+    let per = (limit / size).max(1) as usize;
+    if v.len() <= per {
+        return Ok((v.to_vec(), vec![T::default()], u32::MAX));
+    }
+    if v.len() > 2 * per || v.len() > u32::MAX as usize {
+        return Err(GpuError::TooLarge { what, size: v.len() as u64 * size, limit: 2 * limit });
+    }
+    Ok((v[..per].to_vec(), v[per..].to_vec(), per as u32))
 }
 
 /// Renders frames on the GPU.
@@ -68,6 +91,8 @@ pub struct GpuRenderer {
     pub state: HitBuffer,
     /// GPU pass times of the last frame, if timestamps are available.
     pub times: Option<GpuTimes>,
+    /// Largest binding in bytes (the device's limit unless lowered for tests).
+    pub max_binding: u64,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -107,7 +132,11 @@ impl GpuRenderer {
             },
             count: None,
         });
-        entries.extend([(5, true), (6, true), (7, false), (8, true), (9, false)].iter().map(|&(b, r)| storage(b, r)));
+        entries.extend(
+            [(5, true), (6, true), (7, false), (8, true), (9, false), (10, true), (11, true)]
+                .iter()
+                .map(|&(b, r)| storage(b, r)),
+        );
         let layout = device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("trace"), entries: &entries });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -125,7 +154,14 @@ impl GpuRenderer {
             hits: None,
             state: HitBuffer::new(),
             times: None,
+            max_binding: 0,
         }
+        .with_device_limit()
+    }
+
+    fn with_device_limit(mut self) -> Self {
+        self.max_binding = self.ctx.limits.max_storage_buffer_binding_size.min(self.ctx.limits.max_buffer_size);
+        self
     }
 
     /// Builds (once) the pipelines of a plan variant. Both hit-buffer variants are built
@@ -137,11 +173,23 @@ impl GpuRenderer {
         }
     }
 
+    /// First node and attribute index held by the second binding of each pool (u32::MAX when
+    /// a pool fits in one binding).
+    pub fn splits(&self) -> (u32, u32) {
+        self.pools.as_ref().map_or((u32::MAX, u32::MAX), |p| (p.node_split, p.attr_split))
+    }
+
     fn pipeline(&mut self, search: u32, reuse: bool, shadows: bool) -> &(wgpu::ComputePipeline, wgpu::ComputePipeline) {
         let (device, module, layout) = (&self.ctx.device, &self.module, &self.pipeline_layout);
+        let (node_split, attr_split) = self.splits();
         self.pipelines.entry((search, reuse, shadows)).or_insert_with(|| {
-            let constants =
-                [("SEARCH", search as f64), ("REUSE", reuse as u32 as f64), ("SHADOWS", shadows as u32 as f64)];
+            let constants = [
+                ("SEARCH", search as f64),
+                ("REUSE", reuse as u32 as f64),
+                ("SHADOWS", shadows as u32 as f64),
+                ("NODE_SPLIT", node_split as f64),
+                ("ATTR_SPLIT", attr_split as f64),
+            ];
             let make = |entry: &str| {
                 device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some(entry),
@@ -177,8 +225,8 @@ impl GpuRenderer {
             nodes.extend_from_slice(&p.nodes);
             attrs.extend_from_slice(&p.attrs);
         }
-        self.ctx.check_binding("the node pool", (nodes.len() * 8) as u64)?;
-        self.ctx.check_binding("the attribute pool", (attrs.len() * 8) as u64)?;
+        let (n0, n1, node_split) = split_pool("the node pool", &nodes, self.max_binding)?;
+        let (a0, a1, attr_split) = split_pool("the attribute pool", &attrs, self.max_binding)?;
         let device = &self.ctx.device;
         let buf = |label, contents: &[u8]| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -189,10 +237,16 @@ impl GpuRenderer {
         };
         self.pools = Some(Pools {
             parts: ids,
-            nodes: buf("nodes", bytemuck::cast_slice(&nodes)),
-            attrs: buf("attrs", bytemuck::cast_slice(&attrs)),
+            nodes: buf("nodes", bytemuck::cast_slice(&n0)),
+            nodes_hi: buf("nodes (second binding)", bytemuck::cast_slice(&n1)),
+            attrs: buf("attrs", bytemuck::cast_slice(&a0)),
+            attrs_hi: buf("attrs (second binding)", bytemuck::cast_slice(&a1)),
             infos: buf("parts", bytemuck::cast_slice(&infos)),
+            node_split,
+            attr_split,
         });
+        // The split points are compiled into the pipelines.
+        self.pipelines.clear();
         Ok(())
     }
 
@@ -320,6 +374,8 @@ impl GpuRenderer {
                 wgpu::BindGroupEntry { binding: 7, resource: hits_buf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 8, resource: moved_buf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 9, resource: radiance_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 10, resource: pools.nodes_hi.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 11, resource: pools.attrs_hi.as_entire_binding() },
             ],
         });
         let queries = self.ctx.timestamps.then(|| {
