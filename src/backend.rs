@@ -68,6 +68,23 @@ impl Backend {
         }
     }
 
+    /// A backend on an existing device (the viewer shares its window's device): the GPU
+    /// renderer for `Gpu`, and for `Auto` on a hardware adapter; the CPU renderer otherwise.
+    #[cfg(feature = "gpu")]
+    pub fn on_device(kind: BackendKind, ctx: std::sync::Arc<crate::gpu::GpuContext>) -> (Backend, String) {
+        let software = ctx.info.device_type == wgpu::DeviceType::Cpu;
+        match kind {
+            BackendKind::Gpu => {
+                (Backend::Gpu(Box::new(crate::gpu::GpuRenderer::new(ctx.clone()))), format!("GPU: {}", ctx.describe()))
+            }
+            BackendKind::Auto if !software => {
+                (Backend::Gpu(Box::new(crate::gpu::GpuRenderer::new(ctx.clone()))), format!("GPU: {}", ctx.describe()))
+            }
+            BackendKind::Auto => (Backend::Cpu(HitBuffer::new()), format!("CPU (software adapter {})", ctx.info.name)),
+            BackendKind::Cpu => (Backend::Cpu(HitBuffer::new()), "CPU".into()),
+        }
+    }
+
     /// The frame plan for the next frame (`first`: no previous frame to reuse).
     pub fn plan(&self, scene: &Scene, camera: &Camera, lights: &Lights, features: &Features, first: bool) -> FramePlan {
         let prev = match self {

@@ -53,6 +53,8 @@ pub mod scene;
 pub mod stability;
 pub mod svo;
 pub mod traverse;
+#[cfg(feature = "viewer")]
+pub mod viewer;
 pub mod voxelize;
 
 pub use error::Error;

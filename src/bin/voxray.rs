@@ -57,6 +57,9 @@ enum Cmd {
     },
     /// Time the animated car: static vs animated vs animated+optimized, and instance counts.
     Bench(BenchArgs),
+    /// Open a window with the animated car: drag to orbit, wheel to zoom, Space to pause,
+    /// R to reset the view, P for a screenshot, Esc to quit.
+    Demo(DemoArgs),
     /// Regenerate a built-in model's files.
     Model {
         /// Which model (only `car`).
@@ -195,6 +198,54 @@ struct BenchArgs {
     backend: voxray::backend::BackendKind,
 }
 
+#[derive(Args, Clone)]
+struct DemoArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Window width.
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Window height.
+    #[arg(long, default_value_t = 768)]
+    height: u32,
+    /// Draw this many frames (the clip advances 1/30 s per frame), then stop with --exit.
+    #[arg(long)]
+    frames: Option<u64>,
+    /// Quit after --frames.
+    #[arg(long, requires = "frames")]
+    exit: bool,
+    /// Write the last frame (and each P press) to this PNG.
+    #[arg(long)]
+    screenshot: Option<PathBuf>,
+    /// Cars, each on its own figure-eight.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    cars: u32,
+    /// Keep the car(s) in place (wheels, steering and doors still move).
+    #[arg(long)]
+    in_place: bool,
+    /// No ground.
+    #[arg(long)]
+    no_ground: bool,
+    /// No bounding-sphere culling.
+    #[arg(long)]
+    no_cull: bool,
+    /// No depth-sorted early-out.
+    #[arg(long)]
+    no_sort: bool,
+    /// No instance BVH.
+    #[arg(long)]
+    no_bvh: bool,
+    /// No per-pixel hit buffer.
+    #[arg(long)]
+    no_hit_buffer: bool,
+    /// No shadow rays.
+    #[arg(long)]
+    no_shadows: bool,
+    /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
+    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
+    backend: voxray::backend::BackendKind,
+}
+
 #[derive(Args)]
 struct VoxelizeArgs {
     #[command(flatten)]
@@ -218,6 +269,7 @@ fn main() -> ExitCode {
         Some(Cmd::Info { file }) => info_cmd(&file),
         Some(Cmd::Stability { rays, out }) => stability_cmd(rays, out),
         Some(Cmd::Bench(a)) => bench_cmd(a),
+        Some(Cmd::Demo(a)) => demo_cmd(a),
         Some(Cmd::Model { out_dir, .. }) => model_cmd(&out_dir),
     };
     match result {
@@ -536,6 +588,33 @@ fn write_frame(a: &RenderArgs, frame: &Frame, f: u32, is_gif: bool, gif: &mut Ve
             println!("wrote AOVs (t, instance, normal .npy) under {}", dir.display());
         }
     }
+    Ok(())
+}
+
+fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
+    use voxray::viewer::{run, DemoOptions};
+    let st = stage(&a.source, a.cars, a.in_place, false, !a.no_ground)?;
+    let (lo, hi) = if st.cars.is_empty() || a.in_place { cars_bounds(&st) } else { st.bounds };
+    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
+    let features = Features {
+        cull: !a.no_cull,
+        sort: !a.no_sort,
+        bvh: !a.no_bvh,
+        hit_buffer: !a.no_hit_buffer,
+        shadows: !a.no_shadows,
+    };
+    let opts = DemoOptions {
+        width: a.width,
+        height: a.height,
+        frames: a.frames,
+        exit: a.exit,
+        screenshot: a.screenshot.clone(),
+        backend: a.backend,
+        features,
+    };
+    let report = run(opts, st.scene, st.cars, Lights::default(), camera)
+        .map_err(|e| Error::Io { path: "demo".into(), source: std::io::Error::other(e.to_string()) })?;
+    eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
     Ok(())
 }
 

@@ -41,24 +41,37 @@ pub struct GpuContext {
 }
 
 impl GpuContext {
-    /// A headless device. `WGPU_BACKEND` may narrow the backends; GL is always excluded.
-    pub fn headless() -> Result<GpuContext, GpuError> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    /// Restricts an instance descriptor to the backends we accept (never GL); `WGPU_BACKEND`
+    /// may narrow them further.
+    pub fn restrict_backends(desc: &mut wgpu::InstanceDescriptor) {
         let allowed = wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12;
         desc.backends &= allowed;
         if desc.backends.is_empty() {
             desc.backends = allowed;
         }
-        let backends = desc.backends;
+    }
+
+    /// A headless device.
+    pub fn headless() -> Result<GpuContext, GpuError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        Self::restrict_backends(&mut desc);
         let instance = wgpu::Instance::new(desc);
+        Ok(Self::with_surface(&instance, None)?.0)
+    }
+
+    /// A device that can present to `surface` (or any device, without one), and its adapter.
+    pub fn with_surface(
+        instance: &wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+    ) -> Result<(GpuContext, wgpu::Adapter), GpuError> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,
-            compatible_surface: None,
+            compatible_surface: surface,
             // We want the adapter's real limits (lavapipe allows 1024 invocations, not 256).
             apply_limit_buckets: false,
         }))
-        .map_err(|e| GpuError::NoAdapter(format!("{backends:?}: {e}")))?;
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let limits = adapter.limits();
         let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
         let required_features = if timestamps { wgpu::Features::TIMESTAMP_QUERY } else { wgpu::Features::empty() };
@@ -71,7 +84,8 @@ impl GpuContext {
             trace: wgpu::Trace::Off,
         }))
         .map_err(|e| GpuError::Device(e.to_string()))?;
-        Ok(GpuContext { device, queue, info: adapter.get_info(), limits, timestamps })
+        let info = adapter.get_info();
+        Ok((GpuContext { device, queue, info, limits, timestamps }, adapter))
     }
 
     /// One line naming the adapter.

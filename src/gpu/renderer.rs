@@ -501,7 +501,7 @@ fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
 }
 
 /// Maps a MAP_READ buffer and copies it out.
-pub(crate) fn read<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
+pub fn read<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
     let slice = buf.slice(..);
     let (tx, rx) = std::sync::mpsc::channel();
     slice.map_async(wgpu::MapMode::Read, move |r| {

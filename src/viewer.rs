@@ -1,0 +1,525 @@
+//! The interactive window (`voxray demo`): the animated scene rendered every frame by the CPU
+//! or GPU renderer and drawn to a wgpu surface. Drag to orbit, wheel to zoom, Space to
+//! pause, R to reset the view, P for a screenshot, Esc to quit. `frames` + `exit` and
+//! `screenshot` make scripted runs (tests, recordings).
+
+use crate::backend::{Backend, BackendKind};
+use crate::gpu::{GpuContext, GpuError};
+use crate::render::{output, Features, Frame, RenderOptions};
+use crate::scene::car::{pose, Car};
+use crate::scene::{Camera, Lights, Scene};
+use glam::{DQuat, DVec3};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+use winit::application::ApplicationHandler;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, EventLoop};
+use winit::keyboard::{Key, NamedKey};
+use winit::window::{Window, WindowId};
+
+/// What the demo shows and how it runs.
+pub struct DemoOptions {
+    /// Initial window width.
+    pub width: u32,
+    /// Initial window height.
+    pub height: u32,
+    /// Stop after this many frames (with `exit`).
+    pub frames: Option<u64>,
+    /// Quit after `frames`.
+    pub exit: bool,
+    /// Write the last frame (or each P press) here as PNG.
+    pub screenshot: Option<PathBuf>,
+    /// Renderer choice.
+    pub backend: BackendKind,
+    /// Technique switches.
+    pub features: Features,
+}
+
+/// What a finished run did.
+#[derive(Clone, Debug, Default)]
+pub struct DemoReport {
+    /// Frames drawn.
+    pub frames: u64,
+    /// Backend used.
+    pub backend: String,
+    /// Median frame time (ms).
+    pub median_ms: f64,
+    /// Screenshots written.
+    pub screenshots: Vec<PathBuf>,
+}
+
+/// Why the demo could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    /// No display to open a window on.
+    #[error("cannot open a window ({0}); without a display use `voxray render` (e.g. `voxray render --frames 60 --out car.gif`)")]
+    NoDisplay(String),
+    /// GPU setup for the window failed.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// Other failure while running.
+    #[error("{0}")]
+    Other(String),
+}
+
+struct Gfx {
+    window: Arc<Window>,
+    surface: wgpu::Surface<'static>,
+    ctx: Arc<GpuContext>,
+    config: wgpu::SurfaceConfiguration,
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+    tex_format: wgpu::TextureFormat,
+    texture: Option<(wgpu::Texture, wgpu::BindGroup, u32, u32)>,
+}
+
+struct Orbit {
+    target: DVec3,
+    offset: DVec3,
+    up: DVec3,
+    vfov: f64,
+}
+
+struct App {
+    opts: DemoOptions,
+    scene: Scene,
+    cars: Vec<Car>,
+    lights: Lights,
+    home: Orbit,
+    orbit: Orbit,
+    gfx: Option<Gfx>,
+    backend: Option<Backend>,
+    report: DemoReport,
+    error: Option<ViewerError>,
+    time: f64,
+    playing: bool,
+    last: Instant,
+    first_frame: bool,
+    drag: Option<(f64, f64)>,
+    cursor: (f64, f64),
+    times: Vec<f64>,
+    want_screenshot: bool,
+    last_frame: Option<Frame>,
+}
+
+impl App {
+    fn camera(&self, w: u32, h: u32) -> Camera {
+        Camera {
+            eye: self.orbit.target + self.orbit.offset,
+            target: self.orbit.target,
+            up: self.orbit.up,
+            vfov_deg: self.orbit.vfov,
+            width: w.max(1),
+            height: h.max(1),
+        }
+    }
+
+    fn init(&mut self, event_loop: &ActiveEventLoop) -> Result<(), ViewerError> {
+        let attrs = Window::default_attributes()
+            .with_title("voxray")
+            .with_inner_size(winit::dpi::PhysicalSize::new(self.opts.width, self.opts.height));
+        let window = Arc::new(event_loop.create_window(attrs).map_err(|e| ViewerError::NoDisplay(e.to_string()))?);
+        let mut desc =
+            wgpu::InstanceDescriptor::new_with_display_handle_from_env(Box::new(event_loop.owned_display_handle()));
+        GpuContext::restrict_backends(&mut desc);
+        let instance = wgpu::Instance::new(desc);
+        let surface =
+            instance.create_surface(window.clone()).map_err(|e| ViewerError::Other(format!("surface: {e}")))?;
+        let (ctx, adapter) = GpuContext::with_surface(&instance, Some(&surface))?;
+        let size = window.inner_size();
+        let mut config = surface
+            .get_default_config(&adapter, size.width.max(1), size.height.max(1))
+            .ok_or_else(|| ViewerError::Other("the adapter cannot present to this window".into()))?;
+        // Screenshots read the window's own image back when the surface allows copying from it.
+        if surface.get_capabilities(&adapter).usages.contains(wgpu::TextureUsages::COPY_SRC) {
+            config.usage |= wgpu::TextureUsages::COPY_SRC;
+        }
+        surface.configure(&ctx.device, &config);
+        // Frames arrive as sRGB bytes: an sRGB texture decodes them and an sRGB surface
+        // re-encodes; a linear surface gets the bytes as they are.
+        let tex_format =
+            if config.format.is_srgb() { wgpu::TextureFormat::Rgba8UnormSrgb } else { wgpu::TextureFormat::Rgba8Unorm };
+        let device = &ctx.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("blit.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("../wgsl/blit.wgsl").into()),
+        });
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("blit"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("blit"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("blit"),
+            layout: Some(&pl),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: config.format,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor { label: Some("blit"), ..Default::default() });
+        let ctx = Arc::new(ctx);
+        let (backend, name) = Backend::on_device(self.opts.backend, ctx.clone());
+        eprintln!("demo: window on {}; rendering on {name}", ctx.describe());
+        self.report.backend = name;
+        self.backend = Some(backend);
+        self.gfx = Some(Gfx { window, surface, ctx, config, pipeline, layout, sampler, tex_format, texture: None });
+        self.last = Instant::now();
+        Ok(())
+    }
+
+    fn draw(&mut self, event_loop: &ActiveEventLoop) -> Result<(), ViewerError> {
+        let now = Instant::now();
+        let dt = (now - self.last).as_secs_f64();
+        self.last = now;
+        if self.playing {
+            // Scripted runs advance by a fixed step so their frames do not depend on speed.
+            self.time += if self.opts.frames.is_some() { 1.0 / 30.0 } else { dt.min(0.1) };
+        }
+        let other = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
+        for c in &self.cars {
+            pose(&mut self.scene, c, self.time).map_err(other)?;
+        }
+        self.scene.update().map_err(other)?;
+        let (w, h) = match &self.gfx {
+            Some(g) => (g.config.width, g.config.height),
+            None => return Ok(()),
+        };
+        let camera = self.camera(w, h);
+        let start = Instant::now();
+        let backend = self.backend.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
+        let plan = backend.plan(&self.scene, &camera, &self.lights, &self.opts.features, self.first_frame);
+        self.first_frame = false;
+        let frame = backend
+            .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions::default(), &|_, _| {})
+            .map_err(|e| ViewerError::Other(e.to_string()))?;
+        self.times.push(start.elapsed().as_secs_f64() * 1e3);
+        let done = self.opts.exit && self.opts.frames.is_some_and(|n| self.report.frames + 1 >= n);
+        let shoot = self.want_screenshot || (done && self.opts.screenshot.is_some());
+        let captured = self.present(&frame, shoot)?;
+        let captured_kind = captured.is_some();
+        self.report.frames += 1;
+        if self.report.frames % 10 == 1 {
+            if let Some(g) = &self.gfx {
+                let ms = self.times.last().copied().unwrap_or(0.0);
+                g.window.set_title(&format!(
+                    "voxray — {:.1} ms/frame, {:.0}% reused, t = {:.1} s{} — {}",
+                    ms,
+                    100.0 * frame.reused as f64 / frame.primary_rays.max(1) as f64,
+                    self.time,
+                    if self.playing { "" } else { " (paused)" },
+                    self.report.backend
+                ));
+            }
+        }
+        if shoot {
+            self.want_screenshot = false;
+            let path = self
+                .opts
+                .screenshot
+                .clone()
+                .unwrap_or_else(|| PathBuf::from(format!("voxray-{:04}.png", self.report.frames)));
+            match captured {
+                // The window's own pixels.
+                Some((w, h, rgb)) => image::RgbImage::from_raw(w, h, rgb)
+                    .ok_or_else(|| ViewerError::Other("window capture size mismatch".into()))?
+                    .save(&path)
+                    .map_err(|e| ViewerError::Other(format!("{}: {e}", path.display())))?,
+                // The surface cannot be read back: the frame that was drawn to it.
+                None => output::write_image(&frame, &path).map_err(|e| ViewerError::Other(e.to_string()))?,
+            }
+            eprintln!(
+                "demo: wrote {} ({})",
+                path.display(),
+                if captured_kind { "window capture" } else { "rendered frame" }
+            );
+            self.report.screenshots.push(path);
+        }
+        self.last_frame = Some(frame);
+        if done {
+            event_loop.exit();
+        }
+        Ok(())
+    }
+
+    /// Draws the frame to the window; with `capture`, also returns the window's image as RGB
+    /// bytes (width, height, data) when the surface can be copied from.
+    fn present(&mut self, frame: &Frame, capture: bool) -> Result<Option<(u32, u32, Vec<u8>)>, ViewerError> {
+        let Some(g) = self.gfx.as_mut() else { return Ok(None) };
+        let device = &g.ctx.device;
+        if !g.texture.as_ref().is_some_and(|t| t.2 == frame.width && t.3 == frame.height) {
+            let texture = device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("frame"),
+                size: wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: g.tex_format,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            });
+            let view = texture.create_view(&Default::default());
+            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("blit"),
+                layout: &g.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&g.sampler) },
+                ],
+            });
+            g.texture = Some((texture, bind, frame.width, frame.height));
+        }
+        let Some((texture, bind, _, _)) = g.texture.as_ref() else { return Ok(None) };
+        let rgba: Vec<u8> = output::srgb8(frame).chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+        g.ctx.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            &rgba,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * frame.width),
+                rows_per_image: Some(frame.height),
+            },
+            wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
+        );
+        let target = match g.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+                g.surface.configure(device, &g.config);
+                return Ok(None);
+            }
+            _ => return Ok(None), // timeout or occluded: skip this frame
+        };
+        let view = target.texture.create_view(&Default::default());
+        let mut enc = device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("blit"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&g.pipeline);
+            pass.set_bind_group(0, bind, &[]);
+            pass.draw(0..3, 0..1);
+        }
+        let (w, h) = (target.texture.width(), target.texture.height());
+        let row = (4 * w).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let readback = (capture && g.config.usage.contains(wgpu::TextureUsages::COPY_SRC)).then(|| {
+            let buf = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("window capture"),
+                size: (row * h) as u64,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            enc.copy_texture_to_buffer(
+                target.texture.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &buf,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(row),
+                        rows_per_image: Some(h),
+                    },
+                },
+                wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+            );
+            buf
+        });
+        g.ctx.queue.submit([enc.finish()]);
+        let captured = match readback {
+            Some(buf) => {
+                let bytes: Vec<u8> = crate::gpu::renderer::read(&g.ctx, &buf).map_err(ViewerError::Gpu)?;
+                let bgra =
+                    matches!(g.config.format, wgpu::TextureFormat::Bgra8Unorm | wgpu::TextureFormat::Bgra8UnormSrgb);
+                let mut rgb = Vec::with_capacity((3 * w * h) as usize);
+                for y in 0..h as usize {
+                    for px in bytes[y * row as usize..][..4 * w as usize].chunks_exact(4) {
+                        rgb.extend_from_slice(&if bgra { [px[2], px[1], px[0]] } else { [px[0], px[1], px[2]] });
+                    }
+                }
+                Some((w, h, rgb))
+            }
+            None => None,
+        };
+        g.ctx.queue.present(target);
+        Ok(captured)
+    }
+
+    fn fail(&mut self, event_loop: &ActiveEventLoop, e: ViewerError) {
+        self.error = Some(e);
+        event_loop.exit();
+    }
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.gfx.is_none() {
+            if let Err(e) = self.init(event_loop) {
+                self.fail(event_loop, e);
+            }
+        }
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested => event_loop.exit(),
+            WindowEvent::Resized(size) => {
+                if let Some(g) = self.gfx.as_mut() {
+                    g.config.width = size.width.max(1);
+                    g.config.height = size.height.max(1);
+                    g.surface.configure(&g.ctx.device, &g.config);
+                }
+            }
+            WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
+                self.drag = (state == ElementState::Pressed).then_some(self.cursor);
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                self.cursor = (position.x, position.y);
+                if let Some((x0, y0)) = self.drag {
+                    let (dx, dy) = (position.x - x0, position.y - y0);
+                    self.drag = Some(self.cursor);
+                    let yaw = DQuat::from_axis_angle(self.orbit.up, -dx * 0.005);
+                    let right = self.orbit.offset.cross(self.orbit.up).normalize_or_zero();
+                    let pitch = DQuat::from_axis_angle(right, -dy * 0.005);
+                    let next = pitch * (yaw * self.orbit.offset);
+                    // Stay off the poles, where the up vector would become parallel to the view.
+                    if next.normalize().dot(self.orbit.up).abs() < 0.98 {
+                        self.orbit.offset = next;
+                    } else {
+                        self.orbit.offset = yaw * self.orbit.offset;
+                    }
+                }
+            }
+            WindowEvent::MouseWheel { delta, .. } => {
+                let lines = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => y as f64,
+                    MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
+                };
+                self.orbit.offset *= 0.9f64.powf(lines);
+            }
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => match event.logical_key
+            {
+                Key::Named(NamedKey::Escape) => event_loop.exit(),
+                Key::Named(NamedKey::Space) => self.playing = !self.playing,
+                Key::Character(c) if c.eq_ignore_ascii_case("r") => {
+                    self.orbit = Orbit { ..self.home };
+                }
+                Key::Character(c) if c.eq_ignore_ascii_case("p") => self.want_screenshot = true,
+                _ => {}
+            },
+            WindowEvent::RedrawRequested => {
+                if let Err(e) = self.draw(event_loop) {
+                    self.fail(event_loop, e);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn about_to_wait(&mut self, _event_loop: &ActiveEventLoop) {
+        if let Some(g) = &self.gfx {
+            g.window.request_redraw();
+        }
+    }
+}
+
+impl Clone for Orbit {
+    fn clone(&self) -> Self {
+        Orbit { target: self.target, offset: self.offset, up: self.up, vfov: self.vfov }
+    }
+}
+
+/// Opens the window and runs until it is closed (or `frames` are drawn with `exit`).
+pub fn run(
+    opts: DemoOptions,
+    scene: Scene,
+    cars: Vec<Car>,
+    lights: Lights,
+    camera: Camera,
+) -> Result<DemoReport, ViewerError> {
+    let event_loop = EventLoop::new().map_err(|e| ViewerError::NoDisplay(e.to_string()))?;
+    let home =
+        Orbit { target: camera.target, offset: camera.eye - camera.target, up: camera.up, vfov: camera.vfov_deg };
+    let mut app = App {
+        opts,
+        scene,
+        cars,
+        lights,
+        orbit: home.clone(),
+        home,
+        gfx: None,
+        backend: None,
+        report: DemoReport::default(),
+        error: None,
+        time: 0.0,
+        playing: true,
+        last: Instant::now(),
+        first_frame: true,
+        drag: None,
+        cursor: (0.0, 0.0),
+        times: Vec::new(),
+        want_screenshot: false,
+        last_frame: None,
+    };
+    event_loop.run_app(&mut app).map_err(|e| ViewerError::Other(e.to_string()))?;
+    if let Some(e) = app.error {
+        return Err(e);
+    }
+    app.report.median_ms = crate::bench::summarize(&app.times).0;
+    Ok(app.report)
+}

@@ -1,0 +1,78 @@
+//! The window: under Xvfb the demo opens, draws 30 frames, writes a screenshot that is not
+//! blank and exits 0 — with the CPU renderer and with the GPU renderer on the window's
+//! device. Without a display it says so. In CI (CI=true) a missing Xvfb fails the test.
+#![cfg(feature = "viewer")]
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn xvfb() -> bool {
+    let found = Command::new("xvfb-run").arg("--help").output().is_ok();
+    if !found && std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!("CI needs xvfb-run (Debian: xvfb) for the window tests");
+    }
+    if !found {
+        eprintln!("skipping: xvfb-run not found");
+    }
+    found
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("voxray-demo-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn demo_under_xvfb(backend: &str, frames: &str) {
+    let d = tmp(backend);
+    let shot = d.join("shot.png");
+    let o = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 800x600x24"])
+        .arg(env!("CARGO_BIN_EXE_voxray"))
+        .args(["demo", "--frames", frames, "--exit", "--width", "96", "--height", "64", "--depth", "6", "--in-place"])
+        .args(["--backend", backend, "--cache-dir"])
+        .arg(d.join("cache"))
+        .arg("--screenshot")
+        .arg(&shot)
+        .output()
+        .expect("run xvfb-run");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains(&format!("demo: {frames} frames")), "{err}");
+    let img = image::open(&shot).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (96, 64));
+    // Not blank: the sky, the ground and the red car are all there.
+    let mut colours: Vec<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+    colours.sort();
+    colours.dedup();
+    assert!(colours.len() > 50, "only {} distinct colours", colours.len());
+    let red = img.pixels().filter(|p| p.0[0] as i32 > p.0[1] as i32 + 60 && p.0[0] as i32 > p.0[2] as i32 + 60).count();
+    assert!(red > 300, "only {red} red-car pixels in the screenshot");
+}
+
+#[test]
+fn demo_runs_30_frames_on_the_cpu_renderer() {
+    if xvfb() {
+        demo_under_xvfb("cpu", "30");
+    }
+}
+
+#[test]
+fn demo_runs_on_the_gpu_renderer_sharing_the_window_device() {
+    if xvfb() {
+        demo_under_xvfb("gpu", "3");
+    }
+}
+
+#[test]
+fn demo_without_a_display_says_what_to_do() {
+    let o = Command::new(env!("CARGO_BIN_EXE_voxray"))
+        .args(["demo", "--frames", "1", "--exit", "--depth", "6"])
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("voxray render"), "{err}");
+}
