@@ -1,14 +1,16 @@
 //! The interactive window (`voxray demo`): the animated scene rendered every frame by the CPU
-//! or GPU renderer and drawn to a wgpu surface. Drag to orbit, wheel to zoom, Space to
-//! pause, R to reset the view, P for a screenshot, Esc to quit. `frames` + `exit` and
-//! `screenshot` make scripted runs (tests, recordings).
+//! or GPU renderer and drawn to a wgpu surface, with an egui panel for the animation, every
+//! technique switch, the frame plan and live statistics. Drag to orbit, wheel to zoom, Space
+//! to pause, R to reset the view, P for a screenshot, H to hide the panel, Esc to quit.
+//! `frames` + `exit` and `screenshot` make scripted runs (tests, recordings).
 
 use crate::backend::{Backend, BackendKind};
 use crate::gpu::{GpuContext, GpuError};
-use crate::render::{output, Features, Frame, RenderOptions};
+use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
 use crate::scene::car::{pose, Car};
 use crate::scene::{Camera, Lights, Scene};
 use glam::{DQuat, DVec3};
+use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
@@ -73,6 +75,33 @@ struct Gfx {
     sampler: wgpu::Sampler,
     tex_format: wgpu::TextureFormat,
     texture: Option<(wgpu::Texture, wgpu::BindGroup, u32, u32)>,
+    egui: egui::Context,
+    egui_state: egui_winit::State,
+    egui_renderer: egui_wgpu::Renderer,
+}
+
+/// Width of the panel in logical pixels (fixed, so the image can be rendered beside it).
+const PANEL_WIDTH: f32 = 280.0;
+
+/// What the panel shows and changes.
+struct Ui {
+    show: bool,
+    speed: f64,
+    travel: bool,
+    lod: u32,
+    frame_ms: VecDeque<f32>,
+    plan: Option<FramePlan>,
+    reused: f64,
+    mrays: f64,
+    gpu_ms: Option<(f64, f64)>,
+    reset: bool,
+}
+
+/// egui output of one frame, ready to paint.
+struct UiPaint {
+    jobs: Vec<egui::ClippedPrimitive>,
+    textures: egui::TexturesDelta,
+    screen: egui_wgpu::ScreenDescriptor,
 }
 
 struct Orbit {
@@ -102,6 +131,7 @@ struct App {
     times: Vec<f64>,
     want_screenshot: bool,
     last_frame: Option<Frame>,
+    ui: Ui,
 }
 
 impl App {
@@ -198,12 +228,35 @@ impl App {
             cache: None,
         });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor { label: Some("blit"), ..Default::default() });
+        let egui_ctx = egui::Context::default();
+        let egui_state = egui_winit::State::new(
+            egui_ctx.clone(),
+            egui::ViewportId::ROOT,
+            &window,
+            Some(window.scale_factor() as f32),
+            None,
+            Some(ctx.limits.max_texture_dimension_2d as usize),
+        );
+        let egui_renderer = egui_wgpu::Renderer::new(device, config.format, egui_wgpu::RendererOptions::default());
         let ctx = Arc::new(ctx);
         let (backend, name) = Backend::on_device(self.opts.backend, ctx.clone());
         eprintln!("demo: window on {}; rendering on {name}", ctx.describe());
         self.report.backend = name;
         self.backend = Some(backend);
-        self.gfx = Some(Gfx { window, surface, ctx, config, pipeline, layout, sampler, tex_format, texture: None });
+        self.gfx = Some(Gfx {
+            window,
+            surface,
+            ctx,
+            config,
+            pipeline,
+            layout,
+            sampler,
+            tex_format,
+            texture: None,
+            egui: egui_ctx,
+            egui_state,
+            egui_renderer,
+        });
         self.last = Instant::now();
         Ok(())
     }
@@ -214,29 +267,47 @@ impl App {
         self.last = now;
         if self.playing {
             // Scripted runs advance by a fixed step so their frames do not depend on speed.
-            self.time += if self.opts.frames.is_some() { 1.0 / 30.0 } else { dt.min(0.1) };
+            self.time += self.ui.speed * if self.opts.frames.is_some() { 1.0 / 30.0 } else { dt.min(0.1) };
+        }
+        if self.ui.reset {
+            self.ui.reset = false;
+            self.orbit = self.home.clone();
+        }
+        for c in &mut self.cars {
+            c.travel = self.ui.travel;
         }
         let other = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
         for c in &self.cars {
             pose(&mut self.scene, c, self.time).map_err(other)?;
         }
         self.scene.update().map_err(other)?;
-        let (w, h) = match &self.gfx {
-            Some(g) => (g.config.width, g.config.height),
+        let (w, h, panel) = match &self.gfx {
+            Some(g) => (g.config.width, g.config.height, self.panel_pixels(g)),
             None => return Ok(()),
         };
-        let camera = self.camera(w, h);
+        let camera = self.camera(w.saturating_sub(panel).max(1), h);
         let start = Instant::now();
         let backend = self.backend.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
         let plan = backend.plan(&self.scene, &camera, &self.lights, &self.opts.features, self.first_frame);
         self.first_frame = false;
         let frame = backend
-            .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions::default(), &|_, _| {})
+            .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions { max_level: self.ui.lod }, &|_, _| {})
             .map_err(|e| ViewerError::Other(e.to_string()))?;
-        self.times.push(start.elapsed().as_secs_f64() * 1e3);
+        let secs = start.elapsed().as_secs_f64();
+        self.times.push(secs * 1e3);
+        self.ui.gpu_ms = backend.pass_times();
+        self.ui.frame_ms.push_back((secs * 1e3) as f32);
+        if self.ui.frame_ms.len() > 180 {
+            self.ui.frame_ms.pop_front();
+        }
+        let pixels = frame.primary_rays.max(1) as f64;
+        self.ui.reused = frame.reused as f64 / pixels;
+        self.ui.mrays = (frame.primary_rays - frame.reused + frame.shadow_rays) as f64 / secs.max(1e-9) / 1e6;
+        self.ui.plan = Some(plan);
+        let ui_paint = self.build_ui();
         let done = self.opts.exit && self.opts.frames.is_some_and(|n| self.report.frames + 1 >= n);
         let shoot = self.want_screenshot || (done && self.opts.screenshot.is_some());
-        let captured = self.present(&frame, shoot)?;
+        let captured = self.present(&frame, shoot, ui_paint)?;
         let captured_kind = captured.is_some();
         self.report.frames += 1;
         if self.report.frames % 10 == 1 {
@@ -284,7 +355,12 @@ impl App {
 
     /// Draws the frame to the window; with `capture`, also returns the window's image as RGB
     /// bytes (width, height, data) when the surface can be copied from.
-    fn present(&mut self, frame: &Frame, capture: bool) -> Result<Option<(u32, u32, Vec<u8>)>, ViewerError> {
+    fn present(
+        &mut self,
+        frame: &Frame,
+        capture: bool,
+        mut ui: Option<UiPaint>,
+    ) -> Result<Option<(u32, u32, Vec<u8>)>, ViewerError> {
         let Some(g) = self.gfx.as_mut() else { return Ok(None) };
         let device = &g.ctx.device;
         if !g.texture.as_ref().is_some_and(|t| t.2 == frame.width && t.3 == frame.height) {
@@ -326,16 +402,43 @@ impl App {
             },
             wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
         );
+        // egui's texture changes must be applied (or freed) every frame, even one that is not
+        // presented: take them out now.
+        let mut free_ids = Vec::new();
+        if let Some(t) = ui.as_mut().map(|u| &mut u.textures) {
+            for (id, deltas) in &t.set {
+                for delta in deltas {
+                    g.egui_renderer.update_texture(device, &g.ctx.queue, *id, delta);
+                }
+            }
+            free_ids = t.free.drain().collect();
+            // Applied: tell egui so (it checks that no delta is dropped unapplied).
+            t.clear();
+        }
+        let free = |g: &mut Gfx| {
+            for id in &free_ids {
+                g.egui_renderer.free_texture(id);
+            }
+        };
         let target = match g.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
             wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
-                g.surface.configure(device, &g.config);
+                g.surface.configure(&g.ctx.device, &g.config);
+                free(g);
                 return Ok(None);
             }
-            _ => return Ok(None), // timeout or occluded: skip this frame
+            _ => {
+                free(g); // timeout or occluded: skip this frame
+                return Ok(None);
+            }
         };
         let view = target.texture.create_view(&Default::default());
+        let (w, h) = (target.texture.width(), target.texture.height());
         let mut enc = device.create_command_encoder(&Default::default());
+        if let Some(ui) = &ui {
+            let extra = g.egui_renderer.update_buffers(device, &g.ctx.queue, &mut enc, &ui.jobs, &ui.screen);
+            g.ctx.queue.submit(extra);
+        }
         {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("blit"),
@@ -355,9 +458,16 @@ impl App {
             });
             pass.set_pipeline(&g.pipeline);
             pass.set_bind_group(0, bind, &[]);
+            // The frame fills the window right of the panel (it was rendered that size).
+            let x0 = w.saturating_sub(frame.width) as f32;
+            pass.set_viewport(x0, 0.0, frame.width.min(w) as f32, frame.height.min(h) as f32, 0.0, 1.0);
             pass.draw(0..3, 0..1);
+            pass.set_viewport(0.0, 0.0, w as f32, h as f32, 0.0, 1.0);
+            if let Some(ui) = &ui {
+                let mut pass = pass.forget_lifetime();
+                g.egui_renderer.render(&mut pass, &ui.jobs, &ui.screen);
+            }
         }
-        let (w, h) = (target.texture.width(), target.texture.height());
         let row = (4 * w).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
         let readback = (capture && g.config.usage.contains(wgpu::TextureUsages::COPY_SRC)).then(|| {
             let buf = device.create_buffer(&wgpu::BufferDescriptor {
@@ -397,7 +507,121 @@ impl App {
             None => None,
         };
         g.ctx.queue.present(target);
+        free(g);
         Ok(captured)
+    }
+
+    /// Physical width the panel takes (0 when hidden or the window is too small for it).
+    fn panel_pixels(&self, g: &Gfx) -> u32 {
+        if self.ui.show && g.config.width >= 480 {
+            (PANEL_WIDTH * g.window.scale_factor() as f32).ceil() as u32
+        } else {
+            0
+        }
+    }
+
+    /// Runs the panel for this frame; None when it is hidden (or the window too small for it).
+    fn build_ui(&mut self) -> Option<UiPaint> {
+        let g = self.gfx.as_ref()?;
+        if self.panel_pixels(g) == 0 {
+            return None;
+        }
+        let g = self.gfx.as_mut()?;
+        let raw = g.egui_state.take_egui_input(&g.window);
+        let ui = &mut self.ui;
+        let (playing, time, shot) = (&mut self.playing, &mut self.time, &mut self.want_screenshot);
+        let backend = self.report.backend.clone();
+        let instances = self.scene.instances().len();
+        let (w, h) = (g.config.width, g.config.height);
+        let render_w = w.saturating_sub((PANEL_WIDTH * g.window.scale_factor() as f32).ceil() as u32);
+        let output = g.egui.run_ui(raw, |root| {
+            egui::Panel::left("controls").exact_size(PANEL_WIDTH).resizable(false).show(root, |ui_| {
+                egui::ScrollArea::vertical().show(ui_, |ui_| {
+                    ui_.heading("voxray");
+                    ui_.label(backend.as_str());
+                    ui_.separator();
+                    ui_.strong("Animation");
+                    ui_.checkbox(playing, "play (Space)");
+                    ui_.add(egui::Slider::new(time, 0.0..=120.0).text("time (s)"));
+                    ui_.add(egui::Slider::new(&mut ui.speed, 0.0..=4.0).text("speed"));
+                    ui_.checkbox(&mut ui.travel, "drive along the figure-eight");
+                    ui_.separator();
+                    ui_.strong("Techniques");
+                    let f = &mut self.opts.features;
+                    ui_.checkbox(&mut f.cull, "bounding-sphere culling");
+                    ui_.checkbox(&mut f.sort, "depth-sorted early-out");
+                    ui_.checkbox(&mut f.bvh, "instance BVH");
+                    ui_.checkbox(&mut f.hit_buffer, "hit buffer");
+                    ui_.checkbox(&mut f.shadows, "shadows");
+                    let mut full = ui.lod == u32::MAX;
+                    ui_.checkbox(&mut full, "full detail");
+                    if full {
+                        ui.lod = u32::MAX;
+                    } else {
+                        if ui.lod == u32::MAX {
+                            ui.lod = 6;
+                        }
+                        ui_.add(egui::Slider::new(&mut ui.lod, 1..=12).text("LOD level"));
+                    }
+                    ui_.separator();
+                    ui_.strong("Frame plan");
+                    if let Some(p) = &ui.plan {
+                        for r in &p.reasons {
+                            ui_.small(r);
+                        }
+                    }
+                    ui_.separator();
+                    ui_.strong("Statistics");
+                    let last = ui.frame_ms.back().copied().unwrap_or(0.0);
+                    ui_.label(format!("frame {last:.1} ms, {render_w}×{h}, {instances} instances"));
+                    if let Some((tr, sh)) = ui.gpu_ms {
+                        ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));
+                    }
+                    ui_.label(format!("{:.2} Mrays/s traced, {:.1}% pixels reused", ui.mrays, 100.0 * ui.reused));
+                    // Frame-time graph, last 180 frames, scaled to the slowest.
+                    let (rect, _) =
+                        ui_.allocate_exact_size(egui::vec2(ui_.available_width(), 60.0), egui::Sense::hover());
+                    let max = ui.frame_ms.iter().copied().fold(1.0f32, f32::max);
+                    let n = ui.frame_ms.len().max(2) as f32;
+                    let pts: Vec<egui::Pos2> = ui
+                        .frame_ms
+                        .iter()
+                        .enumerate()
+                        .map(|(i, v)| {
+                            egui::pos2(
+                                rect.left() + rect.width() * i as f32 / (n - 1.0),
+                                rect.bottom() - rect.height() * v / max,
+                            )
+                        })
+                        .collect();
+                    ui_.painter().rect_stroke(
+                        rect,
+                        0.0,
+                        egui::Stroke::new(1.0, egui::Color32::GRAY),
+                        egui::StrokeKind::Inside,
+                    );
+                    ui_.painter().add(egui::Shape::line(pts, egui::Stroke::new(1.5, egui::Color32::LIGHT_GREEN)));
+                    ui_.small(format!("frame time, max {max:.0} ms"));
+                    ui_.separator();
+                    ui_.horizontal(|row| {
+                        if row.button("reset view (R)").clicked() {
+                            ui.reset = true;
+                        }
+                        if row.button("screenshot (P)").clicked() {
+                            *shot = true;
+                        }
+                    });
+                    ui_.small("drag: orbit · wheel: zoom · H: hide panel · Esc: quit");
+                });
+            });
+        });
+        g.egui_state.handle_platform_output(&g.window, output.platform_output);
+        let jobs = g.egui.tessellate(output.shapes, output.pixels_per_point);
+        Some(UiPaint {
+            jobs,
+            textures: output.textures_delta,
+            screen: egui_wgpu::ScreenDescriptor { size_in_pixels: [w, h], pixels_per_point: output.pixels_per_point },
+        })
     }
 
     fn fail(&mut self, event_loop: &ActiveEventLoop, e: ViewerError) {
@@ -416,6 +640,20 @@ impl ApplicationHandler for App {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        // The panel sees every event first; input it uses does not reach the camera.
+        if let Some(g) = self.gfx.as_mut() {
+            let consumed = g.egui_state.on_window_event(&g.window, &event).consumed;
+            let input = matches!(
+                event,
+                WindowEvent::MouseInput { .. }
+                    | WindowEvent::CursorMoved { .. }
+                    | WindowEvent::MouseWheel { .. }
+                    | WindowEvent::KeyboardInput { .. }
+            );
+            if consumed && input && self.ui.show {
+                return;
+            }
+        }
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) => {
@@ -460,6 +698,7 @@ impl ApplicationHandler for App {
                     self.orbit = Orbit { ..self.home };
                 }
                 Key::Character(c) if c.eq_ignore_ascii_case("p") => self.want_screenshot = true,
+                Key::Character(c) if c.eq_ignore_ascii_case("h") => self.ui.show = !self.ui.show,
                 _ => {}
             },
             WindowEvent::RedrawRequested => {
@@ -515,7 +754,20 @@ pub fn run(
         times: Vec::new(),
         want_screenshot: false,
         last_frame: None,
+        ui: Ui {
+            show: true,
+            speed: 1.0,
+            travel: false,
+            lod: u32::MAX,
+            frame_ms: VecDeque::new(),
+            plan: None,
+            reused: 0.0,
+            mrays: 0.0,
+            gpu_ms: None,
+            reset: false,
+        },
     };
+    app.ui.travel = app.cars.first().is_some_and(|c| c.travel);
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Other(e.to_string()))?;
     if let Some(e) = app.error {
         return Err(e);

@@ -76,3 +76,52 @@ fn demo_without_a_display_says_what_to_do() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("voxray render"), "{err}");
 }
+
+#[test]
+fn demo_draws_the_panel_beside_the_image() {
+    if !xvfb() {
+        return;
+    }
+    let d = tmp("panel");
+    let shot = d.join("panel.png");
+    let o = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 800x600x24"])
+        .arg(env!("CARGO_BIN_EXE_voxray"))
+        .args([
+            "demo",
+            "--frames",
+            "3",
+            "--exit",
+            "--width",
+            "640",
+            "--height",
+            "400",
+            "--depth",
+            "6",
+            "--in-place",
+            "--backend",
+            "cpu",
+        ])
+        .arg("--cache-dir")
+        .arg(d.join("cache"))
+        .arg("--screenshot")
+        .arg(&shot)
+        .output()
+        .expect("run xvfb-run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::open(&shot).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (640, 400));
+    let dark = |x0: u32, x1: u32| {
+        let mut n = 0;
+        for y in 0..400 {
+            for x in x0..x1 {
+                let p = img.get_pixel(x, y).0;
+                n += (p[0] < 60 && p[1] < 60 && p[2] < 60) as u32;
+            }
+        }
+        n as f64 / ((x1 - x0) * 400) as f64
+    };
+    // The panel (dark theme) fills the left 280 px; the image (sky, ground, car) the rest.
+    assert!(dark(10, 270) > 0.6, "no panel: {:.2} dark on the left", dark(10, 270));
+    assert!(dark(300, 640) < 0.2, "no image beside the panel: {:.2} dark on the right", dark(300, 640));
+}
