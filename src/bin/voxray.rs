@@ -142,6 +142,19 @@ struct RenderArgs {
     /// Orbit the camera about its target at this many degrees per second (a moving camera).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     orbit: f64,
+    #[command(flatten)]
+    switches: Switches,
+    /// Print the frame plan (first frame, and whenever it changes).
+    #[arg(long)]
+    explain: bool,
+    /// Where to render: cpu, gpu (an error without an adapter) or auto (the GPU on a hardware adapter, else the CPU).
+    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
+    backend: voxray::backend::BackendKind,
+}
+
+/// The technique switches (`FramePlan` features), shared by `render` and `demo`.
+#[derive(Args, Clone)]
+struct Switches {
     /// No bounding-sphere culling.
     #[arg(long)]
     no_cull: bool,
@@ -157,12 +170,18 @@ struct RenderArgs {
     /// No shadow rays.
     #[arg(long)]
     no_shadows: bool,
-    /// Print the frame plan (first frame, and whenever it changes).
-    #[arg(long)]
-    explain: bool,
-    /// Where to render: cpu, gpu (an error without an adapter) or auto (the GPU on a hardware adapter, else the CPU).
-    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
-    backend: voxray::backend::BackendKind,
+}
+
+impl Switches {
+    fn features(&self) -> Features {
+        Features {
+            cull: !self.no_cull,
+            sort: !self.no_sort,
+            bvh: !self.no_bvh,
+            hit_buffer: !self.no_hit_buffer,
+            shadows: !self.no_shadows,
+        }
+    }
 }
 
 #[derive(Args, Clone)]
@@ -226,21 +245,8 @@ struct DemoArgs {
     /// No ground.
     #[arg(long)]
     no_ground: bool,
-    /// No bounding-sphere culling.
-    #[arg(long)]
-    no_cull: bool,
-    /// No depth-sorted early-out.
-    #[arg(long)]
-    no_sort: bool,
-    /// No instance BVH.
-    #[arg(long)]
-    no_bvh: bool,
-    /// No per-pixel hit buffer.
-    #[arg(long)]
-    no_hit_buffer: bool,
-    /// No shadow rays.
-    #[arg(long)]
-    no_shadows: bool,
+    #[command(flatten)]
+    switches: Switches,
     /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     backend: voxray::backend::BackendKind,
@@ -493,13 +499,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     camera.validate()?;
     let t_setup = t0.elapsed();
 
-    let features = Features {
-        cull: !a.no_cull,
-        sort: !a.no_sort,
-        bvh: !a.no_bvh,
-        hit_buffer: !a.no_hit_buffer,
-        shadows: !a.no_shadows,
-    };
+    let features = a.switches.features();
     let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
     let (mut backend, backend_name) = Backend::open(a.backend)?;
     eprintln!("backend: {backend_name}");
@@ -596,13 +596,7 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
     let st = stage(&a.source, a.cars, a.in_place, false, !a.no_ground)?;
     let (lo, hi) = if st.cars.is_empty() || a.in_place { cars_bounds(&st) } else { st.bounds };
     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
-    let features = Features {
-        cull: !a.no_cull,
-        sort: !a.no_sort,
-        bvh: !a.no_bvh,
-        hit_buffer: !a.no_hit_buffer,
-        shadows: !a.no_shadows,
-    };
+    let features = a.switches.features();
     let opts = DemoOptions {
         width: a.width,
         height: a.height,
