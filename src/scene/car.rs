@@ -101,9 +101,10 @@ fn arc_length(s: f64) -> f64 {
     sum * h / 3.0
 }
 
-/// Length of one lap.
+/// Length of one lap (integrated once; every car asks for it every frame).
 pub fn lap_length() -> f64 {
-    arc_length(TAU)
+    static LAP: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *LAP.get_or_init(|| arc_length(TAU))
 }
 
 /// Door angle over its cycle: closed, opening, open, closing, closed.
