@@ -15,6 +15,9 @@ pub enum Error {
     /// Reading or writing an `.svo` file.
     #[error(transparent)]
     SvoFile(#[from] crate::svo::SvoFileError),
+    /// Building or updating the scene.
+    #[error(transparent)]
+    Scene(#[from] crate::scene::SceneError),
     /// The camera.
     #[error(transparent)]
     Camera(#[from] crate::scene::CameraError),

@@ -1,23 +1,26 @@
 //! The interactive window (`voxray demo`): the animated scene rendered every frame by the CPU
 //! or GPU renderer and drawn to a wgpu surface, with an egui panel for the animation, every
-//! technique switch, the frame plan and live statistics. Drag to orbit, wheel to zoom, Space
-//! to pause, R to reset the view, P for a screenshot, H to hide the panel, Esc to quit.
+//! technique switch, the renderer (GPU or CPU), the number of cars, the frame plan and live
+//! statistics. Left-drag orbits (looks around in fly mode), right- or middle-drag pans, the
+//! wheel zooms, W A S D (and Q E for down/up, Shift for faster) fly, F toggles fly mode,
+//! Space pauses, R resets the view, P writes a screenshot, H hides the panel, Esc quits.
 //! `frames` + `exit` and `screenshot` make scripted runs (tests, recordings).
 
 use crate::backend::{Backend, BackendKind};
 use crate::gpu::{GpuContext, GpuError};
 use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
 use crate::scene::car::{pose, Car};
-use crate::scene::{Camera, Lights, Scene};
+use crate::scene::{stage_cars, Camera, Lights, Scene, Staged};
+use crate::svo::Svo;
 use glam::{DQuat, DVec3};
-use std::collections::VecDeque;
+use std::collections::{HashSet, VecDeque};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop};
-use winit::keyboard::{Key, NamedKey};
+use winit::keyboard::{Key, KeyCode, NamedKey, PhysicalKey};
 use winit::window::{Window, WindowId};
 
 /// What the demo shows and how it runs.
@@ -36,6 +39,16 @@ pub struct DemoOptions {
     pub backend: BackendKind,
     /// Technique switches.
     pub features: Features,
+    /// The car's parts, so the car count can change while running (None: a fixed scene).
+    pub car_parts: Option<CarParts>,
+}
+
+/// What the demo needs to re-stage the cars when their number changes.
+pub struct CarParts {
+    /// The eight parts of the car.
+    pub parts: Vec<Arc<Svo>>,
+    /// Whether there is a ground under the cars.
+    pub ground: bool,
 }
 
 /// What a finished run did.
@@ -80,12 +93,22 @@ struct Gfx {
     egui_renderer: egui_wgpu::Renderer,
 }
 
+/// Most cars the panel offers (80 000 instances).
+const MAX_CARS: usize = 10_000;
+
 /// Width of the panel in logical pixels (fixed, so the image can be rendered beside it).
 const PANEL_WIDTH: f32 = 280.0;
 
 /// What the panel shows and changes.
 struct Ui {
     show: bool,
+    fly: bool,
+    cars: usize,
+    cars_wanted: usize,
+    cars_dragging: bool,
+    backend: BackendKind,
+    backend_wanted: BackendKind,
+    note: String,
     speed: f64,
     travel: bool,
     lod: u32,
@@ -127,6 +150,8 @@ struct App {
     last: Instant,
     first_frame: bool,
     drag: Option<(f64, f64)>,
+    pan: Option<(f64, f64)>,
+    keys: HashSet<KeyCode>,
     cursor: (f64, f64),
     times: Vec<f64>,
     want_screenshot: bool,
@@ -241,6 +266,15 @@ impl App {
         let ctx = Arc::new(ctx);
         let (backend, name) = Backend::on_device(self.opts.backend, ctx.clone());
         eprintln!("demo: window on {}; rendering on {name}", ctx.describe());
+        let kind = if matches!(backend, Backend::Cpu(_)) { BackendKind::Cpu } else { BackendKind::Gpu };
+        (self.ui.backend, self.ui.backend_wanted) = (kind, kind);
+        if ctx.info.device_type == wgpu::DeviceType::Cpu {
+            self.ui.note = format!(
+                "No hardware GPU: {} (software Vulkan) presents the window. The CPU renderer is faster here; \
+                 the GPU renderer runs on the software driver when chosen.",
+                ctx.info.name
+            );
+        }
         self.report.backend = name;
         self.backend = Some(backend);
         self.gfx = Some(Gfx {
@@ -273,6 +307,8 @@ impl App {
             self.ui.reset = false;
             self.orbit = self.home.clone();
         }
+        self.apply_choices()?;
+        self.fly(dt.min(0.1));
         for c in &mut self.cars {
             c.travel = self.ui.travel;
         }
@@ -511,6 +547,59 @@ impl App {
         Ok(captured)
     }
 
+    /// Applies the renderer and car-count choices made in the panel.
+    fn apply_choices(&mut self) -> Result<(), ViewerError> {
+        if self.ui.backend_wanted != self.ui.backend {
+            if let Some(g) = &self.gfx {
+                let (backend, name) = Backend::on_device(self.ui.backend_wanted, g.ctx.clone());
+                eprintln!("demo: now rendering on {name}");
+                self.backend = Some(backend);
+                self.report.backend = name;
+                self.ui.backend = self.ui.backend_wanted;
+                // The new renderer has no previous frame to reuse.
+                self.first_frame = true;
+            }
+        }
+        let n = self.ui.cars_wanted.max(1);
+        if n != self.ui.cars && !self.ui.cars_dragging {
+            if let Some(cp) = &self.opts.car_parts {
+                let st: Staged =
+                    stage_cars(&cp.parts, n, true, cp.ground).map_err(|e| ViewerError::Other(e.to_string()))?;
+                let (lo, hi) = if self.ui.travel { st.bounds } else { st.cars_bounds() };
+                let (w, h) = self.gfx.as_ref().map_or((self.opts.width, self.opts.height), |g| {
+                    (g.config.width.saturating_sub(self.panel_pixels(g)).max(1), g.config.height)
+                });
+                self.home = Orbit::of(&Camera::framing(lo.as_vec3(), hi.as_vec3(), w, h));
+                self.orbit = self.home.clone();
+                self.scene = st.scene;
+                self.cars = st.cars;
+                self.first_frame = true;
+                eprintln!("demo: {n} cars, {} instances", self.scene.instances().len());
+            }
+            self.ui.cars = n;
+            self.ui.cars_wanted = n;
+        }
+        Ok(())
+    }
+
+    /// Moves the camera by the held W A S D / Q E keys (Shift: four times faster).
+    fn fly(&mut self, dt: f64) {
+        let held = |k| self.keys.contains(&k) as i32 as f64;
+        let forward = (held(KeyCode::KeyW) - held(KeyCode::KeyS)) * 1.0;
+        let side = held(KeyCode::KeyD) - held(KeyCode::KeyA);
+        let lift = held(KeyCode::KeyE) - held(KeyCode::KeyQ);
+        if forward == 0.0 && side == 0.0 && lift == 0.0 {
+            return;
+        }
+        let fast =
+            if self.keys.contains(&KeyCode::ShiftLeft) || self.keys.contains(&KeyCode::ShiftRight) { 4.0 } else { 1.0 };
+        // Half the home view distance per second: the same feel for one car or a city of them.
+        let speed = 0.5 * self.home.offset.length() * fast;
+        let ahead = -self.orbit.offset.normalize_or_zero();
+        let right = ahead.cross(self.orbit.up).normalize_or_zero();
+        self.orbit.target += (ahead * forward + right * side + self.orbit.up * lift) * speed * dt;
+    }
+
     /// Physical width the panel takes (0 when hidden or the window is too small for it).
     fn panel_pixels(&self, g: &Gfx) -> u32 {
         if self.ui.show && g.config.width >= 480 {
@@ -532,6 +621,7 @@ impl App {
         let (playing, time, shot) = (&mut self.playing, &mut self.time, &mut self.want_screenshot);
         let backend = self.report.backend.clone();
         let instances = self.scene.instances().len();
+        let can_restage = self.opts.car_parts.is_some();
         let (w, h) = (g.config.width, g.config.height);
         let render_w = w.saturating_sub((PANEL_WIDTH * g.window.scale_factor() as f32).ceil() as u32);
         let output = g.egui.run_ui(raw, |root| {
@@ -539,6 +629,27 @@ impl App {
                 egui::ScrollArea::vertical().show(ui_, |ui_| {
                     ui_.heading("voxray");
                     ui_.label(backend.as_str());
+                    ui_.horizontal(|row| {
+                        row.label("renderer:");
+                        row.radio_value(&mut ui.backend_wanted, BackendKind::Gpu, "GPU");
+                        row.radio_value(&mut ui.backend_wanted, BackendKind::Cpu, "CPU");
+                    });
+                    if !ui.note.is_empty() {
+                        ui_.small(ui.note.as_str());
+                    }
+                    ui_.separator();
+                    ui_.strong("Scene");
+                    if can_restage {
+                        let r = ui_
+                            .add(egui::Slider::new(&mut ui.cars_wanted, 1..=MAX_CARS).logarithmic(true).text("cars"));
+                        // Re-stage when the slider is let go, not on every step of a drag.
+                        ui.cars_dragging = r.dragged() && !r.drag_stopped();
+                    }
+                    ui_.label(format!("{instances} instances"));
+                    ui_.separator();
+                    ui_.strong("Camera");
+                    ui_.checkbox(&mut ui.fly, "fly mode (F): drag looks around");
+                    ui_.small("W A S D move, Q E down/up, Shift faster; right-drag pans");
                     ui_.separator();
                     ui_.strong("Animation");
                     ui_.checkbox(playing, "play (Space)");
@@ -624,6 +735,18 @@ impl App {
         })
     }
 
+    fn key(&mut self, event_loop: &ActiveEventLoop, key: Key) {
+        match key {
+            Key::Named(NamedKey::Escape) => event_loop.exit(),
+            Key::Named(NamedKey::Space) => self.playing = !self.playing,
+            Key::Character(c) if c.eq_ignore_ascii_case("r") => self.orbit = self.home.clone(),
+            Key::Character(c) if c.eq_ignore_ascii_case("p") => self.want_screenshot = true,
+            Key::Character(c) if c.eq_ignore_ascii_case("h") => self.ui.show = !self.ui.show,
+            Key::Character(c) if c.eq_ignore_ascii_case("f") => self.ui.fly = !self.ui.fly,
+            _ => {}
+        }
+    }
+
     fn fail(&mut self, event_loop: &ActiveEventLoop, e: ViewerError) {
         self.error = Some(e);
         event_loop.exit();
@@ -666,21 +789,41 @@ impl ApplicationHandler for App {
             WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
                 self.drag = (state == ElementState::Pressed).then_some(self.cursor);
             }
+            WindowEvent::MouseInput { state, button: MouseButton::Right | MouseButton::Middle, .. } => {
+                self.pan = (state == ElementState::Pressed).then_some(self.cursor);
+            }
+            WindowEvent::Focused(false) => self.keys.clear(),
             WindowEvent::CursorMoved { position, .. } => {
                 self.cursor = (position.x, position.y);
                 if let Some((x0, y0)) = self.drag {
                     let (dx, dy) = (position.x - x0, position.y - y0);
                     self.drag = Some(self.cursor);
-                    let yaw = DQuat::from_axis_angle(self.orbit.up, -dx * 0.005);
+                    // Orbit: the camera circles the target. Fly: it turns in place (the
+                    // rotation runs the other way so the view follows the mouse).
+                    let k = if self.ui.fly { 0.003 } else { -0.005 };
+                    let yaw = DQuat::from_axis_angle(self.orbit.up, k * dx);
                     let right = self.orbit.offset.cross(self.orbit.up).normalize_or_zero();
-                    let pitch = DQuat::from_axis_angle(right, -dy * 0.005);
-                    let next = pitch * (yaw * self.orbit.offset);
+                    let pitch = DQuat::from_axis_angle(right, k * dy);
+                    let eye = self.orbit.target + self.orbit.offset;
+                    let mut next = pitch * (yaw * self.orbit.offset);
                     // Stay off the poles, where the up vector would become parallel to the view.
-                    if next.normalize().dot(self.orbit.up).abs() < 0.98 {
-                        self.orbit.offset = next;
-                    } else {
-                        self.orbit.offset = yaw * self.orbit.offset;
+                    if next.normalize().dot(self.orbit.up).abs() >= 0.98 {
+                        next = yaw * self.orbit.offset;
                     }
+                    self.orbit.offset = next;
+                    if self.ui.fly {
+                        self.orbit.target = eye - next;
+                    }
+                }
+                if let Some((x0, y0)) = self.pan {
+                    let (dx, dy) = (position.x - x0, position.y - y0);
+                    self.pan = Some(self.cursor);
+                    let ahead = -self.orbit.offset.normalize_or_zero();
+                    let right = ahead.cross(self.orbit.up).normalize_or_zero();
+                    let up = right.cross(ahead);
+                    // Scaled by the view distance so the scene follows the mouse at any zoom.
+                    let k = self.orbit.offset.length() * 0.0015;
+                    self.orbit.target += (-right * dx + up * dy) * k;
                 }
             }
             WindowEvent::MouseWheel { delta, .. } => {
@@ -690,17 +833,17 @@ impl ApplicationHandler for App {
                 };
                 self.orbit.offset *= 0.9f64.powf(lines);
             }
-            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => match event.logical_key
-            {
-                Key::Named(NamedKey::Escape) => event_loop.exit(),
-                Key::Named(NamedKey::Space) => self.playing = !self.playing,
-                Key::Character(c) if c.eq_ignore_ascii_case("r") => {
-                    self.orbit = Orbit { ..self.home };
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Released => {
+                if let PhysicalKey::Code(code) = event.physical_key {
+                    self.keys.remove(&code);
                 }
-                Key::Character(c) if c.eq_ignore_ascii_case("p") => self.want_screenshot = true,
-                Key::Character(c) if c.eq_ignore_ascii_case("h") => self.ui.show = !self.ui.show,
-                _ => {}
-            },
+            }
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                if let PhysicalKey::Code(code) = event.physical_key {
+                    self.keys.insert(code);
+                }
+                self.key(event_loop, event.logical_key)
+            }
             WindowEvent::RedrawRequested => {
                 if let Err(e) = self.draw(event_loop) {
                     self.fail(event_loop, e);
@@ -717,10 +860,27 @@ impl ApplicationHandler for App {
     }
 }
 
+impl Orbit {
+    fn of(camera: &Camera) -> Orbit {
+        Orbit { target: camera.target, offset: camera.eye - camera.target, up: camera.up, vfov: camera.vfov_deg }
+    }
+}
+
 impl Clone for Orbit {
     fn clone(&self) -> Self {
         Orbit { target: self.target, offset: self.offset, up: self.up, vfov: self.vfov }
     }
+}
+
+/// Fails fast, before any scene is built, when there is plainly no display to open a window
+/// on (Linux/BSD with neither `DISPLAY` nor `WAYLAND_DISPLAY` set).
+pub fn check_display() -> Result<(), ViewerError> {
+    let unix_desktop = cfg!(all(unix, not(target_os = "macos"), not(target_os = "android"), not(target_os = "ios")));
+    let set = |v: &str| std::env::var_os(v).is_some_and(|x| !x.is_empty());
+    if unix_desktop && !set("DISPLAY") && !set("WAYLAND_DISPLAY") {
+        return Err(ViewerError::NoDisplay("neither DISPLAY nor WAYLAND_DISPLAY is set".into()));
+    }
+    Ok(())
 }
 
 /// Opens the window and runs until it is closed (or `frames` are drawn with `exit`).
@@ -732,8 +892,8 @@ pub fn run(
     camera: Camera,
 ) -> Result<DemoReport, ViewerError> {
     let event_loop = EventLoop::new().map_err(|e| ViewerError::NoDisplay(e.to_string()))?;
-    let home =
-        Orbit { target: camera.target, offset: camera.eye - camera.target, up: camera.up, vfov: camera.vfov_deg };
+    let home = Orbit::of(&camera);
+    let cars_n = cars.len().max(1);
     let mut app = App {
         opts,
         scene,
@@ -750,12 +910,21 @@ pub fn run(
         last: Instant::now(),
         first_frame: true,
         drag: None,
+        pan: None,
+        keys: HashSet::new(),
         cursor: (0.0, 0.0),
         times: Vec::new(),
         want_screenshot: false,
         last_frame: None,
         ui: Ui {
             show: true,
+            fly: false,
+            cars: cars_n,
+            cars_wanted: cars_n,
+            cars_dragging: false,
+            backend: BackendKind::Auto,
+            backend_wanted: BackendKind::Auto,
+            note: String::new(),
             speed: 1.0,
             travel: false,
             lod: u32::MAX,

@@ -60,7 +60,7 @@ fn demo_runs_30_frames_on_the_cpu_renderer() {
 #[test]
 fn demo_runs_on_the_gpu_renderer_sharing_the_window_device() {
     if xvfb() {
-        demo_under_xvfb("gpu", "3");
+        demo_under_xvfb("gpu", "30");
     }
 }
 
@@ -124,4 +124,22 @@ fn demo_draws_the_panel_beside_the_image() {
     // The panel (dark theme) fills the left 280 px; the image (sky, ground, car) the rest.
     assert!(dark(10, 270) > 0.6, "no panel: {:.2} dark on the left", dark(10, 270));
     assert!(dark(300, 640) < 0.2, "no image beside the panel: {:.2} dark on the right", dark(300, 640));
+}
+
+#[test]
+fn no_subcommand_without_a_display_renders_a_still_instead() {
+    let d = tmp("default");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxray"))
+        .current_dir(&d)
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .env("VOXRAY_CACHE_DIR", d.join("cache"))
+        .env("VOXRAY_BACKEND", "cpu")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("voxray render"), "{err}");
+    let img = image::open(d.join("voxray.png")).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (1280, 768));
 }

@@ -1,5 +1,5 @@
 //! `voxray`: render, voxelize, inspect and test sparse voxel octrees from the command line.
-//! With no subcommand it renders the embedded default car to `voxray.png`.
+//! With no subcommand it opens the demo window (without a display: renders `voxray.png`).
 
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -13,8 +13,8 @@ use voxray::mesh::Mesh;
 use voxray::mesh::Part;
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::{output, Features, Frame, FramePlan, RenderOptions};
-use voxray::scene::car::{add_car, clip_bounds, layout, pose, Car};
-use voxray::scene::{Camera, Instance, Lights, Scene, Transform};
+use voxray::scene::car::pose;
+use voxray::scene::{stage_cars, Camera, Instance, Lights, Scene, Staged, Transform};
 use voxray::svo::Svo;
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 use voxray::Error;
@@ -25,8 +25,8 @@ use voxray::Error;
     version,
     about = "Ray tracing of sparse voxel octrees (Laine–Karras SVOs, Revelles traversal)."
 )]
-#[command(long_about = "Ray tracing of sparse voxel octrees. With no subcommand, renders the embedded default car \
-to voxray.png (the same as `voxray render`).")]
+#[command(long_about = "Ray tracing of sparse voxel octrees. With no subcommand, opens the demo window on the \
+embedded animated car (`voxray demo`); without a display, renders it to voxray.png (`voxray render`).")]
 struct Cli {
     #[command(subcommand)]
     cmd: Option<Cmd>,
@@ -57,8 +57,9 @@ enum Cmd {
     },
     /// Time the animated car: static vs animated vs animated+optimized, and instance counts.
     Bench(BenchArgs),
-    /// Open a window with the animated car: drag to orbit, wheel to zoom, Space to pause,
-    /// R to reset the view, P for a screenshot, Esc to quit.
+    /// Open a window with the animated car (what `voxray` with no subcommand does): left-drag
+    /// orbits, right-drag pans, wheel zooms, F toggles fly mode (W A S D, Q E, Shift), Space
+    /// pauses, R resets the view, P writes a screenshot, H hides the panel, Esc quits.
     Demo(DemoArgs),
     /// Regenerate a built-in model's files.
     Model {
@@ -269,7 +270,7 @@ fn main() -> ExitCode {
         }
     }
     let result = match cli.cmd {
-        None => render_cmd(RenderArgs::parse_from(["render"])),
+        None => default_cmd(),
         Some(Cmd::Render(a)) => render_cmd(a),
         Some(Cmd::Voxelize(a)) => voxelize_cmd(a),
         Some(Cmd::Info { file }) => info_cmd(&file),
@@ -287,15 +288,21 @@ fn main() -> ExitCode {
     }
 }
 
-impl RenderArgs {
-    fn parse_from<const N: usize>(args: [&str; N]) -> RenderArgs {
-        #[derive(Parser)]
-        struct Only {
-            #[command(flatten)]
-            r: RenderArgs,
-        }
-        Only::parse_from(args).r
+/// A subcommand's arguments with every option at its default (environment variables such as
+/// VOXRAY_BACKEND still apply).
+fn defaults<T: clap::Args + clap::FromArgMatches>() -> Result<T, Error> {
+    let cmd = T::augment_args(clap::Command::new("voxray"));
+    T::from_arg_matches(&cmd.get_matches_from(["voxray"])).map_err(|e| usage(&e.to_string()))
+}
+
+/// No subcommand: the demo window; without a display, a still of the car to voxray.png.
+fn default_cmd() -> Result<(), Error> {
+    if let Err(e) = voxray::viewer::check_display() {
+        eprintln!("voxray: {e}");
+        eprintln!("voxray: rendering the default car to voxray.png instead (see `voxray render --help`)");
+        return render_cmd(defaults()?);
     }
+    demo_cmd(defaults()?)
 }
 
 fn bar(len: u64, what: &str) -> ProgressBar {
@@ -378,13 +385,6 @@ fn read_text(p: &Path) -> Result<String, Error> {
     std::fs::read_to_string(p).map_err(|source| Error::Io { path: p.display().to_string(), source })
 }
 
-/// The scene to render and the cars in it.
-struct Staged {
-    scene: Scene,
-    cars: Vec<Car>,
-    bounds: (glam::DVec3, glam::DVec3),
-}
-
 /// Loads the parts and places them: the default car animated (or merged into one static SVO),
 /// or the given OBJ parts at the identity.
 fn stage(src: &SourceArgs, cars: u32, in_place: bool, static_car: bool, with_ground: bool) -> Result<Staged, Error> {
@@ -393,34 +393,28 @@ fn stage(src: &SourceArgs, cars: u32, in_place: bool, static_car: bool, with_gro
         return Err(usage("--cars, --in-place and --static-car apply to the default car only"));
     }
     let mut mesh = load_mesh(src)?;
+    if default_car && !static_car {
+        let parts = build_parts(&mesh, src)?;
+        return stage_cars(&parts, cars as usize, !in_place, with_ground);
+    }
     if static_car {
         let merged: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
         mesh.parts = vec![Part { name: "car (static)".into(), triangles: merged }];
     }
-    let parts = build_parts(&mesh, src)?;
-    let mut scene = Scene::new(parts);
-    let mut placed = Vec::new();
-    if default_car && !static_car {
-        for (origin, phase) in layout(cars as usize) {
-            placed.push(add_car(&mut scene, 0, origin, phase, !in_place).map_err(scene_err)?);
-        }
-    } else {
-        for part in 0..scene.parts.len() {
-            scene.add(Instance { part, parent: None, local: Transform::IDENTITY }).map_err(scene_err)?;
-        }
+    let mut scene = Scene::new(build_parts(&mesh, src)?);
+    for part in 0..scene.parts.len() {
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
     }
-    scene.update().map_err(scene_err)?;
-    let bounds = if placed.is_empty() || in_place { scene.bounds() } else { clip_bounds(cars as usize) };
+    scene.update()?;
+    let bounds = scene.bounds();
     if default_car && with_ground {
-        // Tiles of 1 m under the whole clip, voxels of at least 5 cm.
         let (lo, hi) = (bounds.0 - glam::DVec3::splat(3.0), bounds.1 + glam::DVec3::splat(3.0));
-        let g = voxray::scene::ground::ground(lo, hi, 1.0, 0.05)?;
-        scene.parts.push(Arc::new(g));
+        scene.parts.push(Arc::new(voxray::scene::ground::ground(lo, hi, 1.0, 0.05)?));
         let part = scene.parts.len() - 1;
-        scene.add(Instance { part, parent: None, local: Transform::IDENTITY }).map_err(scene_err)?;
-        scene.update().map_err(scene_err)?;
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
+        scene.update()?;
     }
-    Ok(Staged { scene, cars: placed, bounds })
+    Ok(Staged { scene, cars: Vec::new(), bounds })
 }
 
 fn usage(msg: &str) -> Error {
@@ -428,22 +422,6 @@ fn usage(msg: &str) -> Error {
         path: "arguments".into(),
         source: std::io::Error::new(std::io::ErrorKind::InvalidInput, msg.to_string()),
     }
-}
-
-fn scene_err(e: voxray::scene::SceneError) -> Error {
-    Error::Io { path: "scene".into(), source: std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string()) }
-}
-
-/// World bounds of the car instances only (not the ground), or of everything if no cars.
-fn cars_bounds(st: &Staged) -> (glam::DVec3, glam::DVec3) {
-    if st.cars.is_empty() {
-        return st.scene.bounds();
-    }
-    st.scene.bounds_of(
-        st.cars.iter().flat_map(|c| {
-            [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering]
-        }),
-    )
 }
 
 /// `car.png` → `car_0007.png` for frame 7 of a sequence.
@@ -488,7 +466,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 .cars
                 .first()
                 .map_or(glam::DQuat::IDENTITY, |c| st.scene.world(c.body).to_scale_rotation_translation().1);
-            let (lo, hi) = cars_bounds(&st);
+            let (lo, hi) = st.cars_bounds();
             Camera::framing_from(lo.as_vec3(), hi.as_vec3(), 1280, 768, heading * glam::DVec3::new(0.95, 0.36, -0.9))
         } else {
             Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 1280, 768)
@@ -512,9 +490,9 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         let start = Instant::now();
         let t = a.time + f as f64 / a.fps;
         for car in &st.cars {
-            pose(&mut st.scene, car, t).map_err(scene_err)?;
+            pose(&mut st.scene, car, t)?;
         }
-        st.scene.update().map_err(scene_err)?;
+        st.scene.update()?;
         let cam = orbit(&camera, a.orbit * (t - a.time));
         let plan = backend.plan(&st.scene, &cam, &lights, &features, f == 0);
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
@@ -592,11 +570,15 @@ fn write_frame(a: &RenderArgs, frame: &Frame, f: u32, is_gif: bool, gif: &mut Ve
 }
 
 fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
-    use voxray::viewer::{run, DemoOptions};
+    use voxray::viewer::{check_display, run, CarParts, DemoOptions, ViewerError};
+    let demo_err = |e: ViewerError| Error::Io { path: "demo".into(), source: std::io::Error::other(e.to_string()) };
+    check_display().map_err(demo_err)?;
     let st = stage(&a.source, a.cars, a.in_place, false, !a.no_ground)?;
-    let (lo, hi) = if st.cars.is_empty() || a.in_place { cars_bounds(&st) } else { st.bounds };
+    let (lo, hi) = if st.cars.is_empty() || a.in_place { st.cars_bounds() } else { st.bounds };
     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
-    let features = a.switches.features();
+    // The default car can be re-staged with another car count from the panel.
+    let car_parts =
+        (!st.cars.is_empty()).then(|| CarParts { parts: st.scene.parts[..8].to_vec(), ground: !a.no_ground });
     let opts = DemoOptions {
         width: a.width,
         height: a.height,
@@ -604,10 +586,10 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         exit: a.exit,
         screenshot: a.screenshot.clone(),
         backend: a.backend,
-        features,
+        features: a.switches.features(),
+        car_parts,
     };
-    let report = run(opts, st.scene, st.cars, Lights::default(), camera)
-        .map_err(|e| Error::Io { path: "demo".into(), source: std::io::Error::other(e.to_string()) })?;
+    let report = run(opts, st.scene, st.cars, Lights::default(), camera).map_err(demo_err)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
     Ok(())
 }

@@ -93,6 +93,9 @@ pub struct GpuRenderer {
     pub times: Option<GpuTimes>,
     /// Largest binding in bytes (the device's limit unless lowered for tests).
     pub max_binding: u64,
+    /// Bytes of GPU buffers the last frame used (part pools, hit buffer, per-frame inputs and
+    /// outputs; readback copies not counted).
+    pub buffer_bytes: u64,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -155,6 +158,7 @@ impl GpuRenderer {
             state: HitBuffer::new(),
             times: None,
             max_binding: 0,
+            buffer_bytes: 0,
         }
         .with_device_limit()
     }
@@ -378,6 +382,23 @@ impl GpuRenderer {
                 wgpu::BindGroupEntry { binding: 11, resource: pools.attrs_hi.as_entire_binding() },
             ],
         });
+        let buffer_bytes: u64 = [
+            &pools.nodes,
+            &pools.attrs,
+            &pools.infos,
+            &pools.nodes_hi,
+            &pools.attrs_hi,
+            &inst_buf,
+            &frame_buf,
+            &bvh_buf,
+            &item_buf,
+            hits_buf,
+            &moved_buf,
+            &radiance_buf,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum();
         let queries = self.ctx.timestamps.then(|| {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("passes"),
@@ -473,6 +494,7 @@ impl GpuRenderer {
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records);
+        self.buffer_bytes = buffer_bytes;
         Ok(f)
     }
 }

@@ -5,9 +5,11 @@ pub mod car;
 pub mod ground;
 pub mod instances;
 pub mod lights;
+pub mod stage;
 pub mod transform;
 
 pub use camera::{Camera, CameraError};
 pub use instances::{Instance, Scene, SceneError};
 pub use lights::{Lights, LightsError, Sun};
+pub use stage::{stage_cars, Staged};
 pub use transform::{Transform, TransformError};

@@ -1,0 +1,62 @@
+//! Placing the car: `n` copies of its eight parts, each on a figure-eight of its own, on a
+//! checkered ground sized to what the cars can reach. Shared by the CLI, the demo (which
+//! re-stages when its car count changes) and the benchmark harness.
+
+use super::car::{add_car, clip_bounds, layout, Car};
+use super::{ground, Instance, Scene, Transform};
+use crate::svo::Svo;
+use glam::DVec3;
+use std::sync::Arc;
+
+/// A scene with the cars in it.
+pub struct Staged {
+    /// The scene (car parts first, then the ground part when there is one).
+    pub scene: Scene,
+    /// The cars' instances.
+    pub cars: Vec<Car>,
+    /// A box holding every car at any clip time (or the scene's bounds if the cars stay in place).
+    pub bounds: (DVec3, DVec3),
+}
+
+/// Stages `n` cars built from `car_parts` (the eight parts in [`crate::model::car::PART_NAMES`]
+/// order). `travel`: the cars drive their figure-eights (else they stay in place, wheels still
+/// turning). `with_ground`: a 1 m checkered ground under everything the cars can reach.
+pub fn stage_cars(car_parts: &[Arc<Svo>], n: usize, travel: bool, with_ground: bool) -> Result<Staged, crate::Error> {
+    if car_parts.len() != 8 {
+        return Err(crate::Error::Io {
+            path: "car".into(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("a car has 8 parts, got {}", car_parts.len()),
+            ),
+        });
+    }
+    let mut scene = Scene::new(car_parts.to_vec());
+    let mut cars = Vec::with_capacity(n);
+    for (origin, phase) in layout(n.max(1)) {
+        cars.push(add_car(&mut scene, 0, origin, phase, travel)?);
+    }
+    scene.update()?;
+    let bounds = if travel { clip_bounds(n.max(1)) } else { scene.bounds() };
+    if with_ground {
+        // Tiles of 1 m under the whole clip, voxels of at least 5 cm.
+        let (lo, hi) = (bounds.0 - DVec3::splat(3.0), bounds.1 + DVec3::splat(3.0));
+        scene.parts.push(Arc::new(ground::ground(lo, hi, 1.0, 0.05)?));
+        let part = scene.parts.len() - 1;
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
+        scene.update()?;
+    }
+    Ok(Staged { scene, cars, bounds })
+}
+
+impl Staged {
+    /// World bounds of the car instances only (not the ground); of everything if no cars.
+    pub fn cars_bounds(&self) -> (DVec3, DVec3) {
+        if self.cars.is_empty() {
+            return self.scene.bounds();
+        }
+        self.scene.bounds_of(self.cars.iter().flat_map(|c| {
+            [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering]
+        }))
+    }
+}
