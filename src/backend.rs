@@ -112,6 +112,24 @@ impl Backend {
         }
     }
 
+    /// `cpu` or `gpu`.
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Backend::Cpu(_) => "cpu",
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(_) => "gpu",
+        }
+    }
+
+    /// Bytes of GPU buffers the last frame used (None on the CPU).
+    pub fn gpu_bytes(&self) -> Option<u64> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Some(g.buffer_bytes),
+        }
+    }
+
     /// GPU pass times of the last frame (trace, shade) in milliseconds, when measured.
     pub fn pass_times(&self) -> Option<(f64, f64)> {
         match self {

@@ -189,33 +189,58 @@ impl Switches {
 struct BenchArgs {
     #[command(flatten)]
     source: SourceArgs,
-    /// Timed frames per scenario (after one warm-up frame).
-    #[arg(long, default_value_t = 30)]
-    frames: usize,
-    /// Image width of the static/animated comparison.
+    /// Scenario families: paper (static vs animated vs optimized), instances, resolution,
+    /// depth (LOD error vs time), peers (Embree / parry3d; needs `--features peers`).
+    #[arg(long, value_delimiter = ',', default_value = "paper,instances,resolution,depth")]
+    scenarios: Vec<String>,
+    /// Backends to run every scenario on: cpu, gpu, auto (gpu is skipped with a note when there is no adapter).
+    #[arg(long, value_delimiter = ',', env = "VOXRAY_BACKEND", default_value = "auto")]
+    backends: Vec<voxray::backend::BackendKind>,
+    /// Untimed warm-up frames before each measurement.
+    #[arg(long, default_value_t = 3)]
+    warmup: usize,
+    /// Timed frames per measurement (paper, resolution, depth, peers).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    frames: u64,
+    /// Image width of the paper, depth and peers scenarios.
     #[arg(long, default_value_t = 1280)]
     width: u32,
-    /// Image height of the static/animated comparison.
+    /// Image height of the paper, depth and peers scenarios.
     #[arg(long, default_value_t = 768)]
     height: u32,
     /// Car counts of the instance sweep (8 instances per car).
     #[arg(long, value_delimiter = ',', default_value = "1,10,100,1000,10000")]
     sweep_cars: Vec<usize>,
-    /// Frames per sweep point.
-    #[arg(long, default_value_t = 3)]
-    sweep_frames: usize,
-    /// Image width of the sweep.
+    /// Timed frames per instance-sweep point.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    sweep_frames: u64,
+    /// Image width of the instance sweep.
     #[arg(long, default_value_t = 320)]
     sweep_width: u32,
-    /// Image height of the sweep.
+    /// Image height of the instance sweep.
     #[arg(long, default_value_t = 192)]
     sweep_height: u32,
-    /// Write the records as JSON here (default: docs/data/bench-cpu.json or bench-gpu.json).
+    /// Image sizes of the resolution sweep, WxH.
+    #[arg(long, value_delimiter = ',', default_value = "320x192,640x384,1280x768,1920x1152")]
+    resolutions: Vec<String>,
+    /// LOD levels of the depth sweep (default: the three levels above full depth).
+    #[arg(long, value_delimiter = ',')]
+    lod_levels: Vec<u32>,
+    /// Folder for bench.json and bench.csv (records of earlier runs for other backends or scenarios are kept).
+    #[arg(long, default_value = "docs/data")]
+    out_dir: PathBuf,
+    /// Folder for the PNG charts.
+    #[arg(long, default_value = "docs/images")]
+    charts_dir: PathBuf,
+    /// Markdown file whose generated section is rewritten from the records.
+    #[arg(long, default_value = "docs/benchmarks.md")]
+    docs: PathBuf,
+    /// Do not touch the Markdown file.
     #[arg(long)]
-    out: Option<PathBuf>,
-    /// Where to render: cpu, gpu or auto.
-    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
-    backend: voxray::backend::BackendKind,
+    no_docs: bool,
+    /// Forget earlier records instead of merging this run into them.
+    #[arg(long)]
+    fresh: bool,
 }
 
 #[derive(Args, Clone)]
@@ -595,125 +620,175 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
 }
 
 fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
-    use voxray::bench::{machine, run_clip, Record};
+    use voxray::bench::matrix::{self, CarModel, MatrixConfig, Scenario};
+    use voxray::bench::{machine, report, Record};
     if !a.source.obj.is_empty() {
         return Err(usage("bench uses the default car"));
     }
-    let lights = Lights::default();
-    let (mut backend, backend_name) = Backend::open(a.backend)?;
-    eprintln!("backend: {backend_name}");
-    let out = a.out.clone().unwrap_or_else(|| {
-        PathBuf::from(if matches!(backend, Backend::Cpu(_)) {
-            "docs/data/bench-cpu.json"
+    let command = std::env::args()
+        .enumerate()
+        .map(|(i, s)| if i == 0 { "voxray".to_string() } else { s })
+        .collect::<Vec<_>>()
+        .join(" ");
+    let mut scenarios = Vec::new();
+    let mut peers = false;
+    for s in &a.scenarios {
+        if s.eq_ignore_ascii_case("peers") {
+            peers = true;
         } else {
-            "docs/data/bench-gpu.json"
-        })
-    });
-    let mut records: Vec<Record> = Vec::new();
-    let total = 3 + 2 * a.sweep_cars.len();
-    let pb = bar(total as u64, "scenarios");
-    // (a) the car merged into one static SVO; (b) and (c) the animated parts, in place so the
-    // camera frames the same car in all three.
-    let mut st_a = pb.suspend(|| stage(&a.source, 1, true, true, false))?;
-    let mut st_b = pb.suspend(|| stage(&a.source, 1, true, false, false))?;
-    let camera = Camera::framing(st_b.bounds.0.as_vec3(), st_b.bounds.1.as_vec3(), a.width, a.height);
-    let no_shadow = |f: Features| Features { shadows: false, ..f };
-    let scenarios = [
-        ("a: static single-SVO car", Features { hit_buffer: false, ..no_shadow(Features::default()) }, true),
-        ("b: animated parts, no optimizations", Features::NONE, false),
-        (
-            "c: animated, culling + sorting + hit buffer",
-            Features { bvh: false, ..no_shadow(Features::default()) },
-            false,
-        ),
-    ];
-    for (name, features, is_static) in scenarios {
-        let st = if is_static { &mut st_a } else { &mut st_b };
-        let r = run_clip(
-            name,
-            &mut backend,
-            &backend_name,
-            &mut st.scene,
-            &st.cars,
-            &camera,
-            &lights,
-            &features,
-            a.frames,
-            30.0,
-            &|_| {},
-        )?;
-        pb.inc(1);
-        records.push(r);
-    }
-    let base = records[0].median_ms;
-    let mut md = format!(
-        "Machine: {}. Backend: {backend_name}. Command: `voxray bench --frames {} --backend {:?}` (release). Primary rays only (no shadows), static camera, {}×{}.\n\n\
-         | scenario | instances | median ms | p95 ms | min ms | ratio to a | reused | Mrays/s traced | GPU trace ms | GPU shade ms |\n|---|---|---|---|---|---|---|---|---|---|\n",
-        machine(), a.frames, a.backend, a.width, a.height
-    );
-    for r in &records {
-        let ms = |v: Option<f64>| v.map_or("–".to_string(), |x| format!("{x:.1}"));
-        md += &format!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.2} | {:.1}% | {:.2} | {} | {} |\n",
-            r.name,
-            r.instances,
-            r.median_ms,
-            r.p95_ms,
-            r.min_ms,
-            r.median_ms / base,
-            100.0 * r.reused_fraction,
-            r.mrays_per_s,
-            ms(r.gpu_trace_ms),
-            ms(r.gpu_shade_ms)
-        );
-    }
-    md += &format!(
-        "\nInstance sweep: {} cars × 8 instances, each car driving its own figure-eight, {}×{}, {} frames each, no shadows, no hit buffer.\n\n\
-         | cars | instances | with BVH: median ms | without BVH (sorted spheres): median ms | BVH speed-up |\n|---|---|---|---|---|\n",
-        a.sweep_cars.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(", "), a.sweep_width, a.sweep_height, a.sweep_frames
-    );
-    for &cars in &a.sweep_cars {
-        let mut st = pb.suspend(|| stage(&a.source, cars as u32, false, false, false))?;
-        let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), a.sweep_width, a.sweep_height);
-        let mut pair = Vec::new();
-        for bvh in [true, false] {
-            let features = Features { bvh, hit_buffer: false, shadows: false, ..Features::default() };
-            // The BVH switches on only above a threshold; force it on for the sweep by features alone.
-            let name = format!("sweep: {cars} cars, {}", if bvh { "BVH" } else { "no BVH" });
-            let r = run_clip(
-                &name,
-                &mut backend,
-                &backend_name,
-                &mut st.scene,
-                &st.cars,
-                &cam,
-                &lights,
-                &features,
-                a.sweep_frames,
-                30.0,
-                &|_| {},
-            )?;
-            pb.inc(1);
-            pair.push(r.median_ms);
-            records.push(r);
+            scenarios.push(s.parse::<Scenario>().map_err(|e| usage(&e))?);
         }
-        md += &format!("| {cars} | {} | {:.1} | {:.1} | {:.2}× |\n", cars * 8, pair[0], pair[1], pair[1] / pair[0]);
+    }
+    if peers && !cfg!(feature = "peers") {
+        return Err(usage(
+            "the peers scenario needs a build with `--features peers` (and Debian's libembree-dev for Embree)",
+        ));
+    }
+    let resolutions = a
+        .resolutions
+        .iter()
+        .map(|r| {
+            let (w, h) = r.split_once(['x', '×']).ok_or_else(|| usage(&format!("resolution '{r}' is not WxH")))?;
+            let p = |v: &str| v.trim().parse::<u32>().ok().filter(|&v| (1..=16384).contains(&v));
+            match (p(w), p(h)) {
+                (Some(w), Some(h)) => Ok((w, h)),
+                _ => Err(usage(&format!("resolution '{r}': width and height must be 1…16384"))),
+            }
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    for (w, h) in [(a.width, a.height), (a.sweep_width, a.sweep_height)] {
+        if !(1..=16384).contains(&w) || !(1..=16384).contains(&h) {
+            return Err(usage("image sizes must be 1…16384"));
+        }
+    }
+    if let Some(&n) = a.sweep_cars.iter().find(|&&n| n == 0 || n > 100_000) {
+        return Err(usage(&format!("--sweep-cars {n}: car counts must be 1…100000")));
+    }
+    let cfg = MatrixConfig {
+        scenarios,
+        warmup: a.warmup,
+        frames: a.frames as usize,
+        size: (a.width, a.height),
+        cars: a.sweep_cars.clone(),
+        sweep_frames: a.sweep_frames as usize,
+        sweep_size: (a.sweep_width, a.sweep_height),
+        resolutions,
+        lod_levels: a.lod_levels.clone(),
+        command: command.clone(),
+        machine: machine(),
+    };
+    // The car: its parts, and all of it merged into one SVO for the static baseline.
+    let mesh = load_mesh(&a.source)?;
+    let parts = build_parts(&mesh, &a.source)?;
+    let mut merged_mesh = mesh.clone();
+    let all: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
+    merged_mesh.parts = vec![Part { name: "car (static)".into(), triangles: all }];
+    let merged = build_parts(&merged_mesh, &a.source)?.remove(0);
+    let car = CarModel { parts, merged };
+
+    let mut records: Vec<Record> = Vec::new();
+    let mut kinds = a.backends.clone();
+    kinds.dedup();
+    let pb = bar((cfg.steps() * kinds.len()) as u64 + if peers { 4 } else { 0 }, "measurements");
+    for kind in kinds {
+        let (mut backend, name) = match Backend::open(kind) {
+            Ok(b) => b,
+            Err(e) => {
+                pb.println(format!("skipping backend {kind:?}: {e}"));
+                pb.inc(cfg.steps() as u64);
+                continue;
+            }
+        };
+        pb.println(format!("backend: {name}"));
+        let mut progress = |what: &str| {
+            pb.set_message(what.to_string());
+            pb.inc(1);
+        };
+        records.extend(matrix::run(&cfg, &car, &mut backend, &name, &mut progress)?);
+    }
+    #[cfg(feature = "peers")]
+    if peers {
+        pb.set_message("peers: voxray, Embree, parry3d TriMesh, parry3d Voxels");
+        let triangles: Vec<[glam::Vec3; 3]> =
+            mesh.parts.iter().flat_map(|p| p.triangles.iter().map(|t| t.positions)).collect();
+        let scene = matrix::static_scene(car.merged.clone())?;
+        let (lo, hi) = scene.bounds();
+        let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
+        let input = voxray::bench::peers::PeerScene {
+            triangles: &triangles,
+            svo: car.merged.clone(),
+            camera: &camera,
+            warmup: a.warmup,
+            frames: a.frames as usize,
+            command: command.clone(),
+            machine: machine(),
+        };
+        records.extend(voxray::bench::peers::run(&input)?);
+        pb.inc(4);
     }
     pb.finish_and_clear();
-    println!("{md}");
-    if let Some(dir) = out.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
+
+    // Merge with earlier records, then JSON, CSV, charts and the Markdown section.
+    let json_path = a.out_dir.join("bench.json");
+    let old: Vec<Record> = if a.fresh {
+        Vec::new()
+    } else {
+        match std::fs::read_to_string(&json_path) {
+            Ok(text) => serde_json::from_str(&text).map_err(|e| with_path(&json_path, e))?,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+            Err(source) => return Err(Error::Io { path: json_path.display().to_string(), source }),
+        }
+    };
+    let all = report::merge(old, &records);
+    let write = |p: &Path, text: &str| -> Result<(), Error> {
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
+        }
+        std::fs::write(p, text).map_err(|source| Error::Io { path: p.display().to_string(), source })
+    };
+    let json = serde_json::to_string_pretty(&all).map_err(|e| with_path(&json_path, e))?;
+    write(&json_path, &json)?;
+    let csv_path = a.out_dir.join("bench.csv");
+    write(&csv_path, &report::to_csv(&all))?;
+    let charts = voxray::bench::chart::draw_all(&all, &a.charts_dir).map_err(|e| usage(&e.to_string()))?;
+    // Chart links relative to the Markdown file's folder.
+    let doc_dir = a.docs.parent().map(Path::to_path_buf).unwrap_or_default();
+    let rel = relative(&doc_dir, &a.charts_dir);
+    let links: Vec<(String, String)> =
+        charts.iter().map(|(g, f)| (g.clone(), rel.join(f).to_string_lossy().replace('\\', "/"))).collect();
+    let md = report::markdown(&all, &links);
+    println!("{}", report::markdown(&records, &[]));
+    println!("wrote {} and {} ({} records)", json_path.display(), csv_path.display(), all.len());
+    for (_, f) in &charts {
+        println!("wrote {}", a.charts_dir.join(f).display());
     }
-    let json = serde_json::json!({
-        "machine": machine(),
-        "backend": backend_name,
-        "command": format!("voxray bench --frames {} --backend {:?}", a.frames, a.backend),
-        "records": records
-    });
-    std::fs::write(&out, serde_json::to_string_pretty(&json).unwrap_or_default())
-        .map_err(|source| Error::Io { path: out.display().to_string(), source })?;
-    println!("wrote {}", out.display());
+    if !a.no_docs {
+        let doc = match std::fs::read_to_string(&a.docs) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => "# Benchmarks\n".to_string(),
+            Err(source) => return Err(Error::Io { path: a.docs.display().to_string(), source }),
+        };
+        write(&a.docs, &report::splice(&doc, &md))?;
+        println!("regenerated {}", a.docs.display());
+    }
     Ok(())
+}
+
+/// `to` relative to `from` when both are relative paths under the same root (e.g. docs and
+/// docs/images → images); otherwise `to` as given.
+fn relative(from: &Path, to: &Path) -> PathBuf {
+    match to.strip_prefix(from) {
+        Ok(r) => r.to_path_buf(),
+        Err(_) if from.is_relative() && to.is_relative() => {
+            let ups = from.components().count();
+            let mut p = PathBuf::new();
+            for _ in 0..ups {
+                p.push("..");
+            }
+            p.join(to)
+        }
+        Err(_) => to.to_path_buf(),
+    }
 }
 
 fn with_path<E: std::fmt::Display>(p: &Path, e: E) -> Error {

@@ -12,7 +12,7 @@ pub const BVH_MIN_INSTANCES: usize = 32;
 
 /// What the user allows (all on by default; the CLI's `--no-*` switches turn them off).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "json", derive(serde::Serialize))]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
 pub struct Features {
     /// Bounding-sphere culling.
     pub cull: bool,
@@ -44,7 +44,7 @@ impl Features {
 
 /// What this frame does.
 #[derive(Clone, Debug, PartialEq)]
-#[cfg_attr(feature = "json", derive(serde::Serialize))]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
 pub struct FramePlan {
     /// Instances in the scene.
     pub instances: usize,

@@ -1,0 +1,260 @@
+//! The benchmark matrix: scenarios × settings on one backend (the caller loops over
+//! backends). Scenarios follow the animated-SVO paper's static / animated / animated+optimized
+//! comparison, then scale instances, resolution and the level of detail (with the image error
+//! against the full-depth reference, so error can be read against run time).
+
+use super::{metrics, run_clip, Clip, Record};
+use crate::backend::Backend;
+use crate::render::{Features, Frame};
+use crate::scene::{stage_cars, Camera, Instance, Lights, Scene, Transform};
+use crate::svo::Svo;
+use std::sync::Arc;
+
+/// A family of measurements.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scenario {
+    /// (a) the car merged into one static SVO, (b) its 8 animated parts with every
+    /// optimization off, (c) animated with culling, sorting and the hit buffer, (d) (c) plus
+    /// the BVH and shadow rays (everything the default plan uses).
+    Paper,
+    /// Car count sweep, instance BVH against depth-sorted spheres.
+    Instances,
+    /// Image size sweep, animated and optimized.
+    Resolution,
+    /// Level-of-detail sweep with image error against full depth.
+    Depth,
+}
+
+impl std::str::FromStr for Scenario {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "paper" => Ok(Scenario::Paper),
+            "instances" => Ok(Scenario::Instances),
+            "resolution" => Ok(Scenario::Resolution),
+            "depth" | "lod" => Ok(Scenario::Depth),
+            other => Err(format!("unknown scenario '{other}' (use paper, instances, resolution, depth)")),
+        }
+    }
+}
+
+impl Scenario {
+    /// The record group name.
+    pub fn group(self) -> &'static str {
+        match self {
+            Scenario::Paper => "paper",
+            Scenario::Instances => "instances",
+            Scenario::Resolution => "resolution",
+            Scenario::Depth => "depth",
+        }
+    }
+}
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct MatrixConfig {
+    /// Scenario families, in order.
+    pub scenarios: Vec<Scenario>,
+    /// Untimed frames before each measurement.
+    pub warmup: usize,
+    /// Timed frames of the paper, resolution and depth scenarios.
+    pub frames: usize,
+    /// Image size of the paper and depth scenarios.
+    pub size: (u32, u32),
+    /// Car counts of the instance sweep.
+    pub cars: Vec<usize>,
+    /// Timed frames per instance-sweep point.
+    pub sweep_frames: usize,
+    /// Image size of the instance sweep.
+    pub sweep_size: (u32, u32),
+    /// Image sizes of the resolution sweep.
+    pub resolutions: Vec<(u32, u32)>,
+    /// LOD levels of the depth sweep (empty: every level from 3 below full depth); full
+    /// depth is always measured as the reference.
+    pub lod_levels: Vec<u32>,
+    /// The command line, stored with every record.
+    pub command: String,
+    /// The machine, stored with every record.
+    pub machine: String,
+}
+
+/// The car as the matrix needs it.
+pub struct CarModel {
+    /// The eight parts ([`crate::model::car::PART_NAMES`] order).
+    pub parts: Vec<Arc<Svo>>,
+    /// The whole car merged into one SVO (the static baseline).
+    pub merged: Arc<Svo>,
+}
+
+impl MatrixConfig {
+    /// Measurements [`run`] will make (for a progress bar).
+    pub fn steps(&self) -> usize {
+        self.scenarios
+            .iter()
+            .map(|s| match s {
+                Scenario::Paper => 4,
+                Scenario::Instances => 2 * self.cars.len(),
+                Scenario::Resolution => self.resolutions.len(),
+                Scenario::Depth => 1 + self.lod_levels.len().max(3),
+            })
+            .sum()
+    }
+}
+
+/// One static instance of `svo` at the identity.
+pub fn static_scene(svo: Arc<Svo>) -> Result<Scene, crate::Error> {
+    let mut scene = Scene::new(vec![svo]);
+    scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY })?;
+    scene.update()?;
+    Ok(scene)
+}
+
+/// Runs the configured scenarios on `backend`; `progress` hears each measurement's name as
+/// it starts.
+pub fn run(
+    cfg: &MatrixConfig,
+    car: &CarModel,
+    backend: &mut Backend,
+    backend_name: &str,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
+    let lights = Lights::default();
+    let mut out = Vec::new();
+    let mut measure = |group: &str,
+                       name: String,
+                       setting: String,
+                       x: f64,
+                       clip: Clip<'_>,
+                       progress: &mut dyn FnMut(&str)|
+     -> Result<(Record, Frame), crate::Error> {
+        progress(&name);
+        let (mut r, frame) = run_clip(backend, backend_name, clip)?;
+        r.group = group.into();
+        r.name = name;
+        r.setting = setting;
+        r.x = x;
+        r.command = cfg.command.clone();
+        r.machine = cfg.machine.clone();
+        Ok((r, frame))
+    };
+    for &scenario in &cfg.scenarios {
+        let group = scenario.group();
+        match scenario {
+            Scenario::Paper => {
+                let mut animated = stage_cars(&car.parts, 1, false, false)?;
+                let mut merged = static_scene(car.merged.clone())?;
+                let (lo, hi) = animated.cars_bounds();
+                let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
+                let primary = Features { shadows: false, ..Features::default() };
+                let settings = [
+                    ("a", "static single-SVO car", Features { hit_buffer: false, ..primary }, true),
+                    ("b", "animated parts, no optimizations", Features::NONE, false),
+                    ("c", "animated, culling + sorting + hit buffer", Features { bvh: false, ..primary }, false),
+                    ("d", "animated, every optimization + shadow rays", Features::default(), false),
+                ];
+                for (i, (tag, what, features, is_static)) in settings.into_iter().enumerate() {
+                    let (scene, cars) =
+                        if is_static { (&mut merged, &[][..]) } else { (&mut animated.scene, &animated.cars[..]) };
+                    let clip = Clip {
+                        scene,
+                        cars,
+                        camera: &camera,
+                        lights: &lights,
+                        features,
+                        lod: u32::MAX,
+                        warmup: cfg.warmup,
+                        frames: cfg.frames,
+                        fps: 30.0,
+                    };
+                    let name = format!("{tag}: {what}");
+                    out.push(measure(group, name, tag.into(), i as f64, clip, progress)?.0);
+                }
+            }
+            Scenario::Instances => {
+                for &n in &cfg.cars {
+                    let mut st = stage_cars(&car.parts, n, true, false)?;
+                    let camera = Camera::framing(
+                        st.bounds.0.as_vec3(),
+                        st.bounds.1.as_vec3(),
+                        cfg.sweep_size.0,
+                        cfg.sweep_size.1,
+                    );
+                    for bvh in [true, false] {
+                        let features = Features { bvh, hit_buffer: false, shadows: false, ..Features::default() };
+                        let setting = if bvh { "BVH" } else { "sorted spheres" };
+                        let clip = Clip {
+                            scene: &mut st.scene,
+                            cars: &st.cars,
+                            camera: &camera,
+                            lights: &lights,
+                            features,
+                            lod: u32::MAX,
+                            warmup: cfg.warmup.min(2),
+                            frames: cfg.sweep_frames,
+                            fps: 30.0,
+                        };
+                        let name = format!("{n} cars, {setting}");
+                        out.push(measure(group, name, setting.into(), n as f64, clip, progress)?.0);
+                    }
+                }
+            }
+            Scenario::Resolution => {
+                let mut st = stage_cars(&car.parts, 1, false, true)?;
+                let (lo, hi) = st.cars_bounds();
+                for &(w, h) in &cfg.resolutions {
+                    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), w, h);
+                    let clip = Clip {
+                        scene: &mut st.scene,
+                        cars: &st.cars,
+                        camera: &camera,
+                        lights: &lights,
+                        features: Features::default(),
+                        lod: u32::MAX,
+                        warmup: cfg.warmup,
+                        frames: cfg.frames,
+                        fps: 30.0,
+                    };
+                    let name = format!("{w}×{h}");
+                    out.push(measure(group, name.clone(), name, (w * h) as f64, clip, progress)?.0);
+                }
+            }
+            Scenario::Depth => {
+                let mut st = stage_cars(&car.parts, 1, false, true)?;
+                let (lo, hi) = st.cars_bounds();
+                let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
+                let full = car.parts.iter().map(|p| p.depth).max().unwrap_or(0);
+                let levels: Vec<u32> = if cfg.lod_levels.is_empty() {
+                    (full.saturating_sub(3).max(1)..full).collect()
+                } else {
+                    cfg.lod_levels.iter().copied().filter(|&l| l < full).collect()
+                };
+                // Full depth first: it is the reference the coarser levels are compared with.
+                let mut reference: Option<Frame> = None;
+                for level in std::iter::once(full).chain(levels) {
+                    let clip = Clip {
+                        scene: &mut st.scene,
+                        cars: &st.cars,
+                        camera: &camera,
+                        lights: &lights,
+                        features: Features { hit_buffer: false, ..Features::default() },
+                        lod: if level == full { u32::MAX } else { level },
+                        warmup: cfg.warmup,
+                        frames: cfg.frames,
+                        fps: 30.0,
+                    };
+                    let setting =
+                        if level == full { format!("level {level} (full)") } else { format!("level {level}") };
+                    let name = format!("LOD {setting}");
+                    let (mut r, frame) = measure(group, name, setting, level as f64, clip, progress)?;
+                    let reference = reference.get_or_insert(frame.clone());
+                    r.error = Some(metrics::compare(&frame, reference).map_err(|e| crate::Error::Io {
+                        path: "bench".into(),
+                        source: std::io::Error::other(e.to_string()),
+                    })?);
+                    out.push(r);
+                }
+            }
+        }
+    }
+    Ok(out)
+}

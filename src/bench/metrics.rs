@@ -1,0 +1,57 @@
+//! Image error of a frame against a reference frame of the same view: what a quality knob
+//! (here the level of detail) costs in picture, to set against what it saves in time.
+
+use crate::render::Frame;
+
+/// How far a frame is from its reference.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct ImageError {
+    /// Root-mean-square difference of the displayed (sRGB 8-bit) images, in [0, 1] units
+    /// over all pixels and channels.
+    pub rmse: f64,
+    /// Fraction of pixels whose coverage differs: hit in one and miss in the other, or a
+    /// different instance hit.
+    pub mismatch: f64,
+    /// Mean relative hit-distance difference |t − t_ref| / t_ref over pixels both hit the
+    /// same instance.
+    pub depth_rel: f64,
+}
+
+/// Why two frames cannot be compared.
+#[derive(Debug, thiserror::Error)]
+#[error("frames differ in size: {0}×{1} vs reference {2}×{3}")]
+pub struct SizeMismatch(pub u32, pub u32, pub u32, pub u32);
+
+/// Compares `frame` with `reference` (same camera and size).
+pub fn compare(frame: &Frame, reference: &Frame) -> Result<ImageError, SizeMismatch> {
+    if (frame.width, frame.height) != (reference.width, reference.height) {
+        return Err(SizeMismatch(frame.width, frame.height, reference.width, reference.height));
+    }
+    let (a, b) = (crate::render::output::srgb8(frame), crate::render::output::srgb8(reference));
+    let sq: f64 = a
+        .iter()
+        .zip(&b)
+        .map(|(&x, &y)| {
+            let d = (x as f64 - y as f64) / 255.0;
+            d * d
+        })
+        .sum();
+    let n = frame.instance.len().max(1) as f64;
+    let mut mismatch = 0usize;
+    let (mut depth, mut both) = (0.0f64, 0usize);
+    for i in 0..frame.instance.len() {
+        let (ia, ib) = (frame.instance[i], reference.instance[i]);
+        if ia != ib {
+            mismatch += 1;
+        } else if ia >= 0 && reference.t[i] > 0.0 {
+            depth += ((frame.t[i] - reference.t[i]) as f64 / reference.t[i] as f64).abs();
+            both += 1;
+        }
+    }
+    Ok(ImageError {
+        rmse: (sq / a.len().max(1) as f64).sqrt(),
+        mismatch: mismatch as f64 / n,
+        depth_rel: depth / both.max(1) as f64,
+    })
+}

@@ -1,0 +1,204 @@
+//! The frame-time benchmark harness: animation clips rendered with a static camera after a
+//! warm-up, per-frame wall times summarized as median / p95 / min, with GPU pass times,
+//! rays per second, memory, image error against a reference and the frame plan in every
+//! record. [`matrix`] runs the scenarios × settings × backends; [`report`] writes JSON, CSV
+//! and the Markdown tables; `chart` draws the PNG charts; `peers` times other ray casters on
+//! the same car.
+
+pub mod matrix;
+pub mod metrics;
+pub mod report;
+
+#[cfg(feature = "charts")]
+pub mod chart;
+#[cfg(feature = "peers")]
+pub mod peers;
+
+use crate::backend::Backend;
+use crate::render::{Features, Frame, FramePlan, RenderOptions};
+use crate::scene::car::{pose, Car};
+use crate::scene::{Camera, Lights, Scene};
+use std::time::Instant;
+
+/// One measured configuration: a scenario, one setting of it, one backend.
+#[derive(Clone, Debug, PartialEq, Default)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct Record {
+    /// Scenario family: `paper`, `instances`, `resolution`, `depth` or `peers`.
+    pub group: String,
+    /// Human-readable name of this configuration.
+    pub name: String,
+    /// The setting within the family (e.g. `BVH`, `level 6`, `embree`).
+    pub setting: String,
+    /// The swept quantity (cars, pixels, level; 0 where nothing is swept).
+    pub x: f64,
+    /// `cpu`, `gpu`, or a peer's name.
+    pub backend_kind: String,
+    /// The backend in words (CPU model or GPU adapter).
+    pub backend: String,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Untimed warm-up frames.
+    pub warmup: usize,
+    /// Timed frames.
+    pub frames: usize,
+    /// Instances in the scene.
+    pub instances: usize,
+    /// Median frame time (ms): animate, update transforms, plan, render.
+    pub median_ms: f64,
+    /// 95th-percentile frame time (ms).
+    pub p95_ms: f64,
+    /// Fastest frame (ms).
+    pub min_ms: f64,
+    /// Primary and shadow rays actually traced per second (reused pixels not counted), in
+    /// millions, over the timed frames.
+    pub mrays_per_s: f64,
+    /// Fraction of pixels reused from the hit buffer.
+    pub reused_fraction: f64,
+    /// Median GPU time of the trace pass (ms), from timestamp queries.
+    pub gpu_trace_ms: Option<f64>,
+    /// Median GPU time of the shade pass (ms).
+    pub gpu_shade_ms: Option<f64>,
+    /// Bytes of the SVOs in the scene (node and attribute arrays).
+    pub svo_bytes: u64,
+    /// Bytes of GPU buffers the renderer used (GPU backend only).
+    pub gpu_bytes: Option<u64>,
+    /// Image error against the reference of this scenario (depth sweep), see [`metrics`].
+    pub error: Option<metrics::ImageError>,
+    /// The plan of the last frame.
+    pub plan: Option<FramePlan>,
+    /// The machine (CPU model and threads).
+    pub machine: String,
+    /// The command that produced the record.
+    pub command: String,
+}
+
+/// Median, 95th percentile and minimum of a list of times.
+pub fn summarize(times: &[f64]) -> (f64, f64, f64) {
+    let mut v = times.to_vec();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    let pick = |q: f64| v[((q * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)];
+    (pick(0.5), pick(0.95), v[0])
+}
+
+/// What a clip renders and how often.
+pub struct Clip<'a> {
+    /// The scene (posed each frame).
+    pub scene: &'a mut Scene,
+    /// The cars to pose.
+    pub cars: &'a [Car],
+    /// The (static) camera.
+    pub camera: &'a Camera,
+    /// The lights.
+    pub lights: &'a Lights,
+    /// Technique switches.
+    pub features: Features,
+    /// Level of detail (`u32::MAX`: full detail).
+    pub lod: u32,
+    /// Untimed frames first (caches, pipelines, hit buffer).
+    pub warmup: usize,
+    /// Timed frames.
+    pub frames: usize,
+    /// Clip frames per second (the animation step).
+    pub fps: f64,
+}
+
+/// Renders a clip's warm-up and timed frames, timing each whole frame; returns the record
+/// (group, name and setting left for the caller) and the first timed frame.
+pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
+    let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
+    let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
+    let mut plan = None;
+    let mut first: Option<Frame> = None;
+    let frames = clip.frames.max(1);
+    for f in 0..clip.warmup + frames {
+        let start = Instant::now();
+        // Warm-up frames replay the first timed frame's time, so the first timed frame is the
+        // same picture whatever the warm-up (the depth sweep compares it with a reference).
+        let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
+        for car in clip.cars {
+            pose(clip.scene, car, t)?;
+        }
+        clip.scene.update()?;
+        let p = backend.plan(clip.scene, clip.camera, clip.lights, &clip.features, f == 0);
+        let frame = backend.render(
+            clip.scene,
+            clip.camera,
+            clip.lights,
+            &p,
+            &RenderOptions { max_level: clip.lod },
+            &|_, _| {},
+        )?;
+        let secs = start.elapsed().as_secs_f64();
+        if f >= clip.warmup {
+            if let Some((tr, sh)) = backend.pass_times() {
+                trace_ms.push(tr);
+                shade_ms.push(sh);
+            }
+            times.push(secs * 1e3);
+            rays += frame.primary_rays - frame.reused + frame.shadow_rays;
+            reused += frame.reused;
+            busy += secs;
+            if first.is_none() {
+                first = Some(frame);
+            }
+        }
+        plan = Some(p);
+    }
+    let (median_ms, p95_ms, min_ms) = summarize(&times);
+    let pixels = (clip.camera.width * clip.camera.height) as f64 * frames as f64;
+    let svo_bytes = clip.scene.parts.iter().map(|p| p.stats().geometry_bytes + p.stats().attribute_bytes).sum();
+    let record = Record {
+        width: clip.camera.width,
+        height: clip.camera.height,
+        warmup: clip.warmup,
+        frames,
+        instances: clip.scene.instances().len(),
+        median_ms,
+        p95_ms,
+        min_ms,
+        mrays_per_s: rays as f64 / busy.max(1e-9) / 1e6,
+        reused_fraction: reused as f64 / pixels.max(1.0),
+        backend: backend_name.to_string(),
+        backend_kind: backend.kind_name().to_string(),
+        gpu_trace_ms: (!trace_ms.is_empty()).then(|| summarize(&trace_ms).0),
+        gpu_shade_ms: (!shade_ms.is_empty()).then(|| summarize(&shade_ms).0),
+        svo_bytes,
+        gpu_bytes: backend.gpu_bytes(),
+        plan,
+        ..Record::default()
+    };
+    let first = first.ok_or_else(|| crate::Error::Io {
+        path: "bench".into(),
+        source: std::io::Error::other("no frame was rendered"),
+    })?;
+    Ok((record, first))
+}
+
+/// CPU model and thread count, for records.
+pub fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    format!("{cpu}, {threads} hardware threads")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn percentiles() {
+        let (m, p95, min) = super::summarize(&[5.0, 1.0, 3.0, 2.0, 4.0]);
+        assert_eq!((m, p95, min), (3.0, 5.0, 1.0));
+    }
+}

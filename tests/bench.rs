@@ -1,0 +1,145 @@
+//! The harness end to end at toy sizes: a CPU run and a GPU run (lavapipe in CI) write JSON
+//! and CSV records that parse, PNG charts that are pictures, and a regenerated Markdown
+//! section; the second run merges into the first. Bad options fail with clear errors.
+#![cfg(feature = "cli")]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("voxray-bench-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn bench(d: &Path, extra: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_voxray"))
+        .current_dir(d)
+        .args(["bench", "--depth", "5", "--frames", "2", "--warmup", "1", "--width", "48", "--height", "32"])
+        .args(["--sweep-cars", "1,3", "--sweep-frames", "1", "--sweep-width", "40", "--sweep-height", "24"])
+        .args(["--resolutions", "24x16,48x32", "--lod-levels", "3,4"])
+        .args(["--out-dir", "data", "--charts-dir", "docs/images", "--docs", "docs/benchmarks.md"])
+        .arg("--cache-dir")
+        .arg(d.join("cache"))
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// Splits one CSV line, honouring double quotes.
+fn fields(line: &str) -> Vec<String> {
+    let (mut out, mut cur, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '"' if quoted && chars.peek() == Some(&'"') => {
+                cur.push('"');
+                chars.next();
+            }
+            '"' => quoted = !quoted,
+            ',' if !quoted => out.push(std::mem::take(&mut cur)),
+            _ => cur.push(c),
+        }
+    }
+    out.push(cur);
+    out
+}
+
+#[test]
+fn a_tiny_bench_writes_json_csv_charts_and_the_docs_section() {
+    let d = tmp("tiny");
+    std::fs::create_dir_all(d.join("docs")).unwrap();
+    std::fs::write(d.join("docs/benchmarks.md"), "# Benchmarks\n\nHand-written text stays.\n").unwrap();
+    let o = bench(&d, &["--backends", "cpu"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("data/bench.json")).unwrap()).expect("bench.json is JSON");
+    let records = json.as_array().expect("an array of records");
+    // paper 4 + instances 2×2 + resolution 2 + depth (full + 2 levels) = 13
+    assert_eq!(records.len(), 13, "{json:#}");
+    for r in records {
+        let median = r["median_ms"].as_f64().unwrap();
+        assert!(median > 0.0 && median.is_finite(), "{r}");
+        assert!(r["mrays_per_s"].as_f64().unwrap() > 0.0, "{r}");
+        assert_eq!(r["backend_kind"], "cpu");
+        assert!(r["command"].as_str().unwrap().starts_with("voxray bench"), "{r}");
+        assert!(r["plan"].is_object(), "{r}");
+    }
+    // Depth records carry the error against full depth: zero for full, positive when coarser.
+    let depth: Vec<_> = records.iter().filter(|r| r["group"] == "depth").collect();
+    assert_eq!(depth[0]["error"]["rmse"].as_f64(), Some(0.0));
+    assert!(depth[1]["error"]["rmse"].as_f64().unwrap() > 0.0, "{:?}", depth[1]);
+    assert!(depth[1]["error"]["rmse"].as_f64() > depth[2]["error"]["rmse"].as_f64(), "level 3 vs 4: {depth:?}");
+
+    let csv = std::fs::read_to_string(d.join("data/bench.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 14);
+    let header = fields(lines[0]);
+    for l in &lines[1..] {
+        assert_eq!(fields(l).len(), header.len(), "{l}");
+    }
+    let col = header.iter().position(|h| h == "median_ms").unwrap();
+    assert!(lines[1..].iter().all(|l| fields(l)[col].parse::<f64>().is_ok_and(|v| v > 0.0)));
+
+    for chart in ["bench-paper.png", "bench-instances.png", "bench-resolution.png", "bench-depth.png"] {
+        let img = image::open(d.join("docs/images").join(chart)).unwrap().to_rgb8();
+        let mut colours: Vec<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+        colours.sort();
+        colours.dedup();
+        // Text (anti-aliased), axes and coloured series: many colours, not a blank page.
+        assert!(colours.len() > 20, "{chart}: {} colours", colours.len());
+    }
+
+    let md = std::fs::read_to_string(d.join("docs/benchmarks.md")).unwrap();
+    assert!(md.contains("Hand-written text stays."));
+    assert!(md.contains("<!-- BEGIN GENERATED") && md.contains("(images/bench-depth.png)"), "{md}");
+    assert!(md.contains("| level 3 | cpu |"), "{md}");
+
+    // A GPU run of one scenario merges into the CPU records.
+    let o = bench(&d, &["--backends", "gpu", "--scenarios", "paper"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let ci = std::env::var("CI").is_ok_and(|v| v == "true");
+    if err.contains("skipping backend") {
+        assert!(!ci, "CI has the software Vulkan driver: {err}");
+        return;
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("data/bench.json")).unwrap()).unwrap();
+    let records = json.as_array().unwrap();
+    assert_eq!(records.len(), 17);
+    let gpu: Vec<_> = records.iter().filter(|r| r["backend_kind"] == "gpu").collect();
+    assert_eq!(gpu.len(), 4);
+    assert!(gpu.iter().all(|r| r["gpu_bytes"].as_u64().is_some_and(|b| b > 0)), "{gpu:?}");
+    let md = std::fs::read_to_string(d.join("docs/benchmarks.md")).unwrap();
+    assert_eq!(md.matches("<!-- BEGIN GENERATED").count(), 1);
+    assert!(md.contains("| gpu |"), "{md}");
+}
+
+#[test]
+fn bad_bench_options_fail_clearly() {
+    let d = tmp("bad");
+    for (args, needle) in [
+        (&["--resolutions", "0x5"][..], "1…16384"),
+        (&["--resolutions", "big"][..], "not WxH"),
+        (&["--scenarios", "warp"][..], "unknown scenario"),
+        (&["--sweep-cars", "0"][..], "car counts"),
+        (&["--frames", "0"][..], "frames"),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_voxray"))
+            .current_dir(&d)
+            .args(["bench", "--out-dir", "data", "--no-docs", "--depth", "4", "--cache-dir"])
+            .arg(d.join("cache"))
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!d.join("data/bench.json").exists(), "a failed run wrote records");
+}
