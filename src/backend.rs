@@ -12,7 +12,7 @@ pub enum BackendKind {
     /// The GPU renderer (an error if there is no adapter).
     Gpu,
     /// The GPU renderer on a hardware adapter; otherwise the CPU renderer (a software
-    /// Vulkan driver such as lavapipe runs the GPU path ~20× slower than the CPU renderer).
+    /// Vulkan driver such as lavapipe runs the GPU path 5–20× slower than the CPU renderer).
     Auto,
 }
 
