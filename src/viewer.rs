@@ -5,10 +5,14 @@
 //! wheel zooms, W A S D (and Q E for down/up, Shift for faster) fly, F toggles fly mode,
 //! Space pauses, R resets the view, P writes a screenshot, H hides the panel, Esc quits.
 //! `frames` + `exit` and `screenshot` make scripted runs (tests, recordings).
+//!
+//! Without any GPU adapter (not even a software Vulkan driver) the window is drawn by
+//! softbuffer instead of wgpu: the CPU renderer fills the whole window, the panel is off
+//! (egui needs wgpu here), the keys and mouse still work and the title carries the stats.
 
 use crate::backend::{Backend, BackendKind};
 use crate::gpu::{GpuContext, GpuError};
-use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
+use crate::render::{output, Features, Frame, FramePlan, HitBuffer, RenderOptions};
 use crate::scene::car::{pose, Car};
 use crate::scene::{stage_cars, Camera, Lights, Scene, Staged};
 use crate::svo::Svo;
@@ -96,6 +100,12 @@ struct Gfx {
 /// Most cars the panel offers (80 000 instances).
 const MAX_CARS: usize = 10_000;
 
+/// The window drawn in software (no GPU adapter at all).
+struct Soft {
+    window: Arc<Window>,
+    surface: softbuffer::Surface<Arc<Window>, Arc<Window>>,
+}
+
 /// Width of the panel in logical pixels (fixed, so the image can be rendered beside it).
 const PANEL_WIDTH: f32 = 280.0;
 
@@ -142,6 +152,7 @@ struct App {
     home: Orbit,
     orbit: Orbit,
     gfx: Option<Gfx>,
+    soft: Option<Soft>,
     backend: Option<Backend>,
     report: DemoReport,
     error: Option<ViewerError>,
@@ -180,9 +191,15 @@ impl App {
             wgpu::InstanceDescriptor::new_with_display_handle_from_env(Box::new(event_loop.owned_display_handle()));
         GpuContext::restrict_backends(&mut desc);
         let instance = wgpu::Instance::new(desc);
-        let surface =
-            instance.create_surface(window.clone()).map_err(|e| ViewerError::Other(format!("surface: {e}")))?;
-        let (ctx, adapter) = GpuContext::with_surface(&instance, Some(&surface))?;
+        let surface = match instance.create_surface(window.clone()) {
+            Ok(s) => s,
+            Err(e) => return self.init_soft(window, format!("no wgpu surface: {e}")),
+        };
+        let (ctx, adapter) = match GpuContext::with_surface(&instance, Some(&surface)) {
+            Ok(x) => x,
+            Err(GpuError::NoAdapter(why)) => return self.init_soft(window, why),
+            Err(e) => return Err(e.into()),
+        };
         let size = window.inner_size();
         let mut config = surface
             .get_default_config(&adapter, size.width.max(1), size.height.max(1))
@@ -295,6 +312,29 @@ impl App {
         Ok(())
     }
 
+    /// No GPU adapter: the CPU renderer, drawn to the window through softbuffer.
+    fn init_soft(&mut self, window: Arc<Window>, why: String) -> Result<(), ViewerError> {
+        let soft_err = |e: softbuffer::SoftBufferError| ViewerError::Other(format!("software window: {e}"));
+        let context = softbuffer::Context::new(window.clone()).map_err(soft_err)?;
+        let surface = softbuffer::Surface::new(&context, window.clone()).map_err(soft_err)?;
+        eprintln!(
+            "demo: no GPU adapter ({why}); rendering on the CPU and drawing the window in software, without the \
+             panel (install a Vulkan driver, e.g. Debian's mesa-vulkan-drivers, for the panel)"
+        );
+        self.report.backend = "CPU (no GPU adapter; software window, no panel)".into();
+        self.backend = Some(Backend::Cpu(HitBuffer::new()));
+        (self.ui.backend, self.ui.backend_wanted) = (BackendKind::Cpu, BackendKind::Cpu);
+        self.ui.show = false;
+        self.soft = Some(Soft { window, surface });
+        self.last = Instant::now();
+        Ok(())
+    }
+
+    /// The window, however it is drawn.
+    fn window(&self) -> Option<&Arc<Window>> {
+        self.gfx.as_ref().map(|g| &g.window).or(self.soft.as_ref().map(|s| &s.window))
+    }
+
     fn draw(&mut self, event_loop: &ActiveEventLoop) -> Result<(), ViewerError> {
         let now = Instant::now();
         let dt = (now - self.last).as_secs_f64();
@@ -317,9 +357,13 @@ impl App {
             pose(&mut self.scene, c, self.time).map_err(other)?;
         }
         self.scene.update().map_err(other)?;
-        let (w, h, panel) = match &self.gfx {
-            Some(g) => (g.config.width, g.config.height, self.panel_pixels(g)),
-            None => return Ok(()),
+        let (w, h, panel) = match (&self.gfx, &self.soft) {
+            (Some(g), _) => (g.config.width, g.config.height, self.panel_pixels(g)),
+            (None, Some(s)) => {
+                let size = s.window.inner_size();
+                (size.width.max(1), size.height.max(1), 0)
+            }
+            (None, None) => return Ok(()),
         };
         let camera = self.camera(w.saturating_sub(panel).max(1), h);
         let start = Instant::now();
@@ -347,9 +391,9 @@ impl App {
         let captured_kind = captured.is_some();
         self.report.frames += 1;
         if self.report.frames % 10 == 1 {
-            if let Some(g) = &self.gfx {
+            if let Some(window) = self.window() {
                 let ms = self.times.last().copied().unwrap_or(0.0);
-                g.window.set_title(&format!(
+                window.set_title(&format!(
                     "voxray — {:.1} ms/frame, {:.0}% reused, t = {:.1} s{} — {}",
                     ms,
                     100.0 * frame.reused as f64 / frame.primary_rays.max(1) as f64,
@@ -397,6 +441,9 @@ impl App {
         capture: bool,
         mut ui: Option<UiPaint>,
     ) -> Result<Option<(u32, u32, Vec<u8>)>, ViewerError> {
+        if let Some(s) = self.soft.as_mut() {
+            return present_soft(s, frame, capture);
+        }
         let Some(g) = self.gfx.as_mut() else { return Ok(None) };
         let device = &g.ctx.device;
         if !g.texture.as_ref().is_some_and(|t| t.2 == frame.width && t.3 == frame.height) {
@@ -755,7 +802,7 @@ impl App {
 
 impl ApplicationHandler for App {
     fn resumed(&mut self, event_loop: &ActiveEventLoop) {
-        if self.gfx.is_none() {
+        if self.gfx.is_none() && self.soft.is_none() {
             if let Err(e) = self.init(event_loop) {
                 self.fail(event_loop, e);
             }
@@ -854,10 +901,27 @@ impl ApplicationHandler for App {
     }
 
     fn about_to_wait(&mut self, _event_loop: &ActiveEventLoop) {
-        if let Some(g) = &self.gfx {
-            g.window.request_redraw();
+        if let Some(window) = self.window() {
+            window.request_redraw();
         }
     }
+}
+
+/// Copies the frame (rendered at the window's size) into the software window; with
+/// `capture`, also returns those pixels, which are exactly what the window shows.
+fn present_soft(s: &mut Soft, frame: &Frame, capture: bool) -> Result<Option<(u32, u32, Vec<u8>)>, ViewerError> {
+    let soft_err = |e: softbuffer::SoftBufferError| ViewerError::Other(format!("software window: {e}"));
+    let (Some(w), Some(h)) = (std::num::NonZeroU32::new(frame.width), std::num::NonZeroU32::new(frame.height)) else {
+        return Ok(None);
+    };
+    s.surface.resize(w, h).map_err(soft_err)?;
+    let rgb = output::srgb8(frame);
+    let mut buffer = s.surface.buffer_mut().map_err(soft_err)?;
+    for (px, c) in buffer.iter_mut().zip(rgb.chunks_exact(3)) {
+        *px = (c[0] as u32) << 16 | (c[1] as u32) << 8 | c[2] as u32;
+    }
+    buffer.present().map_err(soft_err)?;
+    Ok(capture.then_some((frame.width, frame.height, rgb)))
 }
 
 impl Orbit {
@@ -902,6 +966,7 @@ pub fn run(
         orbit: home.clone(),
         home,
         gfx: None,
+        soft: None,
         backend: None,
         report: DemoReport::default(),
         error: None,

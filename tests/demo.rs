@@ -143,3 +143,33 @@ fn no_subcommand_without_a_display_renders_a_still_instead() {
     let img = image::open(d.join("voxray.png")).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (1280, 768));
 }
+
+#[test]
+fn demo_without_any_gpu_adapter_renders_on_the_cpu_in_a_software_window() {
+    if !xvfb() {
+        return;
+    }
+    let d = tmp("noadapter");
+    let shot = d.join("shot.png");
+    // No Vulkan driver can be found: wgpu has no adapter at all.
+    let o = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 800x600x24"])
+        .arg(env!("CARGO_BIN_EXE_voxray"))
+        .args(["demo", "--frames", "30", "--exit", "--width", "96", "--height", "64", "--depth", "6", "--in-place"])
+        .arg("--cache-dir")
+        .arg(d.join("cache"))
+        .arg("--screenshot")
+        .arg(&shot)
+        .env("VK_ICD_FILENAMES", d.join("no-such-icd.json"))
+        .env("VK_DRIVER_FILES", d.join("no-such-icd.json"))
+        .output()
+        .expect("run xvfb-run");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("no GPU adapter") && err.contains("rendering on the CPU"), "{err}");
+    assert!(err.contains("demo: 30 frames"), "{err}");
+    let img = image::open(&shot).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (96, 64));
+    let red = img.pixels().filter(|p| p.0[0] as i32 > p.0[1] as i32 + 60 && p.0[0] as i32 > p.0[2] as i32 + 60).count();
+    assert!(red > 300, "only {red} red-car pixels in the screenshot");
+}
