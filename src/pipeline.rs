@@ -78,3 +78,10 @@ pub fn build_part(
     }
     Ok(BuiltPart { svo, cached: false, voxelize: t1 - t0, build: t2 - t1, cache_warning })
 }
+
+/// Every part of `mesh` voxelized at one shared voxel size (see [`shared_resolution`]) and
+/// built, without the cache: the one call a library user needs to go from a mesh to parts.
+pub fn build_parts(mesh: &Mesh, res: Resolution) -> Result<Vec<std::sync::Arc<Svo>>, Error> {
+    let opts = VoxelizeOptions { resolution: shared_resolution(mesh, res)?, solid: false };
+    (0..mesh.parts.len()).map(|i| Ok(std::sync::Arc::new(build_part(mesh, i, &opts, None, &|_, _| {})?.svo))).collect()
+}

@@ -126,6 +126,7 @@ struct Ui {
     plan: Option<FramePlan>,
     reused: f64,
     mrays: f64,
+    per_ray: (f64, f64),
     gpu_ms: Option<(f64, f64)>,
     reset: bool,
 }
@@ -382,6 +383,8 @@ impl App {
         }
         let pixels = frame.primary_rays.max(1) as f64;
         self.ui.reused = frame.reused as f64 / pixels;
+        let traced_rays = (frame.primary_rays - frame.reused).max(1) as f64;
+        self.ui.per_ray = (frame.instances_traced as f64 / traced_rays, frame.spheres_culled as f64 / traced_rays);
         self.ui.mrays = (frame.primary_rays - frame.reused + frame.shadow_rays) as f64 / secs.max(1e-9) / 1e6;
         self.ui.plan = Some(plan);
         let ui_paint = self.build_ui();
@@ -736,6 +739,10 @@ impl App {
                         ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));
                     }
                     ui_.label(format!("{:.2} Mrays/s traced, {:.1}% pixels reused", ui.mrays, 100.0 * ui.reused));
+                    ui_.label(format!(
+                        "per traced ray: {:.2} instances traversed, {:.2} spheres culled",
+                        ui.per_ray.0, ui.per_ray.1
+                    ));
                     // Frame-time graph, last 180 frames, scaled to the slowest.
                     let (rect, _) =
                         ui_.allocate_exact_size(egui::vec2(ui_.available_width(), 60.0), egui::Sense::hover());
@@ -997,6 +1004,7 @@ pub fn run(
             plan: None,
             reused: 0.0,
             mrays: 0.0,
+            per_ray: (0.0, 0.0),
             gpu_ms: None,
             reset: false,
         },

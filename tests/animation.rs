@@ -4,7 +4,7 @@
 
 use glam::{DAffine3, DQuat, DVec3, Vec3};
 use std::sync::{Arc, OnceLock};
-use voxray::pipeline::shared_resolution;
+use voxray::pipeline::build_parts;
 use voxray::render::instances::prepare;
 use voxray::render::visibility::{nearest, FrameInstances, Search};
 use voxray::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
@@ -13,22 +13,12 @@ use voxray::scene::car::{add_car, pose, Car};
 use voxray::scene::{Camera, Instance, Lights, Scene, SceneError, Transform, TransformError};
 use voxray::svo::{self, Cube, Svo};
 use voxray::traverse::TraceOptions;
-use voxray::voxelize::{voxelize, Resolution, VoxelGrid, VoxelizeOptions};
+use voxray::voxelize::{Resolution, VoxelGrid};
 
 /// The default car's parts at a coarse voxel size (built once per test binary).
 fn car_parts() -> Vec<Arc<Svo>> {
     static PARTS: OnceLock<Vec<Arc<Svo>>> = OnceLock::new();
-    PARTS
-        .get_or_init(|| {
-            let mesh = voxray::model::car::mesh();
-            let res = shared_resolution(&mesh, Resolution::Depth(6)).unwrap();
-            let opts = VoxelizeOptions { resolution: res, solid: false };
-            mesh.parts
-                .iter()
-                .map(|p| Arc::new(svo::build(&voxelize(p, &mesh.materials, &opts, &|_, _| {}).unwrap()).unwrap()))
-                .collect()
-        })
-        .clone()
+    PARTS.get_or_init(|| build_parts(&voxray::model::car::mesh(), Resolution::Depth(6)).unwrap()).clone()
 }
 
 /// A parked car at the origin and `n_driving` cars driving figure-eights centred in front of
@@ -354,4 +344,44 @@ fn screen_rectangles_contain_every_pixel_a_sphere_can_touch() {
         }
     }
     assert!(tight > 50, "rectangles should usually be much smaller than the image ({tight} of 200)");
+}
+
+#[test]
+fn work_counters_add_up_and_fall_with_each_optimization() {
+    let (mut scene, cars) = cars_scene(4); // 5 cars, 40 instances
+    let n = scene.instances().len() as u64;
+    let plain = Features { shadows: false, ..Features::NONE };
+    let cull = Features { cull: true, ..plain };
+    let sort = Features { sort: true, ..cull };
+    let bvh = Features { bvh: true, ..sort };
+    let f_plain = &clip(&mut scene, &cars, plain, 1, 0.0)[0];
+    let f_cull = &clip(&mut scene, &cars, cull, 1, 0.0)[0];
+    let f_sort = &clip(&mut scene, &cars, sort, 1, 0.0)[0];
+    let f_bvh = &clip(&mut scene, &cars, bvh, 1, 0.0)[0];
+    let rays = f_plain.primary_rays;
+    // Plain: every ray traverses every instance, nothing is culled.
+    assert_eq!((f_plain.instances_traced, f_plain.spheres_culled), (rays * n, 0));
+    // Culling: each instance is either traversed or culled, and most are culled.
+    assert_eq!(f_cull.instances_traced + f_cull.spheres_culled, rays * n);
+    assert!(f_cull.spheres_culled > f_cull.instances_traced, "{f_cull:?}");
+    // Sorting only stops early: same culls, fewer or equal traversals.
+    assert_eq!(f_sort.spheres_culled, f_cull.spheres_culled);
+    assert!(
+        f_sort.instances_traced < f_cull.instances_traced,
+        "{} vs {}",
+        f_sort.instances_traced,
+        f_cull.instances_traced
+    );
+    // The BVH traverses a subset of what culling alone traverses (it can visit a leaf's
+    // instances out of depth order, so it may traverse more than sorting), and it tests far
+    // fewer spheres: whole boxes are skipped.
+    assert!(f_bvh.instances_traced <= f_cull.instances_traced);
+    assert!(f_bvh.spheres_culled < f_sort.spheres_culled);
+    println!(
+        "traversed per ray: plain {:.2}, cull {:.2}, sort {:.2}, bvh {:.2}",
+        f_plain.instances_traced as f64 / rays as f64,
+        f_cull.instances_traced as f64 / rays as f64,
+        f_sort.instances_traced as f64 / rays as f64,
+        f_bvh.instances_traced as f64 / rays as f64
+    );
 }

@@ -8,15 +8,15 @@ use std::sync::{Arc, OnceLock};
 use voxray::gpu::layout::GpuRay;
 use voxray::gpu::rays::trace_rays;
 use voxray::gpu::{GpuContext, GpuRenderer};
-use voxray::pipeline::shared_resolution;
+use voxray::pipeline::build_parts;
 use voxray::ray::UnitRay;
 use voxray::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
 use voxray::scene::car::{add_car, pose, Car};
 use voxray::scene::{Camera, Lights, Scene};
 use voxray::stability::{check_with, merge, standard_cases, CaseReport, Ray64};
-use voxray::svo::{self, Svo};
+use voxray::svo::Svo;
 use voxray::traverse::{trace_unit, Hit, TraceOptions};
-use voxray::voxelize::{voxelize, Resolution, VoxelizeOptions};
+use voxray::voxelize::Resolution;
 
 fn context() -> Option<Arc<GpuContext>> {
     static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
@@ -92,13 +92,7 @@ fn gpu_traces_the_stability_suite_like_the_cpu() {
 }
 
 fn car_parts() -> Vec<Arc<Svo>> {
-    let mesh = voxray::model::car::mesh();
-    let res = shared_resolution(&mesh, Resolution::Depth(6)).unwrap();
-    let opts = VoxelizeOptions { resolution: res, solid: false };
-    mesh.parts
-        .iter()
-        .map(|p| Arc::new(svo::build(&voxelize(p, &mesh.materials, &opts, &|_, _| {}).unwrap()).unwrap()))
-        .collect()
+    build_parts(&voxray::model::car::mesh(), Resolution::Depth(6)).unwrap()
 }
 
 fn scene(cars: usize) -> (Scene, Vec<Car>) {
@@ -122,9 +116,20 @@ fn assert_close(cpu: &Frame, gpu: &Frame, what: &str) {
             assert!(rel <= 1e-4, "{what}: pixel {k}: t {} vs {} (rel {rel:e})", cpu.t[k], gpu.t[k]);
         }
     }
+    // The same searches cost the same work (sphere tests in f32 on the GPU may flip a few).
+    for (what_n, c, g) in [
+        ("instances traversed", cpu.instances_traced, gpu.instances_traced),
+        ("spheres culled", cpu.spheres_culled, gpu.spheres_culled),
+    ] {
+        let tol = 16 + c / 200;
+        assert!(c.abs_diff(g) <= tol, "{what}: {what_n} CPU {c} vs GPU {g}");
+    }
     let mean: f32 =
         cpu.radiance.iter().zip(&gpu.radiance).map(|(a, b)| (*a - *b).abs().max_element()).sum::<f32>() / n as f32;
     assert!(mean < 0.01, "{what}: mean radiance difference {mean}");
+    // A lost shadow or light changes few pixels but changes them a lot.
+    let far = cpu.radiance.iter().zip(&gpu.radiance).filter(|(a, b)| (**a - **b).abs().max_element() > 0.05).count();
+    assert!(far as f64 <= 0.002 * n as f64, "{what}: {far} of {n} pixels differ by more than 0.05");
 }
 
 /// Renders a clip on both renderers and compares every frame.

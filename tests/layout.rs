@@ -128,7 +128,7 @@ fn wgsl_structs_match_rust() {
                 ("fx", offset_of!(GpuHit, fx)),
                 ("fy", offset_of!(GpuHit, fy)),
                 ("fz", offset_of!(GpuHit, fz)),
-                ("pad", offset_of!(GpuHit, pad)),
+                ("work", offset_of!(GpuHit, work)),
                 ("reused", offset_of!(GpuHit, reused)),
             ],
         ),

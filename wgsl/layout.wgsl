@@ -84,7 +84,8 @@ struct Hit {
     fx: f32,
     fy: f32,
     fz: f32,
-    pad: u32,
+    // Instances traversed (low 16 bits) and sphere-culled (high 16 bits) finding this hit.
+    work: u32,
     // 1 when this frame reused the record.
     reused: u32,
 }

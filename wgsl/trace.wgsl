@@ -106,13 +106,20 @@ fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, d: vec3<f32>, t_max: f3
     return select(BIG, t0, t0 <= t1);
 }
 
+// What the primary search of this invocation cost (visibility::Work).
+var<private> work_traced: u32;
+var<private> work_culled: u32;
+
 fn nearest_cull(o: vec3<f32>, d: vec3<f32>) -> Nearest {
     var best: Nearest;
     best.found = false;
     for (var i = 0u; i < frame.instances; i++) {
         let s = inst_sphere(i, o, d);
         if s.x <= s.y {
+            work_traced += 1u;
             keep(&best, i, trace_one(i, o, d, BIG));
+        } else {
+            work_culled += 1u;
         }
     }
     return best;
@@ -124,6 +131,7 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
     best.found = false;
     if SEARCH == 0u {
         for (var i = 0u; i < frame.instances; i++) {
+            work_traced += 1u;
             keep(&best, i, trace_one(i, o, d, BIG));
         }
     } else if SEARCH == 1u {
@@ -136,6 +144,7 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
         for (var i = 0u; i < frame.instances; i++) {
             let s = inst_sphere(i, o, d);
             if s.x > s.y {
+                work_culled += 1u;
                 continue;
             }
             if n == MAX_CANDIDATES {
@@ -154,6 +163,8 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
             n += 1u;
         }
         if overflow {
+            // Counted again by the culling search.
+            work_culled = 0u;
             return nearest_cull(o, d);
         }
         for (var k = 0u; k < n; k++) {
@@ -161,6 +172,7 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
             if entry[k] > t_max {
                 break;
             }
+            work_traced += 1u;
             keep(&best, index[k], trace_one(index[k], o, d, t_max));
         }
     } else {
@@ -187,9 +199,14 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
                     let i = bvh_items[k];
                     let s = inst_sphere(i, o, d);
                     let t_max = bound(best);
-                    if s.x > s.y || s.x > t_max {
+                    if s.x > s.y {
+                        work_culled += 1u;
                         continue;
                     }
+                    if s.x > t_max {
+                        continue;
+                    }
+                    work_traced += 1u;
                     keep(&best, i, trace_one(i, o, d, t_max));
                 }
             } else {
@@ -221,6 +238,46 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
 
 // visibility::occluded: any hit ends the search.
 fn occluded(o: vec3<f32>, d: vec3<f32>) -> bool {
+    // With the instance BVH: walk it (any order will do for an any-hit query). A full stack
+    // falls through to the sphere loop below, which gives the same answer.
+    if SEARCH == 3u && frame.bvh_nodes > 0u {
+        var stack: array<u32, 64>;
+        var sp = 0u;
+        var overflow = false;
+        if box_entry(bvh[0].lo.xyz, bvh[0].hi.xyz, o, d, BIG) < BIG {
+            stack[0] = 0u;
+            sp = 1u;
+        }
+        while sp > 0u && !overflow {
+            sp -= 1u;
+            let node = bvh[stack[sp]];
+            let first = bitcast<u32>(node.lo.w);
+            let count = bitcast<u32>(node.hi.w);
+            if count > 0u {
+                for (var k = first; k < first + count; k++) {
+                    let i = bvh_items[k];
+                    let s = inst_sphere(i, o, d);
+                    if s.x <= s.y && trace_one(i, o, d, BIG).hit {
+                        return true;
+                    }
+                }
+            } else {
+                for (var c = first; c < first + 2u; c++) {
+                    if box_entry(bvh[c].lo.xyz, bvh[c].hi.xyz, o, d, BIG) < BIG {
+                        if sp == 64u {
+                            overflow = true;
+                        } else {
+                            stack[sp] = c;
+                            sp += 1u;
+                        }
+                    }
+                }
+            }
+        }
+        if !overflow {
+            return false;
+        }
+    }
     for (var i = 0u; i < frame.instances; i++) {
         if SEARCH != 0u {
             let s = inst_sphere(i, o, d);
@@ -292,6 +349,7 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if REUSE {
         if reuse_valid(hits[idx], d, gid.x, gid.y) {
             hits[idx].reused = 1u;
+            hits[idx].work = 0u;
             return;
         }
     }
@@ -300,6 +358,7 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     h.instance = -1;
     h.reused = 0u;
     let best = nearest(vec3<f32>(0.0), d);
+    h.work = min(work_traced, 0xFFFFu) | (min(work_culled, 0xFFFFu) << 16u);
     if best.found {
         let inst = insts[best.inst];
         let to_world = mat3x3<f32>(inst.normal_x.xyz, inst.normal_y.xyz, inst.normal_z.xyz);

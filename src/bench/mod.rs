@@ -23,6 +23,7 @@ use std::time::Instant;
 /// One measured configuration: a scenario, one setting of it, one backend.
 #[derive(Clone, Debug, PartialEq, Default)]
 #[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "json", serde(default))]
 pub struct Record {
     /// Scenario family: `paper`, `instances`, `resolution`, `depth` or `peers`.
     pub group: String,
@@ -57,6 +58,10 @@ pub struct Record {
     pub mrays_per_s: f64,
     /// Fraction of pixels reused from the hit buffer.
     pub reused_fraction: f64,
+    /// Instance octrees traversed per traced (not reused) primary ray.
+    pub instances_per_ray: f64,
+    /// Instances skipped by a missed bounding sphere per traced primary ray.
+    pub culled_per_ray: f64,
     /// Median GPU time of the trace pass (ms), from timestamp queries.
     pub gpu_trace_ms: Option<f64>,
     /// Median GPU time of the shade pass (ms).
@@ -112,6 +117,7 @@ pub struct Clip<'a> {
 /// (group, name and setting left for the caller) and the first timed frame.
 pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
     let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
+    let (mut traced, mut culled) = (0u64, 0u64);
     let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
     let mut plan = None;
     let mut first: Option<Frame> = None;
@@ -143,6 +149,8 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
             times.push(secs * 1e3);
             rays += frame.primary_rays - frame.reused + frame.shadow_rays;
             reused += frame.reused;
+            traced += frame.instances_traced;
+            culled += frame.spheres_culled;
             busy += secs;
             if first.is_none() {
                 first = Some(frame);
@@ -164,6 +172,8 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
         min_ms,
         mrays_per_s: rays as f64 / busy.max(1e-9) / 1e6,
         reused_fraction: reused as f64 / pixels.max(1.0),
+        instances_per_ray: traced as f64 / (pixels - reused as f64).max(1.0),
+        culled_per_ray: culled as f64 / (pixels - reused as f64).max(1.0),
         backend: backend_name.to_string(),
         backend_kind: backend.kind_name().to_string(),
         gpu_trace_ms: (!trace_ms.is_empty()).then(|| summarize(&trace_ms).0),

@@ -2,7 +2,8 @@
 //! (triangle BVH, through the `embree` crate and the system library), parry3d's `TriMesh`
 //! (triangle BVH) and parry3d's `Voxels` built from the SVO's own leaf voxels. Each traces the
 //! nearest hit of every primary ray of a frame; voxray renders the same frame from the merged
-//! static SVO. The hit fraction of each is recorded so a reader can see they trace the same
+//! static SVO, and also answers the same nearest-hit queries through the same loop as the
+//! peers (the like-for-like figure). The hit fraction of each is recorded so a reader can see they trace the same
 //! thing.
 
 use super::{summarize, Record};
@@ -136,6 +137,20 @@ pub fn run(scene: &PeerScene<'_>) -> Result<Vec<Record>, crate::Error> {
     r.machine = scene.machine.clone();
     r.command = scene.command.clone();
     out.push(r);
+
+    // voxray again, on the peers' own terms: per pixel only the nearest-hit query (sphere
+    // culling, camera-relative ray into the SVO), no plan, no shading.
+    {
+        use crate::render::instances::prepare;
+        use crate::render::visibility::{nearest, FrameInstances, Search};
+        let prepared = prepare(&voxray_scene, scene.camera.eye, false);
+        let fi = FrameInstances { parts: &voxray_scene.parts, prepared: &prepared, bvh: None };
+        let opts = crate::traverse::TraceOptions::default();
+        let hit = |_o: DVec3, d: DVec3| nearest(&fi, DVec3::ZERO, d, Search::Cull, &opts).is_some();
+        let mut r = timed("voxray (trace only)", "the same SVO, nearest-hit query only", scene, &hit);
+        r.backend_kind = "voxray-trace".into();
+        out.push(r);
+    }
 
     // Embree: one triangle geometry, BVH built by the library.
     {

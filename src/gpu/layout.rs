@@ -114,8 +114,9 @@ pub struct GpuHit {
     pub fy: f32,
     /// z.
     pub fz: f32,
-    /// Padding.
-    pub pad: u32,
+    /// What finding the hit cost: instances traversed (low 16 bits) and instances whose
+    /// sphere the ray missed (high 16 bits), each saturating; 0 when reused.
+    pub work: u32,
     /// 1 when reused this frame.
     pub reused: u32,
 }

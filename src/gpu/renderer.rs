@@ -491,6 +491,8 @@ impl GpuRenderer {
             primary_rays: n as u64,
             reused: hits.iter().filter(|g| g.reused != 0).count() as u64,
             shadow_rays,
+            instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
+            spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records);

@@ -6,7 +6,7 @@ use super::bvh::Bvh;
 use super::hitbuffer::{HitBuffer, HitRecord};
 use super::instances::{prepare, Prepared};
 use super::plan::FramePlan;
-use super::visibility::{nearest, occluded, FrameInstances, InstanceHit};
+use super::visibility::{nearest_work, occluded, FrameInstances, InstanceHit, Work};
 use crate::scene::{Camera, Lights, Scene};
 use crate::traverse::TraceOptions;
 use glam::{DVec3, Vec3};
@@ -46,6 +46,10 @@ pub struct Frame {
     pub reused: u64,
     /// Shadow rays traced.
     pub shadow_rays: u64,
+    /// Instance octrees traversed by the traced (not reused) primary rays.
+    pub instances_traced: u64,
+    /// Instances skipped because the traced primary rays missed their bounding spheres.
+    pub spheres_culled: u64,
 }
 
 /// Runs `f(row, row_slice)` over the rows of a per-pixel buffer, in parallel when enabled.
@@ -98,11 +102,13 @@ pub fn render(
     let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared));
     let done = AtomicU32::new(0);
     let reused = AtomicU64::new(0);
+    let (traced, culled) = (AtomicU64::new(0), AtomicU64::new(0));
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
 
     // Pass 1: primary visibility.
     let mut records = vec![HitRecord::MISS; w * h];
     for_rows(&mut records, w, |y, row| {
+        let mut work = Work::default();
         for (x, rec) in row.iter_mut().enumerate() {
             let d = camera.ray_dir(&basis, x as u32, y as u32);
             if let (Some(r), Some(prev)) = (&reuse, previous) {
@@ -113,11 +119,13 @@ pub fn render(
                     continue;
                 }
             }
-            *rec = match nearest(&fi, DVec3::ZERO, d, search, &trace_opts) {
+            *rec = match nearest_work(&fi, DVec3::ZERO, d, search, &trace_opts, &mut work) {
                 Some(hit) => record(scene, &prepared, &hit, d),
                 None => HitRecord::MISS,
             };
         }
+        traced.fetch_add(work.traced as u64, Ordering::Relaxed);
+        culled.fetch_add(work.culled as u64, Ordering::Relaxed);
         tick();
     });
 
@@ -135,6 +143,8 @@ pub fn render(
         primary_rays: n as u64,
         reused: 0,
         shadow_rays: 0,
+        instances_traced: traced.into_inner(),
+        spheres_culled: culled.into_inner(),
     };
     for_rows(&mut f.radiance, w, |y, row| {
         for (x, out) in row.iter_mut().enumerate() {

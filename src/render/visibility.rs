@@ -68,13 +68,35 @@ fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
     }
 }
 
+/// What a nearest-hit search cost: the statistics the demo shows per ray.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Work {
+    /// Instances whose octree the ray was traversed through.
+    pub traced: u32,
+    /// Instances whose bounding sphere the ray missed (not traversed).
+    pub culled: u32,
+}
+
 /// The nearest instance hit along `o + t·d` (camera-relative origin, unit direction).
 pub fn nearest(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search, opts: &TraceOptions) -> Option<InstanceHit> {
+    nearest_work(fi, o, d, search, opts, &mut Work::default())
+}
+
+/// [`nearest`], adding what the search cost to `work`.
+pub fn nearest_work(
+    fi: &FrameInstances,
+    o: DVec3,
+    d: DVec3,
+    search: Search,
+    opts: &TraceOptions,
+    work: &mut Work,
+) -> Option<InstanceHit> {
     let mut best: Option<InstanceHit> = None;
     let bound = |best: &Option<InstanceHit>| best.map_or(opts.t_max, |b| b.hit.t);
     match search {
         Search::Plain => {
             for i in 0..fi.prepared.len() {
+                work.traced += 1;
                 if let Some(h) = trace_one(fi, i, o, d, opts) {
                     keep(&mut best, i, h);
                 }
@@ -83,9 +105,12 @@ pub fn nearest(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search, opts: &T
         Search::Cull => {
             for (i, p) in fi.prepared.iter().enumerate() {
                 if sphere_interval(p.centre, p.radius, o, d).is_some() {
+                    work.traced += 1;
                     if let Some(h) = trace_one(fi, i, o, d, opts) {
                         keep(&mut best, i, h);
                     }
+                } else {
+                    work.culled += 1;
                 }
             }
         }
@@ -96,19 +121,21 @@ pub fn nearest(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search, opts: &T
                 .enumerate()
                 .filter_map(|(i, p)| sphere_interval(p.centre, p.radius, o, d).map(|(t0, _)| (t0, i)))
                 .collect();
+            work.culled += (fi.prepared.len() - cands.len()) as u32;
             cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             for (entry, i) in cands {
                 let t_max = bound(&best);
                 if entry > t_max as f64 {
                     break; // every later sphere starts beyond the nearest hit
                 }
+                work.traced += 1;
                 if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
                     keep(&mut best, i, h);
                 }
             }
         }
         Search::Bvh => {
-            let Some(bvh) = fi.bvh else { return nearest(fi, o, d, Search::CullSort, opts) };
+            let Some(bvh) = fi.bvh else { return nearest_work(fi, o, d, Search::CullSort, opts, work) };
             if bvh.nodes.is_empty() {
                 return None;
             }
@@ -127,11 +154,15 @@ pub fn nearest(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search, opts: &T
                     for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
                         let i = i as usize;
                         let p = &fi.prepared[i];
-                        let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, d) else { continue };
+                        let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, d) else {
+                            work.culled += 1;
+                            continue;
+                        };
                         let t_max = bound(&best);
                         if t0 > t_max as f64 {
                             continue;
                         }
+                        work.traced += 1;
                         if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
                             keep(&mut best, i, h);
                         }
