@@ -385,3 +385,38 @@ fn work_counters_add_up_and_fall_with_each_optimization() {
         f_bvh.instances_traced as f64 / rays as f64
     );
 }
+
+#[test]
+fn changing_the_level_of_detail_invalidates_the_hit_buffer() {
+    let (mut scene, cars) = cars_scene(0);
+    for c in &cars {
+        pose(&mut scene, c, 0.0).unwrap();
+    }
+    scene.update().unwrap();
+    let (cam, lights) = (camera(), Lights::default());
+    let features = Features::default();
+    let coarse = RenderOptions { max_level: 2 };
+    let mut hits = HitBuffer::new();
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
+    render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+    // Same camera, nothing moved, but a coarser level: nothing may be reused.
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, Some(&hits));
+    assert!(plan.hit_buffer);
+    let second = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {});
+    let fresh = render(
+        &scene,
+        &cam,
+        &lights,
+        &FramePlan::new(&scene, &cam, &lights, &features, None),
+        &coarse,
+        None,
+        &|_, _| {},
+    );
+    assert_eq!(second.reused, 0);
+    assert_eq!(second.t, fresh.t);
+    assert_eq!(second.instance, fresh.instance);
+    // And at the same level again, everything is reused.
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, Some(&hits));
+    let third = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {});
+    assert_eq!(third.reused, third.primary_rays);
+}

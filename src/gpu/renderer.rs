@@ -269,7 +269,7 @@ impl GpuRenderer {
         let n = (w * h) as usize;
         let prepared = prepare(scene, camera.eye, plan.transform);
         let reuse = if plan.hit_buffer && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
-            self.state.reuse(camera, scene, &prepared)
+            self.state.reuse(camera, scene, &prepared, opts.max_level)
         } else {
             None
         };
@@ -495,7 +495,7 @@ impl GpuRenderer {
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
         };
         self.state.reused = f.reused;
-        self.state.store(camera, scene, &prepared, records);
+        self.state.store(camera, scene, &prepared, records, opts.max_level);
         self.buffer_bytes = buffer_bytes;
         Ok(f)
     }

@@ -99,7 +99,7 @@ pub fn render(
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
-    let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared));
+    let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
     let done = AtomicU32::new(0);
     let reused = AtomicU64::new(0);
     let (traced, culled) = (AtomicU64::new(0), AtomicU64::new(0));
@@ -182,7 +182,7 @@ pub fn render(
     f.shadow_rays = shadow_rays.into_inner();
     if let Some(b) = hits {
         b.reused = f.reused;
-        b.store(camera, scene, &prepared, records);
+        b.store(camera, scene, &prepared, records, opts.max_level);
     }
     f
 }

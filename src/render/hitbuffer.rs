@@ -58,6 +58,9 @@ pub struct HitBuffer {
     pub records: Vec<HitRecord>,
     /// Pixels reused in the last frame rendered with this buffer.
     pub reused: u64,
+    /// The level of detail the stored frame was traced at (a hit at another level is not
+    /// this frame's hit).
+    pub max_level: u32,
 }
 
 /// What the current frame may reuse.
@@ -124,11 +127,11 @@ impl HitBuffer {
         self.camera.as_ref() == Some(camera) && self.records.len() == (camera.width * camera.height) as usize
     }
 
-    /// The reuse conditions for the current frame, or None if nothing can be reused (other
-    /// camera, other instances).
-    pub fn reuse(&self, camera: &Camera, scene: &Scene, prepared: &[Prepared]) -> Option<Reuse> {
+    /// The reuse conditions for the current frame traced at `max_level`, or None if nothing
+    /// can be reused (other camera, other instances, other level of detail).
+    pub fn reuse(&self, camera: &Camera, scene: &Scene, prepared: &[Prepared], max_level: u32) -> Option<Reuse> {
         let parts: Vec<usize> = scene.instances().iter().map(|i| i.part).collect();
-        if !self.same_camera(camera) || self.parts != parts {
+        if !self.same_camera(camera) || self.parts != parts || self.max_level != max_level {
             return None;
         }
         let mut moved = vec![false; parts.len()];
@@ -145,8 +148,16 @@ impl HitBuffer {
     }
 
     /// Stores a frame's records and conditions.
-    pub fn store(&mut self, camera: &Camera, scene: &Scene, prepared: &[Prepared], records: Vec<HitRecord>) {
+    pub fn store(
+        &mut self,
+        camera: &Camera,
+        scene: &Scene,
+        prepared: &[Prepared],
+        records: Vec<HitRecord>,
+        max_level: u32,
+    ) {
         self.camera = Some(*camera);
+        self.max_level = max_level;
         self.worlds = scene.worlds().to_vec();
         self.parts = scene.instances().iter().map(|i| i.part).collect();
         self.spheres = prepared.iter().map(|p| (p.centre, p.radius)).collect();
