@@ -40,6 +40,7 @@ pub mod backend;
 pub mod bench;
 pub mod cache;
 mod error;
+pub mod gi;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod mesh;

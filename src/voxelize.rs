@@ -169,7 +169,27 @@ pub fn voxelize(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<VoxelGrid, VoxelizeError> {
     let (bounds, depth) = bounding_cube(part, opts.resolution)?;
-    if opts.solid && depth > SOLID_MAX_DEPTH {
+    voxelize_in(part, materials, bounds, depth, opts.solid, progress)
+}
+
+/// Voxelizes one part into a given cube at a given depth (a fixed grid shared with other
+/// data, e.g. a world volume); triangles outside the cube contribute nothing. An empty
+/// result is an [`VoxelizeError::EmptyPart`] error.
+pub fn voxelize_in(
+    part: &Part,
+    materials: &[Material],
+    bounds: Cube,
+    depth: u32,
+    solid: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<VoxelGrid, VoxelizeError> {
+    if depth == 0 || depth > MAX_DEPTH {
+        return Err(VoxelizeError::Resolution(format!("depth {depth} outside 1..={MAX_DEPTH}")));
+    }
+    if !(bounds.min.is_finite() && bounds.size.is_finite() && bounds.size > 0.0) {
+        return Err(VoxelizeError::Resolution(format!("cube {bounds:?} must be finite with a positive size")));
+    }
+    if solid && depth > SOLID_MAX_DEPTH {
         return Err(VoxelizeError::SolidTooDeep(depth));
     }
     let total = part.triangles.len();
@@ -248,7 +268,7 @@ pub fn voxelize(
     if voxels.is_empty() {
         return Err(VoxelizeError::EmptyPart(part.name.clone()));
     }
-    if opts.solid {
+    if solid {
         fill_solid(depth, &mut voxels);
     }
     Ok(VoxelGrid { depth, bounds, voxels })

@@ -1,0 +1,218 @@
+//! The dense world volume and the voxel transformation: each instance's cached voxels are
+//! moved by its world matrix and written into world cells, either to the nearest cell or
+//! split over the 8 cells around the moved centre by trilinear weights (DESIGN.md, "8-neighbour
+//! split filtering"). Occupancy, weighted albedo and weighted normal accumulate; a cell's
+//! albedo and normal are its sums divided by its occupancy, so overlapping voxels average by
+//! weight.
+
+use super::cache::VoxelCache;
+use glam::{DAffine3, DMat3, DVec3, Vec3};
+
+/// Largest dense volume per side (512³ cells × 28 bytes = 3.5 GiB); finer coverage needs the
+/// sparse volume.
+pub const MAX_DENSE_RES: u32 = 512;
+
+/// Where the world volume lies.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VolumeSpec {
+    /// Cells per side.
+    pub res: u32,
+    /// World-space minimum corner.
+    pub min: DVec3,
+    /// Cell edge (world units).
+    pub cell: f64,
+}
+
+/// Filtering of moved voxels into world cells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Filter {
+    /// The one cell containing the moved centre.
+    Nearest,
+    /// The 8 cells around the moved centre, by trilinear overlap weights.
+    Split,
+}
+
+impl std::str::FromStr for Filter {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "nearest" => Ok(Filter::Nearest),
+            "split" => Ok(Filter::Split),
+            other => Err(format!("unknown GI filter '{other}' (use nearest or split)")),
+        }
+    }
+}
+
+/// Invalid GI settings or inputs.
+#[derive(Debug, thiserror::Error)]
+pub enum GiError {
+    /// Resolution outside 1..=MAX_DENSE_RES.
+    #[error("GI volume resolution {0} must be 1…{MAX_DENSE_RES} (finer coverage needs the sparse volume)")]
+    Resolution(u32),
+    /// Cell size or corner not finite / not positive.
+    #[error("GI volume: cell size {cell} and corner {min:?} must be finite, the cell positive")]
+    Placement {
+        /// Cell edge.
+        cell: f64,
+        /// Corner.
+        min: DVec3,
+    },
+    /// A world matrix with NaN/∞ or a singular linear part.
+    #[error("instance transform is not finite and invertible: {0:?}")]
+    Transform(DAffine3),
+}
+
+impl VolumeSpec {
+    /// A checked placement.
+    pub fn new(res: u32, min: DVec3, cell: f64) -> Result<Self, GiError> {
+        if res == 0 || res > MAX_DENSE_RES {
+            return Err(GiError::Resolution(res));
+        }
+        if !(min.is_finite() && cell.is_finite() && cell > 0.0) {
+            return Err(GiError::Placement { cell, min });
+        }
+        Ok(VolumeSpec { res, min, cell })
+    }
+
+    /// A volume of `extent` world units per side centred near `centre`, its corner snapped
+    /// to whole cells so that following a moving camera does not make the voxels swim.
+    pub fn following(centre: DVec3, extent: f64, res: u32) -> Result<Self, GiError> {
+        let cell = extent / res.max(1) as f64;
+        if !(cell.is_finite() && cell > 0.0) {
+            return Err(GiError::Placement { cell, min: centre });
+        }
+        let min = ((centre - DVec3::splat(extent * 0.5)) / cell).floor() * cell;
+        Self::new(res, min, cell)
+    }
+
+    /// World-space centre of cell `c`.
+    pub fn cell_centre(&self, c: [u32; 3]) -> DVec3 {
+        self.min + (DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) + 0.5) * self.cell
+    }
+}
+
+/// What one transformation wrote.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SplatStats {
+    /// Cache voxels moved.
+    pub voxels: u64,
+    /// Occupancy weight that fell outside the volume and was dropped.
+    pub outside: f64,
+}
+
+/// A dense world volume (the CPU reference).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Volume {
+    /// Placement.
+    pub spec: VolumeSpec,
+    /// Summed weights per cell (x fastest, then y, then z).
+    pub occupancy: Vec<f32>,
+    /// Summed weight × linear albedo per cell.
+    pub albedo: Vec<Vec3>,
+    /// Summed weight × world normal per cell.
+    pub normal: Vec<Vec3>,
+}
+
+impl Volume {
+    /// An empty volume.
+    pub fn new(spec: VolumeSpec) -> Self {
+        let n = (spec.res as usize).pow(3);
+        Volume { spec, occupancy: vec![0.0; n], albedo: vec![Vec3::ZERO; n], normal: vec![Vec3::ZERO; n] }
+    }
+
+    /// Empties every cell.
+    pub fn clear(&mut self) {
+        self.occupancy.fill(0.0);
+        self.albedo.fill(Vec3::ZERO);
+        self.normal.fill(Vec3::ZERO);
+    }
+
+    /// Index of cell `c`.
+    pub fn index(&self, c: [u32; 3]) -> usize {
+        let r = self.spec.res as usize;
+        c[0] as usize + r * (c[1] as usize + r * c[2] as usize)
+    }
+
+    /// Moves `cache`'s voxels by `world` (object → world) into the volume.
+    pub fn splat(&mut self, cache: &VoxelCache, world: &DAffine3, filter: Filter) -> Result<SplatStats, GiError> {
+        let lin = world.matrix3;
+        if !(world.translation.is_finite() && lin.is_finite() && lin.determinant().abs() > 0.0) {
+            return Err(GiError::Transform(*world));
+        }
+        // Normals move by the inverse transpose.
+        let normal_m: DMat3 = lin.inverse().transpose();
+        let res = self.spec.res as i64;
+        let mut stats = SplatStats { voxels: cache.voxels.len() as u64, outside: 0.0 };
+        for v in &cache.voxels {
+            let p = world.transform_point3(cache.centre(v).as_dvec3());
+            // Cell-centre coordinates: cell c's centre sits at g = c.
+            let g = (p - self.spec.min) / self.spec.cell - DVec3::splat(0.5);
+            let attr = v.attr();
+            let albedo = attr.albedo_linear();
+            let n = (normal_m * attr.normal().as_dvec3()).normalize_or_zero().as_vec3();
+            let mut add = |c: [i64; 3], w: f64| {
+                if w == 0.0 {
+                    return;
+                }
+                if c.iter().any(|&k| k < 0 || k >= res) {
+                    stats.outside += w;
+                    return;
+                }
+                let i = self.index([c[0] as u32, c[1] as u32, c[2] as u32]);
+                let w32 = w as f32;
+                self.occupancy[i] += w32;
+                self.albedo[i] += albedo * w32;
+                self.normal[i] += n * w32;
+            };
+            match filter {
+                Filter::Nearest => {
+                    let c = (g + DVec3::splat(0.5)).floor();
+                    add([c.x as i64, c.y as i64, c.z as i64], 1.0);
+                }
+                Filter::Split => {
+                    let base = g.floor();
+                    let f = g - base;
+                    for k in 0..8 {
+                        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
+                        let w = if dx == 1 { f.x } else { 1.0 - f.x }
+                            * if dy == 1 { f.y } else { 1.0 - f.y }
+                            * if dz == 1 { f.z } else { 1.0 - f.z };
+                        add([base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz], w);
+                    }
+                }
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Sum of all occupancy.
+    pub fn total_occupancy(&self) -> f64 {
+        self.occupancy.iter().map(|&o| o as f64).sum()
+    }
+
+    /// Cells with any occupancy.
+    pub fn occupied(&self) -> Vec<[u32; 3]> {
+        let r = self.spec.res;
+        let mut out = Vec::new();
+        for z in 0..r {
+            for y in 0..r {
+                for x in 0..r {
+                    if self.occupancy[self.index([x, y, z])] > 0.0 {
+                        out.push([x, y, z]);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Weighted mean albedo of a cell (zero when empty).
+    pub fn mean_albedo(&self, c: [u32; 3]) -> Vec3 {
+        let i = self.index(c);
+        if self.occupancy[i] > 0.0 {
+            self.albedo[i] / self.occupancy[i]
+        } else {
+            Vec3::ZERO
+        }
+    }
+}

@@ -1,0 +1,138 @@
+//! GI voxel transformation (CPU reference): split filtering conserves occupancy, a 90°
+//! rotation with nearest filtering gives exactly the occupancy of re-voxelizing the rotated
+//! triangles, and bad settings give clear errors.
+
+use glam::{DAffine3, DMat3, DQuat, DVec3, Vec3};
+use voxray::gi::{Filter, GiError, Volume, VolumeSpec, VoxelCache};
+use voxray::mesh::{Material, Part, Triangle};
+use voxray::rng::Rng;
+use voxray::svo::Cube;
+use voxray::voxelize::{voxelize_in, VoxelGrid};
+
+/// An open box with a shelf: faces on integer planes and a slanted shelf, off-centre so a
+/// wrong rotation or offset shows.
+fn part(transform: impl Fn(Vec3) -> Vec3) -> Part {
+    let quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| [[a, b, c], [a, c, d]];
+    let v = Vec3::new;
+    let mut tris = Vec::new();
+    for q in [
+        quad(v(1.0, 1.0, 1.0), v(9.0, 1.0, 1.0), v(9.0, 1.0, 6.0), v(1.0, 1.0, 6.0)), // floor
+        quad(v(1.0, 1.0, 1.0), v(1.0, 7.0, 1.0), v(1.0, 7.0, 6.0), v(1.0, 1.0, 6.0)), // wall
+        quad(v(1.0, 1.0, 1.0), v(9.0, 1.0, 1.0), v(9.0, 5.0, 1.0), v(1.0, 5.0, 1.0)), // back
+        quad(v(2.3, 2.2, 1.7), v(7.6, 3.9, 1.7), v(7.6, 3.9, 5.1), v(2.3, 2.2, 5.1)), // shelf
+    ] {
+        for t in q {
+            tris.push(Triangle { positions: t.map(&transform), uvs: None, material: 0 });
+        }
+    }
+    Part { name: "box".into(), triangles: tris }
+}
+
+fn materials() -> Vec<Material> {
+    vec![Material::new("grey", Vec3::splat(0.5))]
+}
+
+#[test]
+fn split_filtering_conserves_occupancy_for_any_pose() {
+    let cube = Cube { min: Vec3::ZERO, size: 16.0 };
+    let grid = voxelize_in(&part(|p| p), &materials(), cube, 4, false, &|_, _| {}).unwrap();
+    let cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    assert!(cache.voxels.len() > 100);
+    let spec = VolumeSpec::new(64, DVec3::splat(-40.0), 1.25).unwrap();
+    let mut rng = Rng::new(7);
+    for _ in 0..20 {
+        let axis = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5).normalize();
+        let scale = DVec3::new(0.5 + rng.f64(), 0.5 + rng.f64(), 0.5 + rng.f64());
+        let t = DVec3::new(rng.f64() * 20.0 - 10.0, rng.f64() * 20.0 - 10.0, rng.f64() * 20.0 - 10.0);
+        let world = DAffine3::from_scale_rotation_translation(scale, DQuat::from_axis_angle(axis, rng.f64() * 6.3), t);
+        for filter in [Filter::Split, Filter::Nearest] {
+            let mut vol = Volume::new(spec);
+            let stats = vol.splat(&cache, &world, filter).unwrap();
+            assert_eq!(stats.outside, 0.0, "the pose stays inside the volume");
+            let total = vol.total_occupancy();
+            let n = cache.voxels.len() as f64;
+            assert!((total - n).abs() <= 1e-4 * n, "{filter:?}: total occupancy {total} for {n} voxels");
+            assert!(vol.occupancy.iter().all(|o| o.is_finite()) && vol.normal.iter().all(|v| v.is_finite()));
+        }
+    }
+}
+
+#[test]
+fn split_weights_land_on_the_eight_neighbours_in_trilinear_proportion() {
+    // One voxel whose moved centre sits at cell coordinates (3.25, 4.5, 5.75).
+    let grid =
+        voxelize_in(&part(|p| p), &materials(), Cube { min: Vec3::ZERO, size: 16.0 }, 4, false, &|_, _| {}).unwrap();
+    let mut cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    cache.voxels.truncate(1);
+    let centre = cache.centre(&cache.voxels[0]).as_dvec3();
+    let spec = VolumeSpec::new(16, DVec3::ZERO, 1.0).unwrap();
+    let target = DVec3::new(3.25, 4.5, 5.75) + 0.5;
+    let world = DAffine3::from_translation(target - centre);
+    let mut vol = Volume::new(spec);
+    vol.splat(&cache, &world, Filter::Split).unwrap();
+    let w = |c: [u32; 3]| vol.occupancy[vol.index(c)];
+    assert!((w([3, 4, 5]) - 0.75 * 0.5 * 0.25).abs() < 1e-6);
+    assert!((w([4, 5, 6]) - 0.25 * 0.5 * 0.75).abs() < 1e-6);
+    assert!((w([3, 5, 6]) - 0.75 * 0.5 * 0.75).abs() < 1e-6);
+    assert_eq!(vol.occupied().len(), 8);
+}
+
+#[test]
+fn a_quarter_turn_with_nearest_filtering_equals_revoxelizing_the_turned_triangles() {
+    let mats = materials();
+    let cube = Cube { min: Vec3::ZERO, size: 16.0 };
+    let grid = voxelize_in(&part(|p| p), &mats, cube, 4, false, &|_, _| {}).unwrap();
+    let cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    // World volume: cells of 1 unit from (-16, -16, -16), 32 per side.
+    let world_cube = Cube { min: Vec3::splat(-16.0), size: 32.0 };
+    let spec = VolumeSpec::new(32, DVec3::splat(-16.0), 1.0).unwrap();
+    // A quarter turn about y, exact on the triangles: (x, y, z) → (z, y, −x); plus a whole-cell shift.
+    let shift = Vec3::new(-3.0, 2.0, 5.0);
+    let turned = part(|p| Vec3::new(p.z, p.y, -p.x) + shift);
+    let rot = DMat3::from_cols(DVec3::new(0.0, 0.0, -1.0), DVec3::Y, DVec3::new(1.0, 0.0, 0.0));
+    let world = DAffine3::from_mat3_translation(rot, shift.as_dvec3());
+    assert_eq!(world.transform_point3(DVec3::new(1.0, 2.0, 3.0)), DVec3::new(3.0, 2.0, -1.0) + shift.as_dvec3());
+    let mut vol = Volume::new(spec);
+    vol.splat(&cache, &world, Filter::Nearest).unwrap();
+    let moved: Vec<[u32; 3]> = vol.occupied();
+    let revox = voxelize_in(&turned, &mats, world_cube, 5, false, &|_, _| {}).unwrap();
+    let mut direct: Vec<[u32; 3]> = revox.coords().collect();
+    direct.sort_by_key(|c| (c[2], c[1], c[0]));
+    assert_eq!(moved.len(), cache.voxels.len(), "nearest filtering kept voxels apart");
+    assert_eq!(moved, direct);
+    // Every cell holds exactly one voxel.
+    assert!(vol.occupancy.iter().all(|&o| o == 0.0 || o == 1.0));
+}
+
+#[test]
+fn bad_settings_and_transforms_give_clear_errors() {
+    assert!(matches!(VolumeSpec::new(0, DVec3::ZERO, 1.0), Err(GiError::Resolution(0))));
+    assert!(matches!(VolumeSpec::new(4096, DVec3::ZERO, 1.0), Err(GiError::Resolution(4096))));
+    assert!(VolumeSpec::new(8, DVec3::splat(f64::NAN), 1.0).is_err());
+    assert!(VolumeSpec::new(8, DVec3::ZERO, -1.0).is_err());
+    assert!(VolumeSpec::following(DVec3::ZERO, f64::INFINITY, 8).is_err());
+    assert!("bilinear".parse::<Filter>().unwrap_err().contains("nearest or split"));
+    let grid =
+        voxelize_in(&part(|p| p), &materials(), Cube { min: Vec3::ZERO, size: 16.0 }, 4, false, &|_, _| {}).unwrap();
+    assert!(VoxelCache::from_grid(&grid, 1.5).is_err());
+    assert!(VoxelCache::from_grid(&grid, f32::NAN).is_err());
+    let cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let mut vol = Volume::new(VolumeSpec::new(8, DVec3::ZERO, 1.0).unwrap());
+    for bad in [DAffine3::from_scale(DVec3::new(1.0, 0.0, 1.0)), DAffine3::from_translation(DVec3::splat(f64::NAN))] {
+        let e = vol.splat(&cache, &bad, Filter::Split).unwrap_err();
+        assert!(e.to_string().contains("not finite and invertible"), "{e}");
+    }
+    assert_eq!(vol.total_occupancy(), 0.0, "a refused transform writes nothing");
+    let deep = VoxelGrid::from_coords(11, Cube { min: Vec3::ZERO, size: 16.0 }, [[0, 0, 0]], Vec3::ONE);
+    assert!(VoxelCache::from_grid(&deep, 0.0).unwrap_err().to_string().contains("too deep"));
+    assert!(VoxelCache::build(&part(|p| p), &materials(), 11, 0.0).unwrap_err().to_string().contains("too deep"));
+}
+
+#[test]
+fn following_volumes_snap_to_whole_cells() {
+    let a = VolumeSpec::following(DVec3::new(0.3, 0.0, 0.0), 16.0, 32).unwrap();
+    let b = VolumeSpec::following(DVec3::new(0.4, 0.0, 0.0), 16.0, 32).unwrap();
+    assert_eq!(a.cell, 0.5);
+    assert_eq!((a.min / a.cell).fract(), DVec3::ZERO);
+    assert_eq!(a, b, "a small camera move keeps the same cells");
+}
