@@ -136,3 +136,106 @@ fn following_volumes_snap_to_whole_cells() {
     assert_eq!((a.min / a.cell).fract(), DVec3::ZERO);
     assert_eq!(a, b, "a small camera move keeps the same cells");
 }
+
+fn quad_part(name: &str, y: f32, lo: f32, hi: f32) -> Part {
+    let v = |x: f32, z: f32| Vec3::new(x, y, z);
+    // Wound so the normal points up (+y).
+    let tris = [[v(lo, lo), v(hi, hi), v(hi, lo)], [v(lo, lo), v(lo, hi), v(hi, hi)]];
+    Part {
+        name: name.into(),
+        triangles: tris.iter().map(|t| Triangle { positions: *t, uvs: None, material: 0 }).collect(),
+    }
+}
+
+#[test]
+fn injection_lights_cells_the_sun_sees_and_darkens_those_in_shadow() {
+    use std::sync::Arc;
+    use voxray::gi::inject;
+    use voxray::scene::{Instance, Lights, Scene, Sun, Transform};
+    let mats = materials();
+    let cube = Cube { min: Vec3::ZERO, size: 16.0 };
+    let floor = quad_part("floor", 1.0, 0.0, 10.0);
+    let roof = quad_part("roof", 5.0, 2.0, 6.0);
+    let grid = |p: &Part| voxelize_in(p, &mats, cube, 4, false, &|_, _| {}).unwrap();
+    let (gf, gr) = (grid(&floor), grid(&roof));
+    let mut scene =
+        Scene::new(vec![Arc::new(voxray::svo::build(&gf).unwrap()), Arc::new(voxray::svo::build(&gr).unwrap())]);
+    for part in 0..2 {
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY }).unwrap();
+    }
+    scene.update().unwrap();
+    let mut vol = Volume::new(VolumeSpec::new(16, DVec3::ZERO, 1.0).unwrap());
+    for g in [&gf, &gr] {
+        vol.splat(&VoxelCache::from_grid(g, 0.0).unwrap(), &DAffine3::IDENTITY, Filter::Nearest).unwrap();
+    }
+    // Sun straight above with irradiance π: a lit cell sends out exactly its albedo.
+    let pi = std::f32::consts::PI;
+    let lights = Lights {
+        sun: Some(Sun { to_sun: Vec3::Y, irradiance: Vec3::splat(pi) }),
+        ambient: None,
+        use_mtl_emitters: false,
+    };
+    let inj = inject(&vol, &scene, &lights);
+    assert!(inj.shadow_rays > 100);
+    let at = |x: u32, y: u32, z: u32| inj.rgba[vol.index([x, y, z])];
+    for (x, z) in [(8, 8), (9, 1), (0, 9), (8, 3)] {
+        let c = at(x, 1, z);
+        let albedo = vol.mean_albedo([x, 1, z]);
+        assert_eq!(c.w, 1.0);
+        assert!((c.truncate() - albedo).abs().max_element() < 1e-5, "lit ({x}, {z}): {c} vs albedo {albedo}");
+    }
+    for (x, z) in [(3, 3), (4, 4), (3, 4)] {
+        assert_eq!(at(x, 1, z).truncate(), Vec3::ZERO, "({x}, {z}) is under the roof");
+        assert_eq!(at(x, 1, z).w, 1.0, "a shadowed surface is still opaque");
+    }
+    // The roof's top is lit; empty cells stay empty.
+    assert!(at(4, 5, 4).x > 0.3);
+    assert_eq!(at(12, 12, 12), glam::Vec4::ZERO);
+    assert!(inj.rgba.iter().all(|c| c.is_finite()));
+    // No sun: nothing is injected (no emitters here), and no shadow rays are traced.
+    let dark = inject(&vol, &scene, &Lights { sun: None, ambient: None, use_mtl_emitters: false });
+    assert_eq!(dark.shadow_rays, 0);
+    assert!(dark.rgba.iter().all(|c| c.truncate() == Vec3::ZERO));
+}
+
+#[test]
+fn coarse_levels_keep_thin_walls_opaque_and_colours_unchanged() {
+    use glam::Vec4;
+    use voxray::gi::{levels, Injected};
+    let res = 8u32;
+    let idx = |x: u32, y: u32, z: u32| (x + res * (y + res * z)) as usize;
+    let mut rgba = vec![Vec4::ZERO; 512];
+    let colour = Vec3::new(0.2, 0.4, 0.6);
+    for y in 0..res {
+        for z in 0..res {
+            rgba[idx(3, y, z)] = colour.extend(1.0); // a wall one cell thick
+        }
+    }
+    for (x, y, z) in [(6, 0, 0), (7, 0, 0), (6, 1, 0), (7, 1, 0), (6, 0, 1), (7, 0, 1), (6, 1, 1), (7, 1, 1)] {
+        rgba[idx(x, y, z)] = (colour * 0.5).extend(0.5); // a solid block, half covered
+    }
+    rgba[idx(0, 7, 7)] = colour.extend(1.0); // a lone cell
+    let inj = Injected { res, cell: 1.0, min: DVec3::ZERO, rgba, shadow_rays: 0 };
+    let chain = levels::build(&inj);
+    assert_eq!(chain.levels.iter().map(|l| l.res).collect::<Vec<_>>(), [8, 4, 2, 1]);
+    for l in &chain.levels {
+        let wall_x = 3 >> chain.levels.iter().position(|m| m.res == l.res).unwrap();
+        for y in 0..l.res {
+            for z in 0..l.res {
+                let c = l.rgba[l.index([wall_x, y, z])];
+                assert_eq!(c.w, 1.0, "level res {}: wall cell alpha {}", l.res, c.w);
+                assert!((c.truncate() - colour).abs().max_element() < 1e-6, "level res {}: colour {c}", l.res);
+            }
+        }
+        assert!(l.rgba.iter().all(|c| c.is_finite() && c.w <= 1.0));
+    }
+    let l1 = &chain.levels[1];
+    // The half-covered solid block: 8 children of alpha ½ → coverage 1, colour kept.
+    let block = l1.rgba[l1.index([3, 0, 0])];
+    assert_eq!(block.w, 1.0);
+    assert!((block.truncate() - colour).abs().max_element() < 1e-6, "{block}");
+    // The lone cell: a quarter of the coverage, same colour once un-premultiplied.
+    let lone = l1.rgba[l1.index([0, 3, 3])];
+    assert_eq!(lone.w, 0.25);
+    assert!((lone.truncate() / lone.w - colour).abs().max_element() < 1e-6);
+}

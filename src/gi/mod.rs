@@ -1,11 +1,15 @@
 //! Voxel-transformation global illumination (see DESIGN.md): every part is voxelized once
 //! more, coarsely, into a linear [`VoxelCache`]; each frame the caches of the instances are
 //! transformed by their world matrices into a world [`Volume`] with nearest or 8-neighbour
-//! split filtering. This module is the CPU reference of those passes; light injection, the
-//! level chain and cone tracing build on it.
+//! split filtering, lit per cell ([`inject`]) and averaged up a level chain ([`levels`]).
+//! This module is the CPU reference of those passes; cone tracing builds on it.
 
 pub mod cache;
+pub mod inject;
+pub mod levels;
 pub mod volume;
 
 pub use cache::{CacheError, CacheVoxel, VoxelCache};
+pub use inject::{inject, Injected};
+pub use levels::{Level, Levels};
 pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};

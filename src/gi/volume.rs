@@ -1,9 +1,8 @@
 //! The dense world volume and the voxel transformation: each instance's cached voxels are
 //! moved by its world matrix and written into world cells, either to the nearest cell or
 //! split over the 8 cells around the moved centre by trilinear weights (DESIGN.md, "8-neighbour
-//! split filtering"). Occupancy, weighted albedo and weighted normal accumulate; a cell's
-//! albedo and normal are its sums divided by its occupancy, so overlapping voxels average by
-//! weight.
+//! split filtering"). Occupancy, weighted albedo, normal and emission accumulate; a cell's
+//! attributes are its sums divided by its occupancy, so overlapping voxels average by weight.
 
 use super::cache::VoxelCache;
 use glam::{DAffine3, DMat3, DVec3, Vec3};
@@ -111,13 +110,21 @@ pub struct Volume {
     pub albedo: Vec<Vec3>,
     /// Summed weight × world normal per cell.
     pub normal: Vec<Vec3>,
+    /// Summed weight × emitted radiance (MTL `Ke`) per cell.
+    pub emission: Vec<Vec3>,
 }
 
 impl Volume {
     /// An empty volume.
     pub fn new(spec: VolumeSpec) -> Self {
         let n = (spec.res as usize).pow(3);
-        Volume { spec, occupancy: vec![0.0; n], albedo: vec![Vec3::ZERO; n], normal: vec![Vec3::ZERO; n] }
+        Volume {
+            spec,
+            occupancy: vec![0.0; n],
+            albedo: vec![Vec3::ZERO; n],
+            normal: vec![Vec3::ZERO; n],
+            emission: vec![Vec3::ZERO; n],
+        }
     }
 
     /// Empties every cell.
@@ -125,6 +132,7 @@ impl Volume {
         self.occupancy.fill(0.0);
         self.albedo.fill(Vec3::ZERO);
         self.normal.fill(Vec3::ZERO);
+        self.emission.fill(Vec3::ZERO);
     }
 
     /// Index of cell `c`.
@@ -149,6 +157,7 @@ impl Volume {
             let g = (p - self.spec.min) / self.spec.cell - DVec3::splat(0.5);
             let attr = v.attr();
             let albedo = attr.albedo_linear();
+            let emission = attr.emission();
             let n = (normal_m * attr.normal().as_dvec3()).normalize_or_zero().as_vec3();
             let mut add = |c: [i64; 3], w: f64| {
                 if w == 0.0 {
@@ -163,6 +172,7 @@ impl Volume {
                 self.occupancy[i] += w32;
                 self.albedo[i] += albedo * w32;
                 self.normal[i] += n * w32;
+                self.emission[i] += emission * w32;
             };
             match filter {
                 Filter::Nearest => {

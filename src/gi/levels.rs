@@ -1,0 +1,65 @@
+//! The level chain: each coarser level averages 2×2×2 cells of the finer one. Opacity is
+//! surface coverage — the children's summed alpha / 4, clamped to 1 — so a wall one cell thick
+//! (4 of the 8 children) stays opaque at every level instead of fading to 1/2, 1/4, …;
+//! premultiplied radiance scales with the same clamp so the colour stays the children's mean.
+
+use super::inject::Injected;
+use glam::{DVec3, Vec4};
+
+/// One level of the chain.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Level {
+    /// Cells per side.
+    pub res: u32,
+    /// Cell edge (world units).
+    pub cell: f64,
+    /// (radiance × alpha, alpha) per cell, x fastest.
+    pub rgba: Vec<Vec4>,
+}
+
+impl Level {
+    /// Index of cell `c`.
+    pub fn index(&self, c: [u32; 3]) -> usize {
+        let r = self.res as usize;
+        c[0] as usize + r * (c[1] as usize + r * c[2] as usize)
+    }
+}
+
+/// Level 0 (the injected volume) and every coarser level down to one cell.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Levels {
+    /// World corner shared by all levels.
+    pub min: DVec3,
+    /// Finest first.
+    pub levels: Vec<Level>,
+}
+
+/// Builds the chain from the injected volume.
+pub fn build(inj: &Injected) -> Levels {
+    let mut levels = vec![Level { res: inj.res, cell: inj.cell, rgba: inj.rgba.clone() }];
+    while let Some(fine) = levels.last().filter(|l| l.res > 1) {
+        let res = fine.res.div_ceil(2);
+        let mut coarse = Level { res, cell: fine.cell * 2.0, rgba: vec![Vec4::ZERO; (res as usize).pow(3)] };
+        for z in 0..res {
+            for y in 0..res {
+                for x in 0..res {
+                    let mut sum = Vec4::ZERO;
+                    for k in 0..8u32 {
+                        let c = [2 * x + (k & 1), 2 * y + ((k >> 1) & 1), 2 * z + (k >> 2)];
+                        if c.iter().all(|&v| v < fine.res) {
+                            sum += fine.rgba[fine.index(c)];
+                        }
+                    }
+                    let a = sum.w / 4.0;
+                    if a > 0.0 {
+                        let keep = a.min(1.0) / a;
+                        let i = coarse.index([x, y, z]);
+                        coarse.rgba[i] = (sum.truncate() / 4.0 * keep).extend(a.min(1.0));
+                    }
+                }
+            }
+        }
+        levels.push(coarse);
+    }
+    Levels { min: inj.min, levels }
+}
