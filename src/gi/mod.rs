@@ -2,14 +2,17 @@
 //! more, coarsely, into a linear [`VoxelCache`]; each frame the caches of the instances are
 //! transformed by their world matrices into a world [`Volume`] with nearest or 8-neighbour
 //! split filtering, lit per cell ([`inject`]) and averaged up a level chain ([`levels`]).
-//! This module is the CPU reference of those passes; cone tracing builds on it.
+//! and sampled by voxel cone tracing ([`cone`]). This module is the CPU reference of those
+//! passes.
 
 pub mod cache;
+pub mod cone;
 pub mod inject;
 pub mod levels;
 pub mod volume;
 
 pub use cache::{CacheError, CacheVoxel, VoxelCache};
+pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
 pub use levels::{Level, Levels};
 pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};
