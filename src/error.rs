@@ -18,6 +18,9 @@ pub enum Error {
     /// Building or updating the scene.
     #[error(transparent)]
     Scene(#[from] crate::scene::SceneError),
+    /// Global illumination settings or inputs.
+    #[error(transparent)]
+    Gi(#[from] crate::gi::GiError),
     /// The camera.
     #[error(transparent)]
     Camera(#[from] crate::scene::CameraError),

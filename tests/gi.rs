@@ -338,3 +338,100 @@ fn every_cone_knob_value_gives_finite_light_and_bad_ones_clear_errors() {
         assert!(bad.validated().unwrap_err().to_string().contains(needle));
     }
 }
+
+#[test]
+fn caches_from_an_svo_hold_its_voxels_at_every_level() {
+    let grid =
+        voxelize_in(&part(|p| p), &materials(), Cube { min: Vec3::ZERO, size: 16.0 }, 5, false, &|_, _| {}).unwrap();
+    let svo = voxray::svo::build(&grid).unwrap();
+    let full = VoxelCache::from_svo(&svo, 5, 0.0).unwrap();
+    assert_eq!(full.voxels.len() as u64, svo.voxel_count);
+    let direct = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let (mut a, mut b): (Vec<_>, Vec<_>) =
+        (full.voxels.iter().map(|v| v.coord()).collect(), direct.voxels.iter().map(|v| v.coord()).collect());
+    a.sort();
+    b.sort();
+    assert_eq!(a, b);
+    // A coarser level: each voxel's parent, once.
+    let coarse = VoxelCache::from_svo(&svo, 3, 0.0).unwrap();
+    let mut parents: Vec<[u32; 3]> = b.iter().map(|c| [c[0] >> 2, c[1] >> 2, c[2] >> 2]).collect();
+    parents.sort();
+    parents.dedup();
+    let mut got: Vec<[u32; 3]> = coarse.voxels.iter().map(|v| v.coord()).collect();
+    got.sort();
+    assert_eq!(got, parents);
+    assert_eq!(coarse.voxel_size, 2.0);
+}
+
+#[test]
+fn gi_bleeds_a_red_wall_onto_a_white_floor_and_leaves_the_sky_alone() {
+    use voxray::gi::{apply, GiSettings};
+    use voxray::mesh::Mesh;
+    use voxray::render::{render, Features, FramePlan, RenderOptions};
+    use voxray::scene::{Camera, Instance, Lights, Scene, Sun, Transform};
+    let v = Vec3::new;
+    let tri = |p: [Vec3; 3], material: u32| Triangle { positions: p, uvs: None, material };
+    // Floor y = 0 facing up (white), wall x = 4 facing −x (red).
+    let floor = Part {
+        name: "floor".into(),
+        triangles: vec![
+            tri([v(0.0, 0.0, 0.0), v(8.0, 0.0, 8.0), v(8.0, 0.0, 0.0)], 0),
+            tri([v(0.0, 0.0, 0.0), v(0.0, 0.0, 8.0), v(8.0, 0.0, 8.0)], 0),
+        ],
+    };
+    let wall = Part {
+        name: "wall".into(),
+        triangles: vec![
+            tri([v(4.0, 0.0, 0.0), v(4.0, 4.0, 8.0), v(4.0, 4.0, 0.0)], 1),
+            tri([v(4.0, 0.0, 0.0), v(4.0, 0.0, 8.0), v(4.0, 4.0, 8.0)], 1),
+        ],
+    };
+    let mesh = Mesh {
+        parts: vec![floor, wall],
+        materials: vec![Material::new("white", Vec3::splat(0.8)), Material::new("red", v(0.9, 0.1, 0.1))],
+        ..Default::default()
+    };
+    let parts = voxray::pipeline::build_parts(&mesh, voxray::voxelize::Resolution::Depth(7)).unwrap();
+    let mut scene = Scene::new(parts);
+    for part in 0..2 {
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY }).unwrap();
+    }
+    scene.update().unwrap();
+    let cam = Camera {
+        eye: glam::DVec3::new(0.5, 5.0, 4.0),
+        target: glam::DVec3::new(3.0, 0.0, 4.0),
+        up: glam::DVec3::Y,
+        vfov_deg: 50.0,
+        width: 64,
+        height: 48,
+    };
+    let lights = Lights {
+        sun: Some(Sun { to_sun: v(-1.0, 1.0, 0.2).normalize(), irradiance: Vec3::splat(3.0) }),
+        ..Lights::default()
+    };
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let plain = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let mut lit = plain.clone();
+    let s = GiSettings { res: 64, extent: Some(12.0), ..GiSettings::default() };
+    let stats = apply(&mut lit, &scene, &cam, &lights, &s).unwrap();
+    assert!(stats.occupied > 100, "{stats:?}");
+    assert!(lit.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
+    let redness = |f: &voxray::render::Frame| {
+        let (mut r, mut g) = (0.0f64, 0.0f64);
+        for k in 0..f.radiance.len() {
+            if f.instance[k] == 0 {
+                r += f.radiance[k].x as f64;
+                g += f.radiance[k].y as f64;
+            }
+        }
+        r / g
+    };
+    let (before, after) = (redness(&plain), redness(&lit));
+    println!("floor red/green without GI {before:.3}, with GI {after:.3}; {stats:?}");
+    assert!(after > before * 1.05, "floor red/green {before:.3} → {after:.3}: no colour bleeding");
+    for k in 0..lit.radiance.len() {
+        if lit.instance[k] < 0 {
+            assert_eq!(lit.radiance[k], plain.radiance[k], "sky pixel {k} changed");
+        }
+    }
+}

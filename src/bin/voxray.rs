@@ -148,6 +148,22 @@ struct RenderArgs {
     /// Print the frame plan (first frame, and whenever it changes).
     #[arg(long)]
     explain: bool,
+    /// Voxel-transformation global illumination (computed on the CPU, after either backend):
+    /// colour bleeding and ambient occlusion in place of the flat sky term.
+    #[arg(long)]
+    gi: bool,
+    /// GI world volume cells per side.
+    #[arg(long, default_value_t = 128, requires = "gi")]
+    gi_res: u32,
+    /// GI filtering of moved voxels: nearest or split (8-neighbour).
+    #[arg(long, default_value = "split", requires = "gi")]
+    gi_filter: voxray::gi::Filter,
+    /// GI diffuse cones per pixel (1–64).
+    #[arg(long, default_value_t = 6, requires = "gi")]
+    gi_cones: u32,
+    /// GI world volume edge in scene units (default: 3× the camera's distance to its target).
+    #[arg(long, requires = "gi")]
+    gi_extent: Option<f64>,
     /// Where to render: cpu, gpu (an error without an adapter) or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     backend: voxray::backend::BackendKind,
@@ -504,6 +520,17 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
 
     let features = a.switches.features();
     let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
+    let gi = a.gi.then(|| voxray::gi::GiSettings {
+        res: a.gi_res,
+        filter: a.gi_filter,
+        cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
+        extent: a.gi_extent,
+    });
+    if let Some(g) = &gi {
+        // Check the knobs before any frame is rendered.
+        voxray::gi::VolumeSpec::new(g.res, glam::DVec3::ZERO, 1.0)?;
+        g.cones.validated().map_err(|e| usage(&e.to_string()))?;
+    }
     let (mut backend, backend_name) = Backend::open(a.backend)?;
     eprintln!("backend: {backend_name}");
     let mut gpu_times = Vec::new();
@@ -523,11 +550,22 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
         }
-        let frame = backend.render(&st.scene, &cam, &lights, &plan, &opts, &|d, _| {
+        let mut frame = backend.render(&st.scene, &cam, &lights, &plan, &opts, &|d, _| {
             if a.frames == 1 {
                 pb.set_position(d as u64)
             }
         })?;
+        if let Some(g) = &gi {
+            let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g)?;
+            if f == 0 {
+                pb.suspend(|| {
+                    eprintln!(
+                        "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms",
+                        s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms
+                    )
+                });
+            }
+        }
         times.push(start.elapsed().as_secs_f64());
         if let Some(t) = backend.pass_times() {
             gpu_times.push(t);

@@ -9,10 +9,12 @@ pub mod cache;
 pub mod cone;
 pub mod inject;
 pub mod levels;
+pub mod shade;
 pub mod volume;
 
 pub use cache::{CacheError, CacheVoxel, VoxelCache};
 pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
 pub use levels::{Level, Levels};
+pub use shade::{apply, GiSettings, GiStats};
 pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};

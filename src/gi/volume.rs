@@ -56,6 +56,9 @@ pub enum GiError {
         /// Corner.
         min: DVec3,
     },
+    /// Another invalid GI setting.
+    #[error("GI: {0}")]
+    Settings(String),
     /// A world matrix with NaN/∞ or a singular linear part.
     #[error("instance transform is not finite and invertible: {0:?}")]
     Transform(DAffine3),

@@ -488,6 +488,7 @@ impl GpuRenderer {
             t: records.iter().map(|r| r.t).collect(),
             instance: records.iter().map(|r| r.instance).collect(),
             normal: records.iter().map(|r| r.normal).collect(),
+            albedo: records.iter().map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO }).collect(),
             primary_rays: n as u64,
             reused: hits.iter().filter(|g| g.reused != 0).count() as u64,
             shadow_rays,

@@ -40,6 +40,8 @@ pub struct Frame {
     pub instance: Vec<i32>,
     /// World-space unit normal facing the camera; zero for a miss.
     pub normal: Vec<Vec3>,
+    /// Linear albedo of the surface hit; zero for a miss.
+    pub albedo: Vec<Vec3>,
     /// Primary rays (one per pixel).
     pub primary_rays: u64,
     /// Pixels whose primary hit came from the hit buffer (no ray traced).
@@ -140,6 +142,7 @@ pub fn render(
         t: records.iter().map(|r| r.t).collect(),
         instance: records.iter().map(|r| r.instance).collect(),
         normal: records.iter().map(|r| r.normal).collect(),
+        albedo: records.iter().map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO }).collect(),
         primary_rays: n as u64,
         reused: 0,
         shadow_rays: 0,

@@ -1,0 +1,129 @@
+//! GI for a rendered frame (CPU): caches from each part's SVO, the world volume around the
+//! scene, injection, levels, and cones gathered at every pixel that hit something. The indirect
+//! light replaces the renderer's flat ambient term (albedo × sky) with albedo × the cone-traced
+//! light, in which the sky fills only what the cones do not see — colour bleeding and ambient
+//! occlusion together.
+
+use super::cache::{VoxelCache, MAX_CACHE_DEPTH};
+use super::cone::{gather, ConeSettings};
+use super::inject::inject;
+use super::levels;
+use super::volume::{Filter, GiError, Volume, VolumeSpec};
+use crate::render::Frame;
+use crate::scene::{Camera, Lights, Scene};
+use std::time::Instant;
+
+/// The GI knobs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GiSettings {
+    /// World volume cells per side.
+    pub res: u32,
+    /// How moved voxels are written.
+    pub filter: Filter,
+    /// The cones.
+    pub cones: ConeSettings,
+    /// Edge of the world volume (world units); None: three times the camera's distance to its
+    /// target, at most the scene's size.
+    pub extent: Option<f64>,
+}
+
+impl Default for GiSettings {
+    fn default() -> Self {
+        GiSettings { res: 128, filter: Filter::Split, cones: ConeSettings::default(), extent: None }
+    }
+}
+
+/// Where a GI frame's time went (milliseconds) and what it did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GiStats {
+    /// Caches from the SVOs.
+    pub caches_ms: f64,
+    /// Moving the caches into the volume.
+    pub transform_ms: f64,
+    /// Light injection (with its shadow rays).
+    pub inject_ms: f64,
+    /// The level chain.
+    pub levels_ms: f64,
+    /// Cone tracing at the pixels.
+    pub cones_ms: f64,
+    /// Cache voxels moved.
+    pub voxels: u64,
+    /// Occupied world cells.
+    pub occupied: usize,
+}
+
+/// Adds indirect light to `frame` (rendered from `camera` with `lights`).
+pub fn apply(
+    frame: &mut Frame,
+    scene: &Scene,
+    camera: &Camera,
+    lights: &Lights,
+    s: &GiSettings,
+) -> Result<GiStats, GiError> {
+    let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
+    let mut stats = GiStats::default();
+    // The volume follows the camera: centred on its target, sized to what it looks at.
+    let (lo, hi) = scene.bounds();
+    let scene_extent = (hi - lo).max_element() * 1.1;
+    let extent = s.extent.unwrap_or_else(|| (3.0 * (camera.eye - camera.target).length()).min(scene_extent));
+    if !(extent.is_finite() && extent > 0.0) {
+        return Err(GiError::Settings(format!("volume extent {extent} must be finite and positive")));
+    }
+    let spec = VolumeSpec::following(camera.target, extent, s.res)?;
+    let t0 = Instant::now();
+    // One cache per part, its voxels about a world cell in size (parts may be scaled by their
+    // instances; the part's own size is the guide).
+    let caches: Vec<VoxelCache> = scene
+        .parts
+        .iter()
+        .map(|p| {
+            let level = (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, MAX_CACHE_DEPTH as f64) as u32;
+            VoxelCache::from_svo(p, level, 0.0).map_err(|e| GiError::Settings(e.to_string()))
+        })
+        .collect::<Result<_, _>>()?;
+    let t1 = Instant::now();
+    let mut vol = Volume::new(spec);
+    for (i, inst) in scene.instances().iter().enumerate() {
+        stats.voxels += vol.splat(&caches[inst.part], &scene.world(i), s.filter)?.voxels;
+    }
+    stats.occupied = vol.occupancy.iter().filter(|&&o| o > 0.0).count();
+    let t2 = Instant::now();
+    let injected = inject(&vol, scene, lights);
+    let t3 = Instant::now();
+    let chain = levels::build(&injected);
+    let t4 = Instant::now();
+    let sky = lights.sky();
+    let basis = camera.basis();
+    let w = frame.width as usize;
+    let gi_pixel = |k: usize| {
+        if frame.instance[k] < 0 {
+            return None;
+        }
+        let (x, y) = ((k % w) as u32, (k / w) as u32);
+        let p = camera.eye + camera.ray_dir(&basis, x, y) * frame.t[k] as f64;
+        let n = frame.normal[k].as_dvec3();
+        let (light, _open) = gather(&chain, p, n, sky, &cones);
+        Some(frame.albedo[k] * (light - sky))
+    };
+    #[cfg(feature = "parallel")]
+    let add: Vec<Option<glam::Vec3>> = {
+        use rayon::prelude::*;
+        (0..frame.radiance.len()).into_par_iter().map(gi_pixel).collect()
+    };
+    #[cfg(not(feature = "parallel"))]
+    let add: Vec<Option<glam::Vec3>> = (0..frame.radiance.len()).map(gi_pixel).collect();
+    for (r, a) in frame.radiance.iter_mut().zip(add) {
+        if let Some(a) = a {
+            // The flat ambient term albedo × sky is already in; swap it for the gathered light.
+            *r = (*r + a).max(glam::Vec3::ZERO);
+        }
+    }
+    let t5 = Instant::now();
+    let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+    stats.caches_ms = ms(t0, t1);
+    stats.transform_ms = ms(t1, t2);
+    stats.inject_ms = ms(t2, t3);
+    stats.levels_ms = ms(t3, t4);
+    stats.cones_ms = ms(t4, t5);
+    Ok(stats)
+}
