@@ -45,6 +45,8 @@ pub struct DemoOptions {
     pub features: Features,
     /// The car's parts, so the car count can change while running (None: a fixed scene).
     pub car_parts: Option<CarParts>,
+    /// Start with voxel-transformation GI on (it can be switched in the panel).
+    pub gi: bool,
 }
 
 /// What the demo needs to re-stage the cars when their number changes.
@@ -127,6 +129,9 @@ struct Ui {
     reused: f64,
     mrays: f64,
     per_ray: (f64, f64),
+    gi_on: bool,
+    gi: crate::gi::GiSettings,
+    gi_ms: Option<f64>,
     gpu_ms: Option<(f64, f64)>,
     reset: bool,
 }
@@ -371,9 +376,16 @@ impl App {
         let backend = self.backend.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
         let plan = backend.plan(&self.scene, &camera, &self.lights, &self.opts.features, self.first_frame);
         self.first_frame = false;
-        let frame = backend
+        let mut frame = backend
             .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions { max_level: self.ui.lod }, &|_, _| {})
             .map_err(|e| ViewerError::Other(e.to_string()))?;
+        self.ui.gi_ms = None;
+        if self.ui.gi_on {
+            let g = Instant::now();
+            crate::gi::apply(&mut frame, &self.scene, &camera, &self.lights, &self.ui.gi)
+                .map_err(|e| ViewerError::Other(e.to_string()))?;
+            self.ui.gi_ms = Some(g.elapsed().as_secs_f64() * 1e3);
+        }
         let secs = start.elapsed().as_secs_f64();
         self.times.push(secs * 1e3);
         self.ui.gpu_ms = backend.pass_times();
@@ -714,6 +726,16 @@ impl App {
                     ui_.checkbox(&mut f.bvh, "instance BVH");
                     ui_.checkbox(&mut f.hit_buffer, "hit buffer");
                     ui_.checkbox(&mut f.shadows, "shadows");
+                    ui_.checkbox(&mut ui.gi_on, "global illumination (CPU)");
+                    if ui.gi_on {
+                        ui_.add(egui::Slider::new(&mut ui.gi.res, 16..=256).text("GI volume cells"));
+                        ui_.add(egui::Slider::new(&mut ui.gi.cones.diffuse_cones, 1..=16).text("GI cones"));
+                        ui_.horizontal(|row| {
+                            row.label("GI filter:");
+                            row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Split, "split");
+                            row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Nearest, "nearest");
+                        });
+                    }
                     let mut full = ui.lod == u32::MAX;
                     ui_.checkbox(&mut full, "full detail");
                     if full {
@@ -735,6 +757,9 @@ impl App {
                     ui_.strong("Statistics");
                     let last = ui.frame_ms.back().copied().unwrap_or(0.0);
                     ui_.label(format!("frame {last:.1} ms, {render_w}×{h}, {instances} instances"));
+                    if let Some(ms) = ui.gi_ms {
+                        ui_.label(format!("GI (CPU): {ms:.0} ms of the frame"));
+                    }
                     if let Some((tr, sh)) = ui.gpu_ms {
                         ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));
                     }
@@ -1005,11 +1030,15 @@ pub fn run(
             reused: 0.0,
             mrays: 0.0,
             per_ray: (0.0, 0.0),
+            gi_on: false,
+            gi: crate::gi::GiSettings { res: 64, ..Default::default() },
+            gi_ms: None,
             gpu_ms: None,
             reset: false,
         },
     };
     app.ui.travel = app.cars.first().is_some_and(|c| c.travel);
+    app.ui.gi_on = app.opts.gi;
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Other(e.to_string()))?;
     if let Some(e) = app.error {
         return Err(e);

@@ -173,3 +173,31 @@ fn demo_without_any_gpu_adapter_renders_on_the_cpu_in_a_software_window() {
     let red = img.pixels().filter(|p| p.0[0] as i32 > p.0[1] as i32 + 60 && p.0[0] as i32 > p.0[2] as i32 + 60).count();
     assert!(red > 300, "only {red} red-car pixels in the screenshot");
 }
+
+#[test]
+fn demo_with_gi_draws_a_different_picture_from_the_same_frames() {
+    if !xvfb() {
+        return;
+    }
+    let d = tmp("gi");
+    let run = |gi: bool, shot: &std::path::Path| {
+        let mut c = Command::new("xvfb-run");
+        c.args(["-a", "-s", "-screen 0 800x600x24"])
+            .arg(env!("CARGO_BIN_EXE_voxray"))
+            .args(["demo", "--frames", "3", "--exit", "--width", "96", "--height", "64", "--depth", "6", "--in-place"])
+            .args(["--backend", "cpu", "--cache-dir"])
+            .arg(d.join("cache"))
+            .arg("--screenshot")
+            .arg(shot);
+        if gi {
+            c.arg("--gi");
+        }
+        let o = c.output().expect("run xvfb-run");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        image::open(shot).unwrap().to_rgb8()
+    };
+    let plain = run(false, &d.join("plain.png"));
+    let gi = run(true, &d.join("gi.png"));
+    let differ = plain.pixels().zip(gi.pixels()).filter(|(a, b)| a != b).count();
+    assert!(differ > 500, "GI changed only {differ} pixels");
+}

@@ -289,6 +289,9 @@ struct DemoArgs {
     no_ground: bool,
     #[command(flatten)]
     switches: Switches,
+    /// Start with voxel-transformation GI on (CPU; switchable in the panel).
+    #[arg(long)]
+    gi: bool,
     /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     backend: voxray::backend::BackendKind,
@@ -651,6 +654,7 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         backend: a.backend,
         features: a.switches.features(),
         car_parts,
+        gi: a.gi,
     };
     let report = run(opts, st.scene, st.cars, Lights::default(), camera).map_err(demo_err)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
