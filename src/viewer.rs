@@ -131,6 +131,7 @@ struct Ui {
     per_ray: (f64, f64),
     gi_on: bool,
     gi: crate::gi::GiSettings,
+    gi_caches: crate::gi::GiCaches,
     gi_ms: Option<f64>,
     gpu_ms: Option<(f64, f64)>,
     reset: bool,
@@ -382,7 +383,7 @@ impl App {
         self.ui.gi_ms = None;
         if self.ui.gi_on {
             let g = Instant::now();
-            crate::gi::apply(&mut frame, &self.scene, &camera, &self.lights, &self.ui.gi)
+            crate::gi::apply(&mut frame, &self.scene, &camera, &self.lights, &self.ui.gi, &mut self.ui.gi_caches)
                 .map_err(|e| ViewerError::Other(e.to_string()))?;
             self.ui.gi_ms = Some(g.elapsed().as_secs_f64() * 1e3);
         }
@@ -635,6 +636,8 @@ impl App {
                 self.orbit = self.home.clone();
                 self.scene = st.scene;
                 self.cars = st.cars;
+                // The old parts' GI caches (the ground is new) are not needed any more.
+                self.ui.gi_caches = crate::gi::GiCaches::new();
                 self.first_frame = true;
                 eprintln!("demo: {n} cars, {} instances", self.scene.instances().len());
             }
@@ -647,7 +650,7 @@ impl App {
     /// Moves the camera by the held W A S D / Q E keys (Shift: four times faster).
     fn fly(&mut self, dt: f64) {
         let held = |k| self.keys.contains(&k) as i32 as f64;
-        let forward = (held(KeyCode::KeyW) - held(KeyCode::KeyS)) * 1.0;
+        let forward = held(KeyCode::KeyW) - held(KeyCode::KeyS);
         let side = held(KeyCode::KeyD) - held(KeyCode::KeyA);
         let lift = held(KeyCode::KeyE) - held(KeyCode::KeyQ);
         if forward == 0.0 && side == 0.0 && lift == 0.0 {
@@ -1032,6 +1035,7 @@ pub fn run(
             per_ray: (0.0, 0.0),
             gi_on: false,
             gi: crate::gi::GiSettings { res: 64, ..Default::default() },
+            gi_caches: crate::gi::GiCaches::new(),
             gi_ms: None,
             gpu_ms: None,
             reset: false,

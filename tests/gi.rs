@@ -413,7 +413,7 @@ fn gi_bleeds_a_red_wall_onto_a_white_floor_and_leaves_the_sky_alone() {
     let plain = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     let mut lit = plain.clone();
     let s = GiSettings { res: 64, extent: Some(12.0), ..GiSettings::default() };
-    let stats = apply(&mut lit, &scene, &cam, &lights, &s).unwrap();
+    let stats = apply(&mut lit, &scene, &cam, &lights, &s, &mut voxray::gi::GiCaches::new()).unwrap();
     assert!(stats.occupied > 100, "{stats:?}");
     assert!(lit.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
     let redness = |f: &voxray::render::Frame| {

@@ -160,7 +160,15 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
     }
     let (median_ms, p95_ms, min_ms) = summarize(&times);
     let pixels = (clip.camera.width * clip.camera.height) as f64 * frames as f64;
-    let svo_bytes = clip.scene.parts.iter().map(|p| p.stats().geometry_bytes + p.stats().attribute_bytes).sum();
+    let svo_bytes = clip
+        .scene
+        .parts
+        .iter()
+        .map(|p| {
+            let st = p.stats();
+            st.geometry_bytes + st.attribute_bytes
+        })
+        .sum();
     let record = Record {
         width: clip.camera.width,
         height: clip.camera.height,

@@ -34,28 +34,6 @@ pub struct PeerScene<'a> {
     pub machine: String,
 }
 
-/// Leaf voxel coordinates of an SVO (integer grid at its depth).
-pub fn leaf_coords(svo: &Svo) -> Vec<[u32; 3]> {
-    let mut out = Vec::with_capacity(svo.voxel_count as usize);
-    // (slot, level, integer origin of the node at that level)
-    let mut stack = vec![(0usize, 0u32, [0u32; 3])];
-    while let Some((slot, level, o)) = stack.pop() {
-        let n = svo.nodes[slot];
-        for oct in 0..8u32 {
-            if n.valid() & (1 << oct) == 0 {
-                continue;
-            }
-            let c = [2 * o[0] + (oct & 1), 2 * o[1] + ((oct >> 1) & 1), 2 * o[2] + ((oct >> 2) & 1)];
-            if n.leaf() & (1 << oct) != 0 || level + 1 == svo.depth {
-                out.push(c);
-            } else {
-                stack.push((svo.child_slot(slot, oct), level + 1, c));
-            }
-        }
-    }
-    out
-}
-
 /// Traces one frame with `hit` (true on a hit) over every pixel in parallel rows; returns
 /// seconds and the number of hits.
 fn frame(camera: &Camera, hit: &(dyn Fn(DVec3, DVec3) -> bool + Sync)) -> (f64, u64) {
@@ -210,8 +188,12 @@ pub fn run(scene: &PeerScene<'_>) -> Result<Vec<Record>, crate::Error> {
     {
         use parry3d::math::{IVector, Vector};
         use parry3d::query::{Ray, RayCast};
-        let coords: Vec<IVector> =
-            leaf_coords(&scene.svo).iter().map(|c| IVector::new(c[0] as i32, c[1] as i32, c[2] as i32)).collect();
+        let coords: Vec<IVector> = scene
+            .svo
+            .at_level(scene.svo.depth)
+            .iter()
+            .map(|(c, _)| IVector::new(c[0] as i32, c[1] as i32, c[2] as i32))
+            .collect();
         let size = scene.svo.bounds.voxel_size(scene.svo.depth);
         let vox = parry3d::shape::Voxels::new(Vector::splat(size), &coords);
         let min = scene.svo.bounds.min.as_dvec3();

@@ -14,7 +14,7 @@ use voxray::mesh::Part;
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::{output, Features, Frame, FramePlan, RenderOptions};
 use voxray::scene::car::pose;
-use voxray::scene::{stage_cars, Camera, Instance, Lights, Scene, Staged, Transform};
+use voxray::scene::{add_ground, stage_cars, Camera, Instance, Lights, Scene, Staged, Transform};
 use voxray::svo::Svo;
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 use voxray::Error;
@@ -452,11 +452,7 @@ fn stage(src: &SourceArgs, cars: u32, in_place: bool, static_car: bool, with_gro
     scene.update()?;
     let bounds = scene.bounds();
     if default_car && with_ground {
-        let (lo, hi) = (bounds.0 - glam::DVec3::splat(3.0), bounds.1 + glam::DVec3::splat(3.0));
-        scene.parts.push(Arc::new(voxray::scene::ground::ground(lo, hi, 1.0, 0.05)?));
-        let part = scene.parts.len() - 1;
-        scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
-        scene.update()?;
+        add_ground(&mut scene, bounds)?;
     }
     Ok(Staged { scene, cars: Vec::new(), bounds })
 }
@@ -529,6 +525,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
         extent: a.gi_extent,
     });
+    let mut gi_caches = voxray::gi::GiCaches::new();
     if let Some(g) = &gi {
         // Check the knobs before any frame is rendered.
         voxray::gi::VolumeSpec::new(g.res, glam::DVec3::ZERO, 1.0)?;
@@ -559,7 +556,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             }
         })?;
         if let Some(g) = &gi {
-            let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g)?;
+            let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g, &mut gi_caches)?;
             if f == 0 {
                 pb.suspend(|| {
                     eprintln!(
@@ -763,7 +760,7 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             warmup: a.warmup,
             frames: a.frames as usize,
             command: command.clone(),
-            machine: machine(),
+            machine: cfg.machine.clone(),
         };
         records.extend(voxray::bench::peers::run(&input)?);
         pb.inc(4);

@@ -119,34 +119,16 @@ impl VoxelCache {
         if !(0.0..=1.0).contains(&gloss) {
             return Err(CacheError::Gloss(gloss));
         }
-        let mut voxels = Vec::new();
-        let mut push = |c: [u32; 3], a: Attr| {
-            voxels.push(CacheVoxel {
+        let voxels = svo
+            .at_level(level)
+            .into_iter()
+            .map(|(c, a)| CacheVoxel {
                 coord: c[0] | (c[1] << COORD_BITS) | (c[2] << (2 * COORD_BITS)),
                 albedo: a.albedo,
                 normal: a.normal,
                 gloss,
             })
-        };
-        if level == 0 {
-            push([0, 0, 0], svo.attrs[0]);
-        } else {
-            let mut stack = vec![(0usize, 0u32, [0u32; 3])];
-            while let Some((slot, l, o)) = stack.pop() {
-                let n = svo.nodes[slot];
-                for oct in 0..8u32 {
-                    if n.valid() & (1 << oct) == 0 {
-                        continue;
-                    }
-                    let c = [2 * o[0] + (oct & 1), 2 * o[1] + ((oct >> 1) & 1), 2 * o[2] + (oct >> 2)];
-                    if l + 1 == level {
-                        push(c, svo.child_attr(slot, oct));
-                    } else if n.leaf() & (1 << oct) == 0 {
-                        stack.push((svo.child_slot(slot, oct), l + 1, c));
-                    }
-                }
-            }
-        }
+            .collect();
         Ok(VoxelCache { corner: svo.bounds.min, voxel_size: svo.bounds.voxel_size(level), depth: level, voxels })
     }
 

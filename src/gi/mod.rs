@@ -16,5 +16,5 @@ pub use cache::{CacheError, CacheVoxel, VoxelCache};
 pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
 pub use levels::{Level, Levels};
-pub use shade::{apply, GiSettings, GiStats};
+pub use shade::{apply, GiCaches, GiSettings, GiStats};
 pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};

@@ -11,7 +11,37 @@ use super::levels;
 use super::volume::{Filter, GiError, Volume, VolumeSpec};
 use crate::render::Frame;
 use crate::scene::{Camera, Lights, Scene};
+use std::collections::HashMap;
 use std::time::Instant;
+
+/// Voxel caches kept between frames: one per part and cache level, built the first time a
+/// frame needs it (the level follows the volume's cell size, which follows the camera).
+#[derive(Default)]
+pub struct GiCaches {
+    // Keyed by the part's address; the Arc is held so that address cannot be reused by
+    // another part while its cache is here.
+    built: HashMap<(usize, u32), (std::sync::Arc<crate::svo::Svo>, VoxelCache)>,
+}
+
+impl GiCaches {
+    /// No caches yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The cache of `svo` at `level`, built on first use.
+    fn get(&mut self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Result<&VoxelCache, GiError> {
+        let key = (std::sync::Arc::as_ptr(svo) as usize, level);
+        let entry = match self.built.entry(key) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let cache = VoxelCache::from_svo(svo, level, 0.0).map_err(|e| GiError::Settings(e.to_string()))?;
+                e.insert((svo.clone(), cache))
+            }
+        };
+        Ok(&entry.1)
+    }
+}
 
 /// The GI knobs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -36,7 +66,7 @@ impl Default for GiSettings {
 /// Where a GI frame's time went (milliseconds) and what it did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GiStats {
-    /// Caches from the SVOs.
+    /// Caches from the SVOs (zero once every part's cache is built).
     pub caches_ms: f64,
     /// Moving the caches into the volume.
     pub transform_ms: f64,
@@ -52,13 +82,15 @@ pub struct GiStats {
     pub occupied: usize,
 }
 
-/// Adds indirect light to `frame` (rendered from `camera` with `lights`).
+/// Adds indirect light to `frame` (rendered from `camera` with `lights`); `caches` carries
+/// the parts' voxel caches from frame to frame.
 pub fn apply(
     frame: &mut Frame,
     scene: &Scene,
     camera: &Camera,
     lights: &Lights,
     s: &GiSettings,
+    caches: &mut GiCaches,
 ) -> Result<GiStats, GiError> {
     let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
     let mut stats = GiStats::default();
@@ -72,19 +104,20 @@ pub fn apply(
     let spec = VolumeSpec::following(camera.target, extent, s.res)?;
     let t0 = Instant::now();
     // One cache per part, its voxels about a world cell in size (parts may be scaled by their
-    // instances; the part's own size is the guide).
-    let caches: Vec<VoxelCache> = scene
+    // instances; the part's own size is the guide); built once, reused by later frames.
+    let levels_of: Vec<u32> = scene
         .parts
         .iter()
-        .map(|p| {
-            let level = (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, MAX_CACHE_DEPTH as f64) as u32;
-            VoxelCache::from_svo(p, level, 0.0).map_err(|e| GiError::Settings(e.to_string()))
-        })
-        .collect::<Result<_, _>>()?;
+        .map(|p| (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, MAX_CACHE_DEPTH as f64) as u32)
+        .collect();
+    for (p, &level) in scene.parts.iter().zip(&levels_of) {
+        caches.get(p, level)?;
+    }
     let t1 = Instant::now();
     let mut vol = Volume::new(spec);
     for (i, inst) in scene.instances().iter().enumerate() {
-        stats.voxels += vol.splat(&caches[inst.part], &scene.world(i), s.filter)?.voxels;
+        let cache = caches.get(&scene.parts[inst.part], levels_of[inst.part])?;
+        stats.voxels += vol.splat(cache, &scene.world(i), s.filter)?.voxels;
     }
     stats.occupied = vol.occupancy.iter().filter(|&&o| o > 0.0).count();
     let t2 = Instant::now();

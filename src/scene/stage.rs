@@ -39,14 +39,20 @@ pub fn stage_cars(car_parts: &[Arc<Svo>], n: usize, travel: bool, with_ground: b
     scene.update()?;
     let bounds = if travel { clip_bounds(n.max(1)) } else { scene.bounds() };
     if with_ground {
-        // Tiles of 1 m under the whole clip, voxels of at least 5 cm.
-        let (lo, hi) = (bounds.0 - DVec3::splat(3.0), bounds.1 + DVec3::splat(3.0));
-        scene.parts.push(Arc::new(ground::ground(lo, hi, 1.0, 0.05)?));
-        let part = scene.parts.len() - 1;
-        scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
-        scene.update()?;
+        add_ground(&mut scene, bounds)?;
     }
     Ok(Staged { scene, cars, bounds })
+}
+
+/// Adds a checkered ground (1 m tiles, voxels of at least 5 cm) reaching 3 m beyond `bounds`
+/// as one more part and instance.
+pub fn add_ground(scene: &mut Scene, bounds: (DVec3, DVec3)) -> Result<(), crate::Error> {
+    let (lo, hi) = (bounds.0 - DVec3::splat(3.0), bounds.1 + DVec3::splat(3.0));
+    scene.parts.push(Arc::new(ground::ground(lo, hi, 1.0, 0.05)?));
+    let part = scene.parts.len() - 1;
+    scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
+    scene.update()?;
+    Ok(())
 }
 
 impl Staged {

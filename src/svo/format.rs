@@ -259,6 +259,33 @@ impl Svo {
         self.attrs[i]
     }
 
+    /// Every node at `level` (clamped to the depth; leaves at the depth) with its integer
+    /// coordinates on that level's grid and the attributes the build averaged for it.
+    pub fn at_level(&self, level: u32) -> Vec<([u32; 3], Attr)> {
+        let level = level.min(self.depth);
+        if level == 0 {
+            return vec![([0; 3], self.attrs[0])];
+        }
+        let mut out = Vec::new();
+        // (slot, level of the node, its coordinates on that level's grid)
+        let mut stack = vec![(0usize, 0u32, [0u32; 3])];
+        while let Some((slot, l, o)) = stack.pop() {
+            let n = self.nodes[slot];
+            for oct in 0..8u32 {
+                if n.valid() & (1 << oct) == 0 {
+                    continue;
+                }
+                let c = [2 * o[0] + (oct & 1), 2 * o[1] + ((oct >> 1) & 1), 2 * o[2] + (oct >> 2)];
+                if l + 1 == level {
+                    out.push((c, self.child_attr(slot, oct)));
+                } else if n.leaf() & (1 << oct) == 0 {
+                    stack.push((self.child_slot(slot, oct), l + 1, c));
+                }
+            }
+        }
+        out
+    }
+
     /// Counts nodes, far slots and bytes.
     pub fn stats(&self) -> SvoStats {
         let far = self.count_far_slots();
