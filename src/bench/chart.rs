@@ -64,12 +64,14 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
     register_font();
     std::fs::create_dir_all(dir).map_err(|e| ChartError { path: dir.display().to_string(), msg: e.to_string() })?;
     let mut out = Vec::new();
-    let jobs: [(&str, &str, Drawer); 5] = [
+    let jobs: [(&str, &str, Drawer); 7] = [
         ("paper", "bench-paper.png", paper),
         ("instances", "bench-instances.png", instances),
         ("resolution", "bench-resolution.png", resolution),
         ("depth", "bench-depth.png", depth),
         ("peers", "bench-peers.png", peers),
+        ("gi-scaling", "bench-gi-scaling.png", gi_scaling),
+        ("gi-accuracy", "accuracy-gi.png", gi_accuracy),
     ];
     for (group, file, draw) in jobs {
         let rs: Vec<&Record> = records.iter().filter(|r| r.group == group).collect();
@@ -256,6 +258,44 @@ fn instances(rs: &[&Record], path: &Path) -> Res<()> {
         }
     }
     lines(path, "Instance scaling (log-log)", ("instances", "median frame time (ms)"), &series, true)
+}
+
+fn gi_scaling(rs: &[&Record], path: &Path) -> Res<()> {
+    let series: Vec<Series> = ["transformation (split)", "transformation (nearest)", "re-voxelization"]
+        .iter()
+        .map(|n| {
+            (n.to_string(), rs.iter().filter(|r| r.name == *n).map(|r| (r.x, r.median_ms, String::new())).collect())
+        })
+        .collect();
+    lines(path, "Moving cars into the GI volume (log-log)", ("moving cars", "time per frame (ms)"), &series, true)
+}
+
+/// Error against run time: one line per knob, each point labelled with its setting.
+fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
+    let mut knobs: Vec<&str> = Vec::new();
+    for r in rs.iter().filter(|r| r.name != "reference" && r.name != "no GI (flat sky term)") {
+        if !knobs.contains(&r.name.as_str()) {
+            knobs.push(&r.name);
+        }
+    }
+    let series: Vec<Series> = knobs
+        .iter()
+        .map(|k| {
+            let p = rs
+                .iter()
+                .filter(|r| r.name == *k)
+                .filter_map(|r| r.error.and_then(|e| e.flip).map(|f| (r.median_ms, f, format!(" {}", r.setting))))
+                .collect();
+            (k.to_string(), p)
+        })
+        .collect();
+    lines(
+        path,
+        "GI error against run time (box scene, one bounce)",
+        ("GI time per frame (ms)", "mean FLIP vs path-traced reference"),
+        &series,
+        false,
+    )
 }
 
 fn resolution(rs: &[&Record], path: &Path) -> Res<()> {

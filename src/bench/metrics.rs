@@ -16,6 +16,10 @@ pub struct ImageError {
     /// Mean relative hit-distance difference |t − t_ref| / t_ref over pixels both hit the
     /// same instance.
     pub depth_rel: f64,
+    /// Mean FLIP error of the displayed images (NVIDIA's perceptual metric, 0 = identical,
+    /// 1 = maximal), when computed (the `flip` feature).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub flip: Option<f64>,
 }
 
 /// Why two frames cannot be compared.
@@ -53,5 +57,25 @@ pub fn compare(frame: &Frame, reference: &Frame) -> Result<ImageError, SizeMisma
         rmse: (sq / a.len().max(1) as f64).sqrt(),
         mismatch: mismatch as f64 / n,
         depth_rel: depth / both.max(1) as f64,
+        flip: flip_mean(frame, reference),
     })
+}
+
+/// Mean FLIP error between the displayed (sRGB 8-bit) images, at FLIP's default viewing
+/// conditions (0.7 m from a 0.7 m wide 4K monitor, 67 pixels per degree).
+#[cfg(feature = "flip")]
+pub fn flip_mean(frame: &Frame, reference: &Frame) -> Option<f64> {
+    if (frame.width, frame.height) != (reference.width, reference.height) || frame.width == 0 || frame.height == 0 {
+        return None;
+    }
+    let (w, h) = (frame.width, frame.height);
+    let img = |f: &Frame| nv_flip::FlipImageRgb8::with_data(w, h, &crate::render::output::srgb8(f));
+    let err = nv_flip::flip(img(reference), img(frame), nv_flip::DEFAULT_PIXELS_PER_DEGREE);
+    Some(nv_flip::FlipPool::from_image(&err).mean() as f64)
+}
+
+/// Without the `flip` feature there is no FLIP.
+#[cfg(not(feature = "flip"))]
+pub fn flip_mean(_frame: &Frame, _reference: &Frame) -> Option<f64> {
+    None
 }

@@ -5,6 +5,7 @@
 //! and the Markdown tables; `chart` draws the PNG charts; `peers` times other ray casters on
 //! the same car.
 
+pub mod gi;
 pub mod matrix;
 pub mod metrics;
 pub mod report;

@@ -238,6 +238,66 @@ ratio column divides its rays per second by each row's. Ratio > 1: voxray is fas
         chart(&mut md, "peers");
         md += "\n";
     }
+    let rs = of("gi-scaling");
+    if !rs.is_empty() {
+        md += "### GI: voxel transformation vs re-voxelization (the voxel-transformation paper's scaling)\n\n";
+        md += "Moving N driving cars (8 parts each) into one world volume each frame: the parts' voxel \
+caches transformed by their world matrices (split or nearest filtering), against voxelizing every \
+part's transformed triangles again into the same cells. Only the writing into the volume is timed.\n\n";
+        md += &provenance(&rs);
+        md += "\n| cars | instances | transformation (split) ms | transformation (nearest) ms | re-voxelization ms | re-voxelization ÷ split | moved | re-voxelized |\n|---|---|---|---|---|---|---|---|\n";
+        let mut cars: Vec<f64> = rs.iter().map(|r| r.x).collect();
+        cars.dedup();
+        for x in cars {
+            let get = |n: &str| rs.iter().find(|r| r.x == x && r.name == n);
+            let (split, nearest, revox) =
+                (get("transformation (split)"), get("transformation (nearest)"), get("re-voxelization"));
+            md += &format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                x,
+                split.or(revox).map_or(0, |r| r.instances),
+                split.map_or("–".into(), |r| format!("{:.2}", r.median_ms)),
+                nearest.map_or("–".into(), |r| format!("{:.2}", r.median_ms)),
+                revox.map_or("–".into(), |r| format!("{:.1}", r.median_ms)),
+                match (split, revox) {
+                    (Some(s), Some(v)) => format!("{:.1}×", v.median_ms / s.median_ms.max(1e-9)),
+                    _ => "–".into(),
+                },
+                split.map_or("–".into(), |r| r.setting.clone()),
+                revox.map_or("–".into(), |r| r.setting.clone()),
+            );
+        }
+        chart(&mut md, "gi-scaling");
+        md += "\n";
+    }
+    md
+}
+
+/// The Markdown of the GI accuracy sweep (docs/accuracy.md's generated section): each knob's
+/// settings with run time and error against the path-traced reference.
+pub fn accuracy_markdown(records: &[Record], charts: &[(String, String)]) -> String {
+    let rs: Vec<&Record> = records.iter().filter(|r| r.group == "gi-accuracy").collect();
+    if rs.is_empty() {
+        return String::new();
+    }
+    let mut md = provenance(&rs);
+    md += "\n| knob | setting | GI ms (median) | RMSE | mean FLIP |\n|---|---|---|---|---|\n";
+    for r in &rs {
+        let e = r.error.unwrap_or_default();
+        md += &format!(
+            "| {} | {} | {:.1} | {:.4} | {} |\n",
+            r.name,
+            r.setting,
+            r.median_ms,
+            e.rmse,
+            e.flip.map_or("–".into(), |f| format!("{f:.4}"))
+        );
+    }
+    for (group, path) in charts {
+        if group == "gi-accuracy" {
+            md += &format!("\n![error against run time]({path})\n");
+        }
+    }
     md
 }
 

@@ -63,12 +63,12 @@ enum Cmd {
     Demo(DemoArgs),
     /// Regenerate a built-in model's files.
     Model {
-        /// Which model (only `car`).
-        #[arg(value_parser = ["car"])]
+        /// Which model: `car` (the default car) or `box` (the coloured-wall box of the GI tests).
+        #[arg(value_parser = ["car", "box"])]
         name: String,
-        /// Output folder.
-        #[arg(long, default_value = "models/car")]
-        out_dir: PathBuf,
+        /// Output folder (default: models/NAME).
+        #[arg(long)]
+        out_dir: Option<PathBuf>,
     },
 }
 
@@ -164,6 +164,16 @@ struct RenderArgs {
     /// GI world volume edge in scene units (default: 3× the camera's distance to its target).
     #[arg(long, requires = "gi")]
     gi_extent: Option<f64>,
+    /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
+    /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
+    #[arg(long, conflicts_with = "gi")]
+    reference: bool,
+    /// Reference samples per pixel.
+    #[arg(long, default_value_t = 256, requires = "reference")]
+    spp: u32,
+    /// Reference indirect bounces (1: the one-bounce image a single GI bounce approximates); default unlimited.
+    #[arg(long, requires = "reference")]
+    bounces: Option<u32>,
     /// Where to render: cpu, gpu (an error without an adapter) or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     backend: voxray::backend::BackendKind,
@@ -206,7 +216,9 @@ struct BenchArgs {
     #[command(flatten)]
     source: SourceArgs,
     /// Scenario families: paper (static vs animated vs optimized), instances, resolution,
-    /// depth (LOD error vs time), peers (Embree / parry3d; needs `--features peers`).
+    /// depth (LOD error vs time), peers (Embree / parry3d; needs `--features peers`), gi-scaling
+    /// (voxel transformation vs re-voxelization), gi-accuracy (GI knobs vs the path-traced box;
+    /// writes docs/accuracy.md).
     #[arg(long, value_delimiter = ',', default_value = "paper,instances,resolution,depth")]
     scenarios: Vec<String>,
     /// Backends to run every scenario on: cpu, gpu, auto (gpu is skipped with a note when there is no adapter).
@@ -254,6 +266,24 @@ struct BenchArgs {
     /// Do not touch the Markdown file.
     #[arg(long)]
     no_docs: bool,
+    /// GI scaling scenario: moving car counts.
+    #[arg(long, value_delimiter = ',', default_value = "1,16,64,256")]
+    gi_cars: Vec<usize>,
+    /// GI scaling scenario: world volume cells per side (a power of two).
+    #[arg(long, default_value_t = 128)]
+    gi_res: u32,
+    /// GI scenarios: timed runs per setting (the median is kept).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    gi_repeats: u64,
+    /// GI accuracy scenario: path-traced reference samples per pixel.
+    #[arg(long, default_value_t = 512)]
+    spp: u32,
+    /// GI accuracy scenario: image size.
+    #[arg(long, default_value = "160x120")]
+    accuracy_size: String,
+    /// GI accuracy scenario: the Markdown file whose generated section is rewritten.
+    #[arg(long, default_value = "docs/accuracy.md")]
+    accuracy_docs: PathBuf,
     /// Forget earlier records instead of merging this run into them.
     #[arg(long)]
     fresh: bool,
@@ -321,7 +351,7 @@ fn main() -> ExitCode {
         Some(Cmd::Stability { rays, out }) => stability_cmd(rays, out),
         Some(Cmd::Bench(a)) => bench_cmd(a),
         Some(Cmd::Demo(a)) => demo_cmd(a),
-        Some(Cmd::Model { out_dir, .. }) => model_cmd(&out_dir),
+        Some(Cmd::Model { name, out_dir }) => model_cmd(&name, out_dir.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -517,6 +547,9 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     camera.validate()?;
     let t_setup = t0.elapsed();
 
+    if a.reference {
+        return reference_cmd(&a, &st, &camera, &lights, t_setup);
+    }
     let features = a.switches.features();
     let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
     let gi = a.gi.then(|| voxray::gi::GiSettings {
@@ -610,6 +643,43 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     Ok(())
 }
 
+/// `voxray render --reference`: path-traces the first frame, writing the estimate so far each
+/// time another tenth of the samples is done (stop it early and the image is still there).
+fn reference_cmd(
+    a: &RenderArgs,
+    st: &Staged,
+    camera: &Camera,
+    lights: &Lights,
+    t_setup: std::time::Duration,
+) -> Result<(), Error> {
+    if a.frames > 1 {
+        return Err(usage("--reference renders one frame; drop --frames"));
+    }
+    let settings = voxray::gi::ReferenceSettings { spp: a.spp, bounces: a.bounces, seed: 1 };
+    let start = Instant::now();
+    let mut pt = voxray::gi::PathTracer::new(&st.scene, camera, lights, settings).map_err(|e| usage(&e.to_string()))?;
+    let pb = bar(a.spp as u64, "samples per pixel");
+    let checkpoint = a.spp.div_ceil(10);
+    while pt.samples() < a.spp {
+        pt.pass();
+        pb.set_position(pt.samples() as u64);
+        if pt.samples() % checkpoint == 0 || pt.samples() == a.spp {
+            output::write_image(&pt.frame(), &a.out)?;
+        }
+    }
+    pb.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    eprintln!("wrote {} ({} samples per pixel)", a.out.display(), pt.samples());
+    eprintln!(
+        "timings: setup (load, voxelize, build) {:.2}s | path tracing {:.2}s, {} rays = {:.2} Mrays/s",
+        t_setup.as_secs_f64(),
+        secs,
+        pt.rays(),
+        pt.rays() as f64 / secs / 1e6
+    );
+    Ok(())
+}
+
 fn write_frame(a: &RenderArgs, frame: &Frame, f: u32, is_gif: bool, gif: &mut Vec<Vec<u8>>) -> Result<(), Error> {
     if is_gif {
         gif.push(output::srgb8(frame));
@@ -670,10 +740,14 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         .collect::<Vec<_>>()
         .join(" ");
     let mut scenarios = Vec::new();
-    let mut peers = false;
+    let (mut peers, mut gi_scaling, mut gi_accuracy) = (false, false, false);
     for s in &a.scenarios {
         if s.eq_ignore_ascii_case("peers") {
             peers = true;
+        } else if s.eq_ignore_ascii_case("gi-scaling") {
+            gi_scaling = true;
+        } else if s.eq_ignore_ascii_case("gi-accuracy") {
+            gi_accuracy = true;
         } else {
             scenarios.push(s.parse::<Scenario>().map_err(|e| usage(&e))?);
         }
@@ -728,7 +802,10 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     let mut records: Vec<Record> = Vec::new();
     let mut kinds = a.backends.clone();
     kinds.dedup();
-    let pb = bar((cfg.steps() * kinds.len()) as u64 + if peers { 4 } else { 0 }, "measurements");
+    let pb = bar(
+        (cfg.steps() * kinds.len()) as u64 + if peers { 4 } else { 0 } + gi_scaling as u64 + gi_accuracy as u64,
+        "measurements",
+    );
     for kind in kinds {
         let (mut backend, name) = match Backend::open(kind) {
             Ok(b) => b,
@@ -764,6 +841,37 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         };
         records.extend(voxray::bench::peers::run(&input)?);
         pb.inc(4);
+    }
+    if gi_scaling {
+        let sc = voxray::bench::gi::ScalingConfig {
+            cars: a.gi_cars.clone(),
+            res: a.gi_res,
+            repeats: a.gi_repeats as usize,
+            command: command.clone(),
+            machine: cfg.machine.clone(),
+        };
+        records.extend(voxray::bench::gi::scaling(&sc, &mesh, &car.parts, &mut |w| pb.set_message(w.to_string()))?);
+        pb.inc(1);
+    }
+    if gi_accuracy {
+        let (w, h) = a
+            .accuracy_size
+            .split_once(['x', '×'])
+            .and_then(|(w, h)| Some((w.trim().parse::<u32>().ok()?, h.trim().parse::<u32>().ok()?)))
+            .filter(|&(w, h)| (1..=4096).contains(&w) && (1..=4096).contains(&h))
+            .ok_or_else(|| usage(&format!("--accuracy-size '{}' must be WxH, each 1…4096", a.accuracy_size)))?;
+        let ac = voxray::bench::gi::AccuracyConfig {
+            size: (w, h),
+            depth: 8,
+            spp: a.spp,
+            repeats: a.gi_repeats as usize,
+            resolutions: vec![32, 64, 128, 256],
+            cones: vec![1, 3, 6, 9, 16],
+            command: command.clone(),
+            machine: cfg.machine.clone(),
+        };
+        records.extend(voxray::bench::gi::accuracy(&ac, &mut |w| pb.set_message(w.to_string()))?);
+        pb.inc(1);
     }
     pb.finish_and_clear();
 
@@ -809,6 +917,19 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         };
         write(&a.docs, &report::splice(&doc, &md))?;
         println!("regenerated {}", a.docs.display());
+        if all.iter().any(|r| r.group == "gi-accuracy") {
+            let acc_dir = a.accuracy_docs.parent().map(Path::to_path_buf).unwrap_or_default();
+            let rel = relative(&acc_dir, &a.charts_dir);
+            let links: Vec<(String, String)> =
+                charts.iter().map(|(g, f)| (g.clone(), rel.join(f).to_string_lossy().replace('\\', "/"))).collect();
+            let doc = match std::fs::read_to_string(&a.accuracy_docs) {
+                Ok(t) => t,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => "# GI accuracy\n".to_string(),
+                Err(source) => return Err(Error::Io { path: a.accuracy_docs.display().to_string(), source }),
+            };
+            write(&a.accuracy_docs, &report::splice(&doc, &report::accuracy_markdown(&all, &links)))?;
+            println!("regenerated {}", a.accuracy_docs.display());
+        }
     }
     Ok(())
 }
@@ -930,9 +1051,11 @@ fn stability_cmd(rays: usize, out: Option<PathBuf>) -> Result<(), Error> {
     Ok(())
 }
 
-fn model_cmd(out_dir: &Path) -> Result<(), Error> {
-    std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.display().to_string(), source })?;
-    for (name, text) in voxray::model::car::files() {
+fn model_cmd(model: &str, out_dir: Option<&Path>) -> Result<(), Error> {
+    let out_dir = out_dir.map_or_else(|| Path::new("models").join(model), Path::to_path_buf);
+    std::fs::create_dir_all(&out_dir).map_err(|source| Error::Io { path: out_dir.display().to_string(), source })?;
+    let files = if model == "box" { voxray::model::room::files() } else { voxray::model::car::files() };
+    for (name, text) in files {
         let p = out_dir.join(&name);
         std::fs::write(&p, text).map_err(|source| Error::Io { path: p.display().to_string(), source })?;
         println!("wrote {}", p.display());

@@ -114,32 +114,54 @@ pub fn sample(levels: &Levels, p: DVec3, level: f64) -> Vec4 {
     a * (1.0 - f) + sample_level(levels, hi, p) * f
 }
 
-/// Marches one cone from `origin` along unit `dir` with full aperture `aperture` (radians);
-/// returns the gathered radiance and the accumulated opacity.
-pub fn trace(levels: &Levels, origin: DVec3, dir: DVec3, aperture: f64, max_distance: f64) -> Vec4 {
+/// Cells of clearance a sample needs from the surface a cone starts on: voxelization puts a
+/// surface's occupancy up to half a cell off it and split filtering spreads it one cell more,
+/// and a trilinear sample reaches one cell further.
+const CLEARANCE: f64 = 1.5;
+
+/// Marches one cone from surface point `origin` with unit normal `normal` along unit `dir`,
+/// full aperture `aperture` (radians); returns the gathered radiance and the accumulated
+/// opacity.
+///
+/// The cone starts one finest cell off the surface (along the normal). Near the surface a
+/// sample as wide as the cone would reach back into the cells that hold the surface itself,
+/// and with coverage opacity a flat floor then occluded every cone leaving it (a floor under
+/// an open sky measured 0.3 % open). So each sample's size is also limited by its height `h`
+/// above the surface's tangent plane — at most (h − 1.5 cells) / 1.5, so the sample and its
+/// trilinear footprint stay clear of the surface's own cells — and sampling begins where
+/// that allows one finest cell. Steps are half the sample size actually used.
+pub fn trace(levels: &Levels, origin: DVec3, normal: DVec3, dir: DVec3, aperture: f64, max_distance: f64) -> Vec4 {
     let cell0 = levels.levels[0].cell;
     let extent = cell0 * levels.levels[0].res as f64 * 1.75; // the volume's diagonal
     let end = max_distance.min(extent);
     let spread = 2.0 * (aperture * 0.5).tan();
-    // The coarsest levels (the last two: 2³ and 1³ cells for a power-of-two volume) blur the whole volume together
-    // and carry no direction: a cone wide enough to need them stops and sees the sky. Without
-    // this, one wall anywhere made the single top cell opaque and occluded every long cone.
+    // The coarsest levels (the last two: 2³ and 1³ cells for a power-of-two volume) blur the
+    // whole volume together and carry no direction: one wall anywhere made the single top cell
+    // opaque and occluded every long cone. A cone wider than the coarsest level used goes on
+    // sampling that level (narrower than the cone) until it leaves the volume; stopping there
+    // instead let the sky into a closed room through every cone longer than a third of it.
     let max_level = levels.levels.len().saturating_sub(3) as f64;
+    let lift = cell0;
+    let o = origin + normal * lift;
+    let cos = dir.dot(normal).max(0.05);
+    let clear_size = |t: f64| (lift + t * cos - CLEARANCE * cell0) / CLEARANCE;
     let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
-    let mut t = cell0; // one cell off the surface
+    // The first t at which a one-cell (level 0) sample is clear of the surface.
+    let mut t = ((CLEARANCE * (cell0 + cell0) - lift) / cos).max(cell0);
     while t < end && a < 0.99 {
         let diameter = (spread * t).max(cell0);
-        let level = (diameter / cell0).log2();
-        if level > max_level + 1.0 {
-            break;
-        }
-        let s = sample(levels, origin + dir * t, level.min(max_level));
+        // Quadrilinear sampling blends in the next coarser level too, so that one must be
+        // clear: whole levels only below the clearance limit.
+        let clear_level = (clear_size(t) / cell0).max(1.0).log2().floor();
+        let level = (diameter / cell0).log2().min(clear_level).min(max_level);
+        let size = cell0 * level.exp2();
+        let s = sample(levels, o + dir * t, level);
         let sa = s.w.clamp(0.0, 1.0);
         if sa > 0.0 {
             c += (1.0 - a) * s.truncate() * (sa / s.w);
             a += (1.0 - a) * sa;
         }
-        t += diameter * 0.5;
+        t += size * 0.5;
     }
     c.extend(a)
 }
@@ -149,9 +171,10 @@ pub fn trace(levels: &Levels, origin: DVec3, dir: DVec3, aperture: f64, max_dist
 /// see) and the ambient occlusion (the fraction of the weighted cones that reaches the sky).
 pub fn gather(levels: &Levels, p: DVec3, n: DVec3, sky: Vec3, s: &ConeSettings) -> (Vec3, f32) {
     let aperture = s.aperture_deg.to_radians();
+    let n = n.normalize_or(DVec3::Y);
     let (mut light, mut open) = (Vec3::ZERO, 0.0f32);
     for (d, w) in s.directions(n) {
-        let r = trace(levels, p, d, aperture, s.max_distance);
+        let r = trace(levels, p, n, d, aperture, s.max_distance);
         let w = w as f32;
         light += (r.truncate() + sky * (1.0 - r.w)) * w;
         open += (1.0 - r.w) * w;

@@ -3,12 +3,13 @@
 //! transformed by their world matrices into a world [`Volume`] with nearest or 8-neighbour
 //! split filtering, lit per cell ([`inject`]) and averaged up a level chain ([`levels`]).
 //! and sampled by voxel cone tracing ([`cone`]). This module is the CPU reference of those
-//! passes.
+//! passes, and [`reference`] is the path tracer they are measured against.
 
 pub mod cache;
 pub mod cone;
 pub mod inject;
 pub mod levels;
+pub mod reference;
 pub mod shade;
 pub mod volume;
 
@@ -16,5 +17,6 @@ pub use cache::{CacheError, CacheVoxel, VoxelCache};
 pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
 pub use levels::{Level, Levels};
+pub use reference::{path_trace, PathTracer, ReferenceError, ReferenceSettings};
 pub use shade::{apply, GiCaches, GiSettings, GiStats};
 pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};

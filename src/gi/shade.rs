@@ -11,6 +11,7 @@ use super::levels;
 use super::volume::{Filter, GiError, Volume, VolumeSpec};
 use crate::render::Frame;
 use crate::scene::{Camera, Lights, Scene};
+use glam::DVec3;
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -82,6 +83,15 @@ pub struct GiStats {
     pub occupied: usize,
 }
 
+/// Where the world volume is centred: on the camera's target, moved (per axis) as far as
+/// needed to take in as much of the scene's box as `extent` allows — the whole scene when it
+/// fits — so a target near a wall does not leave half the volume outside the scene.
+pub fn volume_centre(target: DVec3, lo: DVec3, hi: DVec3, extent: f64) -> DVec3 {
+    let half = extent * 0.5;
+    let axis = |t: f64, l: f64, h: f64| if h - l <= extent { (l + h) * 0.5 } else { t.clamp(l + half, h - half) };
+    DVec3::new(axis(target.x, lo.x, hi.x), axis(target.y, lo.y, hi.y), axis(target.z, lo.z, hi.z))
+}
+
 /// Adds indirect light to `frame` (rendered from `camera` with `lights`); `caches` carries
 /// the parts' voxel caches from frame to frame.
 pub fn apply(
@@ -101,7 +111,7 @@ pub fn apply(
     if !(extent.is_finite() && extent > 0.0) {
         return Err(GiError::Settings(format!("volume extent {extent} must be finite and positive")));
     }
-    let spec = VolumeSpec::following(camera.target, extent, s.res)?;
+    let spec = VolumeSpec::following(volume_centre(camera.target, lo, hi, extent), extent, s.res)?;
     let t0 = Instant::now();
     // One cache per part, its voxels about a world cell in size (parts may be scaled by their
     // instances; the part's own size is the guide); built once, reused by later frames.

@@ -5,6 +5,7 @@
 //! attributes are its sums divided by its occupancy, so overlapping voxels average by weight.
 
 use super::cache::VoxelCache;
+use crate::voxelize::VoxelGrid;
 use glam::{DAffine3, DMat3, DVec3, Vec3};
 
 /// Largest dense volume per side (512³ cells × 28 bytes = 3.5 GiB); finer coverage needs the
@@ -196,6 +197,30 @@ impl Volume {
             }
         }
         Ok(stats)
+    }
+
+    /// Writes a grid voxelized in this volume's own cells (the re-voxelization baseline: the
+    /// moved triangles voxelized straight into world cells), one unit of occupancy per voxel.
+    pub fn write_grid(&mut self, grid: &VoxelGrid) -> Result<(), GiError> {
+        let res = self.spec.res;
+        let same_cells = (1u64 << grid.depth) == res as u64
+            && (grid.bounds.min.as_dvec3() - self.spec.min).abs().max_element() <= self.spec.cell * 1e-3
+            && ((grid.bounds.size as f64 / res as f64) - self.spec.cell).abs() <= self.spec.cell * 1e-3;
+        if !same_cells {
+            return Err(GiError::Settings(format!(
+                "a grid of 2^{} cells over {:?} does not match the volume's {}³ cells from {:?}",
+                grid.depth, grid.bounds, res, self.spec.min
+            )));
+        }
+        for v in &grid.voxels {
+            let i = self.index(crate::svo::format::morton_decode(v.code));
+            let n = v.normal.normalize_or_zero();
+            self.occupancy[i] += 1.0;
+            self.albedo[i] += v.albedo;
+            self.normal[i] += n;
+            self.emission[i] += v.emission;
+        }
+        Ok(())
     }
 
     /// Sum of all occupancy.

@@ -65,7 +65,9 @@ fn for_rows<T: Send>(buf: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + 
     buf.chunks_mut(width).enumerate().for_each(|(y, row)| f(y, row));
 }
 
-fn record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
+/// The hit record of a nearest hit along unit direction `d`: world normals turned to face the
+/// ray (surfaces are two-sided), the voxel's world size for offsets.
+pub(crate) fn record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
     let p = &prepared[h.instance];
     let to_world = |n: Vec3| (p.normal_to_world * n.as_dvec3()).normalize_or_zero().as_vec3();
     let mut normal = to_world(h.hit.normal());
@@ -79,6 +81,13 @@ fn record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> Hi
     }
     let voxel = scene.parts[p.part].bounds.voxel_size(h.hit.level) as f64 * p.max_stretch;
     HitRecord { t: h.hit.t, instance: h.instance as i32, normal, face_normal, attr: h.hit.attr, voxel: voxel as f32 }
+}
+
+/// Where a secondary ray from hit `r` at (camera-relative) `at` starts: one voxel along the
+/// normal and a little along the entered face, so the hit voxel does not occlude its own rays.
+pub(crate) fn leave(r: &HitRecord, at: DVec3) -> DVec3 {
+    let v = r.voxel as f64;
+    at + r.normal.as_dvec3() * v + r.face_normal.as_dvec3() * (0.1 * v)
 }
 
 /// Renders one frame of `scene` as `plan` says. With a hit buffer, pixels are reused where
@@ -163,11 +172,7 @@ pub fn render(
                     let visible = !plan.shadows || {
                         shadow_rays.fetch_add(1, Ordering::Relaxed);
                         let d = camera.ray_dir(&basis, x as u32, y as u32);
-                        // Leave the hit voxel: one voxel along the normal, a little along the
-                        // entered face, so the voxel does not shadow itself.
-                        let v = r.voxel as f64;
-                        let start = d * r.t as f64 + r.normal.as_dvec3() * v + r.face_normal.as_dvec3() * (0.1 * v);
-                        !occluded(&fi, start, sun.to_sun.as_dvec3(), search)
+                        !occluded(&fi, leave(r, d * r.t as f64), sun.to_sun.as_dvec3(), search)
                     };
                     if visible {
                         radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);

@@ -10,6 +10,6 @@ pub mod transform;
 
 pub use camera::{Camera, CameraError};
 pub use instances::{Instance, Scene, SceneError};
-pub use lights::{Lights, LightsError, Sun};
+pub use lights::{Ambient, Lights, LightsError, Sun};
 pub use stage::{add_ground, stage_cars, Staged};
 pub use transform::{Transform, TransformError};

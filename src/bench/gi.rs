@@ -1,0 +1,267 @@
+//! GI scenarios of the harness. **gi-scaling**: the voxel transformation against the
+//! re-voxelization baseline, moving N cars into one world volume (the voxel-transformation
+//! paper's scaling figure). **gi-accuracy**: every GI knob swept on the coloured-wall box,
+//! each setting's run time next to its error (RMSE and FLIP) against the path-traced reference
+//! (docs/accuracy.md).
+
+use super::metrics::compare;
+use super::{summarize, Record};
+use crate::gi::{apply, Filter, GiCaches, GiSettings, PathTracer, ReferenceSettings, Volume, VolumeSpec, VoxelCache};
+use crate::mesh::{Mesh, Part};
+use crate::render::{render, Features, Frame, FramePlan, RenderOptions};
+use crate::scene::car::pose;
+use crate::scene::{stage_cars, Instance, Scene, Transform};
+use crate::svo::{Cube, Svo};
+use crate::voxelize::voxelize_in;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// What the scaling scenario measures.
+#[derive(Clone, Debug)]
+pub struct ScalingConfig {
+    /// Car counts.
+    pub cars: Vec<usize>,
+    /// World volume cells per side (a power of two: the re-voxelizer's grid is 2^depth).
+    pub res: u32,
+    /// Timed repetitions per count (the median is kept).
+    pub repeats: usize,
+    /// The command line, for the records.
+    pub command: String,
+    /// The machine, for the records.
+    pub machine: String,
+}
+
+/// Times moving `cars` cars into one volume both ways. `mesh` holds the car's triangles
+/// (parts in the same order as `parts`, the SVOs).
+pub fn scaling(
+    cfg: &ScalingConfig,
+    mesh: &Mesh,
+    parts: &[Arc<Svo>],
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
+    if !cfg.res.is_power_of_two() {
+        return Err(crate::gi::GiError::Resolution(cfg.res).into());
+    }
+    let depth = cfg.res.trailing_zeros();
+    // One volume for every count: the box the most cars ever drive in, so the cell size (and
+    // with it the caches) is the same at every count and only the number of cars changes.
+    let most = cfg.cars.iter().copied().max().unwrap_or(1);
+    let (lo, hi) = stage_cars(parts, most, true, false)?.bounds;
+    let spec = VolumeSpec::following((lo + hi) * 0.5, (hi - lo).max_element() * 1.02, cfg.res)?;
+    let mut out = Vec::new();
+    for &n in &cfg.cars {
+        progress(&format!("gi-scaling: {n} cars"));
+        let mut st = stage_cars(parts, n, true, false)?;
+        for car in &st.cars {
+            pose(&mut st.scene, car, 1.7)?;
+        }
+        st.scene.update()?;
+        // Caches at about one world cell per voxel, built once (load time, not timed).
+        let caches: Vec<VoxelCache> = parts
+            .iter()
+            .map(|p| {
+                let level = (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, 10.0) as u32;
+                VoxelCache::from_svo(p, level, 0.0)
+            })
+            .collect::<Result<_, _>>()
+            .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+        let cube = Cube { min: spec.min.as_vec3(), size: (spec.cell * cfg.res as f64) as f32 };
+        let instances: Vec<(usize, glam::DAffine3)> =
+            st.scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, st.scene.world(i))).collect();
+        let mut vol = Volume::new(spec);
+        let mut time =
+            |f: &mut dyn FnMut(&mut Volume) -> Result<u64, crate::Error>| -> Result<(f64, u64), crate::Error> {
+                let mut times = Vec::new();
+                let mut work = 0;
+                for _ in 0..cfg.repeats.max(1) {
+                    vol.clear();
+                    let t0 = Instant::now();
+                    work = f(&mut vol)?;
+                    times.push(t0.elapsed().as_secs_f64() * 1e3);
+                }
+                Ok((summarize(&times).0, work))
+            };
+        for filter in [Filter::Split, Filter::Nearest] {
+            let (ms, voxels) = time(&mut |vol: &mut Volume| {
+                let mut moved = 0;
+                for (part, world) in &instances {
+                    moved += vol.splat(&caches[*part], world, filter)?.voxels;
+                }
+                Ok(moved)
+            })?;
+            out.push(record(
+                cfg,
+                n,
+                &format!("transformation ({filter:?})").to_lowercase(),
+                ms,
+                voxels,
+                st.scene.instances().len(),
+            ));
+        }
+        let (ms, triangles) = time(&mut |vol: &mut Volume| {
+            let mut tris = 0u64;
+            for (part, world) in &instances {
+                let moved = Part {
+                    name: String::new(),
+                    triangles: mesh.parts[*part]
+                        .triangles
+                        .iter()
+                        .map(|t| {
+                            let mut t = *t;
+                            for p in &mut t.positions {
+                                *p = world.transform_point3(p.as_dvec3()).as_vec3();
+                            }
+                            t
+                        })
+                        .collect(),
+                };
+                tris += moved.triangles.len() as u64;
+                // A part wholly outside the volume is simply empty.
+                if let Ok(grid) = voxelize_in(&moved, &mesh.materials, cube, depth, false, &|_, _| {}) {
+                    vol.write_grid(&grid)?;
+                }
+            }
+            Ok(tris)
+        })?;
+        out.push(record(cfg, n, "re-voxelization", ms, triangles, st.scene.instances().len()));
+    }
+    Ok(out)
+}
+
+fn record(cfg: &ScalingConfig, cars: usize, name: &str, ms: f64, work: u64, instances: usize) -> Record {
+    Record {
+        group: "gi-scaling".into(),
+        name: name.into(),
+        setting: format!("{work} {}", if name.starts_with("re-") { "triangles" } else { "voxels" }),
+        x: cars as f64,
+        backend_kind: "cpu".into(),
+        backend: "CPU reference".into(),
+        instances,
+        median_ms: ms,
+        p95_ms: ms,
+        min_ms: ms,
+        frames: cfg.repeats,
+        machine: cfg.machine.clone(),
+        command: cfg.command.clone(),
+        ..Default::default()
+    }
+}
+
+/// The coloured-wall box as a scene: its three parts at the identity, voxelized at `depth`.
+pub fn room_scene(depth: u32) -> Result<Scene, crate::Error> {
+    let parts = crate::pipeline::build_parts(&crate::model::room::mesh(), crate::voxelize::Resolution::Depth(depth))?;
+    let mut scene = Scene::new(parts);
+    for part in 0..scene.parts.len() {
+        scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
+    }
+    scene.update()?;
+    Ok(scene)
+}
+
+/// What the accuracy scenario measures.
+#[derive(Clone, Debug)]
+pub struct AccuracyConfig {
+    /// Image size.
+    pub size: (u32, u32),
+    /// SVO depth of the box.
+    pub depth: u32,
+    /// Reference samples per pixel.
+    pub spp: u32,
+    /// Timed GI runs per setting (median kept).
+    pub repeats: usize,
+    /// Volume resolutions swept (6 cones, split filtering).
+    pub resolutions: Vec<u32>,
+    /// Cone counts swept (at 128³).
+    pub cones: Vec<u32>,
+    /// The command line, for the records.
+    pub command: String,
+    /// The machine, for the records.
+    pub machine: String,
+}
+
+/// One GI setting measured against the reference: (median GI milliseconds, frame).
+pub fn gi_frame(
+    scene: &Scene,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    base: &Frame,
+    settings: &GiSettings,
+    repeats: usize,
+) -> Result<(f64, Frame), crate::Error> {
+    let mut caches = GiCaches::new();
+    let mut times = Vec::new();
+    let mut last = base.clone();
+    // One untimed run builds the caches (load-time work).
+    for k in 0..repeats.max(1) + 1 {
+        let mut f = base.clone();
+        let t0 = Instant::now();
+        apply(&mut f, scene, camera, lights, settings, &mut caches)?;
+        if k > 0 {
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        last = f;
+    }
+    Ok((summarize(&times).0, last))
+}
+
+/// Sweeps the GI knobs on the box against its one-bounce path-traced reference.
+pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
+    let scene = room_scene(cfg.depth)?;
+    let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
+    let lights = crate::model::room::lights();
+    let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
+    let t0 = Instant::now();
+    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let base_ms = t0.elapsed().as_secs_f64() * 1e3;
+    progress(&format!("gi-accuracy: reference, {} spp", cfg.spp));
+    let t0 = Instant::now();
+    let mut pt =
+        PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 })
+            .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+    pt.run(&mut |_, _| {});
+    let reference = pt.frame();
+    let ref_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let mut out = Vec::new();
+    let mut push = |name: &str, setting: String, x: f64, ms: f64, frame: &Frame| -> Result<(), crate::Error> {
+        let error = compare(frame, &reference).map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+        out.push(Record {
+            group: "gi-accuracy".into(),
+            name: name.into(),
+            setting,
+            x,
+            backend_kind: "cpu".into(),
+            backend: "CPU reference".into(),
+            width: cfg.size.0,
+            height: cfg.size.1,
+            frames: cfg.repeats,
+            instances: scene.instances().len(),
+            median_ms: ms,
+            p95_ms: ms,
+            min_ms: ms,
+            error: Some(error),
+            machine: cfg.machine.clone(),
+            command: cfg.command.clone(),
+            ..Default::default()
+        });
+        Ok(())
+    };
+    push("no GI (flat sky term)", "renderer only".into(), 0.0, base_ms, &base)?;
+    push("reference", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, ref_ms, &reference)?;
+    let default = GiSettings::default();
+    for &res in &cfg.resolutions {
+        progress(&format!("gi-accuracy: {res}³"));
+        let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { res, ..default }, cfg.repeats)?;
+        push("volume resolution", format!("{res}³"), res as f64, ms, &f)?;
+    }
+    for &cones in &cfg.cones {
+        progress(&format!("gi-accuracy: {cones} cones"));
+        let s = GiSettings { cones: crate::gi::ConeSettings { diffuse_cones: cones, ..default.cones }, ..default };
+        let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &s, cfg.repeats)?;
+        push("diffuse cones", format!("{cones}"), cones as f64, ms, &f)?;
+    }
+    for filter in [Filter::Nearest, Filter::Split] {
+        let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { filter, ..default }, cfg.repeats)?;
+        push("filter", format!("{filter:?}").to_lowercase(), if filter == Filter::Split { 1.0 } else { 0.0 }, ms, &f)?;
+    }
+    Ok(out)
+}

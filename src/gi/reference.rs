@@ -1,0 +1,319 @@
+//! The path-traced reference that GI is measured against: the same SVO instances, materials
+//! and lights as the renderer (DESIGN.md's units), Lambertian two-sided surfaces, the sun by
+//! next-event estimation with a shadow ray at every vertex, the uniform sky when a path
+//! escapes, MTL emitters when a path hits them. Unbiased: cosine-weighted bounces and, when
+//! the bounce count is unlimited, Russian roulette. Progressive: each [`PathTracer::pass`]
+//! adds one sample per pixel and [`PathTracer::frame`] is the estimate so far.
+//!
+//! Primary rays go through pixel centres, exactly as the renderer's, so the reference and a
+//! GI frame share every primary hit and differ only in the light they gather; the direct
+//! light at the primary hit is deterministic and computed once.
+
+use crate::render::bvh::Bvh;
+use crate::render::cpu::{leave, record};
+use crate::render::hitbuffer::HitRecord;
+use crate::render::instances::{prepare, Prepared};
+use crate::render::plan::BVH_MIN_INSTANCES;
+use crate::render::visibility::{nearest, occluded, FrameInstances, Search};
+use crate::render::Frame;
+use crate::rng::Rng;
+use crate::scene::{Camera, Lights, Scene};
+use crate::traverse::TraceOptions;
+use glam::{DVec3, Vec3};
+
+/// Most samples per pixel one reference may ask for.
+pub const MAX_SPP: u32 = 1 << 20;
+/// Most bounces a bounded reference may ask for.
+pub const MAX_BOUNCES: u32 = 64;
+/// Bounces before Russian roulette may end an unbounded path.
+const ROULETTE_AFTER: u32 = 3;
+
+/// How the reference is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReferenceSettings {
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Indirect bounces: `Some(1)` is the one-bounce image a single GI bounce approximates
+    /// (the light arriving at a surface was emitted or sent by the sun from one other
+    /// surface); `None` follows paths until Russian roulette ends them (all bounces).
+    pub bounces: Option<u32>,
+    /// Seed of the sample sequence.
+    pub seed: u64,
+}
+
+impl Default for ReferenceSettings {
+    fn default() -> Self {
+        ReferenceSettings { spp: 256, bounces: None, seed: 1 }
+    }
+}
+
+/// Invalid reference settings.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ReferenceError {
+    /// Samples per pixel out of range.
+    #[error("samples per pixel must be 1…{MAX_SPP}, not {0}")]
+    Spp(u32),
+    /// Too many bounces.
+    #[error("bounces must be 0…{MAX_BOUNCES} (leave them unset for unlimited), not {0}")]
+    Bounces(u32),
+}
+
+impl ReferenceSettings {
+    /// Checks the settings.
+    pub fn validated(self) -> Result<Self, ReferenceError> {
+        if !(1..=MAX_SPP).contains(&self.spp) {
+            return Err(ReferenceError::Spp(self.spp));
+        }
+        if let Some(b) = self.bounces.filter(|&b| b > MAX_BOUNCES) {
+            return Err(ReferenceError::Bounces(b));
+        }
+        Ok(self)
+    }
+}
+
+/// A progressive path tracer over one posed scene and camera.
+pub struct PathTracer<'a> {
+    scene: &'a Scene,
+    lights: Lights,
+    settings: ReferenceSettings,
+    prepared: Vec<Prepared>,
+    bvh: Option<Bvh>,
+    /// Primary hits, one per pixel.
+    records: Vec<HitRecord>,
+    /// Camera-relative primary hit points.
+    points: Vec<DVec3>,
+    /// Deterministic part of each pixel: emission and sun at the primary hit, or the sky.
+    direct: Vec<Vec3>,
+    /// Summed indirect estimates (before the primary albedo).
+    sum: Vec<DVec3>,
+    width: u32,
+    height: u32,
+    passes: u32,
+    rays: u64,
+}
+
+fn cosine_sample(n: DVec3, rng: &mut Rng) -> DVec3 {
+    let (t, b) = n.any_orthonormal_pair();
+    let (u1, u2) = (rng.f64(), rng.f64());
+    let r = u2.sqrt();
+    let phi = std::f64::consts::TAU * u1;
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u2).max(0.0).sqrt()).normalize()
+}
+
+impl<'a> PathTracer<'a> {
+    /// Prepares the instances and traces the primary rays.
+    pub fn new(
+        scene: &'a Scene,
+        camera: &Camera,
+        lights: &Lights,
+        settings: ReferenceSettings,
+    ) -> Result<Self, ReferenceError> {
+        let settings = settings.validated()?;
+        let prepared = prepare(scene, camera.eye, true);
+        let bvh = (prepared.len() >= BVH_MIN_INSTANCES)
+            .then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+        let mut pt = PathTracer {
+            scene,
+            lights: *lights,
+            settings,
+            prepared,
+            bvh,
+            records: Vec::new(),
+            points: Vec::new(),
+            direct: Vec::new(),
+            sum: Vec::new(),
+            width: camera.width,
+            height: camera.height,
+            passes: 0,
+            rays: 0,
+        };
+        let basis = camera.basis();
+        let w = camera.width as usize;
+        let n = w * camera.height as usize;
+        let fi = pt.instances();
+        let primary: Vec<(HitRecord, DVec3, Vec3, u64)> = par_map(n, |k| {
+            let d = camera.ray_dir(&basis, (k % w) as u32, (k / w) as u32);
+            match nearest(&fi, DVec3::ZERO, d, pt.search(), &TraceOptions::default()) {
+                None => (HitRecord::MISS, DVec3::ZERO, pt.lights.sky(), 1),
+                Some(h) => {
+                    let r = record(scene, &pt.prepared, &h, d);
+                    let at = d * r.t as f64;
+                    let (light, rays) = pt.surface_light(&fi, &r, at);
+                    (r, at, light, 1 + rays)
+                }
+            }
+        });
+        pt.rays = primary.iter().map(|p| p.3).sum();
+        pt.records = primary.iter().map(|p| p.0).collect();
+        pt.points = primary.iter().map(|p| p.1).collect();
+        pt.direct = primary.iter().map(|p| p.2).collect();
+        pt.sum = vec![DVec3::ZERO; n];
+        Ok(pt)
+    }
+
+    fn instances(&self) -> FrameInstances<'_> {
+        FrameInstances { parts: &self.scene.parts, prepared: &self.prepared, bvh: self.bvh.as_ref() }
+    }
+
+    fn search(&self) -> Search {
+        if self.bvh.is_some() {
+            Search::Bvh
+        } else {
+            Search::CullSort
+        }
+    }
+
+    /// Light leaving a surface towards the viewer that does not depend on other surfaces:
+    /// its emission and the sun (when visible). Returns it and the shadow rays traced.
+    fn surface_light(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3) -> (Vec3, u64) {
+        let albedo = r.attr.albedo_linear();
+        let mut out = if self.lights.use_mtl_emitters { r.attr.emission() } else { Vec3::ZERO };
+        let mut rays = 0;
+        if let Some(sun) = self.lights.sun {
+            let cos = r.normal.dot(sun.to_sun);
+            if cos > 0.0 {
+                rays += 1;
+                if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), self.search()) {
+                    out += albedo * sun.irradiance * (cos / std::f32::consts::PI);
+                }
+            }
+        }
+        (out, rays)
+    }
+
+    /// One estimate of the light arriving at primary hit `k` (cosine-weighted, so the
+    /// Lambertian reflection is this times the albedo), and the rays it traced.
+    fn indirect(&self, fi: &FrameInstances, k: usize, rng: &mut Rng) -> (DVec3, u64) {
+        let mut r = self.records[k];
+        let mut at = self.points[k];
+        let mut beta = DVec3::ONE;
+        let mut light = DVec3::ZERO;
+        let mut rays = 0u64;
+        let mut bounce = 1u32;
+        loop {
+            if self.settings.bounces.is_some_and(|b| bounce > b) {
+                break;
+            }
+            let from = leave(&r, at);
+            let d = cosine_sample(r.normal.as_dvec3(), rng);
+            rays += 1;
+            let Some(h) = nearest(fi, from, d, self.search(), &TraceOptions::default()) else {
+                light += beta * self.lights.sky().as_dvec3();
+                break;
+            };
+            r = record(self.scene, &self.prepared, &h, d);
+            at = from + d * r.t as f64;
+            let (l, shadow) = self.surface_light(fi, &r, at);
+            rays += shadow;
+            light += beta * l.as_dvec3();
+            beta *= r.attr.albedo_linear().as_dvec3();
+            if self.settings.bounces.is_none() && bounce >= ROULETTE_AFTER {
+                let keep = beta.max_element().clamp(0.05, 0.95);
+                if rng.f64() >= keep {
+                    break;
+                }
+                beta /= keep;
+            }
+            if beta == DVec3::ZERO {
+                break;
+            }
+            bounce += 1;
+        }
+        (light, rays)
+    }
+
+    /// Adds one sample to every pixel that hit something.
+    pub fn pass(&mut self) {
+        let fi = self.instances();
+        let pass = self.passes as u64;
+        let seed = self.settings.seed;
+        let samples: Vec<(DVec3, u64)> = par_map(self.records.len(), |k| {
+            if self.records[k].instance < 0 {
+                return (DVec3::ZERO, 0);
+            }
+            // A stream per pixel and pass, so the image does not depend on the thread count.
+            let mut rng = Rng::new(seed ^ (pass << 40) ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            rng.next_u64();
+            self.indirect(&fi, k, &mut rng)
+        });
+        for (s, (l, rays)) in self.sum.iter_mut().zip(samples) {
+            *s += l;
+            self.rays += rays;
+        }
+        self.passes += 1;
+    }
+
+    /// Runs the remaining passes up to the settings' sample count, calling `progress(done,
+    /// of)` after each.
+    pub fn run(&mut self, progress: &mut dyn FnMut(u32, u32)) {
+        while self.passes < self.settings.spp {
+            self.pass();
+            progress(self.passes, self.settings.spp);
+        }
+    }
+
+    /// Samples per pixel so far.
+    pub fn samples(&self) -> u32 {
+        self.passes
+    }
+
+    /// Rays traced so far (primary, shadow and bounce rays).
+    pub fn rays(&self) -> u64 {
+        self.rays
+    }
+
+    /// The estimate so far, with the primary hits' AOVs.
+    pub fn frame(&self) -> Frame {
+        let inv = 1.0 / self.passes.max(1) as f64;
+        let radiance = self
+            .records
+            .iter()
+            .zip(&self.direct)
+            .zip(&self.sum)
+            .map(|((r, d), s)| if r.instance < 0 { *d } else { *d + r.attr.albedo_linear() * (*s * inv).as_vec3() })
+            .collect();
+        let n = self.records.len();
+        Frame {
+            width: self.width,
+            height: self.height,
+            radiance,
+            t: self.records.iter().map(|r| r.t).collect(),
+            instance: self.records.iter().map(|r| r.instance).collect(),
+            normal: self.records.iter().map(|r| r.normal).collect(),
+            albedo: self
+                .records
+                .iter()
+                .map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO })
+                .collect(),
+            primary_rays: n as u64,
+            reused: 0,
+            shadow_rays: 0,
+            instances_traced: 0,
+            spheres_culled: 0,
+        }
+    }
+}
+
+/// `f(0..n)` collected in order, in parallel when enabled.
+fn par_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        (0..n).into_par_iter().map(f).collect()
+    }
+    #[cfg(not(feature = "parallel"))]
+    (0..n).map(f).collect()
+}
+
+/// Path-traces `scene` seen by `camera` to `settings.spp` samples per pixel.
+pub fn path_trace(
+    scene: &Scene,
+    camera: &Camera,
+    lights: &Lights,
+    settings: ReferenceSettings,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<Frame, ReferenceError> {
+    let mut pt = PathTracer::new(scene, camera, lights, settings)?;
+    pt.run(progress);
+    Ok(pt.frame())
+}
