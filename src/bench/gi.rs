@@ -56,11 +56,14 @@ pub fn scaling(
             pose(&mut st.scene, car, 1.7)?;
         }
         st.scene.update()?;
-        // Caches at about one world cell per voxel, built once (load time, not timed).
+        // Caches at a fixed voxel size, 1/64 of the first part (the body), at every count —
+        // the volume's cells grow with the area the cars cover and would otherwise shrink the
+        // caches to a voxel or two. Built once (load time, not timed).
+        let voxel = parts.first().map_or(1.0, |p| p.bounds.size as f64 / 64.0);
         let caches: Vec<VoxelCache> = parts
             .iter()
             .map(|p| {
-                let level = (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, 10.0) as u32;
+                let level = (p.bounds.size as f64 / voxel).log2().round().clamp(0.0, 10.0) as u32;
                 VoxelCache::from_svo(p, level, 0.0)
             })
             .collect::<Result<_, _>>()
