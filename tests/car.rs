@@ -25,6 +25,20 @@ fn committed_files_match_the_generator() {
     }
 }
 
+/// The GI test box too, and its OBJ loads back as the same three parts and materials.
+#[test]
+fn committed_box_matches_the_generator_and_loads() {
+    for (name, text) in voxray::model::room::files() {
+        let on_disk = std::fs::read_to_string(format!("models/box/{name}")).expect("committed model file");
+        assert!(on_disk == text, "models/box/{name} is stale: run `voxray model box`");
+    }
+    let loaded = voxray::mesh::load_obj(std::path::Path::new("models/box/box.obj")).unwrap();
+    let built = voxray::model::room::mesh();
+    let names = |m: &Mesh| m.parts.iter().map(|p| (p.name.clone(), p.triangles.len())).collect::<Vec<_>>();
+    assert_eq!(names(&loaded), names(&built));
+    assert_eq!(loaded.materials.len(), built.materials.len());
+}
+
 #[test]
 fn embedded_car_has_every_part_in_place() {
     let m = load_default_car().unwrap();
