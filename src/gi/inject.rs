@@ -6,8 +6,7 @@
 use super::volume::Volume;
 use crate::render::bvh::Bvh;
 use crate::render::instances::prepare;
-use crate::render::plan::BVH_MIN_INSTANCES;
-use crate::render::visibility::{occluded, FrameInstances, Search};
+use crate::render::visibility::{occluded, FrameInstances};
 use crate::scene::{Lights, Scene};
 use glam::{DVec3, Vec3, Vec4};
 
@@ -31,10 +30,8 @@ pub fn inject(vol: &Volume, scene: &Scene, lights: &Lights) -> Injected {
     let spec = vol.spec;
     let eye = spec.min + DVec3::splat(spec.cell * spec.res as f64 * 0.5);
     let prepared = prepare(scene, eye, true);
-    let bvh = (prepared.len() >= BVH_MIN_INSTANCES)
-        .then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+    let (bvh, search) = Bvh::when_worthwhile(&prepared);
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref() };
-    let search = if bvh.is_some() { Search::Bvh } else { Search::Cull };
     let mut rgba = vec![Vec4::ZERO; vol.occupancy.len()];
     let mut shadow_rays = 0u64;
     let r = spec.res;

@@ -10,10 +10,9 @@
 //! light at the primary hit is deterministic and computed once.
 
 use crate::render::bvh::Bvh;
-use crate::render::cpu::{leave, record};
+use crate::render::cpu::{leave, par_map, record};
 use crate::render::hitbuffer::HitRecord;
 use crate::render::instances::{prepare, Prepared};
-use crate::render::plan::BVH_MIN_INSTANCES;
 use crate::render::visibility::{nearest, occluded, FrameInstances, Search};
 use crate::render::Frame;
 use crate::rng::Rng;
@@ -78,6 +77,7 @@ pub struct PathTracer<'a> {
     settings: ReferenceSettings,
     prepared: Vec<Prepared>,
     bvh: Option<Bvh>,
+    search: Search,
     /// Primary hits, one per pixel.
     records: Vec<HitRecord>,
     /// Camera-relative primary hit points.
@@ -110,14 +110,14 @@ impl<'a> PathTracer<'a> {
     ) -> Result<Self, ReferenceError> {
         let settings = settings.validated()?;
         let prepared = prepare(scene, camera.eye, true);
-        let bvh = (prepared.len() >= BVH_MIN_INSTANCES)
-            .then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+        let (bvh, search) = Bvh::when_worthwhile(&prepared);
         let mut pt = PathTracer {
             scene,
             lights: *lights,
             settings,
             prepared,
             bvh,
+            search,
             records: Vec::new(),
             points: Vec::new(),
             direct: Vec::new(),
@@ -133,7 +133,7 @@ impl<'a> PathTracer<'a> {
         let fi = pt.instances();
         let primary: Vec<(HitRecord, DVec3, Vec3, u64)> = par_map(n, |k| {
             let d = camera.ray_dir(&basis, (k % w) as u32, (k / w) as u32);
-            match nearest(&fi, DVec3::ZERO, d, pt.search(), &TraceOptions::default()) {
+            match nearest(&fi, DVec3::ZERO, d, pt.search, &TraceOptions::default()) {
                 None => (HitRecord::MISS, DVec3::ZERO, pt.lights.sky(), 1),
                 Some(h) => {
                     let r = record(scene, &pt.prepared, &h, d);
@@ -155,14 +155,6 @@ impl<'a> PathTracer<'a> {
         FrameInstances { parts: &self.scene.parts, prepared: &self.prepared, bvh: self.bvh.as_ref() }
     }
 
-    fn search(&self) -> Search {
-        if self.bvh.is_some() {
-            Search::Bvh
-        } else {
-            Search::CullSort
-        }
-    }
-
     /// Light leaving a surface towards the viewer that does not depend on other surfaces:
     /// its emission and the sun (when visible). Returns it and the shadow rays traced.
     fn surface_light(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3) -> (Vec3, u64) {
@@ -173,7 +165,7 @@ impl<'a> PathTracer<'a> {
             let cos = r.normal.dot(sun.to_sun);
             if cos > 0.0 {
                 rays += 1;
-                if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), self.search()) {
+                if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), self.search) {
                     out += albedo * sun.irradiance * (cos / std::f32::consts::PI);
                 }
             }
@@ -197,7 +189,7 @@ impl<'a> PathTracer<'a> {
             let from = leave(&r, at);
             let d = cosine_sample(r.normal.as_dvec3(), rng);
             rays += 1;
-            let Some(h) = nearest(fi, from, d, self.search(), &TraceOptions::default()) else {
+            let Some(h) = nearest(fi, from, d, self.search, &TraceOptions::default()) else {
                 light += beta * self.lights.sky().as_dvec3();
                 break;
             };
@@ -292,17 +284,6 @@ impl<'a> PathTracer<'a> {
             spheres_culled: 0,
         }
     }
-}
-
-/// `f(0..n)` collected in order, in parallel when enabled.
-fn par_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
-    #[cfg(feature = "parallel")]
-    {
-        use rayon::prelude::*;
-        (0..n).into_par_iter().map(f).collect()
-    }
-    #[cfg(not(feature = "parallel"))]
-    (0..n).map(f).collect()
 }
 
 /// Path-traces `scene` seen by `camera` to `settings.spp` samples per pixel.

@@ -148,13 +148,7 @@ pub fn apply(
         let (light, _open) = gather(&chain, p, n, sky, &cones);
         Some(frame.albedo[k] * (light - sky))
     };
-    #[cfg(feature = "parallel")]
-    let add: Vec<Option<glam::Vec3>> = {
-        use rayon::prelude::*;
-        (0..frame.radiance.len()).into_par_iter().map(gi_pixel).collect()
-    };
-    #[cfg(not(feature = "parallel"))]
-    let add: Vec<Option<glam::Vec3>> = (0..frame.radiance.len()).map(gi_pixel).collect();
+    let add = crate::render::cpu::par_map(frame.radiance.len(), gi_pixel);
     for (r, a) in frame.radiance.iter_mut().zip(add) {
         if let Some(a) = a {
             // The flat ambient term albedo × sky is already in; swap it for the gathered light.

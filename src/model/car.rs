@@ -441,24 +441,8 @@ pub fn build() -> Vec<CarPart> {
 /// The car as an in-memory mesh (same geometry as the OBJ files, before their 0.1 mm
 /// rounding), for callers built without OBJ support.
 pub fn mesh() -> crate::mesh::Mesh {
-    use crate::mesh::{Material, Mesh, Part, Triangle};
-    let materials: Vec<Material> =
-        MATERIALS.iter().map(|m| Material { emission: m.ke, ..Material::new(m.name, m.kd) }).collect();
-    let index = |name: &str| MATERIALS.iter().position(|m| m.name == name).unwrap_or(0) as u32;
-    let parts = build()
-        .into_iter()
-        .map(|p| Part {
-            name: p.name.to_string(),
-            triangles: p
-                .mesh
-                .tris
-                .iter()
-                .filter(|(t, _)| !crate::mesh::is_degenerate(t))
-                .map(|(t, m)| Triangle { positions: *t, uvs: None, material: index(m) })
-                .collect(),
-        })
-        .collect();
-    Mesh { parts, materials, ..Default::default() }
+    let parts = build();
+    super::obj_writer::mesh_of(parts.iter().map(|p| (p.name, &p.mesh)), MATERIALS)
 }
 
 /// The generated files: (file name, contents), for `models/car/`.

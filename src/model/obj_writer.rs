@@ -69,6 +69,30 @@ fn fmt4(v: i32) -> String {
     }
 }
 
+/// An in-memory mesh of generated parts (same geometry as their OBJ files, before the 0.1 mm
+/// rounding), degenerate triangles dropped; triangles name their material in `materials`.
+pub fn mesh_of<'a>(
+    parts: impl IntoIterator<Item = (&'a str, &'a Builder)>,
+    materials: &[MtlMaterial],
+) -> crate::mesh::Mesh {
+    use crate::mesh::{Material, Mesh, Part, Triangle};
+    let index = |name: &str| materials.iter().position(|m| m.name == name).unwrap_or(0) as u32;
+    let parts = parts
+        .into_iter()
+        .map(|(name, b)| Part {
+            name: name.to_string(),
+            triangles: b
+                .tris
+                .iter()
+                .filter(|(t, _)| !crate::mesh::is_degenerate(t))
+                .map(|(t, m)| Triangle { positions: *t, uvs: None, material: index(m) })
+                .collect(),
+        })
+        .collect();
+    let materials = materials.iter().map(|m| Material { emission: m.ke, ..Material::new(m.name, m.kd) }).collect();
+    Mesh { parts, materials, ..Default::default() }
+}
+
 /// MTL text for the given materials; `header` becomes the first line's comment.
 pub fn write_mtl(header: &str, materials: &[MtlMaterial]) -> String {
     let mut out = format!("# {header}\n");

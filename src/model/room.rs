@@ -12,7 +12,7 @@
 
 use super::obj_writer::{write_mtl, write_obj, MtlMaterial};
 use super::shapes::Builder;
-use crate::mesh::{Material, Mesh, Part, Triangle};
+use crate::mesh::Mesh;
 use crate::scene::{Ambient, Camera, Lights, Sun};
 use glam::{Affine3A, DVec3, Quat, Vec3};
 
@@ -79,22 +79,8 @@ pub fn build() -> Vec<(&'static str, Builder)> {
 
 /// The room as an in-memory mesh.
 pub fn mesh() -> Mesh {
-    let materials: Vec<Material> =
-        MATERIALS.iter().map(|m| Material { emission: m.ke, ..Material::new(m.name, m.kd) }).collect();
-    let index = |name: &str| MATERIALS.iter().position(|m| m.name == name).unwrap_or(0) as u32;
-    let parts = build()
-        .into_iter()
-        .map(|(name, b)| Part {
-            name: name.to_string(),
-            triangles: b
-                .tris
-                .iter()
-                .filter(|(t, _)| !crate::mesh::is_degenerate(t))
-                .map(|(t, m)| Triangle { positions: *t, uvs: None, material: index(m) })
-                .collect(),
-        })
-        .collect();
-    Mesh { parts, materials, ..Default::default() }
+    let parts = build();
+    super::obj_writer::mesh_of(parts.iter().map(|(n, b)| (*n, b)), MATERIALS)
 }
 
 /// The camera: standing a little inside the front wall (clear of its voxels at any depth

@@ -26,6 +26,20 @@ pub struct Bvh {
     pub items: Vec<u32>,
 }
 
+impl Bvh {
+    /// The BVH over prepared instances when there are enough of them to pay for it (the
+    /// frame plan's own threshold), for passes that trace outside the plan (GI injection, the
+    /// path-traced reference), with the search to use.
+    pub fn when_worthwhile(prepared: &[super::instances::Prepared]) -> (Option<Bvh>, super::visibility::Search) {
+        if prepared.len() >= super::plan::BVH_MIN_INSTANCES {
+            let spheres: Vec<_> = prepared.iter().map(|p| (p.centre, p.radius)).collect();
+            (Some(Bvh::build(&spheres)), super::visibility::Search::Bvh)
+        } else {
+            (None, super::visibility::Search::CullSort)
+        }
+    }
+}
+
 /// Instances per leaf at most.
 const LEAF: usize = 4;
 

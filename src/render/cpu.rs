@@ -54,6 +54,17 @@ pub struct Frame {
     pub spheres_culled: u64,
 }
 
+/// `f(0..n)` collected in order, in parallel when enabled.
+pub(crate) fn par_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        (0..n).into_par_iter().map(f).collect()
+    }
+    #[cfg(not(feature = "parallel"))]
+    (0..n).map(f).collect()
+}
+
 /// Runs `f(row, row_slice)` over the rows of a per-pixel buffer, in parallel when enabled.
 fn for_rows<T: Send>(buf: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + Sync + Send) {
     #[cfg(feature = "parallel")]
