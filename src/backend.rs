@@ -112,6 +112,30 @@ impl Backend {
         }
     }
 
+    /// Sets the GI knobs for the following frames (None: GI off). Returns true when the
+    /// backend runs GI itself (the GPU: transform, injection, levels and cones in WGSL); false
+    /// when the caller adds it to each frame with `gi::apply` (the CPU).
+    pub fn set_gi(&mut self, gi: Option<crate::gi::GiSettings>) -> Result<bool, crate::Error> {
+        match self {
+            Backend::Cpu(_) => Ok(false),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => {
+                let on = gi.is_some();
+                g.set_gi(gi)?;
+                Ok(on)
+            }
+        }
+    }
+
+    /// GPU time of the last frame's GI passes (transform, injection, levels), when measured.
+    pub fn gi_pass_ms(&self) -> Option<f64> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.gi_stats.and(g.times.map(|t| t.gi_ms)),
+        }
+    }
+
     /// `cpu` or `gpu`.
     pub fn kind_name(&self) -> &'static str {
         match self {

@@ -375,13 +375,15 @@ impl App {
         let camera = self.camera(w.saturating_sub(panel).max(1), h);
         let start = Instant::now();
         let backend = self.backend.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
+        let gi_in_backend =
+            backend.set_gi(self.ui.gi_on.then_some(self.ui.gi)).map_err(|e| ViewerError::Other(e.to_string()))?;
         let plan = backend.plan(&self.scene, &camera, &self.lights, &self.opts.features, self.first_frame);
         self.first_frame = false;
         let mut frame = backend
             .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions { max_level: self.ui.lod }, &|_, _| {})
             .map_err(|e| ViewerError::Other(e.to_string()))?;
-        self.ui.gi_ms = None;
-        if self.ui.gi_on {
+        self.ui.gi_ms = backend.gi_pass_ms();
+        if self.ui.gi_on && !gi_in_backend {
             let g = Instant::now();
             crate::gi::apply(&mut frame, &self.scene, &camera, &self.lights, &self.ui.gi, &mut self.ui.gi_caches)
                 .map_err(|e| ViewerError::Other(e.to_string()))?;
@@ -729,7 +731,7 @@ impl App {
                     ui_.checkbox(&mut f.bvh, "instance BVH");
                     ui_.checkbox(&mut f.hit_buffer, "hit buffer");
                     ui_.checkbox(&mut f.shadows, "shadows");
-                    ui_.checkbox(&mut ui.gi_on, "global illumination (CPU)");
+                    ui_.checkbox(&mut ui.gi_on, "global illumination");
                     if ui.gi_on {
                         ui_.add(egui::Slider::new(&mut ui.gi.res, 16..=256).text("GI volume cells"));
                         ui_.add(egui::Slider::new(&mut ui.gi.cones.diffuse_cones, 1..=16).text("GI cones"));
@@ -761,7 +763,11 @@ impl App {
                     let last = ui.frame_ms.back().copied().unwrap_or(0.0);
                     ui_.label(format!("frame {last:.1} ms, {render_w}×{h}, {instances} instances"));
                     if let Some(ms) = ui.gi_ms {
-                        ui_.label(format!("GI (CPU): {ms:.0} ms of the frame"));
+                        if ui.gpu_ms.is_some() {
+                            ui_.label(format!("GI passes on the GPU: {ms:.2} ms (cones in shade)"));
+                        } else {
+                            ui_.label(format!("GI (CPU): {ms:.0} ms of the frame"));
+                        }
                     }
                     if let Some((tr, sh)) = ui.gpu_ms {
                         ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));

@@ -4,6 +4,7 @@
 //! used there (an unknown type fails the test rather than being guessed).
 
 use std::mem::{offset_of, size_of};
+use voxray::gi::CacheVoxel;
 use voxray::gpu::layout::*;
 use voxray::svo::{Attr, Node};
 
@@ -158,6 +159,77 @@ fn wgsl_structs_match_rust() {
                 ("hit", offset_of!(GpuRayHit, hit)),
                 ("steps", offset_of!(GpuRayHit, steps)),
                 ("coord", offset_of!(GpuRayHit, coord)),
+            ],
+        ),
+        (
+            "CacheVoxel",
+            size_of::<CacheVoxel>(),
+            vec![
+                ("coord", offset_of!(CacheVoxel, coord)),
+                ("albedo", offset_of!(CacheVoxel, albedo)),
+                ("normal", offset_of!(CacheVoxel, normal)),
+                ("gloss", offset_of!(CacheVoxel, gloss)),
+            ],
+        ),
+        (
+            "GiJob",
+            size_of::<GpuGiJob>(),
+            vec![
+                ("grid_x", offset_of!(GpuGiJob, grid_x)),
+                ("grid_y", offset_of!(GpuGiJob, grid_y)),
+                ("grid_z", offset_of!(GpuGiJob, grid_z)),
+                ("normal_x", offset_of!(GpuGiJob, normal_x)),
+                ("normal_y", offset_of!(GpuGiJob, normal_y)),
+                ("normal_z", offset_of!(GpuGiJob, normal_z)),
+                ("voxel_base", offset_of!(GpuGiJob, voxel_base)),
+                ("voxel_count", offset_of!(GpuGiJob, voxel_count)),
+                ("first_thread", offset_of!(GpuGiJob, first_thread)),
+                ("pad", offset_of!(GpuGiJob, pad)),
+            ],
+        ),
+        (
+            "GiSplat",
+            size_of::<GpuGiSplat>(),
+            vec![
+                ("res", offset_of!(GpuGiSplat, res)),
+                ("jobs", offset_of!(GpuGiSplat, jobs)),
+                ("threads", offset_of!(GpuGiSplat, threads)),
+                ("row_threads", offset_of!(GpuGiSplat, row_threads)),
+                ("nearest", offset_of!(GpuGiSplat, nearest)),
+                ("pad0", offset_of!(GpuGiSplat, pad0)),
+                ("pad1", offset_of!(GpuGiSplat, pad1)),
+                ("pad2", offset_of!(GpuGiSplat, pad2)),
+            ],
+        ),
+        (
+            "GiFrame",
+            size_of::<GpuGiFrame>(),
+            vec![
+                ("min_cell", offset_of!(GpuGiFrame, min_cell)),
+                ("offsets_a", offset_of!(GpuGiFrame, offsets_a)),
+                ("offsets_b", offset_of!(GpuGiFrame, offsets_b)),
+                ("offsets_c", offset_of!(GpuGiFrame, offsets_c)),
+                ("res_a", offset_of!(GpuGiFrame, res_a)),
+                ("res_b", offset_of!(GpuGiFrame, res_b)),
+                ("res_c", offset_of!(GpuGiFrame, res_c)),
+                ("res", offset_of!(GpuGiFrame, res)),
+                ("levels", offset_of!(GpuGiFrame, levels)),
+                ("cones", offset_of!(GpuGiFrame, cones)),
+                ("pad", offset_of!(GpuGiFrame, pad)),
+                ("spread", offset_of!(GpuGiFrame, spread)),
+                ("tilt", offset_of!(GpuGiFrame, tilt)),
+                ("max_distance", offset_of!(GpuGiFrame, max_distance)),
+                ("pad1", offset_of!(GpuGiFrame, pad1)),
+            ],
+        ),
+        (
+            "GiLevelStep",
+            size_of::<GpuGiLevelStep>(),
+            vec![
+                ("src_offset", offset_of!(GpuGiLevelStep, src_offset)),
+                ("src_res", offset_of!(GpuGiLevelStep, src_res)),
+                ("dst_offset", offset_of!(GpuGiLevelStep, dst_offset)),
+                ("dst_res", offset_of!(GpuGiLevelStep, dst_res)),
             ],
         ),
     ];

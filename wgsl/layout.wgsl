@@ -115,3 +115,71 @@ struct RayOut {
     steps: u32,
     coord: vec4<u32>,
 }
+
+// Mirrors voxray::gi::CacheVoxel: one voxel of a part's GI cache.
+struct CacheVoxel {
+    // x | y << 10 | z << 20, relative to the cache's corner.
+    coord: u32,
+    albedo: u32,
+    normal: u32,
+    gloss: f32,
+}
+
+// Mirrors voxray::gpu::layout::GpuGiJob: one instance's cache moved into the GI volume.
+struct GiJob {
+    // Rows of integer cache coordinate -> volume grid coordinate (cell c's centre at c).
+    grid_x: vec4<f32>,
+    grid_y: vec4<f32>,
+    grid_z: vec4<f32>,
+    // Rows of the inverse transpose (object normals -> world normals).
+    normal_x: vec4<f32>,
+    normal_y: vec4<f32>,
+    normal_z: vec4<f32>,
+    voxel_base: u32,
+    voxel_count: u32,
+    first_thread: u32,
+    pad: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuGiSplat: uniforms of the voxel transformation.
+struct GiSplat {
+    res: u32,
+    jobs: u32,
+    threads: u32,
+    row_threads: u32,
+    nearest: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuGiFrame: the GI volume's placement and the cone knobs.
+struct GiFrame {
+    // xyz: volume corner minus the camera eye; w: finest cell edge.
+    min_cell: vec4<f32>,
+    // First element of each level (0-3, 4-7, 8-11) in the level buffer, and its cells per side.
+    offsets_a: vec4<u32>,
+    offsets_b: vec4<u32>,
+    offsets_c: vec4<u32>,
+    res_a: vec4<u32>,
+    res_b: vec4<u32>,
+    res_c: vec4<u32>,
+    res: u32,
+    levels: u32,
+    cones: u32,
+    pad: u32,
+    // 2 tan(aperture / 2).
+    spread: f32,
+    // Angle of the cone ring from the normal.
+    tilt: f32,
+    max_distance: f32,
+    pad1: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuGiLevelStep: one step down the level chain.
+struct GiLevelStep {
+    src_offset: u32,
+    src_res: u32,
+    dst_offset: u32,
+    dst_res: u32,
+}

@@ -292,28 +292,6 @@ fn occluded(o: vec3<f32>, d: vec3<f32>) -> bool {
     return false;
 }
 
-fn decode_normal(v: u32) -> vec3<f32> {
-    let x = max(f32(bitcast<i32>(v << 16u) >> 16u) / 32767.0, -1.0);
-    let y = max(f32(bitcast<i32>(v) >> 16u) / 32767.0, -1.0);
-    let z = 1.0 - abs(x) - abs(y);
-    var n = vec3<f32>(x, y, z);
-    if z < 0.0 {
-        n.x = (1.0 - abs(y)) * select(-1.0, 1.0, x >= 0.0);
-        n.y = (1.0 - abs(x)) * select(-1.0, 1.0, y >= 0.0);
-    }
-    let l = length(n);
-    return select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
-}
-
-fn srgb_to_linear(c: u32) -> f32 {
-    let s = f32(c) / 255.0;
-    return select(pow((s + 0.055) / 1.055, 2.4), s / 12.92, s <= 0.04045);
-}
-
-fn albedo_of(a: u32) -> vec3<f32> {
-    return vec3<f32>(srgb_to_linear(a & 0xFFu), srgb_to_linear((a >> 8u) & 0xFFu), srgb_to_linear((a >> 16u) & 0xFFu));
-}
-
 fn ray_dir(x: u32, y: u32) -> vec3<f32> {
     let w = f32(frame.width);
     let h = f32(frame.height);
@@ -382,6 +360,32 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     hits[idx] = h;
 }
 
+// The light a hit receives besides the ambient term: the sun (with its shadow ray) and the
+// hit's own emission.
+fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
+    var c = vec3<f32>(0.0);
+    let n = vec3<f32>(h.nx, h.ny, h.nz);
+    if frame.sun_dir.w > 0.0 {
+        let cosv = dot(n, frame.sun_dir.xyz);
+        if cosv > 0.0 {
+            var visible = true;
+            if SHADOWS {
+                let d = ray_dir(x, y);
+                let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
+                visible = !occluded(start, frame.sun_dir.xyz);
+            }
+            if visible {
+                c += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
+            }
+        }
+    }
+    if frame.sky.w > 0.0 {
+        c += albedo * (f32(h.albedo >> 24u) / 16.0);
+    }
+    return c;
+}
+
+// Without GI the ambient term is the flat sky: albedo * sky.
 @compute @workgroup_size(8, 8, 1)
 fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= frame.width || gid.y >= frame.height {
@@ -394,24 +398,5 @@ fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let albedo = albedo_of(h.albedo);
-    var c = albedo * frame.sky.xyz;
-    let n = vec3<f32>(h.nx, h.ny, h.nz);
-    if frame.sun_dir.w > 0.0 {
-        let cosv = dot(n, frame.sun_dir.xyz);
-        if cosv > 0.0 {
-            var visible = true;
-            if SHADOWS {
-                let d = ray_dir(gid.x, gid.y);
-                let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
-                visible = !occluded(start, frame.sun_dir.xyz);
-            }
-            if visible {
-                c += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
-            }
-        }
-    }
-    if frame.sky.w > 0.0 {
-        c += albedo * (f32(h.albedo >> 24u) / 16.0);
-    }
-    radiance[idx] = vec4<f32>(c, 1.0);
+    radiance[idx] = vec4<f32>(albedo * frame.sky.xyz + direct_light(h, gid.x, gid.y, albedo), 1.0);
 }

@@ -566,6 +566,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     }
     let (mut backend, backend_name) = Backend::open(a.backend)?;
     eprintln!("backend: {backend_name}");
+    let gi_in_backend = backend.set_gi(gi)?;
     let mut gpu_times = Vec::new();
     let mut last_plan: Option<FramePlan> = None;
     let mut gif_frames = Vec::new();
@@ -588,7 +589,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 pb.set_position(d as u64)
             }
         })?;
-        if let Some(g) = &gi {
+        if let (Some(g), false) = (&gi, gi_in_backend) {
             let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g, &mut gi_caches)?;
             if f == 0 {
                 pb.suspend(|| {
@@ -598,6 +599,14 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     )
                 });
             }
+        } else if let (Some(g), 0) = (&gi, f) {
+            let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
+            pb.suspend(|| {
+                eprintln!(
+                    "GI on the GPU: {}³ volume; transform + inject + levels {ms} (cones are in the shade pass)",
+                    g.res
+                )
+            });
         }
         times.push(start.elapsed().as_secs_f64());
         if let Some(t) = backend.pass_times() {

@@ -31,7 +31,7 @@ impl GiCaches {
     }
 
     /// The cache of `svo` at `level`, built on first use.
-    fn get(&mut self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Result<&VoxelCache, GiError> {
+    pub fn get(&mut self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Result<&VoxelCache, GiError> {
         let key = (std::sync::Arc::as_ptr(svo) as usize, level);
         let entry = match self.built.entry(key) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
@@ -92,6 +92,35 @@ pub fn volume_centre(target: DVec3, lo: DVec3, hi: DVec3, extent: f64) -> DVec3 
     DVec3::new(axis(target.x, lo.x, hi.x), axis(target.y, lo.y, hi.y), axis(target.z, lo.z, hi.z))
 }
 
+/// Where this frame's world volume lies and which cache level each part uses: the volume
+/// follows the camera (centred on its target, sized to what it looks at, taking in the whole
+/// scene when it fits); each part's cache has voxels about one world cell in size (the part's
+/// own size is the guide, as instances may scale it). Builds any cache not built yet; the CPU
+/// and GPU passes both start here, so they move the same voxels into the same cells.
+pub fn plan_volume(
+    scene: &Scene,
+    camera: &Camera,
+    s: &GiSettings,
+    caches: &mut GiCaches,
+) -> Result<(VolumeSpec, Vec<u32>), GiError> {
+    let (lo, hi) = scene.bounds();
+    let scene_extent = (hi - lo).max_element() * 1.1;
+    let extent = s.extent.unwrap_or_else(|| (3.0 * (camera.eye - camera.target).length()).min(scene_extent));
+    if !(extent.is_finite() && extent > 0.0) {
+        return Err(GiError::Settings(format!("volume extent {extent} must be finite and positive")));
+    }
+    let spec = VolumeSpec::following(volume_centre(camera.target, lo, hi, extent), extent, s.res)?;
+    let levels_of: Vec<u32> = scene
+        .parts
+        .iter()
+        .map(|p| (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, MAX_CACHE_DEPTH as f64) as u32)
+        .collect();
+    for (p, &level) in scene.parts.iter().zip(&levels_of) {
+        caches.get(p, level)?;
+    }
+    Ok((spec, levels_of))
+}
+
 /// Adds indirect light to `frame` (rendered from `camera` with `lights`); `caches` carries
 /// the parts' voxel caches from frame to frame.
 pub fn apply(
@@ -104,25 +133,8 @@ pub fn apply(
 ) -> Result<GiStats, GiError> {
     let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
     let mut stats = GiStats::default();
-    // The volume follows the camera: centred on its target, sized to what it looks at.
-    let (lo, hi) = scene.bounds();
-    let scene_extent = (hi - lo).max_element() * 1.1;
-    let extent = s.extent.unwrap_or_else(|| (3.0 * (camera.eye - camera.target).length()).min(scene_extent));
-    if !(extent.is_finite() && extent > 0.0) {
-        return Err(GiError::Settings(format!("volume extent {extent} must be finite and positive")));
-    }
-    let spec = VolumeSpec::following(volume_centre(camera.target, lo, hi, extent), extent, s.res)?;
     let t0 = Instant::now();
-    // One cache per part, its voxels about a world cell in size (parts may be scaled by their
-    // instances; the part's own size is the guide); built once, reused by later frames.
-    let levels_of: Vec<u32> = scene
-        .parts
-        .iter()
-        .map(|p| (p.bounds.size as f64 / spec.cell).log2().round().clamp(0.0, MAX_CACHE_DEPTH as f64) as u32)
-        .collect();
-    for (p, &level) in scene.parts.iter().zip(&levels_of) {
-        caches.get(p, level)?;
-    }
+    let (spec, levels_of) = plan_volume(scene, camera, s, caches)?;
     let t1 = Instant::now();
     let mut vol = Volume::new(spec);
     for (i, inst) in scene.instances().iter().enumerate() {

@@ -24,6 +24,9 @@ pub enum GpuError {
     /// Reading results back failed.
     #[error("GPU readback: {0}")]
     Readback(String),
+    /// Invalid GI settings or inputs.
+    #[error(transparent)]
+    Gi(#[from] crate::gi::GiError),
 }
 
 /// A device, its queue and what it can do.

@@ -164,3 +164,102 @@ pub struct GpuRayHit {
     /// Voxel coordinates (w unused).
     pub coord: [u32; 4],
 }
+
+/// One instance's voxel cache moved into the GI volume this frame. WGSL: `GiJob`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuGiJob {
+    /// Rows of the map integer cache coordinate → volume grid coordinate (cell c's centre at
+    /// c), composed in f64: cache corner and voxel size, world matrix, volume corner and cell.
+    pub grid_x: [f32; 4],
+    /// Second row.
+    pub grid_y: [f32; 4],
+    /// Third row.
+    pub grid_z: [f32; 4],
+    /// Rows of the inverse transpose of the world linear part (object → world normals).
+    pub normal_x: [f32; 4],
+    /// Second row.
+    pub normal_y: [f32; 4],
+    /// Third row.
+    pub normal_z: [f32; 4],
+    /// First voxel of the cache in the voxel pool.
+    pub voxel_base: u32,
+    /// Voxels in the cache.
+    pub voxel_count: u32,
+    /// First thread of the dispatch that moves this cache's voxels.
+    pub first_thread: u32,
+    /// Padding.
+    pub pad: u32,
+}
+
+/// Uniforms of the voxel transformation pass. WGSL: `GiSplat`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuGiSplat {
+    /// Volume cells per side.
+    pub res: u32,
+    /// Jobs.
+    pub jobs: u32,
+    /// Threads with a voxel to move (all jobs' voxels).
+    pub threads: u32,
+    /// Threads per row of the dispatch (the dispatch spreads over y past 65 535 groups).
+    pub row_threads: u32,
+    /// 1: nearest filtering, 0: 8-neighbour split.
+    pub nearest: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
+}
+
+/// The GI volume's placement and the cone knobs, for injection and shading. WGSL: `GiFrame`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuGiFrame {
+    /// xyz: the volume's corner minus the camera eye; w: the finest cell's edge.
+    pub min_cell: [f32; 4],
+    /// First element of levels 0–3 in the level buffer.
+    pub offsets_a: [u32; 4],
+    /// Levels 4–7.
+    pub offsets_b: [u32; 4],
+    /// Levels 8–11.
+    pub offsets_c: [u32; 4],
+    /// Cells per side of levels 0–3.
+    pub res_a: [u32; 4],
+    /// Levels 4–7.
+    pub res_b: [u32; 4],
+    /// Levels 8–11.
+    pub res_c: [u32; 4],
+    /// Finest cells per side.
+    pub res: u32,
+    /// Levels in the chain.
+    pub levels: u32,
+    /// Diffuse cones.
+    pub cones: u32,
+    /// Padding.
+    pub pad: u32,
+    /// Cone diameter per unit distance: 2 tan(aperture / 2).
+    pub spread: f32,
+    /// Angle of the cone ring from the normal (radians).
+    pub tilt: f32,
+    /// Longest cone (world units; f32::MAX for unbounded).
+    pub max_distance: f32,
+    /// Padding.
+    pub pad1: u32,
+}
+
+/// One step down the level chain. WGSL: `GiLevelStep`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuGiLevelStep {
+    /// First element of the finer level.
+    pub src_offset: u32,
+    /// Its cells per side.
+    pub src_res: u32,
+    /// First element of the coarser level.
+    pub dst_offset: u32,
+    /// Its cells per side.
+    pub dst_res: u32,
+}

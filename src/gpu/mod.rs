@@ -2,6 +2,7 @@
 //! and the ray-list tracer, all running the WGSL twins of the CPU code in `wgsl/`.
 
 pub mod context;
+pub mod gi;
 pub mod layout;
 pub mod rays;
 pub mod renderer;

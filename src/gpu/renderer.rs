@@ -22,8 +22,10 @@ use wgpu::util::DeviceExt;
 pub fn trace_source() -> String {
     [
         include_str!("../../wgsl/layout.wgsl"),
+        include_str!("../../wgsl/attr.wgsl"),
         include_str!("../../wgsl/traverse.wgsl"),
         include_str!("../../wgsl/trace.wgsl"),
+        include_str!("../../wgsl/gi_trace.wgsl"),
     ]
     .join("\n")
 }
@@ -45,6 +47,8 @@ pub struct GpuTimes {
     pub trace_ms: f64,
     /// Shade pass, milliseconds.
     pub shade_ms: f64,
+    /// GI passes (transform, inject, levels), milliseconds; zero without GI.
+    pub gi_ms: f64,
 }
 
 struct Pools {
@@ -94,8 +98,19 @@ pub struct GpuRenderer {
     /// Largest binding in bytes (the device's limit unless lowered for tests).
     pub max_binding: u64,
     /// Bytes of GPU buffers the last frame used (part pools, hit buffer, per-frame inputs and
-    /// outputs; readback copies not counted).
+    /// outputs, GI buffers; readback copies not counted).
     pub buffer_bytes: u64,
+    gi: Option<super::gi::GpuGi>,
+    gi_settings: Option<crate::gi::GiSettings>,
+    gi_pipeline_layout: Option<wgpu::PipelineLayout>,
+    gi_pipelines: HashMap<(u32, bool), (wgpu::ComputePipeline, wgpu::ComputePipeline)>,
+    /// What GI did in the last frame (None without GI).
+    pub gi_stats: Option<super::gi::GpuGiStats>,
+    /// Read the GI volume back after each frame into [`GpuRenderer::gi_captured`] (slow; for
+    /// tests and tools).
+    pub gi_capture: bool,
+    /// The last frame's GI volume, when `gi_capture` is on.
+    pub gi_captured: Option<super::gi::GiCapture>,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -159,6 +174,13 @@ impl GpuRenderer {
             times: None,
             max_binding: 0,
             buffer_bytes: 0,
+            gi: None,
+            gi_settings: None,
+            gi_pipeline_layout: None,
+            gi_pipelines: HashMap::new(),
+            gi_stats: None,
+            gi_capture: false,
+            gi_captured: None,
         }
         .with_device_limit()
     }
@@ -181,6 +203,61 @@ impl GpuRenderer {
     /// a pool fits in one binding).
     pub fn splits(&self) -> (u32, u32) {
         self.pools.as_ref().map_or((u32::MAX, u32::MAX), |p| (p.node_split, p.attr_split))
+    }
+
+    /// Turns voxel-cone-traced GI on (with these knobs) or off for the following frames. The
+    /// knobs are checked here; the GPU state (caches, volume) is kept while GI stays on.
+    pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
+        if let Some(s) = &settings {
+            crate::gi::VolumeSpec::new(s.res, glam::DVec3::ZERO, 1.0)?;
+            s.cones.validated().map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+        }
+        if settings.is_some() && self.gi.is_none() {
+            let gi = super::gi::GpuGi::new(&self.ctx.device);
+            self.gi_pipeline_layout = Some(self.ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("trace + gi"),
+                bind_group_layouts: &[Some(&self.layout), Some(&gi.group1_layout)],
+                immediate_size: 0,
+            }));
+            self.gi = Some(gi);
+        }
+        self.gi_settings = settings;
+        Ok(())
+    }
+
+    /// The GI settings in use.
+    pub fn gi_settings(&self) -> Option<&crate::gi::GiSettings> {
+        self.gi_settings.as_ref()
+    }
+
+    /// Builds (once) the injection and GI shading pipelines of a plan variant.
+    fn gi_pipeline(&mut self, search: u32, shadows: bool) -> Result<(), GpuError> {
+        let (node_split, attr_split) = self.splits();
+        let layout = self.gi_pipeline_layout.as_ref().ok_or_else(|| GpuError::Device("GI is off".into()))?;
+        let (device, module) = (&self.ctx.device, &self.module);
+        self.gi_pipelines.entry((search, shadows)).or_insert_with(|| {
+            let constants = [
+                ("SEARCH", search as f64),
+                ("SHADOWS", shadows as u32 as f64),
+                ("NODE_SPLIT", node_split as f64),
+                ("ATTR_SPLIT", attr_split as f64),
+            ];
+            let make = |entry: &str| {
+                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: Some(layout),
+                    module,
+                    entry_point: Some(entry),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        zero_initialize_workgroup_memory: false,
+                    },
+                    cache: None,
+                })
+            };
+            (make("inject_main"), make("shade_gi_main"))
+        });
+        Ok(())
     }
 
     fn pipeline(&mut self, search: u32, reuse: bool, shadows: bool) -> &(wgpu::ComputePipeline, wgpu::ComputePipeline) {
@@ -251,6 +328,7 @@ impl GpuRenderer {
         });
         // The split points are compiled into the pipelines.
         self.pipelines.clear();
+        self.gi_pipelines.clear();
         Ok(())
     }
 
@@ -330,7 +408,21 @@ impl GpuRenderer {
         };
         let reuse_on = reuse.is_some();
         self.pipelines(search, plan.shadows);
+        // GI runs where there is light (FramePlan: GI off or no lights at all → skipped; with
+        // only the sky the cones still give ambient occlusion).
+        let lit = lights.sun.is_some() || lights.use_mtl_emitters || lights.sky() != Vec3::ZERO;
+        let gi_work = match (&self.gi_settings, lit) {
+            (Some(settings), true) => {
+                let settings = *settings;
+                self.gi_pipeline(search, plan.shadows)?;
+                let gi = self.gi.as_mut().ok_or_else(|| GpuError::Device("GI state missing".into()))?;
+                Some(gi.prepare(&self.ctx, scene, camera, &settings)?)
+            }
+            _ => None,
+        };
+        self.gi_stats = gi_work.as_ref().map(|w| w.stats);
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
+        let gi_pipes = gi_work.as_ref().map(|_| &self.gi_pipelines[&(search, plan.shadows)]);
         let device = &self.ctx.device;
         // Bindings must not be empty: pad with one zeroed element.
         fn nonempty<T: bytemuck::Pod + Default>(v: &[T]) -> Vec<T> {
@@ -403,32 +495,55 @@ impl GpuRenderer {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("passes"),
                 ty: wgpu::QueryType::Timestamp,
-                count: 4,
+                count: 6,
             });
             let resolve = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps"),
-                size: 32,
+                size: 48,
                 usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             });
             (set, resolve)
         });
+        let ts = |k: u32| {
+            queries.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+                query_set: set,
+                beginning_of_pass_write_index: Some(2 * k),
+                end_of_pass_write_index: Some(2 * k + 1),
+            })
+        };
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
         let groups = (w.div_ceil(8), h.div_ceil(8));
-        for (k, pipe) in [trace_pipe, shade_pipe].into_iter().enumerate() {
-            let timestamp_writes = queries.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
-                query_set: set,
-                beginning_of_pass_write_index: Some(2 * k as u32),
-                end_of_pass_write_index: Some(2 * k as u32 + 1),
-            });
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(if k == 0 { "trace" } else { "shade" }),
-                timestamp_writes,
-            });
-            pass.set_pipeline(pipe);
+        {
+            let mut pass =
+                enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: ts(0) });
+            pass.set_pipeline(trace_pipe);
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, 1);
         }
+        if let (Some(work), Some((inject_pipe, _)), Some(gi)) = (&gi_work, gi_pipes, &self.gi) {
+            gi.encode(work, &mut enc, inject_pipe, &bind, ts(2))?;
+        }
+        {
+            let mut pass =
+                enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("shade"), timestamp_writes: ts(1) });
+            match (&gi_work, gi_pipes) {
+                (Some(work), Some((_, shade_gi))) => {
+                    pass.set_pipeline(shade_gi);
+                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_bind_group(1, &work.group1, &[]);
+                }
+                _ => {
+                    pass.set_pipeline(shade_pipe);
+                    pass.set_bind_group(0, &bind, &[]);
+                }
+            }
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        let capture = match (&self.gi, &gi_work) {
+            (Some(gi), Some(_)) if self.gi_capture => gi.copy_capture(&self.ctx, &mut enc),
+            _ => None,
+        };
         let readback = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer, size: u64| {
             let dst = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("readback"),
@@ -441,9 +556,11 @@ impl GpuRenderer {
         };
         let hits_rb = readback(&mut enc, hits_buf, (n * std::mem::size_of::<GpuHit>()) as u64);
         let rad_rb = readback(&mut enc, &radiance_buf, (n * 16) as u64);
+        // Only the passes that ran wrote their timestamps.
+        let n_ts = if gi_work.is_some() { 6 } else { 4 };
         let ts_rb = queries.as_ref().map(|(set, resolve)| {
-            enc.resolve_query_set(set, 0..4, resolve, 0);
-            readback(&mut enc, resolve, 32)
+            enc.resolve_query_set(set, 0..n_ts, resolve, 0);
+            readback(&mut enc, resolve, 8 * n_ts as u64)
         });
         self.ctx.queue.submit([enc.finish()]);
         let hits: Vec<GpuHit> = read(&self.ctx, &hits_rb)?;
@@ -455,11 +572,16 @@ impl GpuRenderer {
                 Some(GpuTimes {
                     trace_ms: ts[1].saturating_sub(ts[0]) as f64 * period,
                     shade_ms: ts[3].saturating_sub(ts[2]) as f64 * period,
+                    gi_ms: if gi_work.is_some() { ts[5].saturating_sub(ts[4]) as f64 * period } else { 0.0 },
                 })
             }
             None => None,
         };
 
+        self.gi_captured = match (capture, &self.gi, &gi_work) {
+            (Some(bufs), Some(gi), Some(work)) => Some(gi.read_capture(&self.ctx, work, &bufs)?),
+            _ => None,
+        };
         let records: Vec<HitRecord> = hits
             .iter()
             .map(|g| {
@@ -497,7 +619,7 @@ impl GpuRenderer {
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records, opts.max_level);
-        self.buffer_bytes = buffer_bytes;
+        self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
         Ok(f)
     }
 }

@@ -1,0 +1,189 @@
+// The GI passes that need the tracer: light injection (gi::inject: one thread per volume
+// cell, with a shadow ray through the SVO instances) and shading with voxel cone tracing
+// (gi::cone and gi::shade::apply). Appended to trace.wgsl; its bindings are group 1.
+// Positions are camera-relative, as everywhere in trace.wgsl.
+
+@group(1) @binding(0) var<storage, read> gi_accum: array<u32>;
+@group(1) @binding(1) var<storage, read_write> gi_levels: array<vec4<f32>>;
+@group(1) @binding(2) var<uniform> gi: GiFrame;
+
+// Fixed-point scales of gi_transform.wgsl.
+const GI_FIX: f32 = 65536.0;
+const GI_EMIT_FIX: f32 = 4096.0;
+const GI_STRIDE: u32 = 10u;
+// gi::cone::CLEARANCE.
+const GI_CLEARANCE: f32 = 1.5;
+
+@compute @workgroup_size(4, 4, 4)
+fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gi.res;
+    if any(gid >= vec3<u32>(r)) {
+        return;
+    }
+    let i = gid.x + r * (gid.y + r * gid.z);
+    let base = i * GI_STRIDE;
+    let occ = f32(gi_accum[base]) / GI_FIX;
+    if occ <= 0.0 {
+        gi_levels[i] = vec4<f32>(0.0);
+        return;
+    }
+    let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (GI_FIX * occ);
+    let n = vec3<f32>(
+        f32(bitcast<i32>(gi_accum[base + 4u])),
+        f32(bitcast<i32>(gi_accum[base + 5u])),
+        f32(bitcast<i32>(gi_accum[base + 6u])),
+    ) / GI_FIX;
+    var radiance = vec3<f32>(0.0);
+    if frame.sun_dir.w > 0.0 && dot(n, n) > 1e-6 {
+        let nn = normalize(n);
+        let cosv = dot(nn, frame.sun_dir.xyz);
+        if cosv > 0.0 {
+            let cell = gi.min_cell.w;
+            // One cell off the surface so the cell's own voxels do not shadow it.
+            let start = gi.min_cell.xyz + (vec3<f32>(gid) + 0.5) * cell + nn * cell;
+            if !occluded(start, frame.sun_dir.xyz) {
+                radiance += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
+            }
+        }
+    }
+    if frame.sky.w > 0.0 {
+        let e = vec3<f32>(f32(gi_accum[base + 7u]), f32(gi_accum[base + 8u]), f32(gi_accum[base + 9u]));
+        radiance += e / (GI_EMIT_FIX * occ);
+    }
+    let alpha = min(occ, 1.0);
+    gi_levels[i] = vec4<f32>(radiance * alpha, alpha);
+}
+
+fn gi_level_offset(l: u32) -> u32 {
+    if l < 4u {
+        return gi.offsets_a[l];
+    }
+    if l < 8u {
+        return gi.offsets_b[l - 4u];
+    }
+    return gi.offsets_c[l - 8u];
+}
+
+fn gi_level_res(l: u32) -> u32 {
+    if l < 4u {
+        return gi.res_a[l];
+    }
+    if l < 8u {
+        return gi.res_b[l - 4u];
+    }
+    return gi.res_c[l - 8u];
+}
+
+// cone::sample_level: trilinear, cell centres hold the values, outside is empty.
+fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
+    let cell = gi.min_cell.w * f32(1u << l);
+    let g = (p - gi.min_cell.xyz) / cell - 0.5;
+    let base = floor(g);
+    let f = g - base;
+    let b = vec3<i32>(base);
+    let r = i32(gi_level_res(l));
+    let off = gi_level_offset(l);
+    var out = vec4<f32>(0.0);
+    for (var k = 0u; k < 8u; k++) {
+        let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, k >> 2u);
+        let c = b + vec3<i32>(d);
+        if any(c < vec3<i32>(0)) || any(c >= vec3<i32>(r)) {
+            continue;
+        }
+        let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
+        let idx = off + u32(c.x) + u32(r) * (u32(c.y) + u32(r) * u32(c.z));
+        out += gi_levels[idx] * (w3.x * w3.y * w3.z);
+    }
+    return out;
+}
+
+// cone::sample: quadrilinear.
+fn gi_sample(p: vec3<f32>, level: f32) -> vec4<f32> {
+    let top = f32(gi.levels - 1u);
+    let l = clamp(level, 0.0, top);
+    let lo = u32(floor(l));
+    let hi = min(lo + 1u, gi.levels - 1u);
+    let f = l - f32(lo);
+    let a = gi_sample_level(lo, p);
+    if f == 0.0 || hi == lo {
+        return a;
+    }
+    return a * (1.0 - f) + gi_sample_level(hi, p) * f;
+}
+
+// cone::trace: one cone from a surface point; (radiance, opacity).
+fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
+    let cell0 = gi.min_cell.w;
+    let end = min(gi.max_distance, cell0 * f32(gi.res) * 1.75);
+    let max_level = f32(max(i32(gi.levels) - 3, 0));
+    let lift = cell0;
+    let o = origin + normal * lift;
+    let cosv = max(dot(dir, normal), 0.05);
+    var c = vec3<f32>(0.0);
+    var a = 0.0;
+    var t = max((GI_CLEARANCE * (cell0 + cell0) - lift) / cosv, cell0);
+    // Every step is at least half a cell and the march ends at the volume's diagonal; the
+    // count bound only guards against a non-finite input.
+    for (var steps = 0u; t < end && a < 0.99 && steps < 8192u; steps++) {
+        let diameter = max(gi.spread * t, cell0);
+        let clear_size = (lift + t * cosv - GI_CLEARANCE * cell0) / GI_CLEARANCE;
+        let clear_level = floor(log2(max(clear_size / cell0, 1.0)));
+        let level = min(min(log2(diameter / cell0), clear_level), max_level);
+        let s = gi_sample(o + dir * t, level);
+        let sa = clamp(s.w, 0.0, 1.0);
+        if sa > 0.0 {
+            c += (1.0 - a) * s.xyz * (sa / s.w);
+            a += (1.0 - a) * sa;
+        }
+        t += cell0 * exp2(level) * 0.5;
+    }
+    return vec4<f32>(c, a);
+}
+
+// cone::gather: cosine-weighted cones (one along the normal, a ring around it); the sky fills
+// what they do not see.
+fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let sky = frame.sky.xyz;
+    let first = gi_cone(p, n, n);
+    let ring = gi.cones - 1u;
+    if ring == 0u {
+        return first.xyz + sky * (1.0 - first.w);
+    }
+    // glam's any_orthonormal_pair (Duff et al. 2017), as the CPU uses.
+    // signum: -0.0 counts as negative, as f64::signum has it.
+    let sign = select(-1.0, 1.0, (bitcast<u32>(n.z) & 0x80000000u) == 0u);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let tx = vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let bx = vec3<f32>(b, sign + n.y * n.y * a, -n.y);
+    let ct = cos(gi.tilt);
+    let st = sin(gi.tilt);
+    var light = first.xyz + sky * (1.0 - first.w);
+    var ring_light = vec3<f32>(0.0);
+    for (var k = 0u; k < ring; k++) {
+        let phi = 6.28318530718 * f32(k) / f32(ring);
+        let d = n * ct + (tx * cos(phi) + bx * sin(phi)) * st;
+        let r = gi_cone(p, n, d);
+        ring_light += r.xyz + sky * (1.0 - r.w);
+    }
+    return (light + ring_light * ct) / (1.0 + f32(ring) * ct);
+}
+
+// shade_main with the ambient term from the cones instead of the flat sky.
+@compute @workgroup_size(8, 8, 1)
+fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= frame.width || gid.y >= frame.height {
+        return;
+    }
+    let idx = gid.y * frame.width + gid.x;
+    let h = hits[idx];
+    if h.instance < 0 {
+        radiance[idx] = vec4<f32>(frame.sky.xyz, 1.0);
+        return;
+    }
+    let albedo = albedo_of(h.albedo);
+    let n = vec3<f32>(h.nx, h.ny, h.nz);
+    let p = ray_dir(gid.x, gid.y) * h.t;
+    let ambient = max(albedo * gi_gather(p, n), vec3<f32>(0.0));
+    radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), 1.0);
+}
