@@ -136,6 +136,15 @@ impl Backend {
         }
     }
 
+    /// What the backend's own GI kept from the frame before (None on the CPU or without GI).
+    pub fn gi_reuse(&self) -> Option<crate::gi::GiReuse> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.gi_stats.map(|s| s.reuse),
+        }
+    }
+
     /// `cpu` or `gpu`.
     pub fn kind_name(&self) -> &'static str {
         match self {

@@ -471,3 +471,48 @@ fn a_floor_under_an_open_sky_does_not_occlude_itself() {
         }
     }
 }
+
+/// Renders the box with GI on the CPU, carrying `caches` between calls.
+fn box_gi(
+    scene: &voxray::scene::Scene,
+    lights: &voxray::scene::Lights,
+    caches: &mut voxray::gi::GiCaches,
+) -> (Vec<Vec3>, voxray::gi::GiStats) {
+    use voxray::render::{render, Features, FramePlan, RenderOptions};
+    let cam = voxray::model::room::camera(32, 24);
+    let plan = FramePlan::new(scene, &cam, lights, &Features::default(), None);
+    let mut f = render(scene, &cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let s = voxray::gi::GiSettings { res: 32, ..Default::default() };
+    let stats = voxray::gi::apply(&mut f, scene, &cam, lights, &s, caches).unwrap();
+    (f.radiance, stats)
+}
+
+#[test]
+fn static_frames_reuse_the_volume_and_render_what_a_fresh_frame_renders() {
+    use voxray::gi::{GiCaches, GiReuse};
+    let mut scene = voxray::bench::gi::room_scene(5).unwrap();
+    let lights = voxray::model::room::lights();
+    let mut caches = GiCaches::new();
+    let (a, sa) = box_gi(&scene, &lights, &mut caches);
+    assert_eq!(sa.reuse, GiReuse::Nothing);
+    let (b, sb) = box_gi(&scene, &lights, &mut caches);
+    assert_eq!(sb.reuse, GiReuse::Levels, "nothing moved, same lights");
+    assert_eq!((sb.voxels, sb.occupied), (0, sa.occupied));
+    assert_eq!(a, b);
+    // Only the lights changed: the volume is kept and lit again.
+    let mut dim = lights;
+    if let Some(sun) = dim.sun.as_mut() {
+        sun.irradiance *= 0.5;
+    }
+    let (c, sc) = box_gi(&scene, &dim, &mut caches);
+    assert_eq!(sc.reuse, GiReuse::Volume);
+    assert_ne!(c, a);
+    assert_eq!(c, box_gi(&scene, &dim, &mut GiCaches::new()).0, "a re-lit volume equals a fresh one");
+    // An instance moved: everything again.
+    let t = voxray::scene::Transform { translation: DVec3::new(0.05, 0.0, 0.0), ..voxray::scene::Transform::IDENTITY };
+    scene.set_local(scene.instances().len() - 1, t).unwrap();
+    scene.update().unwrap();
+    let (d, sd) = box_gi(&scene, &dim, &mut caches);
+    assert_eq!(sd.reuse, GiReuse::Nothing);
+    assert_eq!(d, box_gi(&scene, &dim, &mut GiCaches::new()).0);
+}

@@ -243,3 +243,44 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     gpu.render(&scene, &cam, &dark, &plan, &RenderOptions::default()).unwrap();
     assert!(gpu.gi_stats.is_none(), "GI ran without lights");
 }
+
+#[test]
+fn gpu_static_frames_reuse_the_volume_and_render_what_a_fresh_frame_renders() {
+    use voxray::gi::GiReuse;
+    let Some(ctx) = context() else { return };
+    let mut scene = room_scene(5).unwrap();
+    let cam = voxray::model::room::camera(32, 24);
+    let lights = voxray::model::room::lights();
+    let s = GiSettings { res: 32, ..Default::default() };
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let mut gpu = GpuRenderer::new(ctx.clone());
+    gpu.set_gi(Some(s)).unwrap();
+    let frame = |gpu: &mut GpuRenderer, scene: &Scene, lights: &Lights| {
+        let f = gpu.render(scene, &cam, lights, &plan, &RenderOptions::default()).unwrap();
+        (f.radiance, gpu.gi_stats.unwrap().reuse)
+    };
+    let fresh = |scene: &Scene, lights: &Lights| {
+        let mut g = GpuRenderer::new(ctx.clone());
+        g.set_gi(Some(s)).unwrap();
+        g.render(scene, &cam, lights, &plan, &RenderOptions::default()).unwrap().radiance
+    };
+    let (a, ra) = frame(&mut gpu, &scene, &lights);
+    assert_eq!(ra, GiReuse::Nothing);
+    let (b, rb) = frame(&mut gpu, &scene, &lights);
+    assert_eq!(rb, GiReuse::Levels);
+    assert_eq!(a, b);
+    let mut dim = lights;
+    if let Some(sun) = dim.sun.as_mut() {
+        sun.irradiance *= 0.5;
+    }
+    let (c, rc) = frame(&mut gpu, &scene, &dim);
+    assert_eq!(rc, GiReuse::Volume);
+    assert_ne!(c, a);
+    assert_eq!(c, fresh(&scene, &dim));
+    let t = voxray::scene::Transform { translation: DVec3::new(0.05, 0.0, 0.0), ..voxray::scene::Transform::IDENTITY };
+    scene.set_local(scene.instances().len() - 1, t).unwrap();
+    scene.update().unwrap();
+    let (d, rd) = frame(&mut gpu, &scene, &dim);
+    assert_eq!(rd, GiReuse::Nothing);
+    assert_eq!(d, fresh(&scene, &dim));
+}

@@ -569,6 +569,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let gi_in_backend = backend.set_gi(gi)?;
     let mut gpu_times = Vec::new();
     let mut last_plan: Option<FramePlan> = None;
+    let mut last_gi_reuse = None;
     let mut gif_frames = Vec::new();
     let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
     let pb = if a.frames > 1 { bar(a.frames as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
@@ -589,8 +590,10 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 pb.set_position(d as u64)
             }
         })?;
+        let mut gi_reuse = backend.gi_reuse();
         if let (Some(g), false) = (&gi, gi_in_backend) {
             let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g, &mut gi_caches)?;
+            gi_reuse = Some(s.reuse);
             if f == 0 {
                 pb.suspend(|| {
                     eprintln!(
@@ -608,6 +611,12 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 )
             });
         }
+        if a.explain && gi_reuse != last_gi_reuse {
+            if let Some(r) = gi_reuse {
+                pb.suspend(|| eprintln!("frame {f}: {}", r.explain()));
+            }
+        }
+        last_gi_reuse = gi_reuse;
         times.push(start.elapsed().as_secs_f64());
         if let Some(t) = backend.pass_times() {
             gpu_times.push(t);

@@ -18,5 +18,5 @@ pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
 pub use levels::{Level, Levels};
 pub use reference::{path_trace, PathTracer, ReferenceError, ReferenceSettings};
-pub use shade::{apply, plan_volume, GiCaches, GiSettings, GiStats};
+pub use shade::{apply, plan_volume, GiCaches, GiReuse, GiSettings, GiStats, VolumeKey};
 pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};

@@ -22,6 +22,70 @@ pub struct GiCaches {
     // Keyed by the part's address; the Arc is held so that address cannot be reused by
     // another part while its cache is here.
     built: HashMap<(usize, u32), (std::sync::Arc<crate::svo::Svo>, VoxelCache)>,
+    // The last frame's volume and level chain, with what they were made from.
+    last: Option<LastVolume>,
+}
+
+struct LastVolume {
+    key: VolumeKey,
+    lights: Lights,
+    volume: Volume,
+    chain: levels::Levels,
+}
+
+/// What a GI frame can keep from the frame before (DESIGN.md, "Leave out what a scene does not
+/// need").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum GiReuse {
+    /// Nothing: transformation, injection and levels run.
+    #[default]
+    Nothing,
+    /// The transformed volume (nothing moved, the lights changed): injection and levels run.
+    Volume,
+    /// The level chain (nothing moved, same lights): only the cones run.
+    Levels,
+}
+
+impl GiReuse {
+    /// One line for `--explain`.
+    pub fn explain(self) -> &'static str {
+        match self {
+            GiReuse::Nothing => "GI: transform, inject, levels, cones (first frame, or an instance, the camera's volume or a setting changed)",
+            GiReuse::Volume => "GI: volume reused (nothing moved), inject + levels again (the lights changed), cones",
+            GiReuse::Levels => "GI: volume and levels reused (nothing moved, same lights), cones only",
+        }
+    }
+
+    /// What to keep, given the last frame's key and lights.
+    pub fn decide(last: Option<(&VolumeKey, &Lights)>, key: &VolumeKey, lights: &Lights) -> GiReuse {
+        match last {
+            Some((k, l)) if k == key && l == lights => GiReuse::Levels,
+            Some((k, _)) if k == key => GiReuse::Volume,
+            _ => GiReuse::Nothing,
+        }
+    }
+}
+
+/// Everything a transformed volume depends on: its placement and filter, the caches used and
+/// every instance's part and world matrix. Equal keys give equal volumes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VolumeKey {
+    spec: VolumeSpec,
+    filter: Filter,
+    caches: Vec<(usize, u32)>,
+    instances: Vec<(usize, glam::DAffine3)>,
+}
+
+impl VolumeKey {
+    /// The key of `scene` moved into `spec` with the parts' cache levels `levels_of`.
+    pub fn new(scene: &Scene, spec: VolumeSpec, filter: Filter, levels_of: &[u32]) -> VolumeKey {
+        VolumeKey {
+            spec,
+            filter,
+            caches: scene.parts.iter().zip(levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect(),
+            instances: scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, scene.world(i))).collect(),
+        }
+    }
 }
 
 impl GiCaches {
@@ -81,6 +145,8 @@ pub struct GiStats {
     pub voxels: u64,
     /// Occupied world cells.
     pub occupied: usize,
+    /// What was kept from the frame before.
+    pub reuse: GiReuse,
 }
 
 /// Where the world volume is centred: on the camera's target, moved (per axis) as far as
@@ -136,16 +202,37 @@ pub fn apply(
     let t0 = Instant::now();
     let (spec, levels_of) = plan_volume(scene, camera, s, caches)?;
     let t1 = Instant::now();
-    let mut vol = Volume::new(spec);
-    for (i, inst) in scene.instances().iter().enumerate() {
-        let cache = caches.get(&scene.parts[inst.part], levels_of[inst.part])?;
-        stats.voxels += vol.splat(cache, &scene.world(i), s.filter)?.voxels;
-    }
-    stats.occupied = vol.occupancy.iter().filter(|&&o| o > 0.0).count();
+    let key = VolumeKey::new(scene, spec, s.filter, &levels_of);
+    let last = caches.last.take();
+    stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
+    let volume = match last {
+        Some(l) if stats.reuse != GiReuse::Nothing => {
+            stats.occupied = l.volume.occupancy.iter().filter(|&&o| o > 0.0).count();
+            Some(l)
+        }
+        _ => None,
+    };
+    let (vol, kept_chain) = match volume {
+        Some(l) => (l.volume, (stats.reuse == GiReuse::Levels).then_some(l.chain)),
+        None => {
+            let mut vol = Volume::new(spec);
+            for (i, inst) in scene.instances().iter().enumerate() {
+                let cache = caches.get(&scene.parts[inst.part], levels_of[inst.part])?;
+                stats.voxels += vol.splat(cache, &scene.world(i), s.filter)?.voxels;
+            }
+            stats.occupied = vol.occupancy.iter().filter(|&&o| o > 0.0).count();
+            (vol, None)
+        }
+    };
     let t2 = Instant::now();
-    let injected = inject(&vol, scene, lights);
-    let t3 = Instant::now();
-    let chain = levels::build(&injected);
+    let (chain, t3) = match kept_chain {
+        Some(chain) => (chain, Instant::now()),
+        None => {
+            let injected = inject(&vol, scene, lights);
+            let t3 = Instant::now();
+            (levels::build(&injected), t3)
+        }
+    };
     let t4 = Instant::now();
     let sky = lights.sky();
     let basis = camera.basis();
@@ -168,6 +255,7 @@ pub fn apply(
         }
     }
     let t5 = Instant::now();
+    caches.last = Some(LastVolume { key, lights: *lights, volume: vol, chain });
     let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
     stats.caches_ms = ms(t0, t1);
     stats.transform_ms = ms(t1, t2);

@@ -10,8 +10,8 @@ use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
 use super::renderer::read;
 use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
-use crate::gi::{CacheVoxel, Filter, GiCaches, GiError, GiSettings, Volume, VolumeSpec};
-use crate::scene::{Camera, Scene};
+use crate::gi::{CacheVoxel, Filter, GiCaches, GiError, GiReuse, GiSettings, Volume, VolumeKey, VolumeSpec};
+use crate::scene::{Camera, Lights, Scene};
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
 use wgpu::util::DeviceExt;
@@ -67,6 +67,8 @@ pub struct GpuGiStats {
     pub levels: u32,
     /// Bytes of the GI buffers (voxel pool, accumulation, levels).
     pub bytes: u64,
+    /// What was kept from the frame before (the passes not run).
+    pub reuse: GiReuse,
 }
 
 struct VolumeBuffers {
@@ -106,6 +108,8 @@ pub(crate) struct GpuGi {
     /// Layout of bind group 1 (accumulation, levels, GI uniforms) of the tracer's GI entries.
     pub group1_layout: wgpu::BindGroupLayout,
     volume: Option<VolumeBuffers>,
+    /// What the volume on the GPU was made from.
+    last: Option<(VolumeKey, Lights)>,
 }
 
 fn row(m: DMat3, t: DVec3, i: usize) -> [f32; 4] {
@@ -161,6 +165,7 @@ impl GpuGi {
             levels_pipe: make("gi_levels.wgsl", levels_source(), "levels_main"),
             group1_layout,
             volume: None,
+            last: None,
         }
     }
 
@@ -269,10 +274,15 @@ impl GpuGi {
         ctx: &GpuContext,
         scene: &Scene,
         camera: &Camera,
+        lights: &Lights,
         s: &GiSettings,
     ) -> Result<GiWork, GpuError> {
         let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
         let (spec, levels_of) = plan_volume(scene, camera, s, &mut self.caches)?;
+        let key = VolumeKey::new(scene, spec, s.filter, &levels_of);
+        // Decided before any upload: a changed pool or volume size changes the key too.
+        let reuse = GiReuse::decide(self.last.as_ref().map(|(k, l)| (k, l)), &key, lights);
+        self.last = None; // until this frame's passes are encoded
         let keys: Vec<(usize, u32)> =
             scene.parts.iter().zip(&levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect();
         self.upload_pool(ctx, scene, keys.clone())?;
@@ -390,7 +400,9 @@ impl GpuGi {
             res: spec.res,
             levels: vol.offsets.len() as u32,
             bytes: pool.voxels.size() + vol.accum.size() + vol.levels.size() + jobs_buf.size(),
+            reuse,
         };
+        self.last = Some((key, *lights));
         Ok(GiWork { splat_bind, splat_groups: if threads == 0 { (0, 0) } else { splat_groups }, group1, spec, stats })
     }
 
@@ -405,9 +417,15 @@ impl GpuGi {
         timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
         let vol = self.volume.as_ref().ok_or_else(|| GpuError::Device("GI volume missing".into()))?;
-        enc.clear_buffer(&vol.accum, 0, None);
+        let reuse = work.stats.reuse;
+        if reuse == GiReuse::Nothing {
+            enc.clear_buffer(&vol.accum, 0, None);
+        }
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("gi"), timestamp_writes });
-        if work.splat_groups.0 > 0 {
+        if reuse == GiReuse::Levels {
+            return Ok(()); // the pass stays for its timestamps
+        }
+        if work.splat_groups.0 > 0 && reuse == GiReuse::Nothing {
             pass.set_pipeline(&self.splat_pipe);
             pass.set_bind_group(0, &work.splat_bind, &[]);
             pass.dispatch_workgroups(work.splat_groups.0, work.splat_groups.1, 1);

@@ -416,7 +416,7 @@ impl GpuRenderer {
                 let settings = *settings;
                 self.gi_pipeline(search, plan.shadows)?;
                 let gi = self.gi.as_mut().ok_or_else(|| GpuError::Device("GI state missing".into()))?;
-                Some(gi.prepare(&self.ctx, scene, camera, &settings)?)
+                Some(gi.prepare(&self.ctx, scene, camera, lights, &settings)?)
             }
             _ => None,
         };
