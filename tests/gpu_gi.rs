@@ -284,3 +284,71 @@ fn gpu_static_frames_reuse_the_volume_and_render_what_a_fresh_frame_renders() {
     assert_eq!(rd, GiReuse::Nothing);
     assert_eq!(d, fresh(&scene, &dim));
 }
+
+#[test]
+fn gpu_revoxelization_marks_the_cells_the_cpu_voxelizer_marks() {
+    use voxray::gpu::baseline::GpuVolumePasses;
+    use voxray::mesh::Part;
+    use voxray::svo::Cube;
+    let Some(ctx) = context() else { return };
+    let scene = cars();
+    let mesh = voxray::model::car::mesh();
+    let instances: Vec<(usize, glam::DAffine3)> =
+        scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, scene.world(i))).collect();
+    let (lo, hi) = scene.bounds();
+    let spec = voxray::gi::VolumeSpec::following((lo + hi) * 0.5, (hi - lo).max_element() * 1.05, 64).unwrap();
+    let passes = GpuVolumePasses::new(ctx);
+    let gpu = passes.revoxelize(&mesh, &instances, &spec, 1).unwrap();
+    assert_eq!(gpu.work as usize, instances.iter().map(|(p, _)| mesh.parts[*p].triangles.len()).sum::<usize>());
+    // The CPU baseline: each moved part voxelized into the same cells.
+    let cube = Cube { min: spec.min.as_vec3(), size: (spec.cell * 64.0) as f32 };
+    let mut cpu = Volume::new(spec);
+    for (part, world) in &instances {
+        let mut moved = Part { name: String::new(), triangles: mesh.parts[*part].triangles.clone() };
+        for t in &mut moved.triangles {
+            for p in &mut t.positions {
+                *p = world.transform_point3(p.as_dvec3()).as_vec3();
+            }
+        }
+        let grid = voxray::voxelize::voxelize_in(&moved, &mesh.materials, cube, 6, false, &|_, _| {}).unwrap();
+        cpu.write_grid(&grid).unwrap();
+    }
+    // The GPU voxelizes all instances together (one unit per touched cell); the CPU adds one
+    // per part voxel. Compare which cells are occupied and their mean albedo; f32 on the GPU
+    // may flip cells a triangle only touches.
+    let (mut both, mut only) = (0usize, 0usize);
+    let (mut albedo_off, mut single) = (0usize, 0usize);
+    for i in 0..cpu.occupancy.len() {
+        let (c, g) = (cpu.occupancy[i], gpu.volume.occupancy[i]);
+        assert!(g == 0.0 || (g - 1.0).abs() < 1e-4, "GPU occupancy {g} is not one unit");
+        match (c > 0.0, g > 0.0) {
+            (true, true) => {
+                both += 1;
+                // Cells of one part only: where parts share a cell the CPU averages per part.
+                if c == 1.0 {
+                    single += 1;
+                    let d = (cpu.albedo[i] - gpu.volume.albedo[i] / g).abs().max_element();
+                    albedo_off += (d > 0.02) as usize;
+                }
+            }
+            (false, false) => {}
+            _ => only += 1,
+        }
+    }
+    assert!(both > 1000, "{both} cells occupied");
+    assert!(only <= both / 100, "{only} cells occupied on one side only, {both} on both");
+    assert!(albedo_off <= single / 100 && single > both / 2, "{albedo_off} of {single} cells differ in albedo");
+    // The transformation through the same passes equals the CPU splat.
+    let mut caches = Vec::new();
+    for p in &scene.parts {
+        caches.push(voxray::gi::VoxelCache::from_svo(p, 4, 0.0).unwrap());
+    }
+    let moved = passes.transform(&caches, &instances, &spec, Filter::Split, 2).unwrap();
+    assert_eq!(moved.ms.len(), 2);
+    let mut cpu = Volume::new(spec);
+    for (part, world) in &instances {
+        cpu.splat(&caches[*part], world, Filter::Split).unwrap();
+    }
+    let (tc, tg) = (cpu.total_occupancy(), moved.volume.total_occupancy());
+    assert!((tc - tg).abs() <= 1e-4 * tc && tc > 1000.0, "total occupancy CPU {tc} vs GPU {tg}");
+}

@@ -232,6 +232,16 @@ fn wgsl_structs_match_rust() {
                 ("dst_res", offset_of!(GpuGiLevelStep, dst_res)),
             ],
         ),
+        (
+            "GiTri",
+            size_of::<GpuGiTri>(),
+            vec![
+                ("a", offset_of!(GpuGiTri, a)),
+                ("b", offset_of!(GpuGiTri, b)),
+                ("c", offset_of!(GpuGiTri, c)),
+                ("emission", offset_of!(GpuGiTri, emission)),
+            ],
+        ),
     ];
     let parsed = wgsl_structs(include_str!("../wgsl/layout.wgsl"));
     assert_eq!(parsed.len(), rust.len(), "every WGSL struct needs a Rust twin in this test");

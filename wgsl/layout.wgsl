@@ -183,3 +183,12 @@ struct GiLevelStep {
     dst_offset: u32,
     dst_res: u32,
 }
+
+// Mirrors voxray::gpu::layout::GpuGiTri: one object-space triangle for the re-voxelization
+// baseline; the w components of a, b, c hold its linear albedo.
+struct GiTri {
+    a: vec4<f32>,
+    b: vec4<f32>,
+    c: vec4<f32>,
+    emission: vec4<f32>,
+}

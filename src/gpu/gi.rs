@@ -125,6 +125,24 @@ pub fn grid_map(world: &DAffine3, corner: Vec3, voxel: f32, spec: &VolumeSpec) -
     (lin, (origin - spec.min) / spec.cell - DVec3::splat(0.5))
 }
 
+/// The volume in an accumulation buffer read back (the fixed-point sums as floats) and the
+/// weight that fell outside it.
+pub fn volume_from_accum(accum: &[u32], spec: VolumeSpec) -> (Volume, f64) {
+    let mut volume = Volume::new(spec);
+    let fix = |w: u32, scale: f64| (w as i32) as f64 / scale;
+    for (i, c) in accum.chunks_exact(STRIDE).enumerate().take(volume.occupancy.len()) {
+        let v3 = |k: usize, scale: f64| {
+            Vec3::new(fix(c[k], scale) as f32, fix(c[k + 1], scale) as f32, fix(c[k + 2], scale) as f32)
+        };
+        volume.occupancy[i] = (c[0] as f64 / FIX) as f32;
+        volume.albedo[i] = v3(1, FIX);
+        volume.normal[i] = v3(4, FIX);
+        volume.emission[i] = v3(7, EMIT_FIX);
+    }
+    let outside = accum.last().copied().unwrap_or(0) as f64 / OUT_FIX;
+    (volume, outside)
+}
+
 fn gi_layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -474,18 +492,7 @@ impl GpuGi {
         let vol = self.volume.as_ref().ok_or_else(|| GpuError::Device("GI volume missing".into()))?;
         let accum: Vec<u32> = read(ctx, &bufs.0)?;
         let rgba: Vec<[f32; 4]> = read(ctx, &bufs.1)?;
-        let mut volume = Volume::new(work.spec);
-        let fix = |w: u32, scale: f64| (w as i32) as f64 / scale;
-        for (i, c) in accum.chunks_exact(STRIDE).enumerate() {
-            let v3 = |k: usize, scale: f64| {
-                Vec3::new(fix(c[k], scale) as f32, fix(c[k + 1], scale) as f32, fix(c[k + 2], scale) as f32)
-            };
-            volume.occupancy[i] = (c[0] as f64 / FIX) as f32;
-            volume.albedo[i] = v3(1, FIX);
-            volume.normal[i] = v3(4, FIX);
-            volume.emission[i] = v3(7, EMIT_FIX);
-        }
-        let outside = accum.last().copied().unwrap_or(0) as f64 / OUT_FIX;
+        let (volume, outside) = volume_from_accum(&accum, work.spec);
         let levels = vol
             .offsets
             .iter()

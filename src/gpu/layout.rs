@@ -263,3 +263,17 @@ pub struct GpuGiLevelStep {
     /// Its cells per side.
     pub dst_res: u32,
 }
+
+/// One object-space triangle of the re-voxelization baseline. WGSL: `GiTri`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuGiTri {
+    /// First vertex; w: linear albedo red.
+    pub a: [f32; 4],
+    /// Second vertex; w: green.
+    pub b: [f32; 4],
+    /// Third vertex; w: blue.
+    pub c: [f32; 4],
+    /// Emitted radiance (MTL `Ke`); w unused.
+    pub emission: [f32; 4],
+}
