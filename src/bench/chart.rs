@@ -261,12 +261,16 @@ fn instances(rs: &[&Record], path: &Path) -> Res<()> {
 }
 
 fn gi_scaling(rs: &[&Record], path: &Path) -> Res<()> {
-    let series: Vec<Series> = ["transformation (split)", "transformation (nearest)", "re-voxelization"]
-        .iter()
-        .map(|n| {
-            (n.to_string(), rs.iter().filter(|r| r.name == *n).map(|r| (r.x, r.median_ms, String::new())).collect())
-        })
-        .collect();
+    let ks = kinds(rs);
+    let mut series: Vec<Series> = Vec::new();
+    for k in &ks {
+        for n in ["transformation (split)", "transformation (nearest)", "re-voxelization"] {
+            let label = if ks.len() > 1 { format!("{n}, {k}") } else { n.to_string() };
+            let p =
+                rs.iter().filter(|r| r.name == n && r.backend_kind == *k).map(|r| (r.x, r.median_ms, String::new()));
+            series.push((label, p.collect()));
+        }
+    }
     lines(path, "Moving cars into the GI volume (log-log)", ("moving cars", "time per frame (ms)"), &series, true)
 }
 

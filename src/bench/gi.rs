@@ -39,38 +39,13 @@ pub fn scaling(
     parts: &[Arc<Svo>],
     progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<Record>, crate::Error> {
-    if !cfg.res.is_power_of_two() {
-        return Err(crate::gi::GiError::Resolution(cfg.res).into());
-    }
     let depth = cfg.res.trailing_zeros();
-    // One volume for every count: the box the most cars ever drive in, so the cell size (and
-    // with it the caches) is the same at every count and only the number of cars changes.
-    let most = cfg.cars.iter().copied().max().unwrap_or(1);
-    let (lo, hi) = stage_cars(parts, most, true, false)?.bounds;
-    let spec = VolumeSpec::following((lo + hi) * 0.5, (hi - lo).max_element() * 1.02, cfg.res)?;
+    let spec = scaling_volume(cfg, parts)?;
     let mut out = Vec::new();
     for &n in &cfg.cars {
         progress(&format!("gi-scaling: {n} cars"));
-        let mut st = stage_cars(parts, n, true, false)?;
-        for car in &st.cars {
-            pose(&mut st.scene, car, 1.7)?;
-        }
-        st.scene.update()?;
-        // Caches at a fixed voxel size, 1/64 of the first part (the body), at every count —
-        // the volume's cells grow with the area the cars cover and would otherwise shrink the
-        // caches to a voxel or two. Built once (load time, not timed).
-        let voxel = parts.first().map_or(1.0, |p| p.bounds.size as f64 / 64.0);
-        let caches: Vec<VoxelCache> = parts
-            .iter()
-            .map(|p| {
-                let level = (p.bounds.size as f64 / voxel).log2().round().clamp(0.0, 10.0) as u32;
-                VoxelCache::from_svo(p, level, 0.0)
-            })
-            .collect::<Result<_, _>>()
-            .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+        let (st, caches, instances) = scaling_scene(parts, n)?;
         let cube = Cube { min: spec.min.as_vec3(), size: (spec.cell * cfg.res as f64) as f32 };
-        let instances: Vec<(usize, glam::DAffine3)> =
-            st.scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, st.scene.world(i))).collect();
         let mut vol = Volume::new(spec);
         let mut time =
             |f: &mut dyn FnMut(&mut Volume) -> Result<u64, crate::Error>| -> Result<(f64, u64), crate::Error> {
@@ -127,6 +102,79 @@ pub fn scaling(
             Ok(tris)
         })?;
         out.push(record(cfg, n, "re-voxelization", ms, triangles, st.scene.instances().len()));
+    }
+    Ok(out)
+}
+
+/// One volume for every count: the box the most cars ever drive in, so the cell size (and
+/// with it the caches) is the same at every count and only the number of cars changes.
+fn scaling_volume(cfg: &ScalingConfig, parts: &[Arc<Svo>]) -> Result<VolumeSpec, crate::Error> {
+    if !cfg.res.is_power_of_two() {
+        return Err(crate::gi::GiError::Resolution(cfg.res).into());
+    }
+    let most = cfg.cars.iter().copied().max().unwrap_or(1);
+    let (lo, hi) = stage_cars(parts, most, true, false)?.bounds;
+    Ok(VolumeSpec::following((lo + hi) * 0.5, (hi - lo).max_element() * 1.02, cfg.res)?)
+}
+
+/// `n` driving cars posed mid-clip, the parts' caches and every instance's (part, world).
+type ScalingScene = (crate::scene::Staged, Vec<VoxelCache>, Vec<(usize, glam::DAffine3)>);
+
+fn scaling_scene(parts: &[Arc<Svo>], n: usize) -> Result<ScalingScene, crate::Error> {
+    let mut st = stage_cars(parts, n, true, false)?;
+    for car in &st.cars {
+        pose(&mut st.scene, car, 1.7)?;
+    }
+    st.scene.update()?;
+    // Caches at a fixed voxel size, 1/64 of the first part (the body), at every count — the
+    // volume's cells grow with the area the cars cover and would otherwise shrink the caches
+    // to a voxel or two. Built once (load time, not timed).
+    let voxel = parts.first().map_or(1.0, |p| p.bounds.size as f64 / 64.0);
+    let caches: Vec<VoxelCache> = parts
+        .iter()
+        .map(|p| {
+            let level = (p.bounds.size as f64 / voxel).log2().round().clamp(0.0, 10.0) as u32;
+            VoxelCache::from_svo(p, level, 0.0)
+        })
+        .collect::<Result<_, _>>()
+        .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+    let instances = st.scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, st.scene.world(i))).collect();
+    Ok((st, caches, instances))
+}
+
+/// The scaling scenario on the GPU: the same volume, cars, caches and triangles, the voxel
+/// transformation (`gi_transform.wgsl`) against the GPU re-voxelizer (`gi_revoxelize.wgsl`),
+/// pass times from timestamp queries (uploads not included).
+#[cfg(feature = "gpu")]
+pub fn scaling_gpu(
+    cfg: &ScalingConfig,
+    mesh: &Mesh,
+    parts: &[Arc<Svo>],
+    ctx: Arc<crate::gpu::GpuContext>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
+    let spec = scaling_volume(cfg, parts)?;
+    let backend = format!("GPU: {}", ctx.describe());
+    let passes = crate::gpu::baseline::GpuVolumePasses::new(ctx);
+    let mut out = Vec::new();
+    for &n in &cfg.cars {
+        progress(&format!("gi-scaling (GPU): {n} cars"));
+        let (st, caches, instances) = scaling_scene(parts, n)?;
+        let count = st.scene.instances().len();
+        let mut push = |name: &str, t: crate::gpu::baseline::Timed| {
+            let mut r = record(cfg, n, name, summarize(&t.ms).0, t.work, count);
+            r.backend_kind = "gpu".into();
+            r.backend = format!("{backend}{}", if t.timestamps { "" } else { " (wall clock)" });
+            out.push(r);
+        };
+        for filter in [Filter::Split, Filter::Nearest] {
+            // One untimed run first: pipeline warm-up and first-touch of the buffers.
+            passes.transform(&caches, &instances, &spec, filter, 1)?;
+            let t = passes.transform(&caches, &instances, &spec, filter, cfg.repeats.max(1))?;
+            push(&format!("transformation ({filter:?})").to_lowercase(), t);
+        }
+        passes.revoxelize(mesh, &instances, &spec, 1)?;
+        push("re-voxelization", passes.revoxelize(mesh, &instances, &spec, cfg.repeats.max(1))?);
     }
     Ok(out)
 }

@@ -245,15 +245,16 @@ ratio column divides its rays per second by each row's. Ratio > 1: voxray is fas
 caches transformed by their world matrices (split or nearest filtering), against voxelizing every \
 part's transformed triangles again into the same cells. Only the writing into the volume is timed.\n\n";
         md += &provenance(&rs);
-        md += "\n| cars | instances | transformation (split) ms | transformation (nearest) ms | re-voxelization ms | re-voxelization ÷ split | moved | re-voxelized |\n|---|---|---|---|---|---|---|---|\n";
-        let mut cars: Vec<f64> = rs.iter().map(|r| r.x).collect();
-        cars.dedup();
-        for x in cars {
-            let get = |n: &str| rs.iter().find(|r| r.x == x && r.name == n);
+        md += "\n| backend | cars | instances | transformation (split) ms | transformation (nearest) ms | re-voxelization ms | re-voxelization ÷ split | moved | re-voxelized |\n|---|---|---|---|---|---|---|---|---|\n";
+        let mut rows: Vec<(String, f64)> = rs.iter().map(|r| (r.backend_kind.clone(), r.x)).collect();
+        rows.dedup();
+        for (kind, x) in rows {
+            let get = |n: &str| rs.iter().find(|r| r.x == x && r.name == n && r.backend_kind == kind);
             let (split, nearest, revox) =
                 (get("transformation (split)"), get("transformation (nearest)"), get("re-voxelization"));
             md += &format!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                kind,
                 x,
                 split.or(revox).map_or(0, |r| r.instances),
                 split.map_or("–".into(), |r| format!("{:.2}", r.median_ms)),

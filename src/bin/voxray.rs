@@ -868,7 +868,29 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             command: command.clone(),
             machine: cfg.machine.clone(),
         };
-        records.extend(voxray::bench::gi::scaling(&sc, &mesh, &car.parts, &mut |w| pb.set_message(w.to_string()))?);
+        use voxray::backend::BackendKind;
+        // The CPU reference for cpu and auto; the GPU passes for gpu, and for auto on a
+        // hardware adapter (as Backend::open decides).
+        if a.backends.iter().any(|k| *k != BackendKind::Gpu) {
+            records.extend(voxray::bench::gi::scaling(&sc, &mesh, &car.parts, &mut |w| pb.set_message(w.to_string()))?);
+        }
+        #[cfg(feature = "gpu")]
+        if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
+            let want = |ctx: &voxray::gpu::GpuContext| {
+                a.backends.contains(&BackendKind::Gpu) || ctx.info.device_type != wgpu::DeviceType::Cpu
+            };
+            match voxray::gpu::GpuContext::headless() {
+                Ok(ctx) if !want(&ctx) => {}
+                Ok(ctx) => records.extend(voxray::bench::gi::scaling_gpu(
+                    &sc,
+                    &mesh,
+                    &car.parts,
+                    std::sync::Arc::new(ctx),
+                    &mut |w| pb.set_message(w.to_string()),
+                )?),
+                Err(e) => pb.println(format!("skipping GPU gi-scaling: {e}")),
+            }
+        }
         pb.inc(1);
     }
     if gi_accuracy {
