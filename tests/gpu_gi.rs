@@ -233,9 +233,10 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
         let f = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
         assert!(f.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0), "{s:?}");
     }
-    // A non-finite extent is an error, not a NaN image.
-    gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).unwrap();
-    assert!(gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).is_err());
+    // A non-finite extent or more bounces than the GPU does are errors, not a NaN image.
+    assert!(gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).is_err());
+    let e = gpu.set_gi(Some(GiSettings { bounces: 2, ..Default::default() })).unwrap_err().to_string();
+    assert!(e.contains("--backend cpu"), "{e}");
     // No lights at all: GI would add nothing, so it is skipped.
     let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false };
     assert_eq!(dark.sky(), Vec3::ZERO);

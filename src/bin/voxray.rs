@@ -164,6 +164,9 @@ struct RenderArgs {
     /// GI world volume edge in scene units (default: 3× the camera's distance to its target).
     #[arg(long, requires = "gi")]
     gi_extent: Option<f64>,
+    /// GI bounces (1…8): each bounce past the first cone-traces every occupied cell's incoming light (CPU backend).
+    #[arg(long, default_value_t = 1, requires = "gi")]
+    gi_bounces: u32,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]
@@ -557,12 +560,12 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         filter: a.gi_filter,
         cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
         extent: a.gi_extent,
+        bounces: a.gi_bounces,
     });
     let mut gi_caches = voxray::gi::GiCaches::new();
     if let Some(g) = &gi {
         // Check the knobs before any frame is rendered.
-        voxray::gi::VolumeSpec::new(g.res, glam::DVec3::ZERO, 1.0)?;
-        g.cones.validated().map_err(|e| usage(&e.to_string()))?;
+        g.validated().map_err(|e| usage(&e.to_string()))?;
     }
     let (mut backend, backend_name) = Backend::open(a.backend)?;
     eprintln!("backend: {backend_name}");

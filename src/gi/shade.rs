@@ -6,7 +6,7 @@
 
 use super::cache::{VoxelCache, MAX_CACHE_DEPTH};
 use super::cone::{gather, ConeSettings};
-use super::inject::inject;
+use super::inject::{inject, Injected};
 use super::levels;
 use super::volume::{Filter, GiError, Volume, VolumeSpec};
 use crate::render::Frame;
@@ -29,6 +29,8 @@ pub struct GiCaches {
 struct LastVolume {
     key: VolumeKey,
     lights: Lights,
+    // Bounces and the cones they were gathered with (the chain depends on both past one bounce).
+    bounces: (u32, ConeSettings),
     volume: Volume,
     chain: levels::Levels,
 }
@@ -120,12 +122,54 @@ pub struct GiSettings {
     /// Edge of the world volume (world units); None: three times the camera's distance to its
     /// target, at most the scene's size.
     pub extent: Option<f64>,
+    /// Bounces of indirect light (1…MAX_BOUNCES): 1 lights the pixels with the injected
+    /// direct light; each more cone-traces every occupied cell's incoming light from the
+    /// previous chain into the next (CPU only so far).
+    pub bounces: u32,
 }
+
+/// Most GI bounces.
+pub const MAX_BOUNCES: u32 = 8;
 
 impl Default for GiSettings {
     fn default() -> Self {
-        GiSettings { res: 128, filter: Filter::Split, cones: ConeSettings::default(), extent: None }
+        GiSettings { res: 128, filter: Filter::Split, cones: ConeSettings::default(), extent: None, bounces: 1 }
     }
+}
+
+impl GiSettings {
+    /// Checks the knobs that do not depend on the scene.
+    pub fn validated(self) -> Result<Self, GiError> {
+        VolumeSpec::new(self.res, DVec3::ZERO, 1.0)?;
+        self.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
+        if !(1..=MAX_BOUNCES).contains(&self.bounces) {
+            return Err(GiError::Settings(format!("bounces must be 1…{MAX_BOUNCES}, not {}", self.bounces)));
+        }
+        if let Some(e) = self.extent.filter(|e| !(e.is_finite() && *e > 0.0)) {
+            return Err(GiError::Settings(format!("volume extent {e} must be finite and positive")));
+        }
+        Ok(self)
+    }
+}
+
+/// One more bounce: every occupied cell of `vol` gathers the light of `chain` over its
+/// hemisphere (cones from its centre along its mean normal, the sky where they escape) and
+/// sends out its albedo times that on top of its direct light `direct`; returns the new
+/// injected volume.
+fn bounce(vol: &Volume, direct: &Injected, chain: &levels::Levels, sky: glam::Vec3, cones: &ConeSettings) -> Injected {
+    let r = vol.spec.res as usize;
+    let add = crate::render::cpu::par_map(vol.occupancy.len(), |i| {
+        let occ = vol.occupancy[i];
+        let n = vol.normal[i];
+        if occ <= 0.0 || n.length_squared() <= 1e-6 {
+            return glam::Vec4::ZERO;
+        }
+        let c = [(i % r) as u32, ((i / r) % r) as u32, (i / (r * r)) as u32];
+        let (light, _) = gather(chain, vol.spec.cell_centre(c), n.normalize().as_dvec3(), sky, cones);
+        (vol.albedo[i] / occ * light * occ.min(1.0)).extend(0.0)
+    });
+    let rgba = direct.rgba.iter().zip(add).map(|(d, a)| *d + a).collect();
+    Injected { rgba, ..direct.clone() }
 }
 
 /// Where a GI frame's time went (milliseconds) and what it did.
@@ -197,14 +241,19 @@ pub fn apply(
     s: &GiSettings,
     caches: &mut GiCaches,
 ) -> Result<GiStats, GiError> {
-    let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
+    let s = &s.validated()?;
+    let cones = s.cones;
     let mut stats = GiStats::default();
     let t0 = Instant::now();
     let (spec, levels_of) = plan_volume(scene, camera, s, caches)?;
     let t1 = Instant::now();
     let key = VolumeKey::new(scene, spec, s.filter, &levels_of);
     let last = caches.last.take();
+    let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
+    if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
+        stats.reuse = GiReuse::Volume;
+    }
     let volume = match last {
         Some(l) if stats.reuse != GiReuse::Nothing => {
             stats.occupied = l.volume.occupancy.iter().filter(|&&o| o > 0.0).count();
@@ -230,7 +279,11 @@ pub fn apply(
         None => {
             let injected = inject(&vol, scene, lights);
             let t3 = Instant::now();
-            (levels::build(&injected), t3)
+            let mut chain = levels::build(&injected);
+            for _ in 1..s.bounces {
+                chain = levels::build(&bounce(&vol, &injected, &chain, lights.sky(), &cones));
+            }
+            (chain, t3)
         }
     };
     let t4 = Instant::now();
@@ -255,7 +308,7 @@ pub fn apply(
         }
     }
     let t5 = Instant::now();
-    caches.last = Some(LastVolume { key, lights: *lights, volume: vol, chain });
+    caches.last = Some(LastVolume { key, lights: *lights, bounces: bounce_key, volume: vol, chain });
     let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
     stats.caches_ms = ms(t0, t1);
     stats.transform_ms = ms(t1, t2);

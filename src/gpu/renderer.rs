@@ -209,8 +209,14 @@ impl GpuRenderer {
     /// knobs are checked here; the GPU state (caches, volume) is kept while GI stays on.
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(s) = &settings {
-            crate::gi::VolumeSpec::new(s.res, glam::DVec3::ZERO, 1.0)?;
-            s.cones.validated().map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+            s.validated()?;
+            if s.bounces > 1 {
+                return Err(crate::gi::GiError::Settings(format!(
+                    "{} bounces: the GPU renders one GI bounce; more run on the CPU backend (--backend cpu)",
+                    s.bounces
+                ))
+                .into());
+            }
         }
         if settings.is_some() && self.gi.is_none() {
             let gi = super::gi::GpuGi::new(&self.ctx.device);
