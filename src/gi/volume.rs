@@ -65,6 +65,17 @@ pub enum GiError {
     Transform(DAffine3),
 }
 
+/// Checks that a world matrix can move voxels: finite, with an invertible linear part (the
+/// normals move by its inverse transpose).
+pub fn check_world(world: &DAffine3) -> Result<(), GiError> {
+    let lin = world.matrix3;
+    if world.translation.is_finite() && lin.is_finite() && lin.determinant().abs() > 0.0 {
+        Ok(())
+    } else {
+        Err(GiError::Transform(*world))
+    }
+}
+
 impl VolumeSpec {
     /// A checked placement.
     pub fn new(res: u32, min: DVec3, cell: f64) -> Result<Self, GiError> {
@@ -147,10 +158,8 @@ impl Volume {
 
     /// Moves `cache`'s voxels by `world` (object → world) into the volume.
     pub fn splat(&mut self, cache: &VoxelCache, world: &DAffine3, filter: Filter) -> Result<SplatStats, GiError> {
+        check_world(world)?;
         let lin = world.matrix3;
-        if !(world.translation.is_finite() && lin.is_finite() && lin.determinant().abs() > 0.0) {
-            return Err(GiError::Transform(*world));
-        }
         // Normals move by the inverse transpose.
         let normal_m: DMat3 = lin.inverse().transpose();
         let res = self.spec.res as i64;

@@ -5,12 +5,13 @@
 //! Caches, triangles and instance matrices are uploaded before the timed passes.
 
 use super::context::{GpuContext, GpuError};
-use super::gi::{grid_map, transform_source, volume_from_accum};
+use super::gi::{grid_map, row, transform_source, volume_from_accum};
 use super::layout::{GpuGiJob, GpuGiSplat, GpuGiTri};
 use super::renderer::read;
+use crate::gi::volume::check_world;
 use crate::gi::{Filter, GiError, Volume, VolumeSpec, VoxelCache};
 use crate::mesh::Mesh;
-use glam::{DAffine3, DMat3, DVec3};
+use glam::{DAffine3, DVec3};
 use std::sync::Arc;
 use std::time::Instant;
 use wgpu::util::DeviceExt;
@@ -64,19 +65,6 @@ fn pipeline(
     })
 }
 
-fn row(m: DMat3, t: DVec3, i: usize) -> [f32; 4] {
-    [m.col(0)[i] as f32, m.col(1)[i] as f32, m.col(2)[i] as f32, t[i] as f32]
-}
-
-fn check(world: &DAffine3) -> Result<(), GiError> {
-    let lin = world.matrix3;
-    if world.translation.is_finite() && lin.is_finite() && lin.determinant().abs() > 0.0 {
-        Ok(())
-    } else {
-        Err(GiError::Transform(*world))
-    }
-}
-
 impl GpuVolumePasses {
     /// The pipelines on `ctx`.
     pub fn new(ctx: Arc<GpuContext>) -> Self {
@@ -128,7 +116,7 @@ impl GpuVolumePasses {
         let mut jobs = Vec::new();
         let mut threads = 0u64;
         for &(part, world) in instances {
-            check(&world)?;
+            check_world(&world)?;
             let (cache, (base, count)) = match (caches.get(part), ranges.get(part)) {
                 (Some(c), Some(&r)) => (c, r),
                 _ => return Err(GiError::Settings(format!("instance of part {part}: no such cache")).into()),
@@ -180,7 +168,7 @@ impl GpuVolumePasses {
         // Object point → grid coordinate with cell c spanning [c, c + 1).
         let to_grid = DAffine3::from_scale(DVec3::splat(1.0 / spec.cell)) * DAffine3::from_translation(-spec.min);
         for &(part, world) in instances {
-            check(&world)?;
+            check_world(&world)?;
             let &(base, count) = ranges
                 .get(part)
                 .ok_or_else(|| GiError::Settings(format!("instance of part {part}: no such mesh part")))?;

@@ -112,7 +112,8 @@ pub(crate) struct GpuGi {
     last: Option<(VolumeKey, Lights)>,
 }
 
-fn row(m: DMat3, t: DVec3, i: usize) -> [f32; 4] {
+/// Row `i` of the affine map (m, t) as xyz = linear, w = translation, in f32.
+pub(crate) fn row(m: DMat3, t: DVec3, i: usize) -> [f32; 4] {
     [m.col(0)[i] as f32, m.col(1)[i] as f32, m.col(2)[i] as f32, t[i] as f32]
 }
 
@@ -313,10 +314,8 @@ impl GpuGi {
         let mut threads = 0u64;
         for (i, inst) in scene.instances().iter().enumerate() {
             let world = scene.world(i);
+            crate::gi::volume::check_world(&world)?;
             let lin = world.matrix3;
-            if !(world.translation.is_finite() && lin.is_finite() && lin.determinant().abs() > 0.0) {
-                return Err(GiError::Transform(world).into());
-            }
             let key = keys[inst.part];
             let (base, count) = pool.ranges[&key];
             if count == 0 {
