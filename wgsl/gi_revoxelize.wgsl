@@ -5,20 +5,12 @@
 // axes) get the clipped area as weight, with weight x albedo, normal and emission, in fixed
 // point (tri_main); then every touched cell becomes one unit of occupancy with the weighted
 // mean attributes (finish_main), the layout gi_trace.wgsl's injection reads.
-// Needs layout.wgsl.
+// Needs layout.wgsl, gi_fixed.wgsl and gi_splat.wgsl.
 
 @group(0) @binding(0) var<storage, read> tris: array<GiTri>;
 @group(0) @binding(1) var<storage, read> jobs: array<GiJob>;
 @group(0) @binding(2) var<storage, read_write> accum: array<atomic<u32>>;
 @group(0) @binding(3) var<uniform> splat: GiSplat;
-
-const FIX: f32 = 65536.0;
-const EMIT_FIX: f32 = 4096.0;
-const STRIDE: u32 = 10u;
-
-fn fixed(v: f32, scale: f32) -> u32 {
-    return bitcast<u32>(i32(round(v * scale)));
-}
 
 // voxelize::separated
 fn separated(axis: vec3<f32>, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, half: f32) -> bool {
@@ -98,21 +90,11 @@ fn clipped_area(c: vec3<f32>, a: vec3<f32>, b: vec3<f32>, d: vec3<f32>) -> f32 {
 
 @compute @workgroup_size(64, 1, 1)
 fn tri_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let t = gid.x + gid.y * splat.row_threads;
+    let t = thread_index(gid);
     if t >= splat.threads {
         return;
     }
-    var lo = 0u;
-    var hi = splat.jobs;
-    while hi - lo > 1u {
-        let mid = (lo + hi) / 2u;
-        if jobs[mid].first_thread <= t {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let job = jobs[lo];
+    let job = job_of(t);
     let tri = tris[job.voxel_base + (t - job.first_thread)];
     let pa = vec4<f32>(tri.a.xyz, 1.0);
     let pb = vec4<f32>(tri.b.xyz, 1.0);
@@ -143,18 +125,7 @@ fn tri_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 // A triangle only touching the cell keeps it, with the smallest weight.
                 let w = max(clipped_area(c, a, b, d), 1.0 / FIX);
                 let i = (u32(x) + splat.res * (u32(y) + splat.res * u32(z))) * STRIDE;
-                atomicAdd(&accum[i], fixed(w, FIX));
-                atomicAdd(&accum[i + 1u], fixed(w * albedo.x, FIX));
-                atomicAdd(&accum[i + 2u], fixed(w * albedo.y, FIX));
-                atomicAdd(&accum[i + 3u], fixed(w * albedo.z, FIX));
-                atomicAdd(&accum[i + 4u], fixed(w * normal.x, FIX));
-                atomicAdd(&accum[i + 5u], fixed(w * normal.y, FIX));
-                atomicAdd(&accum[i + 6u], fixed(w * normal.z, FIX));
-                if any(tri.emission.xyz > vec3<f32>(0.0)) {
-                    atomicAdd(&accum[i + 7u], fixed(w * tri.emission.x, EMIT_FIX));
-                    atomicAdd(&accum[i + 8u], fixed(w * tri.emission.y, EMIT_FIX));
-                    atomicAdd(&accum[i + 9u], fixed(w * tri.emission.z, EMIT_FIX));
-                }
+                add_to_cell(i, w, albedo, normal, tri.emission.xyz);
             }
         }
     }

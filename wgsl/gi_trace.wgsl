@@ -1,16 +1,12 @@
 // The GI passes that need the tracer: light injection (gi::inject: one thread per volume
 // cell, with a shadow ray through the SVO instances) and shading with voxel cone tracing
 // (gi::cone and gi::shade::apply). Appended to trace.wgsl; its bindings are group 1.
-// Positions are camera-relative, as everywhere in trace.wgsl.
+// Positions are camera-relative, as everywhere in trace.wgsl. Needs gi_fixed.wgsl.
 
 @group(1) @binding(0) var<storage, read> gi_accum: array<u32>;
 @group(1) @binding(1) var<storage, read_write> gi_levels: array<vec4<f32>>;
 @group(1) @binding(2) var<uniform> gi: GiFrame;
 
-// Fixed-point scales of gi_transform.wgsl.
-const GI_FIX: f32 = 65536.0;
-const GI_EMIT_FIX: f32 = 4096.0;
-const GI_STRIDE: u32 = 10u;
 // gi::cone::CLEARANCE.
 const GI_CLEARANCE: f32 = 1.5;
 
@@ -21,18 +17,18 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let i = gid.x + r * (gid.y + r * gid.z);
-    let base = i * GI_STRIDE;
-    let occ = f32(gi_accum[base]) / GI_FIX;
+    let base = i * STRIDE;
+    let occ = f32(gi_accum[base]) / FIX;
     if occ <= 0.0 {
         gi_levels[i] = vec4<f32>(0.0);
         return;
     }
-    let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (GI_FIX * occ);
+    let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (FIX * occ);
     let n = vec3<f32>(
         f32(bitcast<i32>(gi_accum[base + 4u])),
         f32(bitcast<i32>(gi_accum[base + 5u])),
         f32(bitcast<i32>(gi_accum[base + 6u])),
-    ) / GI_FIX;
+    ) / FIX;
     var radiance = vec3<f32>(0.0);
     if frame.sun_dir.w > 0.0 && dot(n, n) > 1e-6 {
         let nn = normalize(n);
@@ -48,7 +44,7 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     if frame.sky.w > 0.0 {
         let e = vec3<f32>(f32(gi_accum[base + 7u]), f32(gi_accum[base + 8u]), f32(gi_accum[base + 9u]));
-        radiance += e / (GI_EMIT_FIX * occ);
+        radiance += e / (EMIT_FIX * occ);
     }
     let alpha = min(occ, 1.0);
     gi_levels[i] = vec4<f32>(radiance * alpha, alpha);

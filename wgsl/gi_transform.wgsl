@@ -1,26 +1,13 @@
 // Voxel transformation (the WGSL twin of Volume::splat): one thread per cached voxel of every
 // instance, moved by its job's matrix into volume grid coordinates and added to the nearest
 // cell or split over the 8 cells around it by trilinear weights. Sums accumulate in fixed point
-// with atomicAdd (WGSL has no float atomics), 10 words per cell: occupancy, weight x albedo
-// (3), weight x normal (3, two's complement: a wrapping u32 add is the i32 add), weight x
-// emission (3). Weight that falls outside the volume goes to one counter after the cells.
-// Needs layout.wgsl and attr.wgsl.
+// with atomicAdd (WGSL has no float atomics; layout in gi_fixed.wgsl).
+// Needs layout.wgsl, attr.wgsl, gi_fixed.wgsl and gi_splat.wgsl.
 
 @group(0) @binding(0) var<storage, read> voxels: array<CacheVoxel>;
 @group(0) @binding(1) var<storage, read> jobs: array<GiJob>;
 @group(0) @binding(2) var<storage, read_write> accum: array<atomic<u32>>;
 @group(0) @binding(3) var<uniform> splat: GiSplat;
-
-// Fixed-point scales (voxray::gpu::gi): 1/65536 of a voxel's weight for occupancy, albedo and
-// normal; emission (up to 16x the albedo) at 1/4096; the outside counter at 1/256.
-const FIX: f32 = 65536.0;
-const EMIT_FIX: f32 = 4096.0;
-const OUT_FIX: f32 = 256.0;
-const STRIDE: u32 = 10u;
-
-fn fixed(v: f32, scale: f32) -> u32 {
-    return bitcast<u32>(i32(round(v * scale)));
-}
 
 fn add_cell(c: vec3<i32>, w: f32, albedo: vec3<f32>, n: vec3<f32>, e: vec3<f32>) {
     if w <= 0.0 {
@@ -32,38 +19,16 @@ fn add_cell(c: vec3<i32>, w: f32, albedo: vec3<f32>, n: vec3<f32>, e: vec3<f32>)
         return;
     }
     let i = (u32(c.x) + splat.res * (u32(c.y) + splat.res * u32(c.z))) * STRIDE;
-    atomicAdd(&accum[i], fixed(w, FIX));
-    atomicAdd(&accum[i + 1u], fixed(w * albedo.x, FIX));
-    atomicAdd(&accum[i + 2u], fixed(w * albedo.y, FIX));
-    atomicAdd(&accum[i + 3u], fixed(w * albedo.z, FIX));
-    atomicAdd(&accum[i + 4u], fixed(w * n.x, FIX));
-    atomicAdd(&accum[i + 5u], fixed(w * n.y, FIX));
-    atomicAdd(&accum[i + 6u], fixed(w * n.z, FIX));
-    if any(e > vec3<f32>(0.0)) {
-        atomicAdd(&accum[i + 7u], fixed(w * e.x, EMIT_FIX));
-        atomicAdd(&accum[i + 8u], fixed(w * e.y, EMIT_FIX));
-        atomicAdd(&accum[i + 9u], fixed(w * e.z, EMIT_FIX));
-    }
+    add_to_cell(i, w, albedo, n, e);
 }
 
 @compute @workgroup_size(64, 1, 1)
 fn splat_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let t = gid.x + gid.y * splat.row_threads;
+    let t = thread_index(gid);
     if t >= splat.threads {
         return;
     }
-    // The job holding thread t: the last whose first thread is at most t.
-    var lo = 0u;
-    var hi = splat.jobs;
-    while hi - lo > 1u {
-        let mid = (lo + hi) / 2u;
-        if jobs[mid].first_thread <= t {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let job = jobs[lo];
+    let job = job_of(t);
     let v = voxels[job.voxel_base + (t - job.first_thread)];
     let m = 1023u;
     let c = vec4<f32>(f32(v.coord & m), f32((v.coord >> 10u) & m), f32((v.coord >> 20u) & m), 1.0);

@@ -36,6 +36,23 @@ fn register_font() {
 
 type Res<T> = Result<T, Box<dyn std::error::Error>>;
 
+/// The series labels, boxed in the upper left (every chart's legend).
+fn legend<'a, DB, CT>(chart: &mut ChartContext<'a, DB, CT>) -> Res<()>
+where
+    DB: DrawingBackend + 'a,
+    DB::ErrorType: 'static,
+    CT: CoordTranslate,
+{
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()?;
+    Ok(())
+}
+
 /// Draws one chart from the records of its group.
 type Drawer = fn(&[&Record], &Path) -> Res<()>;
 
@@ -145,14 +162,7 @@ fn bars_on(
             .label(name.as_str())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], colour.filled()));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .draw()?;
-    Ok(())
+    legend(&mut chart)
 }
 
 fn paper(rs: &[&Record], path: &Path) -> Res<()> {
@@ -224,13 +234,7 @@ fn lines_on(root: &Area<'_>, title: &str, (x_desc, y_desc): (&str, &str), series
                         .map(|q| Text::new(q.2.clone(), (q.0, q.1), ("sans-serif", 13).into_font().color(&colour))),
                 )?;
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 14))
-                .draw()?;
+            legend(&mut chart)?;
         }};
     }
     if log {

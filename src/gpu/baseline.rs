@@ -5,8 +5,8 @@
 //! Caches, triangles and instance matrices are uploaded before the timed passes.
 
 use super::context::{GpuContext, GpuError};
-use super::gi::{grid_map, row, transform_source, volume_from_accum};
-use super::layout::{GpuGiJob, GpuGiSplat, GpuGiTri};
+use super::gi::{row, splat_dispatch, transform_job, transform_source, volume_from_accum};
+use super::layout::{GpuGiJob, GpuGiTri};
 use super::renderer::read;
 use crate::gi::volume::check_world;
 use crate::gi::{Filter, GiError, Volume, VolumeSpec, VoxelCache};
@@ -18,7 +18,13 @@ use wgpu::util::DeviceExt;
 
 /// The re-voxelization shader.
 pub fn revoxelize_source() -> String {
-    [include_str!("../../wgsl/layout.wgsl"), include_str!("../../wgsl/gi_revoxelize.wgsl")].join("\n")
+    [
+        include_str!("../../wgsl/layout.wgsl"),
+        include_str!("../../wgsl/gi_fixed.wgsl"),
+        include_str!("../../wgsl/gi_splat.wgsl"),
+        include_str!("../../wgsl/gi_revoxelize.wgsl"),
+    ]
+    .join("\n")
 }
 
 /// One timed GPU volume pass.
@@ -116,29 +122,14 @@ impl GpuVolumePasses {
         let mut jobs = Vec::new();
         let mut threads = 0u64;
         for &(part, world) in instances {
-            check_world(&world)?;
-            let (cache, (base, count)) = match (caches.get(part), ranges.get(part)) {
-                (Some(c), Some(&r)) => (c, r),
+            let (cache, &range) = match (caches.get(part), ranges.get(part)) {
+                (Some(c), Some(r)) => (c, r),
                 _ => return Err(GiError::Settings(format!("instance of part {part}: no such cache")).into()),
             };
-            let (m, t) = grid_map(&world, cache.corner, cache.voxel_size, spec);
-            let n = world.matrix3.inverse().transpose();
-            jobs.push(GpuGiJob {
-                grid_x: row(m, t, 0),
-                grid_y: row(m, t, 1),
-                grid_z: row(m, t, 2),
-                normal_x: row(n, DVec3::ZERO, 0),
-                normal_y: row(n, DVec3::ZERO, 1),
-                normal_z: row(n, DVec3::ZERO, 2),
-                voxel_base: base,
-                voxel_count: count,
-                first_thread: threads as u32,
-                pad: 0,
-            });
-            threads += count as u64;
+            jobs.push(transform_job(&world, cache, spec, range, threads)?);
+            threads += range.1 as u64;
         }
-        let nearest = (filter == Filter::Nearest) as u32;
-        self.run(bytemuck::cast_slice(&pool), jobs, threads, spec, nearest, repeats, false)
+        self.run(bytemuck::cast_slice(&pool), jobs, threads, spec, filter, repeats, false)
     }
 
     /// Voxelizes each instance's triangles of `mesh.parts[part]`, moved by its world matrix,
@@ -184,7 +175,7 @@ impl GpuVolumePasses {
             });
             threads += count as u64;
         }
-        self.run(bytemuck::cast_slice(&tris), jobs, threads, spec, 0, repeats, true)
+        self.run(bytemuck::cast_slice(&tris), jobs, threads, spec, Filter::Split, repeats, true)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -194,28 +185,16 @@ impl GpuVolumePasses {
         mut jobs: Vec<GpuGiJob>,
         threads: u64,
         spec: &VolumeSpec,
-        nearest: u32,
+        filter: Filter,
         repeats: usize,
         revoxelize: bool,
     ) -> Result<Timed, GpuError> {
-        if threads >= u32::MAX as u64 {
-            return Err(GpuError::TooLarge { what: "the GI volume pass", size: threads, limit: u32::MAX as u64 });
-        }
         let (ctx, device) = (&self.ctx, &self.ctx.device);
         let cells = (spec.res as u64).pow(3);
         let accum_size = (cells * 10 + 1) * 4;
         ctx.check_binding("the GI accumulation volume", accum_size)?;
         ctx.check_binding("the GI voxel or triangle pool", items.len() as u64)?;
-        let groups = (threads as u32).div_ceil(64);
-        let dims = (groups.min(65_535), groups.div_ceil(65_535));
-        let splat = GpuGiSplat {
-            res: spec.res,
-            jobs: jobs.len() as u32,
-            threads: threads as u32,
-            row_threads: dims.0 * 64,
-            nearest,
-            ..Default::default()
-        };
+        let (splat, dims) = splat_dispatch(spec.res, jobs.len(), threads, filter)?;
         if jobs.is_empty() {
             jobs.push(GpuGiJob::default());
         }

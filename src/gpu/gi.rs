@@ -16,7 +16,8 @@ use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
 use wgpu::util::DeviceExt;
 
-/// Fixed-point scale of occupancy, weighted albedo and weighted normal sums (per unit weight).
+/// Fixed-point scale of occupancy, weighted albedo and weighted normal sums (per unit weight);
+/// the WGSL side is `wgsl/gi_fixed.wgsl`.
 pub const FIX: f64 = 65536.0;
 /// Fixed-point scale of weighted emission (up to 16× the albedo).
 pub const EMIT_FIX: f64 = 4096.0;
@@ -32,6 +33,8 @@ pub fn transform_source() -> String {
     [
         include_str!("../../wgsl/layout.wgsl"),
         include_str!("../../wgsl/attr.wgsl"),
+        include_str!("../../wgsl/gi_fixed.wgsl"),
+        include_str!("../../wgsl/gi_splat.wgsl"),
         include_str!("../../wgsl/gi_transform.wgsl"),
     ]
     .join("\n")
@@ -115,6 +118,60 @@ pub(crate) struct GpuGi {
 /// Row `i` of the affine map (m, t) as xyz = linear, w = translation, in f32.
 pub(crate) fn row(m: DMat3, t: DVec3, i: usize) -> [f32; 4] {
     [m.col(0)[i] as f32, m.col(1)[i] as f32, m.col(2)[i] as f32, t[i] as f32]
+}
+
+/// The job moving `cache` (its voxels at `range` = (first, count) of the pool) by `world` into
+/// `spec`, its threads starting at `first_thread`.
+pub(crate) fn transform_job(
+    world: &DAffine3,
+    cache: &crate::gi::VoxelCache,
+    spec: &VolumeSpec,
+    range: (u32, u32),
+    first_thread: u64,
+) -> Result<GpuGiJob, GpuError> {
+    crate::gi::volume::check_world(world)?;
+    if first_thread + range.1 as u64 >= u32::MAX as u64 {
+        let size = first_thread + range.1 as u64;
+        return Err(GpuError::TooLarge { what: "the GI voxel transformation", size, limit: u32::MAX as u64 });
+    }
+    let (m, t) = grid_map(world, cache.corner, cache.voxel_size, spec);
+    let n = world.matrix3.inverse().transpose();
+    Ok(GpuGiJob {
+        grid_x: row(m, t, 0),
+        grid_y: row(m, t, 1),
+        grid_z: row(m, t, 2),
+        normal_x: row(n, DVec3::ZERO, 0),
+        normal_y: row(n, DVec3::ZERO, 1),
+        normal_z: row(n, DVec3::ZERO, 2),
+        voxel_base: range.0,
+        voxel_count: range.1,
+        first_thread: first_thread as u32,
+        pad: 0,
+    })
+}
+
+/// The uniforms of a one-thread-per-item pass over `threads` items of `jobs` jobs, and its
+/// workgroups (64 threads each, spread over y past 65 535 groups).
+pub(crate) fn splat_dispatch(
+    res: u32,
+    jobs: usize,
+    threads: u64,
+    filter: Filter,
+) -> Result<(GpuGiSplat, (u32, u32)), GpuError> {
+    if threads >= u32::MAX as u64 {
+        return Err(GpuError::TooLarge { what: "the GI volume pass", size: threads, limit: u32::MAX as u64 });
+    }
+    let groups = (threads as u32).div_ceil(64);
+    let dims = (groups.min(65_535), groups.div_ceil(65_535));
+    let splat = GpuGiSplat {
+        res,
+        jobs: jobs as u32,
+        threads: threads as u32,
+        row_threads: dims.0 * 64,
+        nearest: (filter == Filter::Nearest) as u32,
+        ..Default::default()
+    };
+    Ok((splat, dims))
 }
 
 /// The map integer cache coordinate → grid coordinate of `spec` (cell c's centre at c) for a
@@ -313,48 +370,16 @@ impl GpuGi {
         let mut jobs = Vec::new();
         let mut threads = 0u64;
         for (i, inst) in scene.instances().iter().enumerate() {
-            let world = scene.world(i);
-            crate::gi::volume::check_world(&world)?;
-            let lin = world.matrix3;
             let key = keys[inst.part];
-            let (base, count) = pool.ranges[&key];
-            if count == 0 {
-                continue;
-            }
+            let range = pool.ranges[&key];
             let cache = self.caches.get(&scene.parts[inst.part], key.1)?;
-            let (m, t) = grid_map(&world, cache.corner, cache.voxel_size, &spec);
-            let n = lin.inverse().transpose();
-            jobs.push(GpuGiJob {
-                grid_x: row(m, t, 0),
-                grid_y: row(m, t, 1),
-                grid_z: row(m, t, 2),
-                normal_x: row(n, DVec3::ZERO, 0),
-                normal_y: row(n, DVec3::ZERO, 1),
-                normal_z: row(n, DVec3::ZERO, 2),
-                voxel_base: base,
-                voxel_count: count,
-                first_thread: threads as u32,
-                pad: 0,
-            });
-            threads += count as u64;
-            if threads >= u32::MAX as u64 {
-                return Err(GpuError::TooLarge {
-                    what: "the GI voxel transformation",
-                    size: threads,
-                    limit: u32::MAX as u64,
-                });
+            let job = transform_job(&scene.world(i), cache, &spec, range, threads)?;
+            if range.1 > 0 {
+                jobs.push(job);
+                threads += range.1 as u64;
             }
         }
-        let groups = (threads as u32).div_ceil(64);
-        let splat_groups = (groups.min(65_535), groups.div_ceil(65_535));
-        let splat = GpuGiSplat {
-            res: spec.res,
-            jobs: jobs.len() as u32,
-            threads: threads as u32,
-            row_threads: splat_groups.0 * 64,
-            nearest: (s.filter == Filter::Nearest) as u32,
-            ..Default::default()
-        };
+        let (splat, splat_groups) = splat_dispatch(spec.res, jobs.len(), threads, s.filter)?;
         let quad = |v: &[u32], k: usize| {
             let mut q = [0u32; 4];
             for (j, slot) in q.iter_mut().enumerate() {

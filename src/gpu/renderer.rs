@@ -25,6 +25,7 @@ pub fn trace_source() -> String {
         include_str!("../../wgsl/attr.wgsl"),
         include_str!("../../wgsl/traverse.wgsl"),
         include_str!("../../wgsl/trace.wgsl"),
+        include_str!("../../wgsl/gi_fixed.wgsl"),
         include_str!("../../wgsl/gi_trace.wgsl"),
     ]
     .join("\n")
@@ -124,6 +125,24 @@ fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
         },
         count: None,
     }
+}
+
+/// One entry point of the tracer's module compiled for a plan variant (its `override` values).
+fn plan_pipeline(
+    device: &wgpu::Device,
+    layout: &wgpu::PipelineLayout,
+    module: &wgpu::ShaderModule,
+    entry: &str,
+    constants: &[(&str, f64)],
+) -> wgpu::ComputePipeline {
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: Some(layout),
+        module,
+        entry_point: Some(entry),
+        compilation_options: wgpu::PipelineCompilationOptions { constants, zero_initialize_workgroup_memory: false },
+        cache: None,
+    })
 }
 
 fn f4(v: glam::DVec3, w: f64) -> [f32; 4] {
@@ -248,19 +267,7 @@ impl GpuRenderer {
                 ("NODE_SPLIT", node_split as f64),
                 ("ATTR_SPLIT", attr_split as f64),
             ];
-            let make = |entry: &str| {
-                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: Some(layout),
-                    module,
-                    entry_point: Some(entry),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &constants,
-                        zero_initialize_workgroup_memory: false,
-                    },
-                    cache: None,
-                })
-            };
+            let make = |entry: &str| plan_pipeline(device, layout, module, entry, &constants);
             (make("inject_main"), make("shade_gi_main"))
         });
         Ok(())
@@ -277,19 +284,7 @@ impl GpuRenderer {
                 ("NODE_SPLIT", node_split as f64),
                 ("ATTR_SPLIT", attr_split as f64),
             ];
-            let make = |entry: &str| {
-                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: Some(layout),
-                    module,
-                    entry_point: Some(entry),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &constants,
-                        zero_initialize_workgroup_memory: false,
-                    },
-                    cache: None,
-                })
-            };
+            let make = |entry: &str| plan_pipeline(device, layout, module, entry, &constants);
             (make("trace_main"), make("shade_main"))
         })
     }

@@ -1,0 +1,15 @@
+// The GI volume's fixed-point accumulation (voxray::gpu::gi::{FIX, EMIT_FIX, OUT_FIX}): 10
+// words per cell — occupancy, weight x albedo (3), weight x normal (3, two's complement: a
+// wrapping u32 add is the i32 add), weight x emission (3) — then one counter of the weight
+// that fell outside. Shared by the transformation, the re-voxelizer and the tracer's GI passes.
+
+// 1/65536 of a voxel's weight for occupancy, albedo and normal; emission (up to 16x the
+// albedo) at 1/4096; the outside counter at 1/256.
+const FIX: f32 = 65536.0;
+const EMIT_FIX: f32 = 4096.0;
+const OUT_FIX: f32 = 256.0;
+const STRIDE: u32 = 10u;
+
+fn fixed(v: f32, scale: f32) -> u32 {
+    return bitcast<u32>(i32(round(v * scale)));
+}
