@@ -93,6 +93,7 @@ pub fn part_key(part: &Part, materials: &[Material], opts: &VoxelizeOptions) -> 
     for m in materials {
         h.f32s(&m.albedo.to_array());
         h.f32s(&m.emission.to_array());
+        h.f32s(&[m.specular, m.shininess]);
         if let Some(t) = &m.texture {
             h.bytes(&t.width.to_le_bytes());
             for c in &t.texels {

@@ -38,7 +38,8 @@ impl Texture {
     }
 }
 
-/// A Lambertian material (two-sided).
+/// A two-sided material: Lambertian diffuse plus an optional Phong lobe
+/// ([`crate::render::brdf`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
     /// Name from the MTL file.
@@ -47,6 +48,11 @@ pub struct Material {
     pub albedo: Vec3,
     /// Emitted radiance (MTL `Ke`).
     pub emission: Vec3,
+    /// Specular reflectance in [0, 1] (luminance of MTL `Ks`, limited so that
+    /// `max(Kd) + ks ≤ 1`); 0 for a diffuse-only material.
+    pub specular: f32,
+    /// Phong exponent (MTL `Ns`, ≥ 0).
+    pub shininess: f32,
     /// Diffuse texture (MTL `map_Kd`); replaces `albedo` where present.
     pub texture: Option<Arc<Texture>>,
 }
@@ -54,7 +60,11 @@ pub struct Material {
 impl Material {
     /// A plain material.
     pub fn new(name: &str, albedo: Vec3) -> Self {
-        Material { name: name.into(), albedo, emission: Vec3::ZERO, texture: None }
+        Material { name: name.into(), albedo, emission: Vec3::ZERO, specular: 0.0, shininess: 1.0, texture: None }
+    }
+    /// Glossiness in [0, 1] of [`Material::shininess`] ([`crate::render::brdf::gloss_of_shininess`]).
+    pub fn gloss(&self) -> f32 {
+        crate::render::brdf::gloss_of_shininess(self.shininess)
     }
     /// Albedo at a texture coordinate (the texture if there is one and `uv` is given).
     pub fn albedo_at(&self, uv: Option<Vec2>) -> Vec3 {
@@ -99,6 +109,14 @@ pub struct Mesh {
 }
 
 impl Mesh {
+    /// Drops every material's specular lobe (MTL `Ks`/`Ns`), leaving them purely Lambertian
+    /// as the shared conventions have it (for comparing images with other renderers).
+    pub fn make_lambertian(&mut self) {
+        for m in &mut self.materials {
+            m.specular = 0.0;
+        }
+    }
+
     /// Total triangle count.
     pub fn triangle_count(&self) -> usize {
         self.parts.iter().map(|p| p.triangles.len()).sum()
@@ -320,7 +338,26 @@ mod obj {
         if !emission.is_finite() || emission.min_element() < 0.0 {
             return Err(bad("Ke"));
         }
-        let mut out = Material { name: m.name.clone(), albedo, emission, texture: None };
+        let ks = m.specular.map_or(Vec3::ZERO, Vec3::from);
+        if !ks.is_finite() || ks.min_element() < 0.0 {
+            return Err(bad("Ks"));
+        }
+        let shininess = m.shininess.unwrap_or(1.0);
+        if !shininess.is_finite() || shininess < 0.0 {
+            return Err(bad("Ns"));
+        }
+        // A grey lobe of Ks's luminance; limited so the surface reflects at most what it
+        // receives (many exporters write Ks 0.5 next to a bright Kd).
+        let wanted = ks.dot(Vec3::new(0.2126, 0.7152, 0.0722));
+        let room = (1.0 - albedo.max_element()).max(0.0);
+        let specular = wanted.min(room).min(1.0);
+        if wanted > specular + 1e-3 {
+            warnings.push(format!(
+                "material '{}': specular Ks {wanted:.3} lowered to {specular:.3} so that Kd + Ks stays at most 1",
+                m.name
+            ));
+        }
+        let mut out = Material { name: m.name.clone(), albedo, emission, specular, shininess, texture: None };
         if let Some(tex) = &m.diffuse_texture {
             match dir {
                 None => warnings

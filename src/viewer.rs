@@ -735,6 +735,9 @@ impl App {
                     if ui.gi_on {
                         ui_.add(egui::Slider::new(&mut ui.gi.res, 16..=256).text("GI volume cells"));
                         ui_.add(egui::Slider::new(&mut ui.gi.cones.diffuse_cones, 1..=16).text("GI cones"));
+                        ui_.add(
+                            egui::Slider::new(&mut ui.gi.bounces, 1..=crate::gi::shade::MAX_BOUNCES).text("GI bounces"),
+                        );
                         ui_.horizontal(|row| {
                             row.label("GI filter:");
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Split, "split");

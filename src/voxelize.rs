@@ -53,6 +53,10 @@ pub struct Voxel {
     pub normal: Vec3,
     /// Area-weighted mean emitted radiance (MTL `Ke`).
     pub emission: Vec3,
+    /// Area-weighted mean specular reflectance ([`crate::mesh::Material::specular`]).
+    pub specular: f32,
+    /// Area-weighted mean glossiness ([`crate::mesh::Material::gloss`]).
+    pub gloss: f32,
     /// Surface area inside the voxel (object units²); tiny for voxels only touched.
     pub weight: f32,
 }
@@ -77,7 +81,15 @@ impl VoxelGrid {
         codes.dedup();
         let voxels = codes
             .into_iter()
-            .map(|code| Voxel { code, albedo, normal: Vec3::ZERO, emission: Vec3::ZERO, weight: 1.0 })
+            .map(|code| Voxel {
+                code,
+                albedo,
+                normal: Vec3::ZERO,
+                emission: Vec3::ZERO,
+                specular: 0.0,
+                gloss: 0.0,
+                weight: 1.0,
+            })
             .collect();
         VoxelGrid { depth, bounds, voxels }
     }
@@ -251,6 +263,8 @@ pub fn voxelize_in(
                 a.weight += e.weight;
                 a.albedo_w += e.albedo_w;
                 a.emission_w += e.emission_w;
+                a.specular_w += e.specular_w;
+                a.gloss_w += e.gloss_w;
                 // Align orientations so the two faces of a thin wall do not cancel.
                 a.normal_w += if a.normal_w.dot(e.normal_w) < 0.0 { -e.normal_w } else { e.normal_w };
             }
@@ -283,6 +297,8 @@ struct Entry {
     albedo_w: Vec3,
     normal_w: Vec3,
     emission_w: Vec3,
+    specular_w: f32,
+    gloss_w: f32,
 }
 
 impl Entry {
@@ -293,6 +309,8 @@ impl Entry {
             albedo: self.albedo_w / w,
             normal: self.normal_w / w,
             emission: self.emission_w / w,
+            specular: self.specular_w / w,
+            gloss: self.gloss_w / w,
             weight: self.weight,
         }
     }
@@ -351,6 +369,8 @@ impl Ctx<'_> {
                     albedo_w: albedo.as_vec3() * w,
                     normal_w: normal.as_vec3() * w,
                     emission_w: mat.map_or(Vec3::ZERO, |m| m.emission) * w,
+                    specular_w: mat.map_or(0.0, |m| m.specular) * w,
+                    gloss_w: mat.map_or(0.0, |m| m.gloss()) * w,
                 });
                 continue;
             }

@@ -36,7 +36,7 @@ fn materials() -> Vec<Material> {
 fn split_filtering_conserves_occupancy_for_any_pose() {
     let cube = Cube { min: Vec3::ZERO, size: 16.0 };
     let grid = voxelize_in(&part(|p| p), &materials(), cube, 4, false, &|_, _| {}).unwrap();
-    let cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let cache = VoxelCache::from_grid(&grid).unwrap();
     assert!(cache.voxels.len() > 100);
     let spec = VolumeSpec::new(64, DVec3::splat(-40.0), 1.25).unwrap();
     let mut rng = Rng::new(7);
@@ -62,7 +62,7 @@ fn split_weights_land_on_the_eight_neighbours_in_trilinear_proportion() {
     // One voxel whose moved centre sits at cell coordinates (3.25, 4.5, 5.75).
     let grid =
         voxelize_in(&part(|p| p), &materials(), Cube { min: Vec3::ZERO, size: 16.0 }, 4, false, &|_, _| {}).unwrap();
-    let mut cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let mut cache = VoxelCache::from_grid(&grid).unwrap();
     cache.voxels.truncate(1);
     let centre = cache.centre(&cache.voxels[0]).as_dvec3();
     let spec = VolumeSpec::new(16, DVec3::ZERO, 1.0).unwrap();
@@ -82,7 +82,7 @@ fn a_quarter_turn_with_nearest_filtering_equals_revoxelizing_the_turned_triangle
     let mats = materials();
     let cube = Cube { min: Vec3::ZERO, size: 16.0 };
     let grid = voxelize_in(&part(|p| p), &mats, cube, 4, false, &|_, _| {}).unwrap();
-    let cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let cache = VoxelCache::from_grid(&grid).unwrap();
     // World volume: cells of 1 unit from (-16, -16, -16), 32 per side.
     let world_cube = Cube { min: Vec3::splat(-16.0), size: 32.0 };
     let spec = VolumeSpec::new(32, DVec3::splat(-16.0), 1.0).unwrap();
@@ -114,9 +114,7 @@ fn bad_settings_and_transforms_give_clear_errors() {
     assert!("bilinear".parse::<Filter>().unwrap_err().contains("nearest or split"));
     let grid =
         voxelize_in(&part(|p| p), &materials(), Cube { min: Vec3::ZERO, size: 16.0 }, 4, false, &|_, _| {}).unwrap();
-    assert!(VoxelCache::from_grid(&grid, 1.5).is_err());
-    assert!(VoxelCache::from_grid(&grid, f32::NAN).is_err());
-    let cache = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let cache = VoxelCache::from_grid(&grid).unwrap();
     let mut vol = Volume::new(VolumeSpec::new(8, DVec3::ZERO, 1.0).unwrap());
     for bad in [DAffine3::from_scale(DVec3::new(1.0, 0.0, 1.0)), DAffine3::from_translation(DVec3::splat(f64::NAN))] {
         let e = vol.splat(&cache, &bad, Filter::Split).unwrap_err();
@@ -124,8 +122,8 @@ fn bad_settings_and_transforms_give_clear_errors() {
     }
     assert_eq!(vol.total_occupancy(), 0.0, "a refused transform writes nothing");
     let deep = VoxelGrid::from_coords(11, Cube { min: Vec3::ZERO, size: 16.0 }, [[0, 0, 0]], Vec3::ONE);
-    assert!(VoxelCache::from_grid(&deep, 0.0).unwrap_err().to_string().contains("too deep"));
-    assert!(VoxelCache::build(&part(|p| p), &materials(), 11, 0.0).unwrap_err().to_string().contains("too deep"));
+    assert!(VoxelCache::from_grid(&deep).unwrap_err().to_string().contains("too deep"));
+    assert!(VoxelCache::build(&part(|p| p), &materials(), 11).unwrap_err().to_string().contains("too deep"));
 }
 
 #[test]
@@ -166,7 +164,7 @@ fn injection_lights_cells_the_sun_sees_and_darkens_those_in_shadow() {
     scene.update().unwrap();
     let mut vol = Volume::new(VolumeSpec::new(16, DVec3::ZERO, 1.0).unwrap());
     for g in [&gf, &gr] {
-        vol.splat(&VoxelCache::from_grid(g, 0.0).unwrap(), &DAffine3::IDENTITY, Filter::Nearest).unwrap();
+        vol.splat(&VoxelCache::from_grid(g).unwrap(), &DAffine3::IDENTITY, Filter::Nearest).unwrap();
     }
     // Sun straight above with irradiance π: a lit cell sends out exactly its albedo.
     let pi = std::f32::consts::PI;
@@ -344,16 +342,16 @@ fn caches_from_an_svo_hold_its_voxels_at_every_level() {
     let grid =
         voxelize_in(&part(|p| p), &materials(), Cube { min: Vec3::ZERO, size: 16.0 }, 5, false, &|_, _| {}).unwrap();
     let svo = voxray::svo::build(&grid).unwrap();
-    let full = VoxelCache::from_svo(&svo, 5, 0.0).unwrap();
+    let full = VoxelCache::from_svo(&svo, 5).unwrap();
     assert_eq!(full.voxels.len() as u64, svo.voxel_count);
-    let direct = VoxelCache::from_grid(&grid, 0.0).unwrap();
+    let direct = VoxelCache::from_grid(&grid).unwrap();
     let (mut a, mut b): (Vec<_>, Vec<_>) =
         (full.voxels.iter().map(|v| v.coord()).collect(), direct.voxels.iter().map(|v| v.coord()).collect());
     a.sort();
     b.sort();
     assert_eq!(a, b);
     // A coarser level: each voxel's parent, once.
-    let coarse = VoxelCache::from_svo(&svo, 3, 0.0).unwrap();
+    let coarse = VoxelCache::from_svo(&svo, 3).unwrap();
     let mut parents: Vec<[u32; 3]> = b.iter().map(|c| [c[0] >> 2, c[1] >> 2, c[2] >> 2]).collect();
     parents.sort();
     parents.dedup();
@@ -459,7 +457,7 @@ fn a_floor_under_an_open_sky_does_not_occlude_itself() {
         for filter in [Filter::Nearest, Filter::Split] {
             let spec = VolumeSpec::following(DVec3::new(0.013, 0.0, -0.007), 2.2, res).unwrap();
             let depth = (2.0 / spec.cell).log2().round() as u32;
-            let cache = VoxelCache::build(&floor, &mats, depth, 0.0).unwrap();
+            let cache = VoxelCache::build(&floor, &mats, depth).unwrap();
             let mut vol = Volume::new(spec);
             vol.splat(&cache, &glam::DAffine3::IDENTITY, filter).unwrap();
             let chain = levels::build(&inject(&vol, &Scene::new(vec![]), &no_light));

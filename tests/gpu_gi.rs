@@ -6,7 +6,7 @@
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
 use voxray::bench::gi::room_scene;
-use voxray::gi::{inject, levels, plan_volume, Filter, GiCaches, GiSettings, Volume};
+use voxray::gi::{inject, levels, plan_volume, Filter, GiCaches, GiReuse, GiSettings, Volume};
 use voxray::gpu::gi::GiCapture;
 use voxray::gpu::{GpuContext, GpuRenderer};
 use voxray::pipeline::build_parts;
@@ -163,18 +163,50 @@ fn gpu_injection_and_levels_match_cpu() {
     }
 }
 
+/// The plain box and the box with glossy white surfaces (the specular cone and the sun's
+/// Phong highlight on the GPU against the CPU).
 #[test]
 fn gpu_gi_image_matches_cpu_gi_on_the_box() {
     let Some(ctx) = context() else { return };
+    let s = GiSettings { res: 32, ..Default::default() };
+    box_images_agree(ctx.clone(), &room_scene(6).unwrap(), s);
+    let glossy = voxray::bench::gi::glossy_room_scene(6).unwrap();
+    box_images_agree(ctx, &glossy, s);
+}
+
+/// More bounces on the GPU: the two- and three-bounce images equal the CPU's, and each bounce
+/// brightens the closed box.
+#[test]
+fn gpu_gi_bounces_match_the_cpu() {
+    let Some(ctx) = context() else { return };
     let scene = room_scene(6).unwrap();
+    let mut last = 0.0;
+    for bounces in 1..=3 {
+        let (_, gpu) = box_images_agree(ctx.clone(), &scene, GiSettings { res: 32, bounces, ..Default::default() });
+        let sum = gpu.radiance.iter().map(|c| c.element_sum()).sum::<f32>();
+        assert!(sum > last * 1.02, "{bounces} bounces: {sum} against {last}");
+        last = sum;
+    }
+    // A chain gathered with one bounce is not reused for two.
+    let (cam, lights) = (voxray::model::room::camera(16, 12), voxray::model::room::lights());
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let mut gpu = GpuRenderer::new(ctx);
+    for (bounces, want) in [(1, GiReuse::Nothing), (1, GiReuse::Levels), (2, GiReuse::Volume), (2, GiReuse::Levels)] {
+        gpu.set_gi(Some(GiSettings { res: 16, bounces, ..Default::default() })).unwrap();
+        gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        assert_eq!(gpu.gi_stats.expect("GI ran").reuse, want, "{bounces} bounces");
+    }
+}
+
+/// Renders the box on both backends with `s` and checks the images agree; returns them.
+fn box_images_agree(ctx: Arc<GpuContext>, scene: &Scene, s: GiSettings) -> (Frame, Frame) {
     let cam = voxray::model::room::camera(64, 48);
     let lights = voxray::model::room::lights();
-    let s = GiSettings { res: 32, ..Default::default() };
-    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
-    let mut cpu = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let plan = FramePlan::new(scene, &cam, &lights, &Features::default(), None);
+    let mut cpu = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     let flat = cpu.radiance.clone();
-    voxray::gi::apply(&mut cpu, &scene, &cam, &lights, &s, &mut GiCaches::new()).unwrap();
-    let (gpu, _) = gpu_frame(ctx, &scene, &cam, &lights, s);
+    voxray::gi::apply(&mut cpu, scene, &cam, &lights, &s, &mut GiCaches::new()).unwrap();
+    let (gpu, _) = gpu_frame(ctx, scene, &cam, &lights, s);
     let n = cpu.radiance.len();
     let mean = |v: &[Vec3]| v.iter().map(|c| c.element_sum()).sum::<f32>() / n as f32;
     // GI changes the closed box a lot (bounced sun instead of a flat sky everywhere): the
@@ -193,6 +225,7 @@ fn gpu_gi_image_matches_cpu_gi_on_the_box() {
         .filter(|(a, b)| (**a - **b).abs().max_element() > 0.1 * a.max_element().max(0.05))
         .count();
     assert!(off as f64 <= 0.01 * n as f64, "{off} of {n} pixels differ by more than 10 %");
+    (cpu, gpu)
 }
 
 #[test]
@@ -228,15 +261,16 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
         },
         GiSettings { res: 16, extent: Some(1e-3), ..Default::default() },
         GiSettings { res: 16, extent: Some(1e7), ..Default::default() },
+        GiSettings { res: 16, bounces: voxray::gi::shade::MAX_BOUNCES, ..Default::default() },
     ] {
         gpu.set_gi(Some(s)).unwrap();
         let f = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
         assert!(f.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0), "{s:?}");
     }
-    // A non-finite extent or more bounces than the GPU does are errors, not a NaN image.
+    // A non-finite extent or too many bounces are errors, not a NaN image.
     assert!(gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).is_err());
-    let e = gpu.set_gi(Some(GiSettings { bounces: 2, ..Default::default() })).unwrap_err().to_string();
-    assert!(e.contains("--backend cpu"), "{e}");
+    let e = gpu.set_gi(Some(GiSettings { bounces: 9, ..Default::default() })).unwrap_err().to_string();
+    assert!(e.contains("bounces"), "{e}");
     // No lights at all: GI would add nothing, so it is skipped.
     let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false };
     assert_eq!(dark.sky(), Vec3::ZERO);
@@ -247,7 +281,6 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
 
 #[test]
 fn gpu_static_frames_reuse_the_volume_and_render_what_a_fresh_frame_renders() {
-    use voxray::gi::GiReuse;
     let Some(ctx) = context() else { return };
     let mut scene = room_scene(5).unwrap();
     let cam = voxray::model::room::camera(32, 24);
@@ -342,7 +375,7 @@ fn gpu_revoxelization_marks_the_cells_the_cpu_voxelizer_marks() {
     // The transformation through the same passes equals the CPU splat.
     let mut caches = Vec::new();
     for p in &scene.parts {
-        caches.push(voxray::gi::VoxelCache::from_svo(p, 4, 0.0).unwrap());
+        caches.push(voxray::gi::VoxelCache::from_svo(p, 4).unwrap());
     }
     let moved = passes.transform(&caches, &instances, &spec, Filter::Split, 2).unwrap();
     assert_eq!(moved.ms.len(), 2);

@@ -131,6 +131,7 @@ fn wgsl_structs_match_rust() {
                 ("fz", offset_of!(GpuHit, fz)),
                 ("work", offset_of!(GpuHit, work)),
                 ("reused", offset_of!(GpuHit, reused)),
+                ("material", offset_of!(GpuHit, material)),
             ],
         ),
         (
@@ -215,7 +216,7 @@ fn wgsl_structs_match_rust() {
                 ("res", offset_of!(GpuGiFrame, res)),
                 ("levels", offset_of!(GpuGiFrame, levels)),
                 ("cones", offset_of!(GpuGiFrame, cones)),
-                ("pad", offset_of!(GpuGiFrame, pad)),
+                ("bounces", offset_of!(GpuGiFrame, bounces)),
                 ("spread", offset_of!(GpuGiFrame, spread)),
                 ("tilt", offset_of!(GpuGiFrame, tilt)),
                 ("max_distance", offset_of!(GpuGiFrame, max_distance)),

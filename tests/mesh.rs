@@ -124,3 +124,35 @@ fn textures_are_sampled_at_the_triangle_uvs() {
     let m = load_obj(&p).unwrap();
     assert!(m.materials[0].texture.is_none() && m.warnings.len() == 1, "{:?}", m.warnings);
 }
+
+/// MTL `Ks` and `Ns` become the specular lobe, voxelized into the SVO's attributes; a `Ks`
+/// that would make the surface reflect more than it receives is lowered with a warning; bad
+/// values are errors naming the field.
+#[test]
+fn specular_materials_reach_the_voxels() {
+    let d = tmp("glossy");
+    let obj = "mtllib g.mtl\nusemtl g\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+    write(&d, "g.mtl", "newmtl g\nKd 0.5 0.4 0.3\nKs 0.2 0.2 0.2\nNs 100\n");
+    let p = write(&d, "g.obj", obj);
+    let m = load_obj(&p).unwrap();
+    assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    assert!((m.materials[0].specular - 0.2).abs() < 1e-6 && m.materials[0].shininess == 100.0);
+    let opts = VoxelizeOptions { resolution: Resolution::Depth(3), solid: false };
+    let g = voxelize(&m.parts[0], &m.materials, &opts, &|_, _| {}).unwrap();
+    let svo = voxray::svo::build(&g).unwrap();
+    let gloss = voxray::render::brdf::gloss_of_shininess(100.0);
+    for a in &svo.attrs {
+        assert!((a.specular() - 0.2).abs() < 0.03, "ks {}", a.specular());
+        assert!((a.gloss() - gloss).abs() <= 0.5 / 15.0 + 1e-6, "gloss {}", a.gloss());
+    }
+    // Kd 0.8 + Ks 0.5 would reflect 1.3: Ks is lowered to 0.2 and the user is told.
+    write(&d, "g.mtl", "newmtl g\nKd 0.8 0.8 0.8\nKs 0.5 0.5 0.5\nNs 250\n");
+    let m = load_obj(&p).unwrap();
+    assert!((m.materials[0].specular - 0.2).abs() < 1e-5, "{}", m.materials[0].specular);
+    assert!(m.warnings.len() == 1 && m.warnings[0].contains("Ks"), "{:?}", m.warnings);
+    for (mtl, field) in [("Ks -1 0 0", "Ks"), ("Ns -5", "Ns"), ("Ks nan 0 0", "Ks")] {
+        write(&d, "g.mtl", &format!("newmtl g\nKd 0.5 0.5 0.5\n{mtl}\n"));
+        let e = load_obj(&p).unwrap_err().to_string();
+        assert!(e.contains(field), "{mtl}: {e}");
+    }
+}

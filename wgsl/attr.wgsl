@@ -1,9 +1,10 @@
-// Decoding the packed attributes (voxray::svo::Attr): octahedral normals, sRGB albedo and
-// the emission scale. Shared by the tracer and the GI passes.
+// Decoding the packed attributes (voxray::svo::Attr): octahedral normals, sRGB albedo, the
+// emission scale and the specular lobe. Shared by the tracer and the GI passes.
 
 fn decode_normal(v: u32) -> vec3<f32> {
-    let x = max(f32(bitcast<i32>(v << 16u) >> 16u) / 32767.0, -1.0);
-    let y = max(f32(bitcast<i32>(v) >> 16u) / 32767.0, -1.0);
+    // Two 12-bit signed fields (Attr::normal); the top byte is the specular lobe.
+    let x = max(f32(bitcast<i32>(v << 20u) >> 20u) / 2047.0, -1.0);
+    let y = max(f32(bitcast<i32>(v << 8u) >> 20u) / 2047.0, -1.0);
     let z = 1.0 - abs(x) - abs(y);
     var n = vec3<f32>(x, y, z);
     if z < 0.0 {
@@ -26,4 +27,15 @@ fn albedo_of(a: u32) -> vec3<f32> {
 // Attr::emission: emitted radiance = albedo * E / 16.
 fn emission_of(a: u32) -> vec3<f32> {
     return albedo_of(a) * (f32(a >> 24u) / 16.0);
+}
+
+// Attr::specular: reflectance (S/15)^2 from the normal word's bits 24-27.
+fn specular_of(normal_word: u32) -> f32 {
+    let s = f32((normal_word >> 24u) & 15u) / 15.0;
+    return s * s;
+}
+
+// brdf::shininess_of_gloss of Attr::gloss: the Phong exponent 2^(10 G/15).
+fn shininess_of(normal_word: u32) -> f32 {
+    return exp2(10.0 * f32(normal_word >> 28u) / 15.0);
 }

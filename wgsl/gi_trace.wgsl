@@ -6,6 +6,18 @@
 @group(1) @binding(0) var<storage, read> gi_accum: array<u32>;
 @group(1) @binding(1) var<storage, read_write> gi_levels: array<vec4<f32>>;
 @group(1) @binding(2) var<uniform> gi: GiFrame;
+// With more than one bounce: the injected (direct) level 0, kept across bounces, and the next
+// bounce's level 0 (written apart from the chain its cones read). One-element placeholders
+// otherwise.
+@group(1) @binding(3) var<storage, read_write> gi_direct: array<vec4<f32>>;
+@group(1) @binding(4) var<storage, read_write> gi_next: array<vec4<f32>>;
+
+fn gi_put_injected(i: u32, v: vec4<f32>) {
+    gi_levels[i] = v;
+    if gi.bounces > 1u {
+        gi_direct[i] = v;
+    }
+}
 
 // gi::cone::CLEARANCE.
 const GI_CLEARANCE: f32 = 1.5;
@@ -20,7 +32,7 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let base = i * STRIDE;
     let occ = f32(gi_accum[base]) / FIX;
     if occ <= 0.0 {
-        gi_levels[i] = vec4<f32>(0.0);
+        gi_put_injected(i, vec4<f32>(0.0));
         return;
     }
     let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (FIX * occ);
@@ -47,7 +59,7 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         radiance += e / (EMIT_FIX * occ);
     }
     let alpha = min(occ, 1.0);
-    gi_levels[i] = vec4<f32>(radiance * alpha, alpha);
+    gi_put_injected(i, vec4<f32>(radiance * alpha, alpha));
 }
 
 fn gi_level_offset(l: u32) -> u32 {
@@ -108,7 +120,7 @@ fn gi_sample(p: vec3<f32>, level: f32) -> vec4<f32> {
 }
 
 // cone::trace: one cone from a surface point; (radiance, opacity).
-fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
+fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -> vec4<f32> {
     let cell0 = gi.min_cell.w;
     let end = min(gi.max_distance, cell0 * f32(gi.res) * 1.75);
     let max_level = f32(max(i32(gi.levels) - 3, 0));
@@ -121,7 +133,7 @@ fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
     // Every step is at least half a cell and the march ends at the volume's diagonal; the
     // count bound only guards against a non-finite input.
     for (var steps = 0u; t < end && a < 0.99 && steps < 8192u; steps++) {
-        let diameter = max(gi.spread * t, cell0);
+        let diameter = max(spread * t, cell0);
         let clear_size = (lift + t * cosv - GI_CLEARANCE * cell0) / GI_CLEARANCE;
         let clear_level = floor(log2(max(clear_size / cell0, 1.0)));
         let level = min(min(log2(diameter / cell0), clear_level), max_level);
@@ -140,7 +152,7 @@ fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
 // what they do not see.
 fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     let sky = frame.sky.xyz;
-    let first = gi_cone(p, n, n);
+    let first = gi_cone(p, n, n, gi.spread);
     let ring = gi.cones - 1u;
     if ring == 0u {
         return first.xyz + sky * (1.0 - first.w);
@@ -159,7 +171,7 @@ fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     for (var k = 0u; k < ring; k++) {
         let phi = 6.28318530718 * f32(k) / f32(ring);
         let d = n * ct + (tx * cos(phi) + bx * sin(phi)) * st;
-        let r = gi_cone(p, n, d);
+        let r = gi_cone(p, n, d, gi.spread);
         ring_light += r.xyz + sky * (1.0 - r.w);
     }
     return (light + ring_light * ct) / (1.0 + f32(ring) * ct);
@@ -180,6 +192,54 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let albedo = albedo_of(h.albedo);
     let n = vec3<f32>(h.nx, h.ny, h.nz);
     let p = ray_dir(gid.x, gid.y) * h.t;
-    let ambient = max(albedo * gi_gather(p, n), vec3<f32>(0.0));
+    var ambient = albedo * gi_gather(p, n);
+    let ks = specular_of(h.material);
+    if ks > 0.0 {
+        // The specular cone (shade.rs): the Phong lobe's light, the sky where it escapes.
+        let r = reflect(ray_dir(gid.x, gid.y), n);
+        let e = shininess_of(h.material);
+        let spread = 2.0 * tan(acos(pow(0.5, 1.0 / max(e, 1.0))));
+        let sc = gi_cone(p, n, normalize(r), spread);
+        ambient += ks * (sc.xyz + frame.sky.xyz * (1.0 - sc.w));
+    }
+    ambient = max(ambient, vec3<f32>(0.0));
     radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), 1.0);
+}
+
+// shade::bounce: every occupied cell gathers the previous chain's light over its hemisphere
+// (the pixels' cones, from the cell centre along its mean normal) and sends out its albedo
+// times that on top of its direct light, into gi_next.
+@compute @workgroup_size(4, 4, 4)
+fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gi.res;
+    if any(gid >= vec3<u32>(r)) {
+        return;
+    }
+    let i = gid.x + r * (gid.y + r * gid.z);
+    let base = i * STRIDE;
+    let occ = f32(gi_accum[base]) / FIX;
+    var out = gi_direct[i];
+    let n = vec3<f32>(
+        f32(bitcast<i32>(gi_accum[base + 4u])),
+        f32(bitcast<i32>(gi_accum[base + 5u])),
+        f32(bitcast<i32>(gi_accum[base + 6u])),
+    ) / FIX;
+    if occ > 0.0 && dot(n, n) > 1e-6 {
+        let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (FIX * occ);
+        let centre = gi.min_cell.xyz + (vec3<f32>(gid) + 0.5) * gi.min_cell.w;
+        let light = gi_gather(centre, normalize(n));
+        out += vec4<f32>(albedo * light * min(occ, 1.0), 0.0);
+    }
+    gi_next[i] = out;
+}
+
+// The bounce's level 0 replaces the chain's; the levels are then averaged again.
+@compute @workgroup_size(4, 4, 4)
+fn bounce_commit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gi.res;
+    if any(gid >= vec3<u32>(r)) {
+        return;
+    }
+    let i = gid.x + r * (gid.y + r * gid.z);
+    gi_levels[i] = gi_next[i];
 }

@@ -13,7 +13,8 @@ struct Node {
 struct Attr {
     // R, G, B sRGB-encoded albedo, then E: emitted radiance = albedo * E / 16.
     albedo: u32,
-    // Octahedral unit normal, snorm16 x in the low half, y in the high half.
+    // Octahedral unit normal, x in bits 0-11, y in bits 12-23 (12-bit signed, /2047), then
+    // the specular reflectance (S/15)^2 in bits 24-27 and the glossiness G/15 in bits 28-31.
     normal: u32,
 }
 
@@ -88,6 +89,8 @@ struct Hit {
     work: u32,
     // 1 when this frame reused the record.
     reused: u32,
+    // Normal word of the voxel's attributes (Attr::normal: the top byte is the specular lobe).
+    material: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuSphere: a moved instance's old or new sphere and the
@@ -167,7 +170,7 @@ struct GiFrame {
     res: u32,
     levels: u32,
     cones: u32,
-    pad: u32,
+    bounces: u32,
     // 2 tan(aperture / 2).
     spread: f32,
     // Angle of the cone ring from the normal.

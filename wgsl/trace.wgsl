@@ -353,11 +353,29 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         h.t = best.tr.t;
         h.instance = i32(best.inst);
         h.albedo = best.tr.attr.albedo;
+        h.material = best.tr.attr.normal;
         h.voxel = inst.stretch_size / f32(1u << best.tr.level);
         h.nx = n.x; h.ny = n.y; h.nz = n.z;
         h.fx = f.x; h.fy = f.y; h.fz = f.z;
     }
     hits[idx] = h;
+}
+
+// brdf::sun_response: the diffuse and Phong lobes lit by the sun, per unit irradiance.
+fn sun_response(albedo: vec3<f32>, h: Hit, x: u32, y: u32) -> vec3<f32> {
+    let n = vec3<f32>(h.nx, h.ny, h.nz);
+    let cosv = dot(n, frame.sun_dir.xyz);
+    var f = albedo * (cosv / 3.14159265);
+    let ks = specular_of(h.material);
+    if ks > 0.0 {
+        let e = shininess_of(h.material);
+        let r = reflect(ray_dir(x, y), n);
+        let cos_a = min(dot(r, frame.sun_dir.xyz), 1.0);
+        if cos_a > 0.0 {
+            f += vec3<f32>(ks * (e + 2.0) / 6.28318530718 * pow(cos_a, e) * cosv);
+        }
+    }
+    return f;
 }
 
 // The light a hit receives besides the ambient term: the sun (with its shadow ray) and the
@@ -375,7 +393,7 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
                 visible = !occluded(start, frame.sun_dir.xyz);
             }
             if visible {
-                c += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
+                c += sun_response(albedo, h, x, y) * frame.sun_irradiance.xyz;
             }
         }
     }
@@ -398,5 +416,7 @@ fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let albedo = albedo_of(h.albedo);
-    radiance[idx] = vec4<f32>(albedo * frame.sky.xyz + direct_light(h, gid.x, gid.y, albedo), 1.0);
+    // The sky is uniform: either lobe's ambient term is its reflectance times the sky.
+    let ambient = (albedo + vec3<f32>(specular_of(h.material))) * frame.sky.xyz;
+    radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), 1.0);
 }

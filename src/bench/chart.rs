@@ -281,7 +281,7 @@ fn gi_scaling(rs: &[&Record], path: &Path) -> Res<()> {
 /// Error against run time: one line per knob, each point labelled with its setting.
 fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
     let mut knobs: Vec<&str> = Vec::new();
-    for r in rs.iter().filter(|r| r.name != "reference" && r.name != "no GI (flat sky term)") {
+    for r in rs.iter().filter(|r| !r.name.starts_with("reference") && r.name != "no GI (flat sky term)") {
         if !knobs.contains(&r.name.as_str()) {
             knobs.push(&r.name);
         }

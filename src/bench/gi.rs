@@ -4,7 +4,7 @@
 //! each setting's run time next to its error (RMSE and FLIP) against the path-traced reference
 //! (docs/accuracy.md).
 
-use super::metrics::compare;
+use super::metrics::{compare, ImageError};
 use super::{summarize, Record};
 use crate::gi::{apply, Filter, GiCaches, GiSettings, PathTracer, ReferenceSettings, Volume, VolumeSpec, VoxelCache};
 use crate::mesh::{Mesh, Part};
@@ -134,7 +134,7 @@ fn scaling_scene(parts: &[Arc<Svo>], n: usize) -> Result<ScalingScene, crate::Er
         .iter()
         .map(|p| {
             let level = (p.bounds.size as f64 / voxel).log2().round().clamp(0.0, 10.0) as u32;
-            VoxelCache::from_svo(p, level, 0.0)
+            VoxelCache::from_svo(p, level)
         })
         .collect::<Result<_, _>>()
         .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
@@ -200,7 +200,16 @@ fn record(cfg: &ScalingConfig, cars: usize, name: &str, ms: f64, work: u64, inst
 
 /// The coloured-wall box as a scene: its three parts at the identity, voxelized at `depth`.
 pub fn room_scene(depth: u32) -> Result<Scene, crate::Error> {
-    let parts = crate::pipeline::build_parts(&crate::model::room::mesh(), crate::voxelize::Resolution::Depth(depth))?;
+    scene_of(&crate::model::room::mesh(), depth)
+}
+
+/// [`room_scene`] with glossy white surfaces ([`crate::model::room::glossy_mesh`]).
+pub fn glossy_room_scene(depth: u32) -> Result<Scene, crate::Error> {
+    scene_of(&crate::model::room::glossy_mesh(), depth)
+}
+
+fn scene_of(mesh: &Mesh, depth: u32) -> Result<Scene, crate::Error> {
+    let parts = crate::pipeline::build_parts(mesh, crate::voxelize::Resolution::Depth(depth))?;
     let mut scene = Scene::new(parts);
     for part in 0..scene.parts.len() {
         scene.add(Instance { part, parent: None, local: Transform::IDENTITY })?;
@@ -224,6 +233,9 @@ pub struct AccuracyConfig {
     pub resolutions: Vec<u32>,
     /// Cone counts swept (at 128³).
     pub cones: Vec<u32>,
+    /// Bounce counts swept, against the all-bounce reference (empty: that reference is not
+    /// traced).
+    pub bounces: Vec<u32>,
     /// The command line, for the records.
     pub command: String,
     /// The machine, for the records.
@@ -242,8 +254,10 @@ pub fn gi_frame(
     let mut caches = GiCaches::new();
     let mut times = Vec::new();
     let mut last = base.clone();
-    // One untimed run builds the caches (load-time work).
+    // One untimed run builds the caches (load-time work). Every run is timed as a first
+    // frame: reusing the last frame's chain would time the cones alone.
     for k in 0..repeats.max(1) + 1 {
+        caches.forget_last_frame();
         let mut f = base.clone();
         let t0 = Instant::now();
         apply(&mut f, scene, camera, lights, settings, &mut caches)?;
@@ -253,6 +267,41 @@ pub fn gi_frame(
         last = f;
     }
     Ok((summarize(&times).0, last))
+}
+
+fn compare_to(frame: &Frame, reference: &Frame) -> Result<ImageError, crate::Error> {
+    compare(frame, reference).map_err(|e| crate::gi::GiError::Settings(e.to_string()).into())
+}
+
+/// One record of the accuracy sweep.
+fn accuracy_record(
+    cfg: &AccuracyConfig,
+    instances: usize,
+    name: &str,
+    setting: String,
+    x: f64,
+    ms: f64,
+    error: ImageError,
+) -> Record {
+    Record {
+        group: "gi-accuracy".into(),
+        name: name.into(),
+        setting,
+        x,
+        backend_kind: "cpu".into(),
+        backend: "CPU reference".into(),
+        width: cfg.size.0,
+        height: cfg.size.1,
+        frames: cfg.repeats,
+        instances,
+        median_ms: ms,
+        p95_ms: ms,
+        min_ms: ms,
+        error: Some(error),
+        machine: cfg.machine.clone(),
+        command: cfg.command.clone(),
+        ..Default::default()
+    }
 }
 
 /// Sweeps the GI knobs on the box against its one-bounce path-traced reference.
@@ -273,27 +322,9 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     let reference = pt.frame();
     let ref_ms = t0.elapsed().as_secs_f64() * 1e3;
     let mut out = Vec::new();
+    let instances = scene.instances().len();
     let mut push = |name: &str, setting: String, x: f64, ms: f64, frame: &Frame| -> Result<(), crate::Error> {
-        let error = compare(frame, &reference).map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
-        out.push(Record {
-            group: "gi-accuracy".into(),
-            name: name.into(),
-            setting,
-            x,
-            backend_kind: "cpu".into(),
-            backend: "CPU reference".into(),
-            width: cfg.size.0,
-            height: cfg.size.1,
-            frames: cfg.repeats,
-            instances: scene.instances().len(),
-            median_ms: ms,
-            p95_ms: ms,
-            min_ms: ms,
-            error: Some(error),
-            machine: cfg.machine.clone(),
-            command: cfg.command.clone(),
-            ..Default::default()
-        });
+        out.push(accuracy_record(cfg, instances, name, setting, x, ms, compare_to(frame, &reference)?));
         Ok(())
     };
     push("no GI (flat sky term)", "renderer only".into(), 0.0, base_ms, &base)?;
@@ -313,6 +344,28 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     for filter in [Filter::Nearest, Filter::Split] {
         let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { filter, ..default }, cfg.repeats)?;
         push("filter", format!("{filter:?}").to_lowercase(), if filter == Filter::Split { 1.0 } else { 0.0 }, ms, &f)?;
+    }
+    if !cfg.bounces.is_empty() {
+        // More bounces approach the light after all bounces, not after one: they are measured
+        // against the unbounded reference.
+        progress(&format!("gi-accuracy: all-bounce reference, {} spp", cfg.spp));
+        let t0 = Instant::now();
+        let mut pt =
+            PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: None, seed: 2 })
+                .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+        pt.run(&mut |_, _| {});
+        let all = pt.frame();
+        let all_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let setting = format!("{} spp, all bounces", cfg.spp);
+        let error = compare_to(&all, &all)?;
+        out.push(accuracy_record(cfg, instances, "reference (all bounces)", setting, cfg.spp as f64, all_ms, error));
+        for &bounces in &cfg.bounces {
+            progress(&format!("gi-accuracy: {bounces} bounces"));
+            let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { bounces, ..default }, cfg.repeats)?;
+            let error = compare_to(&f, &all)?;
+            let name = "bounces (vs all-bounce reference)";
+            out.push(accuracy_record(cfg, instances, name, format!("{bounces}"), bounces as f64, ms, error));
+        }
     }
     Ok(out)
 }

@@ -92,6 +92,10 @@ struct SourceArgs {
     /// Always voxelize; neither read nor write the cache.
     #[arg(long)]
     no_cache: bool,
+    /// Ignore MTL Ks/Ns: every material purely Lambertian (the shared convention of
+    /// DESIGN.md, for comparing images with other renderers).
+    #[arg(long)]
+    lambertian: bool,
 }
 
 #[derive(Args, Clone)]
@@ -148,8 +152,9 @@ struct RenderArgs {
     /// Print the frame plan (first frame, and whenever it changes).
     #[arg(long)]
     explain: bool,
-    /// Voxel-transformation global illumination (computed on the CPU, after either backend):
-    /// colour bleeding and ambient occlusion in place of the flat sky term.
+    /// Voxel-transformation global illumination, on the backend that renders: colour bleeding
+    /// and ambient occlusion in place of the flat sky term, and glossy reflections (one
+    /// specular cone) on materials with MTL Ks and Ns.
     #[arg(long)]
     gi: bool,
     /// GI world volume cells per side.
@@ -164,7 +169,7 @@ struct RenderArgs {
     /// GI world volume edge in scene units (default: 3× the camera's distance to its target).
     #[arg(long, requires = "gi")]
     gi_extent: Option<f64>,
-    /// GI bounces (1…8): each bounce past the first cone-traces every occupied cell's incoming light (CPU backend).
+    /// GI bounces (1…8): each bounce past the first cone-traces every occupied cell's incoming light.
     #[arg(long, default_value_t = 1, requires = "gi")]
     gi_bounces: u32,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
@@ -394,7 +399,7 @@ fn bar(len: u64, what: &str) -> ProgressBar {
 }
 
 fn load_mesh(src: &SourceArgs) -> Result<Mesh, Error> {
-    let mesh = if src.obj.is_empty() {
+    let mut mesh = if src.obj.is_empty() {
         voxray::model::embedded::load_default_car()?
     } else {
         let mut m = Mesh::default();
@@ -403,6 +408,9 @@ fn load_mesh(src: &SourceArgs) -> Result<Mesh, Error> {
         }
         m
     };
+    if src.lambertian {
+        mesh.make_lambertian();
+    }
     for w in &mesh.warnings {
         eprintln!("warning: {w}");
     }
@@ -910,6 +918,7 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             repeats: a.gi_repeats as usize,
             resolutions: vec![32, 64, 128, 256],
             cones: vec![1, 3, 6, 9, 16],
+            bounces: vec![1, 2, 3],
             command: command.clone(),
             machine: cfg.machine.clone(),
         };

@@ -23,9 +23,9 @@ pub struct CacheVoxel {
     pub coord: u32,
     /// Albedo and emission word, as [`Attr::albedo`].
     pub albedo: u32,
-    /// Octahedral normal, as [`Attr::normal`].
+    /// Octahedral normal and specular lobe, as [`Attr::normal`].
     pub normal: u32,
-    /// Glossiness in [0, 1]: 0 diffuse, 1 mirror (sets the specular cone's aperture).
+    /// Glossiness in [0, 1] ([`Attr::gloss`], decoded: Phong exponent `2^(10 g)`).
     pub gloss: f32,
 }
 
@@ -47,9 +47,6 @@ pub enum CacheError {
     /// The grid is finer than the packed coordinates allow.
     #[error("a voxel cache holds at most 2^{MAX_CACHE_DEPTH} voxels per side; depth {0} is too deep")]
     TooDeep(u32),
-    /// Glossiness outside [0, 1] or not a number.
-    #[error("glossiness {0} must lie in [0, 1]")]
-    Gloss(f32),
     /// Voxelizing the part failed.
     #[error(transparent)]
     Voxelize(#[from] VoxelizeError),
@@ -69,25 +66,22 @@ pub struct VoxelCache {
 }
 
 impl VoxelCache {
-    /// A cache holding `grid`'s voxels, all with glossiness `gloss`.
-    pub fn from_grid(grid: &VoxelGrid, gloss: f32) -> Result<Self, CacheError> {
+    /// A cache holding `grid`'s voxels.
+    pub fn from_grid(grid: &VoxelGrid) -> Result<Self, CacheError> {
         if grid.depth > MAX_CACHE_DEPTH {
             return Err(CacheError::TooDeep(grid.depth));
-        }
-        if !(0.0..=1.0).contains(&gloss) {
-            return Err(CacheError::Gloss(gloss));
         }
         let voxels = grid
             .voxels
             .iter()
             .map(|v| {
                 let [x, y, z] = morton_decode(v.code);
-                let a = Attr::pack(v.albedo, v.normal, v.emission);
+                let a = Attr::pack_glossy(v.albedo, v.normal, v.emission, v.specular, v.gloss);
                 CacheVoxel {
                     coord: x | (y << COORD_BITS) | (z << (2 * COORD_BITS)),
                     albedo: a.albedo,
                     normal: a.normal,
-                    gloss,
+                    gloss: a.gloss(),
                 }
             })
             .collect();
@@ -100,24 +94,21 @@ impl VoxelCache {
     }
 
     /// Voxelizes `part` at `depth` (2^depth voxels along its longest side) into a cache.
-    pub fn build(part: &Part, materials: &[Material], depth: u32, gloss: f32) -> Result<Self, CacheError> {
+    pub fn build(part: &Part, materials: &[Material], depth: u32) -> Result<Self, CacheError> {
         if depth > MAX_CACHE_DEPTH {
             return Err(CacheError::TooDeep(depth));
         }
         let opts = VoxelizeOptions { resolution: Resolution::Depth(depth), solid: false };
-        Self::from_grid(&voxelize(part, materials, &opts, &|_, _| {})?, gloss)
+        Self::from_grid(&voxelize(part, materials, &opts, &|_, _| {})?)
     }
 
     /// The part's voxels as its SVO holds them at `level` (every node there, with the
     /// attributes the SVO averaged for it): the cache of a part with no mesh at hand (the
     /// ground), or at a coarser GI resolution than the SVO, without voxelizing again.
-    pub fn from_svo(svo: &crate::svo::Svo, level: u32, gloss: f32) -> Result<Self, CacheError> {
+    pub fn from_svo(svo: &crate::svo::Svo, level: u32) -> Result<Self, CacheError> {
         let level = level.min(svo.depth);
         if level > MAX_CACHE_DEPTH {
             return Err(CacheError::TooDeep(level));
-        }
-        if !(0.0..=1.0).contains(&gloss) {
-            return Err(CacheError::Gloss(gloss));
         }
         let voxels = svo
             .at_level(level)
@@ -126,7 +117,7 @@ impl VoxelCache {
                 coord: c[0] | (c[1] << COORD_BITS) | (c[2] << (2 * COORD_BITS)),
                 albedo: a.albedo,
                 normal: a.normal,
-                gloss,
+                gloss: a.gloss(),
             })
             .collect();
         Ok(VoxelCache { corner: svo.bounds.min, voxel_size: svo.bounds.voxel_size(level), depth: level, voxels })

@@ -1,14 +1,17 @@
 //! The path-traced reference that GI is measured against: the same SVO instances, materials
-//! and lights as the renderer (DESIGN.md's units), Lambertian two-sided surfaces, the sun by
-//! next-event estimation with a shadow ray at every vertex, the uniform sky when a path
-//! escapes, MTL emitters when a path hits them. Unbiased: cosine-weighted bounces and, when
-//! the bounce count is unlimited, Russian roulette. Progressive: each [`PathTracer::pass`]
+//! and lights as the renderer (DESIGN.md's units), the renderer's two-sided surface model
+//! ([`crate::render::brdf`]: Lambertian plus an optional Phong lobe), the sun by next-event
+//! estimation with a shadow ray at every vertex, the uniform sky when a path escapes, MTL
+//! emitters when a path hits them. Unbiased: each bounce samples the surface model (lobe by
+//! reflectance, then cosine- or lobe-weighted) and, when the bounce count is unlimited,
+//! Russian roulette ends paths. Progressive: each [`PathTracer::pass`]
 //! adds one sample per pixel and [`PathTracer::frame`] is the estimate so far.
 //!
 //! Primary rays go through pixel centres, exactly as the renderer's, so the reference and a
 //! GI frame share every primary hit and differ only in the light they gather; the direct
 //! light at the primary hit is deterministic and computed once.
 
+use crate::render::brdf;
 use crate::render::bvh::Bvh;
 use crate::render::cpu::{leave, par_map, record};
 use crate::render::hitbuffer::HitRecord;
@@ -84,20 +87,12 @@ pub struct PathTracer<'a> {
     points: Vec<DVec3>,
     /// Deterministic part of each pixel: emission and sun at the primary hit, or the sky.
     direct: Vec<Vec3>,
-    /// Summed indirect estimates (before the primary albedo).
+    /// Summed indirect estimates (light leaving the primary hit towards the eye).
     sum: Vec<DVec3>,
     width: u32,
     height: u32,
     passes: u32,
     rays: u64,
-}
-
-fn cosine_sample(n: DVec3, rng: &mut Rng) -> DVec3 {
-    let (t, b) = n.any_orthonormal_pair();
-    let (u1, u2) = (rng.f64(), rng.f64());
-    let r = u2.sqrt();
-    let phi = std::f64::consts::TAU * u1;
-    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u2).max(0.0).sqrt()).normalize()
 }
 
 impl<'a> PathTracer<'a> {
@@ -138,7 +133,7 @@ impl<'a> PathTracer<'a> {
                 Some(h) => {
                     let r = record(scene, &pt.prepared, &h, d);
                     let at = d * r.t as f64;
-                    let (light, rays) = pt.surface_light(&fi, &r, at);
+                    let (light, rays) = pt.surface_light(&fi, &r, at, d);
                     (r, at, light, 1 + rays)
                 }
             }
@@ -155,29 +150,32 @@ impl<'a> PathTracer<'a> {
         FrameInstances { parts: &self.scene.parts, prepared: &self.prepared, bvh: self.bvh.as_ref() }
     }
 
-    /// Light leaving a surface towards the viewer that does not depend on other surfaces:
-    /// its emission and the sun (when visible). Returns it and the shadow rays traced.
-    fn surface_light(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3) -> (Vec3, u64) {
-        let albedo = r.attr.albedo_linear();
+    /// Light leaving a surface towards the viewer (looking along `d`) that does not depend on
+    /// other surfaces: its emission and the sun (when visible). Returns it and the shadow rays
+    /// traced.
+    fn surface_light(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3, d: DVec3) -> (Vec3, u64) {
         let mut out = if self.lights.use_mtl_emitters { r.attr.emission() } else { Vec3::ZERO };
         let mut rays = 0;
         if let Some(sun) = self.lights.sun {
-            let cos = r.normal.dot(sun.to_sun);
-            if cos > 0.0 {
+            if r.normal.dot(sun.to_sun) > 0.0 {
                 rays += 1;
                 if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), self.search) {
-                    out += albedo * sun.irradiance * (cos / std::f32::consts::PI);
+                    let shininess = brdf::shininess_of_gloss(r.attr.gloss());
+                    let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
+                    out +=
+                        brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun) * sun.irradiance;
                 }
             }
         }
         (out, rays)
     }
 
-    /// One estimate of the light arriving at primary hit `k` (cosine-weighted, so the
-    /// Lambertian reflection is this times the albedo), and the rays it traced.
+    /// One estimate of the indirect light leaving primary hit `k` towards the eye (the surface
+    /// model sampled at every vertex), and the rays it traced.
     fn indirect(&self, fi: &FrameInstances, k: usize, rng: &mut Rng) -> (DVec3, u64) {
         let mut r = self.records[k];
         let mut at = self.points[k];
+        let mut d = at.normalize();
         let mut beta = DVec3::ONE;
         let mut light = DVec3::ZERO;
         let mut rays = 0u64;
@@ -186,8 +184,15 @@ impl<'a> PathTracer<'a> {
             if self.settings.bounces.is_some_and(|b| bounce > b) {
                 break;
             }
+            let shininess = brdf::shininess_of_gloss(r.attr.gloss());
+            let Some(s) =
+                brdf::sample(r.attr.albedo_linear(), r.attr.specular(), shininess, r.normal.as_dvec3(), d, rng)
+            else {
+                break;
+            };
+            beta *= s.weight;
             let from = leave(&r, at);
-            let d = cosine_sample(r.normal.as_dvec3(), rng);
+            d = s.dir;
             rays += 1;
             let Some(h) = nearest(fi, from, d, self.search, &TraceOptions::default()) else {
                 light += beta * self.lights.sky().as_dvec3();
@@ -195,10 +200,9 @@ impl<'a> PathTracer<'a> {
             };
             r = record(self.scene, &self.prepared, &h, d);
             at = from + d * r.t as f64;
-            let (l, shadow) = self.surface_light(fi, &r, at);
+            let (l, shadow) = self.surface_light(fi, &r, at, d);
             rays += shadow;
             light += beta * l.as_dvec3();
-            beta *= r.attr.albedo_linear().as_dvec3();
             if self.settings.bounces.is_none() && bounce >= ROULETTE_AFTER {
                 let keep = beta.max_element().clamp(0.05, 0.95);
                 if rng.f64() >= keep {
@@ -262,7 +266,7 @@ impl<'a> PathTracer<'a> {
             .iter()
             .zip(&self.direct)
             .zip(&self.sum)
-            .map(|((r, d), s)| if r.instance < 0 { *d } else { *d + r.attr.albedo_linear() * (*s * inv).as_vec3() })
+            .map(|((r, d), s)| if r.instance < 0 { *d } else { *d + (*s * inv).as_vec3() })
             .collect();
         let n = self.records.len();
         Frame {
@@ -277,6 +281,8 @@ impl<'a> PathTracer<'a> {
                 .iter()
                 .map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO })
                 .collect(),
+            specular: self.records.iter().map(|r| if r.instance >= 0 { r.attr.specular() } else { 0.0 }).collect(),
+            shininess: self.records.iter().map(|r| brdf::shininess_of_gloss(r.attr.gloss())).collect(),
             primary_rays: n as u64,
             reused: 0,
             shadow_rays: 0,

@@ -2,10 +2,12 @@
 //! scene, injection, levels, and cones gathered at every pixel that hit something. The indirect
 //! light replaces the renderer's flat ambient term (albedo × sky) with albedo × the cone-traced
 //! light, in which the sky fills only what the cones do not see — colour bleeding and ambient
-//! occlusion together.
+//! occlusion together. A glossy pixel (specular reflectance ks > 0) also swaps its specular
+//! ambient term (ks × sky) for ks × one specular cone along the mirror direction, as wide as
+//! its Phong lobe ([`crate::render::brdf::cone_aperture`]).
 
 use super::cache::{VoxelCache, MAX_CACHE_DEPTH};
-use super::cone::{gather, ConeSettings};
+use super::cone::{gather, trace, ConeSettings};
 use super::inject::{inject, Injected};
 use super::levels;
 use super::volume::{Filter, GiError, Volume, VolumeSpec};
@@ -96,13 +98,19 @@ impl GiCaches {
         Self::default()
     }
 
+    /// Forgets the last frame's volume and level chain (keeping the parts' caches), so the
+    /// next frame runs every GI pass: for timing the whole pass, or to free the memory.
+    pub fn forget_last_frame(&mut self) {
+        self.last = None;
+    }
+
     /// The cache of `svo` at `level`, built on first use.
     pub fn get(&mut self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Result<&VoxelCache, GiError> {
         let key = (std::sync::Arc::as_ptr(svo) as usize, level);
         let entry = match self.built.entry(key) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => {
-                let cache = VoxelCache::from_svo(svo, level, 0.0).map_err(|e| GiError::Settings(e.to_string()))?;
+                let cache = VoxelCache::from_svo(svo, level).map_err(|e| GiError::Settings(e.to_string()))?;
                 e.insert((svo.clone(), cache))
             }
         };
@@ -124,7 +132,7 @@ pub struct GiSettings {
     pub extent: Option<f64>,
     /// Bounces of indirect light (1…MAX_BOUNCES): 1 lights the pixels with the injected
     /// direct light; each more cone-traces every occupied cell's incoming light from the
-    /// previous chain into the next (CPU only so far).
+    /// previous chain into the next.
     pub bounces: u32,
 }
 
@@ -298,7 +306,17 @@ pub fn apply(
         let p = camera.eye + camera.ray_dir(&basis, x, y) * frame.t[k] as f64;
         let n = frame.normal[k].as_dvec3();
         let (light, _open) = gather(&chain, p, n, sky, &cones);
-        Some(frame.albedo[k] * (light - sky))
+        let mut add = frame.albedo[k] * (light - sky);
+        let ks = frame.specular[k];
+        if ks > 0.0 {
+            // The specular cone: the Phong lobe's light, the sky where the cone escapes.
+            let d = camera.ray_dir(&basis, x, y);
+            let r = crate::render::brdf::reflect(d, n).normalize();
+            let aperture = crate::render::brdf::cone_aperture(frame.shininess[k]);
+            let s = trace(&chain, p, n, r, aperture, cones.max_distance);
+            add += (s.truncate() + sky * (1.0 - s.w) - sky) * ks;
+        }
+        Some(add)
     };
     let add = crate::render::cpu::par_map(frame.radiance.len(), gi_pixel);
     for (r, a) in frame.radiance.iter_mut().zip(add) {

@@ -10,7 +10,9 @@ use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
 use super::renderer::read;
 use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
-use crate::gi::{CacheVoxel, Filter, GiCaches, GiError, GiReuse, GiSettings, Volume, VolumeKey, VolumeSpec};
+use crate::gi::{
+    CacheVoxel, ConeSettings, Filter, GiCaches, GiError, GiReuse, GiSettings, Volume, VolumeKey, VolumeSpec,
+};
 use crate::scene::{Camera, Lights, Scene};
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
@@ -81,6 +83,9 @@ struct VolumeBuffers {
     offsets: Vec<u32>,
     resolutions: Vec<u32>,
     steps: Vec<wgpu::BindGroup>,
+    /// The direct and next level 0 of the bounce passes (allocated when a frame asks for more
+    /// than one bounce).
+    bounce: Option<(wgpu::Buffer, wgpu::Buffer)>,
 }
 
 struct Pool {
@@ -97,6 +102,7 @@ pub(crate) struct GiWork {
     /// Bind group 1 of the tracer's GI entry points.
     pub group1: wgpu::BindGroup,
     spec: VolumeSpec,
+    bounces: u32,
     /// What this frame does.
     pub stats: GpuGiStats,
 }
@@ -111,8 +117,23 @@ pub(crate) struct GpuGi {
     /// Layout of bind group 1 (accumulation, levels, GI uniforms) of the tracer's GI entries.
     pub group1_layout: wgpu::BindGroupLayout,
     volume: Option<VolumeBuffers>,
-    /// What the volume on the GPU was made from.
-    last: Option<(VolumeKey, Lights)>,
+    /// Bound in place of the bounce buffers when a frame has one bounce.
+    placeholder: wgpu::Buffer,
+    /// What the volume on the GPU was made from, and the bounces (with their cones) its chain
+    /// was gathered with.
+    last: Option<(VolumeKey, Lights, (u32, ConeSettings))>,
+}
+
+/// The tracer's GI entry points of one plan variant.
+pub(crate) struct GiPipelines {
+    /// Light injection.
+    pub inject: wgpu::ComputePipeline,
+    /// Shading with cone tracing.
+    pub shade: wgpu::ComputePipeline,
+    /// One more bounce into the next level 0.
+    pub bounce: wgpu::ComputePipeline,
+    /// The next level 0 into the chain.
+    pub commit: wgpu::ComputePipeline,
 }
 
 /// Row `i` of the affine map (m, t) as xyz = linear, w = translation, in f32.
@@ -232,7 +253,15 @@ impl GpuGi {
                 gi_layout_entry(0, wgpu::BufferBindingType::Storage { read_only: true }),
                 gi_layout_entry(1, wgpu::BufferBindingType::Storage { read_only: false }),
                 gi_layout_entry(2, wgpu::BufferBindingType::Uniform),
+                gi_layout_entry(3, wgpu::BufferBindingType::Storage { read_only: false }),
+                gi_layout_entry(4, wgpu::BufferBindingType::Storage { read_only: false }),
             ],
+        });
+        let placeholder = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("gi bounce placeholder"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
         });
         GpuGi {
             caches: GiCaches::new(),
@@ -241,6 +270,7 @@ impl GpuGi {
             levels_pipe: make("gi_levels.wgsl", levels_source(), "levels_main"),
             group1_layout,
             volume: None,
+            placeholder,
             last: None,
         }
     }
@@ -340,7 +370,26 @@ impl GpuGi {
                 })
             })
             .collect();
-        self.volume = Some(VolumeBuffers { res, accum, levels, offsets, resolutions, steps });
+        self.volume = Some(VolumeBuffers { res, accum, levels, offsets, resolutions, steps, bounce: None });
+        Ok(())
+    }
+
+    /// Allocates the bounce passes' two level-0 buffers if a frame needs them.
+    fn bounce_buffers(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        let Some(vol) = self.volume.as_mut().filter(|v| v.bounce.is_none()) else {
+            return Ok(());
+        };
+        let size = (vol.res as u64).pow(3) * 16;
+        ctx.check_binding("the GI bounce volume", size)?;
+        let make = |label| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            })
+        };
+        vol.bounce = Some((make("gi direct level 0"), make("gi next level 0")));
         Ok(())
     }
 
@@ -357,12 +406,19 @@ impl GpuGi {
         let (spec, levels_of) = plan_volume(scene, camera, s, &mut self.caches)?;
         let key = VolumeKey::new(scene, spec, s.filter, &levels_of);
         // Decided before any upload: a changed pool or volume size changes the key too.
-        let reuse = GiReuse::decide(self.last.as_ref().map(|(k, l)| (k, l)), &key, lights);
+        let mut reuse = GiReuse::decide(self.last.as_ref().map(|(k, l, _)| (k, l)), &key, lights);
+        let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
+        if reuse == GiReuse::Levels && self.last.as_ref().is_some_and(|l| l.2 != bounce_key) {
+            reuse = GiReuse::Volume; // the chain was gathered with other bounces
+        }
         self.last = None; // until this frame's passes are encoded
         let keys: Vec<(usize, u32)> =
             scene.parts.iter().zip(&levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect();
         self.upload_pool(ctx, scene, keys.clone())?;
         self.volume_buffers(ctx, spec.res)?;
+        if s.bounces > 1 {
+            self.bounce_buffers(ctx)?;
+        }
         let (pool, vol) = match (&self.pool, &self.volume) {
             (Some(p), Some(v)) => (p, v),
             _ => return Err(GpuError::Device("GI buffers missing".into())),
@@ -399,7 +455,7 @@ impl GpuGi {
             res: spec.res,
             levels: vol.offsets.len() as u32,
             cones: cones.diffuse_cones,
-            pad: 0,
+            bounces: s.bounces,
             spread: (2.0 * (cones.aperture_deg.to_radians() * 0.5).tan()) as f32,
             tilt: cones.aperture_deg.to_radians().min(80f64.to_radians()) as f32,
             max_distance: if cones.max_distance.is_finite() { cones.max_distance as f32 } else { f32::MAX },
@@ -427,6 +483,10 @@ impl GpuGi {
                 wgpu::BindGroupEntry { binding: 3, resource: splat_buf.as_entire_binding() },
             ],
         });
+        let (direct, next) = match (&vol.bounce, s.bounces > 1) {
+            (Some((d, n)), true) => (d, n),
+            _ => (&self.placeholder, &self.placeholder),
+        };
         let group1 = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("gi (tracer group 1)"),
             layout: &self.group1_layout,
@@ -434,6 +494,8 @@ impl GpuGi {
                 wgpu::BindGroupEntry { binding: 0, resource: vol.accum.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: vol.levels.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: frame_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: direct.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: next.as_entire_binding() },
             ],
         });
         let stats = GpuGiStats {
@@ -441,20 +503,25 @@ impl GpuGi {
             jobs: jobs_len as u32,
             res: spec.res,
             levels: vol.offsets.len() as u32,
-            bytes: pool.voxels.size() + vol.accum.size() + vol.levels.size() + jobs_buf.size(),
+            bytes: pool.voxels.size()
+                + vol.accum.size()
+                + vol.levels.size()
+                + jobs_buf.size()
+                + vol.bounce.as_ref().map_or(0, |(d, n)| d.size() + n.size()),
             reuse,
         };
-        self.last = Some((key, *lights));
-        Ok(GiWork { splat_bind, splat_groups: if threads == 0 { (0, 0) } else { splat_groups }, group1, spec, stats })
+        self.last = Some((key, *lights, bounce_key));
+        let splat_groups = if threads == 0 { (0, 0) } else { splat_groups };
+        Ok(GiWork { splat_bind, splat_groups, group1, spec, bounces: s.bounces, stats })
     }
 
-    /// Records the GI passes: clear, transform, inject (the tracer's `inject` pipeline, with
-    /// its bind group 0), levels.
+    /// Records the GI passes: clear, transform, inject (the tracer's pipelines, with its bind
+    /// group 0), levels, and per further bounce: bounce, commit, levels.
     pub(crate) fn encode(
         &self,
         work: &GiWork,
         enc: &mut wgpu::CommandEncoder,
-        inject: &wgpu::ComputePipeline,
+        pipes: &GiPipelines,
         group0: &wgpu::BindGroup,
         timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
@@ -473,15 +540,26 @@ impl GpuGi {
             pass.dispatch_workgroups(work.splat_groups.0, work.splat_groups.1, 1);
         }
         let g = vol.res.div_ceil(4);
-        pass.set_pipeline(inject);
-        pass.set_bind_group(0, group0, &[]);
-        pass.set_bind_group(1, &work.group1, &[]);
-        pass.dispatch_workgroups(g, g, g);
-        pass.set_pipeline(&self.levels_pipe);
-        for (l, step) in vol.steps.iter().enumerate() {
-            let g = vol.resolutions[l + 1].div_ceil(4);
-            pass.set_bind_group(0, step, &[]);
+        let tracer = |pass: &mut wgpu::ComputePass, pipe: &wgpu::ComputePipeline| {
+            pass.set_pipeline(pipe);
+            pass.set_bind_group(0, group0, &[]);
+            pass.set_bind_group(1, &work.group1, &[]);
             pass.dispatch_workgroups(g, g, g);
+        };
+        let levels = |pass: &mut wgpu::ComputePass| {
+            pass.set_pipeline(&self.levels_pipe);
+            for (l, step) in vol.steps.iter().enumerate() {
+                let g = vol.resolutions[l + 1].div_ceil(4);
+                pass.set_bind_group(0, step, &[]);
+                pass.dispatch_workgroups(g, g, g);
+            }
+        };
+        tracer(&mut pass, &pipes.inject);
+        levels(&mut pass);
+        for _ in 1..work.bounces {
+            tracer(&mut pass, &pipes.bounce);
+            tracer(&mut pass, &pipes.commit);
+            levels(&mut pass);
         }
         Ok(())
     }

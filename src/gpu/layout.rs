@@ -119,6 +119,8 @@ pub struct GpuHit {
     pub work: u32,
     /// 1 when reused this frame.
     pub reused: u32,
+    /// Normal word of the voxel's attributes (its top byte is the specular lobe).
+    pub material: u32,
 }
 
 /// A moved instance's sphere and pixel rectangle. WGSL: `MovedSphere`.
@@ -238,8 +240,8 @@ pub struct GpuGiFrame {
     pub levels: u32,
     /// Diffuse cones.
     pub cones: u32,
-    /// Padding.
-    pub pad: u32,
+    /// GI bounces (more than one: the bounce passes run and injection keeps the direct light).
+    pub bounces: u32,
     /// Cone diameter per unit distance: 2 tan(aperture / 2).
     pub spread: f32,
     /// Angle of the cone ring from the normal (radians).

@@ -104,7 +104,7 @@ pub struct GpuRenderer {
     gi: Option<super::gi::GpuGi>,
     gi_settings: Option<crate::gi::GiSettings>,
     gi_pipeline_layout: Option<wgpu::PipelineLayout>,
-    gi_pipelines: HashMap<(u32, bool), (wgpu::ComputePipeline, wgpu::ComputePipeline)>,
+    gi_pipelines: HashMap<(u32, bool), super::gi::GiPipelines>,
     /// What GI did in the last frame (None without GI).
     pub gi_stats: Option<super::gi::GpuGiStats>,
     /// Read the GI volume back after each frame into [`GpuRenderer::gi_captured`] (slow; for
@@ -229,13 +229,6 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(s) = &settings {
             s.validated()?;
-            if s.bounces > 1 {
-                return Err(crate::gi::GiError::Settings(format!(
-                    "{} bounces: the GPU renders one GI bounce; more run on the CPU backend (--backend cpu)",
-                    s.bounces
-                ))
-                .into());
-            }
         }
         if settings.is_some() && self.gi.is_none() {
             let gi = super::gi::GpuGi::new(&self.ctx.device);
@@ -268,7 +261,12 @@ impl GpuRenderer {
                 ("ATTR_SPLIT", attr_split as f64),
             ];
             let make = |entry: &str| plan_pipeline(device, layout, module, entry, &constants);
-            (make("inject_main"), make("shade_gi_main"))
+            super::gi::GiPipelines {
+                inject: make("inject_main"),
+                shade: make("shade_gi_main"),
+                bounce: make("bounce_main"),
+                commit: make("bounce_commit_main"),
+            }
         });
         Ok(())
     }
@@ -522,15 +520,15 @@ impl GpuRenderer {
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, 1);
         }
-        if let (Some(work), Some((inject_pipe, _)), Some(gi)) = (&gi_work, gi_pipes, &self.gi) {
-            gi.encode(work, &mut enc, inject_pipe, &bind, ts(2))?;
+        if let (Some(work), Some(pipes), Some(gi)) = (&gi_work, gi_pipes, &self.gi) {
+            gi.encode(work, &mut enc, pipes, &bind, ts(2))?;
         }
         {
             let mut pass =
                 enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("shade"), timestamp_writes: ts(1) });
             match (&gi_work, gi_pipes) {
-                (Some(work), Some((_, shade_gi))) => {
-                    pass.set_pipeline(shade_gi);
+                (Some(work), Some(pipes)) => {
+                    pass.set_pipeline(&pipes.shade);
                     pass.set_bind_group(0, &bind, &[]);
                     pass.set_bind_group(1, &work.group1, &[]);
                 }
@@ -594,7 +592,7 @@ impl GpuRenderer {
                         instance: g.instance,
                         normal: Vec3::new(g.nx, g.ny, g.nz),
                         face_normal: Vec3::new(g.fx, g.fy, g.fz),
-                        attr: Attr { albedo: g.albedo, normal: 0 },
+                        attr: Attr { albedo: g.albedo, normal: g.material },
                         voxel: g.voxel,
                     }
                 }
@@ -612,6 +610,8 @@ impl GpuRenderer {
             instance: records.iter().map(|r| r.instance).collect(),
             normal: records.iter().map(|r| r.normal).collect(),
             albedo: records.iter().map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO }).collect(),
+            specular: records.iter().map(|r| if r.instance >= 0 { r.attr.specular() } else { 0.0 }).collect(),
+            shininess: records.iter().map(|r| crate::render::brdf::shininess_of_gloss(r.attr.gloss())).collect(),
             primary_rays: n as u64,
             reused: hits.iter().filter(|g| g.reused != 0).count() as u64,
             shadow_rays,

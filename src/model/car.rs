@@ -28,19 +28,20 @@ const DOOR_Y0: f32 = 0.42;
 /// How far door surfaces sit outside the body surface they cover.
 const DOOR_GAP: f32 = 0.015;
 
-/// The materials of the car (Kd in linear RGB).
+/// The materials of the car (Kd in linear RGB; Ks grey).
 pub const MATERIALS: &[MtlMaterial] = &[
-    MtlMaterial { name: "paint", kd: Vec3::new(0.62, 0.06, 0.04), ke: Vec3::ZERO },
-    MtlMaterial { name: "glass", kd: Vec3::new(0.07, 0.12, 0.17), ke: Vec3::ZERO },
-    MtlMaterial { name: "trim", kd: Vec3::new(0.03, 0.03, 0.035), ke: Vec3::ZERO },
-    MtlMaterial { name: "chrome", kd: Vec3::new(0.72, 0.72, 0.74), ke: Vec3::ZERO },
-    MtlMaterial { name: "headlight", kd: Vec3::new(0.95, 0.93, 0.8), ke: Vec3::new(4.0, 3.8, 3.0) },
-    MtlMaterial { name: "taillight", kd: Vec3::new(0.7, 0.02, 0.02), ke: Vec3::new(1.5, 0.0, 0.0) },
-    MtlMaterial { name: "interior", kd: Vec3::new(0.09, 0.085, 0.08), ke: Vec3::ZERO },
-    MtlMaterial { name: "seat", kd: Vec3::new(0.25, 0.2, 0.15), ke: Vec3::ZERO },
-    MtlMaterial { name: "tyre", kd: Vec3::new(0.035, 0.035, 0.035), ke: Vec3::ZERO },
-    MtlMaterial { name: "rim", kd: Vec3::new(0.8, 0.8, 0.82), ke: Vec3::ZERO },
-    MtlMaterial { name: "rim_dark", kd: Vec3::new(0.08, 0.08, 0.09), ke: Vec3::ZERO },
+    // Clear-coated paint, glass, chrome and rims carry a Phong lobe (Ks, Ns).
+    MtlMaterial::glossy("paint", Vec3::new(0.62, 0.06, 0.04), 0.08, 250.0),
+    MtlMaterial::glossy("glass", Vec3::new(0.07, 0.12, 0.17), 0.25, 1000.0),
+    MtlMaterial::glossy("trim", Vec3::new(0.03, 0.03, 0.035), 0.04, 30.0),
+    MtlMaterial::glossy("chrome", Vec3::new(0.25, 0.25, 0.26), 0.7, 600.0),
+    MtlMaterial::emitter("headlight", Vec3::new(0.95, 0.93, 0.8), Vec3::new(4.0, 3.8, 3.0)),
+    MtlMaterial::emitter("taillight", Vec3::new(0.7, 0.02, 0.02), Vec3::new(1.5, 0.0, 0.0)),
+    MtlMaterial::diffuse("interior", Vec3::new(0.09, 0.085, 0.08)),
+    MtlMaterial::diffuse("seat", Vec3::new(0.25, 0.2, 0.15)),
+    MtlMaterial::glossy("tyre", Vec3::new(0.035, 0.035, 0.035), 0.03, 8.0),
+    MtlMaterial::glossy("rim", Vec3::new(0.45, 0.45, 0.47), 0.5, 300.0),
+    MtlMaterial::diffuse("rim_dark", Vec3::new(0.08, 0.08, 0.09)),
 ];
 
 /// One generated part with its pivot.

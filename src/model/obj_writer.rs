@@ -15,6 +15,25 @@ pub struct MtlMaterial {
     pub kd: Vec3,
     /// Emission (`Ke`); zero for none.
     pub ke: Vec3,
+    /// Grey specular reflectance (`Ks`); zero for a diffuse-only material.
+    pub ks: f32,
+    /// Phong exponent (`Ns`).
+    pub ns: f32,
+}
+
+impl MtlMaterial {
+    /// A diffuse material.
+    pub const fn diffuse(name: &'static str, kd: Vec3) -> Self {
+        MtlMaterial { name, kd, ke: Vec3::ZERO, ks: 0.0, ns: 1.0 }
+    }
+    /// A diffuse material with a Phong lobe.
+    pub const fn glossy(name: &'static str, kd: Vec3, ks: f32, ns: f32) -> Self {
+        MtlMaterial { name, kd, ke: Vec3::ZERO, ks, ns }
+    }
+    /// An emitter.
+    pub const fn emitter(name: &'static str, kd: Vec3, ke: Vec3) -> Self {
+        MtlMaterial { name, kd, ke, ks: 0.0, ns: 1.0 }
+    }
 }
 
 /// OBJ text of one part (object `name`, referencing `mtl_file`), vertices rounded to 0.1 mm;
@@ -89,7 +108,10 @@ pub fn mesh_of<'a>(
                 .collect(),
         })
         .collect();
-    let materials = materials.iter().map(|m| Material { emission: m.ke, ..Material::new(m.name, m.kd) }).collect();
+    let materials = materials
+        .iter()
+        .map(|m| Material { emission: m.ke, specular: m.ks, shininess: m.ns, ..Material::new(m.name, m.kd) })
+        .collect();
     Mesh { parts, materials, ..Default::default() }
 }
 
@@ -100,6 +122,9 @@ pub fn write_mtl(header: &str, materials: &[MtlMaterial]) -> String {
         let _ = writeln!(out, "\nnewmtl {}\nKd {} {} {}", m.name, m.kd.x, m.kd.y, m.kd.z);
         if m.ke != Vec3::ZERO {
             let _ = writeln!(out, "Ke {} {} {}", m.ke.x, m.ke.y, m.ke.z);
+        }
+        if m.ks > 0.0 {
+            let _ = writeln!(out, "Ks {} {} {}\nNs {}", m.ks, m.ks, m.ks, m.ns);
         }
     }
     out

@@ -18,9 +18,9 @@ use glam::{Affine3A, DVec3, Quat, Vec3};
 
 /// The room's materials (linear albedo; the Cornell box's classic values).
 pub const MATERIALS: &[MtlMaterial] = &[
-    MtlMaterial { name: "white", kd: Vec3::new(0.73, 0.73, 0.73), ke: Vec3::ZERO },
-    MtlMaterial { name: "red", kd: Vec3::new(0.63, 0.065, 0.05), ke: Vec3::ZERO },
-    MtlMaterial { name: "green", kd: Vec3::new(0.14, 0.45, 0.09), ke: Vec3::ZERO },
+    MtlMaterial::diffuse("white", Vec3::new(0.73, 0.73, 0.73)),
+    MtlMaterial::diffuse("red", Vec3::new(0.63, 0.065, 0.05)),
+    MtlMaterial::diffuse("green", Vec3::new(0.14, 0.45, 0.09)),
 ];
 
 /// Inside half-width of the room (metres); the inside spans x, z ∈ [−1, 1], y ∈ [0, 2].
@@ -81,6 +81,18 @@ pub fn build() -> Vec<(&'static str, Builder)> {
 pub fn mesh() -> Mesh {
     let parts = build();
     super::obj_writer::mesh_of(parts.iter().map(|(n, b)| (*n, b)), MATERIALS)
+}
+
+/// The room with glossy white surfaces (floor, back, front, ceiling and blocks: a Phong lobe
+/// of reflectance 0.25 and exponent 100 on the white albedo): the scene on which the
+/// specular cone is checked against the path-traced reference.
+pub fn glossy_mesh() -> Mesh {
+    let mut mesh = mesh();
+    for m in mesh.materials.iter_mut().filter(|m| m.name == "white") {
+        m.specular = 0.25;
+        m.shininess = 100.0;
+    }
+    mesh
 }
 
 /// The camera: standing a little inside the front wall (clear of its voxels at any depth

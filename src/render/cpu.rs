@@ -2,6 +2,7 @@
 //! (or reuses it from the hit buffer), **shade** lights it with the sun (with a shadow ray),
 //! the sky and MTL emitters. Rays start at the camera in camera-relative f64 coordinates.
 
+use super::brdf;
 use super::bvh::Bvh;
 use super::hitbuffer::{HitBuffer, HitRecord};
 use super::instances::{prepare, Prepared};
@@ -42,6 +43,10 @@ pub struct Frame {
     pub normal: Vec<Vec3>,
     /// Linear albedo of the surface hit; zero for a miss.
     pub albedo: Vec<Vec3>,
+    /// Specular reflectance of the surface hit (0: diffuse only, and for a miss).
+    pub specular: Vec<f32>,
+    /// Phong exponent of the surface hit ([`super::brdf`]).
+    pub shininess: Vec<f32>,
     /// Primary rays (one per pixel).
     pub primary_rays: u64,
     /// Pixels whose primary hit came from the hit buffer (no ray traced).
@@ -163,6 +168,8 @@ pub fn render(
         instance: records.iter().map(|r| r.instance).collect(),
         normal: records.iter().map(|r| r.normal).collect(),
         albedo: records.iter().map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO }).collect(),
+        specular: records.iter().map(|r| if r.instance >= 0 { r.attr.specular() } else { 0.0 }).collect(),
+        shininess: records.iter().map(|r| brdf::shininess_of_gloss(r.attr.gloss())).collect(),
         primary_rays: n as u64,
         reused: 0,
         shadow_rays: 0,
@@ -176,17 +183,20 @@ pub fn render(
                 continue;
             }
             let albedo = r.attr.albedo_linear();
-            let mut radiance = albedo * sky;
+            let ks = r.attr.specular();
+            // The sky is uniform, so the ambient term of either lobe is its reflectance × sky.
+            let mut radiance = (albedo + Vec3::splat(ks)) * sky;
             if let Some(sun) = lights.sun {
-                let cos = r.normal.dot(sun.to_sun);
-                if cos > 0.0 {
+                let d = camera.ray_dir(&basis, x as u32, y as u32);
+                let shininess = brdf::shininess_of_gloss(r.attr.gloss());
+                let response = brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun);
+                if r.normal.dot(sun.to_sun) > 0.0 {
                     let visible = !plan.shadows || {
                         shadow_rays.fetch_add(1, Ordering::Relaxed);
-                        let d = camera.ray_dir(&basis, x as u32, y as u32);
                         !occluded(&fi, leave(r, d * r.t as f64), sun.to_sun.as_dvec3(), search)
                     };
                     if visible {
-                        radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
+                        radiance += response * sun.irradiance;
                     }
                 }
             }

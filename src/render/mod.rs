@@ -1,6 +1,7 @@
 //! Rendering: per-frame instance preparation, the instance BVH, visibility searches, the
 //! hit buffer, the frame plan, the CPU renderer and the image/AOV writers.
 
+pub mod brdf;
 pub mod bvh;
 pub mod cpu;
 pub mod hitbuffer;

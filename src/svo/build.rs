@@ -44,13 +44,21 @@ struct LevelNode {
     albedo_sum: Vec3,
     normal_sum: Vec3,
     emission_sum: Vec3,
+    specular_sum: f32,
+    gloss_sum: f32,
     weight: f32,
 }
 
 impl LevelNode {
     fn attr(&self) -> Attr {
         let w = self.weight.max(f32::MIN_POSITIVE);
-        Attr::pack(self.albedo_sum / w, self.normal_sum, self.emission_sum / w)
+        Attr::pack_glossy(
+            self.albedo_sum / w,
+            self.normal_sum,
+            self.emission_sum / w,
+            self.specular_sum / w,
+            self.gloss_sum / w,
+        )
     }
 }
 
@@ -79,6 +87,7 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
         let albedo = if v.albedo.is_finite() { v.albedo } else { Vec3::splat(0.5) };
         let normal = if v.normal.is_finite() { v.normal } else { Vec3::ZERO };
         let emission = if v.emission.is_finite() { v.emission.max(Vec3::ZERO) } else { Vec3::ZERO };
+        let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
         leaves.push(LevelNode {
             code: v.code,
             valid: 0,
@@ -86,6 +95,8 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
             albedo_sum: albedo * w,
             normal_sum: normal.normalize_or_zero() * w,
             emission_sum: emission * w,
+            specular_sum: unit(v.specular) * w,
+            gloss_sum: unit(v.gloss) * w,
             weight: w,
         });
     }
@@ -105,6 +116,8 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
                     p.albedo_sum += c.albedo_sum;
                     p.normal_sum += c.normal_sum;
                     p.emission_sum += c.emission_sum;
+                    p.specular_sum += c.specular_sum;
+                    p.gloss_sum += c.gloss_sum;
                     p.weight += c.weight;
                 }
                 _ => parents.push(LevelNode {
@@ -114,6 +127,8 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
                     albedo_sum: c.albedo_sum,
                     normal_sum: c.normal_sum,
                     emission_sum: c.emission_sum,
+                    specular_sum: c.specular_sum,
+                    gloss_sum: c.gloss_sum,
                     weight: c.weight,
                 }),
             }

@@ -10,8 +10,9 @@ use std::path::Path;
 
 /// File magic: the first eight bytes of every `.svo` file.
 pub const MAGIC: [u8; 8] = *b"VOXRSVO\0";
-/// Current format version.
-pub const VERSION: u32 = 1;
+/// Current format version. Version 1 (snorm16 normals, no specular lobe) is still read: its
+/// normals are re-encoded on load.
+pub const VERSION: u32 = 2;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 56;
 
@@ -126,7 +127,7 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
         return Err(SvoFileError::Length { expected: (HEADER_LEN + 4) as u64, actual: b.len() as u64 });
     }
     let version = u32_at(b, 8);
-    if version != VERSION {
+    if version != VERSION && version != 1 {
         return Err(SvoFileError::Version(version));
     }
     let node_count = u64_at(b, 40);
@@ -166,7 +167,8 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     }
     let mut attrs = Vec::with_capacity(attr_count as usize);
     for _ in 0..attr_count {
-        attrs.push(Attr { albedo: u32_at(b, o), normal: u32_at(b, o + 4) });
+        let (albedo, normal) = (u32_at(b, o), u32_at(b, o + 4));
+        attrs.push(if version == 1 { Attr::from_version1(albedo, normal) } else { Attr { albedo, normal } });
         o += 8;
     }
     let svo = Svo { bounds: Cube { min, size }, depth, nodes, attrs, voxel_count };
