@@ -299,7 +299,7 @@ fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
         .collect();
     lines(
         path,
-        "GI error against run time (box scene, one bounce)",
+        "GI error against run time (box scene; bounces against the all-bounce reference)",
         ("GI time per frame (ms)", "mean FLIP vs path-traced reference"),
         &series,
         false,
