@@ -114,15 +114,34 @@ impl Backend {
 
     /// Sets the GI knobs for the following frames (None: GI off). Returns true when the
     /// backend runs GI itself (the GPU: transform, injection, levels and cones in WGSL); false
-    /// when the caller adds it to each frame with `gi::apply` (the CPU).
+    /// when the caller adds it to each frame with `gi::apply` (the CPU, and the sparse volume on
+    /// either backend).
     pub fn set_gi(&mut self, gi: Option<crate::gi::GiSettings>) -> Result<bool, crate::Error> {
         match self {
             Backend::Cpu(_) => Ok(false),
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => {
-                let on = gi.is_some();
-                g.set_gi(gi)?;
-                Ok(on)
+                use crate::gi::{shade::VolumeChoice, Layout};
+                // The GPU builds the dense volume only: `auto` stays dense on it while a dense
+                // volume can hold the resolution; an explicitly sparse or larger volume's GI runs
+                // on the CPU over the GPU's frame.
+                let gi = gi.map(|s| match s.volume {
+                    VolumeChoice::Auto if s.res <= Layout::Dense.max_res() => {
+                        crate::gi::GiSettings { volume: VolumeChoice::Dense, ..s }
+                    }
+                    _ => s,
+                });
+                match gi {
+                    Some(s) if s.layout() == Layout::Sparse => {
+                        s.validated()?;
+                        g.set_gi(None)?;
+                        Ok(false)
+                    }
+                    _ => {
+                        g.set_gi(gi)?;
+                        Ok(gi.is_some())
+                    }
+                }
             }
         }
     }

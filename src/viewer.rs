@@ -733,7 +733,8 @@ impl App {
                     ui_.checkbox(&mut f.shadows, "shadows");
                     ui_.checkbox(&mut ui.gi_on, "global illumination");
                     if ui.gi_on {
-                        ui_.add(egui::Slider::new(&mut ui.gi.res, 16..=256).text("GI volume cells"));
+                        // Steps of 8: every value suits both volume layouts.
+                        ui_.add(egui::Slider::new(&mut ui.gi.res, 16..=512).step_by(8.0).text("GI volume cells"));
                         ui_.add(egui::Slider::new(&mut ui.gi.cones.diffuse_cones, 1..=16).text("GI cones"));
                         ui_.add(
                             egui::Slider::new(&mut ui.gi.bounces, 1..=crate::gi::shade::MAX_BOUNCES).text("GI bounces"),
@@ -742,6 +743,13 @@ impl App {
                             row.label("GI filter:");
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Split, "split");
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Nearest, "nearest");
+                        });
+                        ui_.horizontal(|row| {
+                            use crate::gi::shade::VolumeChoice;
+                            row.label("GI volume:");
+                            row.radio_value(&mut ui.gi.volume, VolumeChoice::Auto, "auto");
+                            row.radio_value(&mut ui.gi.volume, VolumeChoice::Dense, "dense");
+                            row.radio_value(&mut ui.gi.volume, VolumeChoice::Sparse, "sparse");
                         });
                     }
                     let mut full = ui.lod == u32::MAX;

@@ -369,3 +369,72 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     }
     Ok(out)
 }
+
+/// What the volume-layout scenario measures.
+#[derive(Clone, Debug)]
+pub struct LayoutConfig {
+    /// Image size.
+    pub size: (u32, u32),
+    /// Resolutions: dense up to 512, sparse all.
+    pub resolutions: Vec<u32>,
+    /// Timed runs per setting (the median is kept).
+    pub repeats: usize,
+    /// The command line, for the records.
+    pub command: String,
+    /// The machine, for the records.
+    pub machine: String,
+}
+
+/// The dense and the sparse world volume on the box at each resolution: the whole GI pass per
+/// frame and the bytes of the volume's cells (`--scenarios gi-volume`).
+pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
+    use crate::gi::shade::VolumeChoice;
+    let scene = room_scene(8)?;
+    let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
+    let lights = crate::model::room::lights();
+    let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
+    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let mut out = Vec::new();
+    for &res in &cfg.resolutions {
+        for (choice, name) in [(VolumeChoice::Dense, "dense"), (VolumeChoice::Sparse, "sparse")] {
+            let s = GiSettings { res, volume: choice, ..GiSettings::default() };
+            if s.validated().is_err() {
+                continue; // dense past 512³, or a resolution the sparse bricks do not divide
+            }
+            progress(&format!("gi-volume: {name} {res}³"));
+            let mut caches = GiCaches::new();
+            let mut times = Vec::new();
+            let mut stats = crate::gi::GiStats::default();
+            for k in 0..cfg.repeats.max(1) + 1 {
+                caches.forget_last_frame();
+                let mut f = base.clone();
+                let t0 = Instant::now();
+                stats = apply(&mut f, &scene, &camera, &lights, &s, &mut caches)?;
+                if k > 0 {
+                    times.push(t0.elapsed().as_secs_f64() * 1e3);
+                }
+            }
+            let (median, p95, min) = summarize(&times);
+            out.push(Record {
+                group: "gi-volume".into(),
+                name: name.into(),
+                setting: format!("{} occupied cells", stats.occupied),
+                x: res as f64,
+                backend_kind: "cpu".into(),
+                backend: "CPU reference".into(),
+                width: cfg.size.0,
+                height: cfg.size.1,
+                frames: cfg.repeats,
+                instances: scene.instances().len(),
+                median_ms: median,
+                p95_ms: p95,
+                min_ms: min,
+                volume_bytes: Some(stats.volume_bytes),
+                machine: cfg.machine.clone(),
+                command: cfg.command.clone(),
+                ..Default::default()
+            });
+        }
+    }
+    Ok(out)
+}

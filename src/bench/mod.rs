@@ -71,6 +71,8 @@ pub struct Record {
     pub svo_bytes: u64,
     /// Bytes of GPU buffers the renderer used (GPU backend only).
     pub gpu_bytes: Option<u64>,
+    /// Bytes of the GI world volume's cells (gi-volume scenario).
+    pub volume_bytes: Option<u64>,
     /// Image error against the reference of this scenario (depth sweep), see [`metrics`].
     pub error: Option<metrics::ImageError>,
     /// The plan of the last frame.

@@ -271,6 +271,35 @@ part's transformed triangles again into the same cells. Only the writing into th
         chart(&mut md, "gi-scaling");
         md += "\n";
     }
+    let rs = of("gi-volume");
+    if !rs.is_empty() {
+        md += "### GI: dense against sparse world volume\n\n";
+        md += "The whole CPU GI pass on the box (transformation, injection, levels, cones at every pixel) \
+with the volume stored densely or as 8³ bricks where voxels land; both give the same image \
+(`tests/gi.rs`). Memory is the volume's cells (40 bytes each) and, sparse, its top table.\n\n";
+        md += &provenance(&rs);
+        md += "\n| cells per side | dense ms | sparse ms | dense MiB | sparse MiB | occupied cells |\n|---|---|---|---|---|---|\n";
+        let mut xs: Vec<f64> = rs.iter().map(|r| r.x).collect();
+        xs.dedup();
+        for x in xs {
+            let get = |n: &str| rs.iter().find(|r| r.x == x && r.name == n);
+            let ms = |r: Option<&&Record>| r.map_or("–".into(), |r| format!("{:.0}", r.median_ms));
+            let mib = |r: Option<&&Record>| {
+                r.and_then(|r| r.volume_bytes)
+                    .map_or("–".into(), |b| format!("{:.1}", b as f64 / (1u64 << 20) as f64))
+            };
+            let (d, s) = (get("dense"), get("sparse"));
+            md += &format!(
+                "| {x} | {} | {} | {} | {} | {} |\n",
+                ms(d),
+                ms(s),
+                mib(d),
+                mib(s),
+                s.or(d).map_or("–".into(), |r| r.setting.trim_end_matches(" occupied cells").to_string())
+            );
+        }
+        md += "\n";
+    }
     md
 }
 

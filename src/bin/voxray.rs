@@ -172,6 +172,10 @@ struct RenderArgs {
     /// GI bounces (1…8): each bounce past the first cone-traces every occupied cell's incoming light.
     #[arg(long, default_value_t = 1, requires = "gi")]
     gi_bounces: u32,
+    /// GI world volume: dense (every cell, up to 512³), sparse (8³ bricks where voxels land,
+    /// multiples of 8 up to 1024³; on the CPU) or auto (sparse above 128³).
+    #[arg(long, default_value = "auto", requires = "gi")]
+    gi_volume: voxray::gi::shade::VolumeChoice,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]
@@ -225,8 +229,8 @@ struct BenchArgs {
     source: SourceArgs,
     /// Scenario families: paper (static vs animated vs optimized), instances, resolution,
     /// depth (LOD error vs time), peers (Embree / parry3d; needs `--features peers`), gi-scaling
-    /// (voxel transformation vs re-voxelization), gi-accuracy (GI knobs vs the path-traced box;
-    /// writes docs/accuracy.md).
+    /// (voxel transformation vs re-voxelization), gi-volume (dense vs sparse GI volume: time and
+    /// memory), gi-accuracy (GI knobs vs the path-traced box; writes docs/accuracy.md).
     #[arg(long, value_delimiter = ',', default_value = "paper,instances,resolution,depth")]
     scenarios: Vec<String>,
     /// Backends to run every scenario on: cpu, gpu, auto (gpu is skipped with a note when there is no adapter).
@@ -569,6 +573,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
         extent: a.gi_extent,
         bounces: a.gi_bounces,
+        volume: a.gi_volume,
     });
     let mut gi_caches = voxray::gi::GiCaches::new();
     if let Some(g) = &gi {
@@ -610,6 +615,15 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     eprintln!(
                         "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms",
                         s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms
+                    );
+                    let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
+                    eprintln!(
+                        "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB){}",
+                        s.layout.unwrap_or(voxray::gi::Layout::Dense),
+                        mb(s.volume_bytes),
+                        g.res,
+                        mb(s.dense_bytes),
+                        if backend.kind_name() == "gpu" { "; the GPU builds dense volumes only, so GI ran on the CPU" } else { "" }
                     )
                 });
             }
@@ -769,7 +783,7 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         .collect::<Vec<_>>()
         .join(" ");
     let mut scenarios = Vec::new();
-    let (mut peers, mut gi_scaling, mut gi_accuracy) = (false, false, false);
+    let (mut peers, mut gi_scaling, mut gi_accuracy, mut gi_volume) = (false, false, false, false);
     for s in &a.scenarios {
         if s.eq_ignore_ascii_case("peers") {
             peers = true;
@@ -777,6 +791,8 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             gi_scaling = true;
         } else if s.eq_ignore_ascii_case("gi-accuracy") {
             gi_accuracy = true;
+        } else if s.eq_ignore_ascii_case("gi-volume") {
+            gi_volume = true;
         } else {
             scenarios.push(s.parse::<Scenario>().map_err(|e| usage(&e))?);
         }
@@ -832,7 +848,11 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     let mut kinds = a.backends.clone();
     kinds.dedup();
     let pb = bar(
-        (cfg.steps() * kinds.len()) as u64 + if peers { 4 } else { 0 } + gi_scaling as u64 + gi_accuracy as u64,
+        (cfg.steps() * kinds.len()) as u64
+            + if peers { 4 } else { 0 }
+            + gi_scaling as u64
+            + gi_accuracy as u64
+            + gi_volume as u64,
         "measurements",
     );
     for kind in kinds {
@@ -902,6 +922,17 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
                 Err(e) => pb.println(format!("skipping GPU gi-scaling: {e}")),
             }
         }
+        pb.inc(1);
+    }
+    if gi_volume {
+        let lc = voxray::bench::gi::LayoutConfig {
+            size: (160, 120),
+            resolutions: vec![64, 128, 256, 512, 1024],
+            repeats: a.gi_repeats as usize,
+            command: command.clone(),
+            machine: cfg.machine.clone(),
+        };
+        records.extend(voxray::bench::gi::layouts(&lc, &mut |w| pb.set_message(w.to_string()))?);
         pb.inc(1);
     }
     if gi_accuracy {

@@ -6,7 +6,7 @@
 //! corrected for the overlap: with the correction a cone through a wall one cell thick kept
 //! only 0.82 of its opacity (light leaks through walls), without it 0.97 or more.
 
-use super::levels::Levels;
+use super::levels::Chain;
 use glam::{DVec3, Vec3, Vec4};
 
 /// How indirect light is gathered.
@@ -79,12 +79,11 @@ impl ConeSettings {
 
 /// Trilinear sample of one level at world point `p` (cell centres hold the cell values;
 /// outside the volume is empty).
-pub fn sample_level(levels: &Levels, level: usize, p: DVec3) -> Vec4 {
-    let l = &levels.levels[level];
-    let g = (p - levels.min) / l.cell - DVec3::splat(0.5);
+pub fn sample_level<C: Chain + ?Sized>(levels: &C, level: usize, p: DVec3) -> Vec4 {
+    let g = (p - levels.min()) / levels.cell(level) - DVec3::splat(0.5);
     let base = g.floor();
     let f = (g - base).as_vec3();
-    let r = l.res as i64;
+    let r = levels.res(level) as i64;
     let mut out = Vec4::ZERO;
     for k in 0..8 {
         let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
@@ -95,17 +94,17 @@ pub fn sample_level(levels: &Levels, level: usize, p: DVec3) -> Vec4 {
         let w = if dx == 1 { f.x } else { 1.0 - f.x }
             * if dy == 1 { f.y } else { 1.0 - f.y }
             * if dz == 1 { f.z } else { 1.0 - f.z };
-        out += l.rgba[l.index([c[0] as u32, c[1] as u32, c[2] as u32])] * w;
+        out += levels.value(level, [c[0] as u32, c[1] as u32, c[2] as u32]) * w;
     }
     out
 }
 
 /// Quadrilinear sample: trilinear in the levels either side of the fractional `level`.
-pub fn sample(levels: &Levels, p: DVec3, level: f64) -> Vec4 {
-    let top = (levels.levels.len() - 1) as f64;
+pub fn sample<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64) -> Vec4 {
+    let top = (levels.count() - 1) as f64;
     let l = level.clamp(0.0, top);
     let lo = l.floor() as usize;
-    let hi = (lo + 1).min(levels.levels.len() - 1);
+    let hi = (lo + 1).min(levels.count() - 1);
     let f = (l - lo as f64) as f32;
     let a = sample_level(levels, lo, p);
     if f == 0.0 || hi == lo {
@@ -130,9 +129,16 @@ const CLEARANCE: f64 = 1.5;
 /// above the surface's tangent plane — at most (h − 1.5 cells) / 1.5, so the sample and its
 /// trilinear footprint stay clear of the surface's own cells — and sampling begins where
 /// that allows one finest cell. Steps are half the sample size actually used.
-pub fn trace(levels: &Levels, origin: DVec3, normal: DVec3, dir: DVec3, aperture: f64, max_distance: f64) -> Vec4 {
-    let cell0 = levels.levels[0].cell;
-    let extent = cell0 * levels.levels[0].res as f64 * 1.75; // the volume's diagonal
+pub fn trace<C: Chain + ?Sized>(
+    levels: &C,
+    origin: DVec3,
+    normal: DVec3,
+    dir: DVec3,
+    aperture: f64,
+    max_distance: f64,
+) -> Vec4 {
+    let cell0 = levels.cell(0);
+    let extent = cell0 * levels.res(0) as f64 * 1.75; // the volume's diagonal
     let end = max_distance.min(extent);
     let spread = 2.0 * (aperture * 0.5).tan();
     // The coarsest levels (the last two: 2³ and 1³ cells for a power-of-two volume) blur the
@@ -140,7 +146,7 @@ pub fn trace(levels: &Levels, origin: DVec3, normal: DVec3, dir: DVec3, aperture
     // opaque and occluded every long cone. A cone wider than the coarsest level used goes on
     // sampling that level (narrower than the cone) until it leaves the volume; stopping there
     // instead let the sky into a closed room through every cone longer than a third of it.
-    let max_level = levels.levels.len().saturating_sub(3) as f64;
+    let max_level = levels.count().saturating_sub(3) as f64;
     let lift = cell0;
     let o = origin + normal * lift;
     let cos = dir.dot(normal).max(0.05);
@@ -169,7 +175,7 @@ pub fn trace(levels: &Levels, origin: DVec3, normal: DVec3, dir: DVec3, aperture
 /// Indirect light at a surface point: (radiance arriving over the hemisphere, cosine-weighted
 /// and normalized so that a uniform environment L gives L; the sky fills what the cones do not
 /// see) and the ambient occlusion (the fraction of the weighted cones that reaches the sky).
-pub fn gather(levels: &Levels, p: DVec3, n: DVec3, sky: Vec3, s: &ConeSettings) -> (Vec3, f32) {
+pub fn gather<C: Chain + ?Sized>(levels: &C, p: DVec3, n: DVec3, sky: Vec3, s: &ConeSettings) -> (Vec3, f32) {
     let aperture = s.aperture_deg.to_radians();
     let n = n.normalize_or(DVec3::Y);
     let (mut light, mut open) = (Vec3::ZERO, 0.0f32);

@@ -3,7 +3,7 @@
 //! MTL emitters. Stored with the cell's opacity (occupancy clamped to 1) and premultiplied by
 //! it, ready for the level chain and front-to-back cone accumulation.
 
-use super::volume::Volume;
+use super::volume::{Volume, VolumeSpec};
 use crate::render::bvh::Bvh;
 use crate::render::instances::prepare;
 use crate::render::visibility::{occluded, FrameInstances};
@@ -25,47 +25,96 @@ pub struct Injected {
     pub shadow_rays: u64,
 }
 
+/// One world cell's accumulated sums (weight × attribute) and its centre: what injection and
+/// the bounces read, from either volume layout.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CellSums {
+    /// Summed weight.
+    pub occupancy: f32,
+    /// Summed weight × linear albedo.
+    pub albedo: Vec3,
+    /// Summed weight × world normal.
+    pub normal: Vec3,
+    /// Summed weight × emitted radiance.
+    pub emission: Vec3,
+    /// World centre.
+    pub centre: DVec3,
+}
+
+/// A volume's stored cells, by index: every cell of the dense volume, every cell of every
+/// allocated brick of the sparse one.
+pub trait Cells: Sync {
+    /// Placement.
+    fn spec(&self) -> VolumeSpec;
+    /// Stored cells.
+    fn cell_count(&self) -> usize;
+    /// Cell `i`.
+    fn sums(&self, i: usize) -> CellSums;
+}
+
+impl Cells for Volume {
+    fn spec(&self) -> VolumeSpec {
+        self.spec
+    }
+    fn cell_count(&self) -> usize {
+        self.occupancy.len()
+    }
+    fn sums(&self, i: usize) -> CellSums {
+        let r = self.spec.res as usize;
+        let c = [(i % r) as u32, ((i / r) % r) as u32, (i / (r * r)) as u32];
+        CellSums {
+            occupancy: self.occupancy[i],
+            albedo: self.albedo[i],
+            normal: self.normal[i],
+            emission: self.emission[i],
+            centre: self.spec.cell_centre(c),
+        }
+    }
+}
+
 /// Lights every occupied cell of `vol`; `scene` supplies the shadow-ray occluders.
 pub fn inject(vol: &Volume, scene: &Scene, lights: &Lights) -> Injected {
     let spec = vol.spec;
+    let (rgba, shadow_rays) = inject_cells(vol, scene, lights);
+    Injected { res: spec.res, cell: spec.cell, min: spec.min, rgba, shadow_rays }
+}
+
+/// Lights every occupied cell of `cells`: (radiance × alpha, alpha) per stored cell and the
+/// shadow rays traced.
+pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<Vec4>, u64) {
+    let spec = cells.spec();
     let eye = spec.min + DVec3::splat(spec.cell * spec.res as f64 * 0.5);
     let prepared = prepare(scene, eye, true);
     let (bvh, search) = Bvh::when_worthwhile(&prepared);
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref() };
-    let mut rgba = vec![Vec4::ZERO; vol.occupancy.len()];
+    let mut rgba = vec![Vec4::ZERO; cells.cell_count()];
     let mut shadow_rays = 0u64;
-    let r = spec.res;
-    for z in 0..r {
-        for y in 0..r {
-            for x in 0..r {
-                let i = vol.index([x, y, z]);
-                let occ = vol.occupancy[i];
-                if occ <= 0.0 {
-                    continue;
+    for (i, out) in rgba.iter_mut().enumerate() {
+        let cell = cells.sums(i);
+        let occ = cell.occupancy;
+        if occ <= 0.0 {
+            continue;
+        }
+        let albedo = cell.albedo / occ;
+        let n = cell.normal;
+        let mut radiance = Vec3::ZERO;
+        if let (Some(sun), true) = (lights.sun, n.length_squared() > 1e-6) {
+            let n = n.normalize();
+            let cos = n.dot(sun.to_sun);
+            if cos > 0.0 {
+                shadow_rays += 1;
+                // Start one cell off the surface so the cell's own voxels do not shadow it.
+                let start = cell.centre + n.as_dvec3() * spec.cell - eye;
+                if !occluded(&fi, start, sun.to_sun.as_dvec3(), search) {
+                    radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
                 }
-                let albedo = vol.albedo[i] / occ;
-                let n = vol.normal[i];
-                let mut radiance = Vec3::ZERO;
-                if let (Some(sun), true) = (lights.sun, n.length_squared() > 1e-6) {
-                    let n = n.normalize();
-                    let cos = n.dot(sun.to_sun);
-                    if cos > 0.0 {
-                        shadow_rays += 1;
-                        // Start one cell off the surface so the cell's own voxels do not
-                        // shadow it.
-                        let start = spec.cell_centre([x, y, z]) + n.as_dvec3() * spec.cell - eye;
-                        if !occluded(&fi, start, sun.to_sun.as_dvec3(), search) {
-                            radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
-                        }
-                    }
-                }
-                if lights.use_mtl_emitters {
-                    radiance += vol.emission[i] / occ;
-                }
-                let alpha = occ.min(1.0);
-                rgba[i] = (radiance * alpha).extend(alpha);
             }
         }
+        if lights.use_mtl_emitters {
+            radiance += cell.emission / occ;
+        }
+        let alpha = occ.min(1.0);
+        *out = (radiance * alpha).extend(alpha);
     }
-    Injected { res: spec.res, cell: spec.cell, min: spec.min, rgba, shadow_rays }
+    (rgba, shadow_rays)
 }

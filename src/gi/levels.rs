@@ -34,9 +34,61 @@ pub struct Levels {
     pub levels: Vec<Level>,
 }
 
+/// What sampling needs of a level chain, dense ([`Levels`]) or sparse
+/// ([`super::sparse::SparseLevels`]): level 0 finest, each level half the resolution of the
+/// one before; a cell outside the volume or not stored is empty.
+pub trait Chain: Sync {
+    /// World corner shared by all levels.
+    fn min(&self) -> DVec3;
+    /// Number of levels.
+    fn count(&self) -> usize;
+    /// Cells per side of level `l`.
+    fn res(&self, l: usize) -> u32;
+    /// Cell edge of level `l` (world units).
+    fn cell(&self, l: usize) -> f64;
+    /// (radiance × alpha, alpha) of cell `c` (inside the level) of level `l`.
+    fn value(&self, l: usize, c: [u32; 3]) -> Vec4;
+}
+
+impl Chain for Levels {
+    fn min(&self) -> DVec3 {
+        self.min
+    }
+    fn count(&self) -> usize {
+        self.levels.len()
+    }
+    fn res(&self, l: usize) -> u32 {
+        self.levels[l].res
+    }
+    fn cell(&self, l: usize) -> f64 {
+        self.levels[l].cell
+    }
+    fn value(&self, l: usize, c: [u32; 3]) -> Vec4 {
+        let level = &self.levels[l];
+        level.rgba[level.index(c)]
+    }
+}
+
+/// One coarse cell from the sum of its (up to 8) children: coverage alpha = sum / 4, clamped
+/// to 1, the premultiplied colour scaled by the same clamp.
+pub fn coarsen(sum: Vec4) -> Vec4 {
+    let a = sum.w / 4.0;
+    if a > 0.0 {
+        let keep = a.min(1.0) / a;
+        (sum.truncate() / 4.0 * keep).extend(a.min(1.0))
+    } else {
+        Vec4::ZERO
+    }
+}
+
 /// Builds the chain from the injected volume.
 pub fn build(inj: &Injected) -> Levels {
-    let mut levels = vec![Level { res: inj.res, cell: inj.cell, rgba: inj.rgba.clone() }];
+    build_from(Level { res: inj.res, cell: inj.cell, rgba: inj.rgba.clone() }, inj.min)
+}
+
+/// Builds the chain from its finest level, down to one cell.
+pub fn build_from(finest: Level, min: DVec3) -> Levels {
+    let mut levels = vec![finest];
     while let Some(fine) = levels.last().filter(|l| l.res > 1) {
         let res = fine.res.div_ceil(2);
         let mut coarse = Level { res, cell: fine.cell * 2.0, rgba: vec![Vec4::ZERO; (res as usize).pow(3)] };
@@ -50,16 +102,12 @@ pub fn build(inj: &Injected) -> Levels {
                             sum += fine.rgba[fine.index(c)];
                         }
                     }
-                    let a = sum.w / 4.0;
-                    if a > 0.0 {
-                        let keep = a.min(1.0) / a;
-                        let i = coarse.index([x, y, z]);
-                        coarse.rgba[i] = (sum.truncate() / 4.0 * keep).extend(a.min(1.0));
-                    }
+                    let i = coarse.index([x, y, z]);
+                    coarse.rgba[i] = coarsen(sum);
                 }
             }
         }
         levels.push(coarse);
     }
-    Levels { min: inj.min, levels }
+    Levels { min, levels }
 }

@@ -11,12 +11,14 @@ pub mod inject;
 pub mod levels;
 pub mod reference;
 pub mod shade;
+pub mod sparse;
 pub mod volume;
 
 pub use cache::{CacheError, CacheVoxel, VoxelCache};
 pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
-pub use levels::{Level, Levels};
+pub use levels::{Chain, Level, Levels};
 pub use reference::{path_trace, PathTracer, ReferenceError, ReferenceSettings};
 pub use shade::{apply, plan_volume, GiCaches, GiReuse, GiSettings, GiStats, VolumeKey};
-pub use volume::{Filter, GiError, SplatStats, Volume, VolumeSpec};
+pub use sparse::{SparseLevels, SparseVolume};
+pub use volume::{Filter, GiError, Layout, SplatStats, Volume, VolumeSpec};

@@ -8,9 +8,10 @@
 
 use super::cache::{VoxelCache, MAX_CACHE_DEPTH};
 use super::cone::{gather, trace, ConeSettings};
-use super::inject::{inject, Injected};
-use super::levels;
-use super::volume::{Filter, GiError, Volume, VolumeSpec};
+use super::inject::{inject_cells, Cells};
+use super::levels::{self, Chain, Levels};
+use super::sparse::{SparseLevels, SparseVolume};
+use super::volume::{Filter, GiError, Layout, Volume, VolumeSpec};
 use crate::render::Frame;
 use crate::scene::{Camera, Lights, Scene};
 use glam::DVec3;
@@ -33,8 +34,139 @@ struct LastVolume {
     lights: Lights,
     // Bounces and the cones they were gathered with (the chain depends on both past one bounce).
     bounces: (u32, ConeSettings),
-    volume: Volume,
-    chain: levels::Levels,
+    volume: WorldVolume,
+    chain: WorldChain,
+}
+
+/// A frame's world volume in the layout the frame picked.
+enum WorldVolume {
+    Dense(Volume),
+    Sparse(SparseVolume),
+}
+
+impl WorldVolume {
+    fn cells(&self) -> &dyn CellsDyn {
+        match self {
+            WorldVolume::Dense(v) => v,
+            WorldVolume::Sparse(v) => v,
+        }
+    }
+    fn occupied(&self) -> usize {
+        match self {
+            WorldVolume::Dense(v) => v.occupancy.iter().filter(|&&o| o > 0.0).count(),
+            WorldVolume::Sparse(v) => v.occupancy.iter().filter(|&&o| o > 0.0).count(),
+        }
+    }
+    fn bytes(&self) -> u64 {
+        match self {
+            WorldVolume::Dense(v) => SparseVolume::dense_bytes(v.spec.res),
+            WorldVolume::Sparse(v) => v.bytes(),
+        }
+    }
+    /// The level chain over this volume's cells lit to `rgba`.
+    fn chain(&self, rgba: Vec<glam::Vec4>) -> WorldChain {
+        match self {
+            WorldVolume::Dense(v) => WorldChain::Dense(levels::build_from(
+                levels::Level { res: v.spec.res, cell: v.spec.cell, rgba },
+                v.spec.min,
+            )),
+            WorldVolume::Sparse(v) => WorldChain::Sparse(SparseLevels::build(v, rgba)),
+        }
+    }
+}
+
+/// [`Cells`] as a trait object (both layouts behind one reference).
+trait CellsDyn: Sync {
+    fn count(&self) -> usize;
+    fn get(&self, i: usize) -> super::inject::CellSums;
+}
+
+impl<T: Cells> CellsDyn for T {
+    fn count(&self) -> usize {
+        self.cell_count()
+    }
+    fn get(&self, i: usize) -> super::inject::CellSums {
+        self.sums(i)
+    }
+}
+
+/// A level chain of either layout.
+enum WorldChain {
+    Dense(Levels),
+    Sparse(SparseLevels),
+}
+
+impl Chain for WorldChain {
+    fn min(&self) -> DVec3 {
+        match self {
+            WorldChain::Dense(c) => c.min(),
+            WorldChain::Sparse(c) => c.min(),
+        }
+    }
+    fn count(&self) -> usize {
+        match self {
+            WorldChain::Dense(c) => c.count(),
+            WorldChain::Sparse(c) => c.count(),
+        }
+    }
+    fn res(&self, l: usize) -> u32 {
+        match self {
+            WorldChain::Dense(c) => c.res(l),
+            WorldChain::Sparse(c) => c.res(l),
+        }
+    }
+    fn cell(&self, l: usize) -> f64 {
+        match self {
+            WorldChain::Dense(c) => c.cell(l),
+            WorldChain::Sparse(c) => c.cell(l),
+        }
+    }
+    fn value(&self, l: usize, c: [u32; 3]) -> glam::Vec4 {
+        match self {
+            WorldChain::Dense(ch) => ch.value(l, c),
+            WorldChain::Sparse(ch) => ch.value(l, c),
+        }
+    }
+}
+
+/// Which world volume layout GI uses (`--gi-volume`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum VolumeChoice {
+    /// The frame plan picks: sparse above [`SPARSE_ABOVE`] cells per side (when the
+    /// resolution is a multiple of 8), dense otherwise.
+    #[default]
+    Auto,
+    /// Always dense (up to 512³).
+    Dense,
+    /// Always sparse (multiples of 8 up to 1024³).
+    Sparse,
+}
+
+/// Resolution above which `auto` picks the sparse volume (docs/gi.md, "Sparse volume").
+pub const SPARSE_ABOVE: u32 = 128;
+
+impl VolumeChoice {
+    /// The layout for `res` cells per side.
+    pub fn pick(self, res: u32) -> Layout {
+        match self {
+            VolumeChoice::Dense => Layout::Dense,
+            VolumeChoice::Sparse => Layout::Sparse,
+            VolumeChoice::Auto if res > SPARSE_ABOVE && res % super::sparse::BRICK == 0 => Layout::Sparse,
+            VolumeChoice::Auto => Layout::Dense,
+        }
+    }
+}
+
+impl std::str::FromStr for VolumeChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "auto" => Ok(VolumeChoice::Auto),
+            "dense" => Ok(VolumeChoice::Dense),
+            "sparse" => Ok(VolumeChoice::Sparse),
+            other => Err(format!("unknown GI volume '{other}' (use dense, sparse or auto)")),
+        }
+    }
 }
 
 /// What a GI frame can keep from the frame before (DESIGN.md, "Leave out what a scene does not
@@ -75,16 +207,19 @@ impl GiReuse {
 #[derive(Clone, Debug, PartialEq)]
 pub struct VolumeKey {
     spec: VolumeSpec,
+    layout: Layout,
     filter: Filter,
     caches: Vec<(usize, u32)>,
     instances: Vec<(usize, glam::DAffine3)>,
 }
 
 impl VolumeKey {
-    /// The key of `scene` moved into `spec` with the parts' cache levels `levels_of`.
-    pub fn new(scene: &Scene, spec: VolumeSpec, filter: Filter, levels_of: &[u32]) -> VolumeKey {
+    /// The key of `scene` moved into `spec` (stored as `layout`) with the parts' cache levels
+    /// `levels_of`.
+    pub fn new(scene: &Scene, spec: VolumeSpec, layout: Layout, filter: Filter, levels_of: &[u32]) -> VolumeKey {
         VolumeKey {
             spec,
+            layout,
             filter,
             caches: scene.parts.iter().zip(levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect(),
             instances: scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, scene.world(i))).collect(),
@@ -102,6 +237,11 @@ impl GiCaches {
     /// next frame runs every GI pass: for timing the whole pass, or to free the memory.
     pub fn forget_last_frame(&mut self) {
         self.last = None;
+    }
+
+    /// The cache of `svo` at `level` if it is built.
+    pub fn built(&self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Option<&VoxelCache> {
+        self.built.get(&(std::sync::Arc::as_ptr(svo) as usize, level)).map(|e| &e.1)
     }
 
     /// The cache of `svo` at `level`, built on first use.
@@ -134,6 +274,15 @@ pub struct GiSettings {
     /// direct light; each more cone-traces every occupied cell's incoming light from the
     /// previous chain into the next.
     pub bounces: u32,
+    /// The world volume's layout.
+    pub volume: VolumeChoice,
+}
+
+impl GiSettings {
+    /// The volume layout these settings use.
+    pub fn layout(&self) -> Layout {
+        self.volume.pick(self.res)
+    }
 }
 
 /// Most GI bounces.
@@ -141,14 +290,21 @@ pub const MAX_BOUNCES: u32 = 8;
 
 impl Default for GiSettings {
     fn default() -> Self {
-        GiSettings { res: 128, filter: Filter::Split, cones: ConeSettings::default(), extent: None, bounces: 1 }
+        GiSettings {
+            res: 128,
+            filter: Filter::Split,
+            cones: ConeSettings::default(),
+            extent: None,
+            bounces: 1,
+            volume: VolumeChoice::Auto,
+        }
     }
 }
 
 impl GiSettings {
     /// Checks the knobs that do not depend on the scene.
     pub fn validated(self) -> Result<Self, GiError> {
-        VolumeSpec::new(self.res, DVec3::ZERO, 1.0)?;
+        VolumeSpec::with_layout(self.res, DVec3::ZERO, 1.0, self.layout())?;
         self.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
         if !(1..=MAX_BOUNCES).contains(&self.bounces) {
             return Err(GiError::Settings(format!("bounces must be 1…{MAX_BOUNCES}, not {}", self.bounces)));
@@ -160,24 +316,27 @@ impl GiSettings {
     }
 }
 
-/// One more bounce: every occupied cell of `vol` gathers the light of `chain` over its
+/// One more bounce: every occupied cell of `cells` gathers the light of `chain` over its
 /// hemisphere (cones from its centre along its mean normal, the sky where they escape) and
-/// sends out its albedo times that on top of its direct light `direct`; returns the new
-/// injected volume.
-fn bounce(vol: &Volume, direct: &Injected, chain: &levels::Levels, sky: glam::Vec3, cones: &ConeSettings) -> Injected {
-    let r = vol.spec.res as usize;
-    let add = crate::render::cpu::par_map(vol.occupancy.len(), |i| {
-        let occ = vol.occupancy[i];
-        let n = vol.normal[i];
+/// sends out its albedo times that on top of its direct light `direct` (one per stored cell);
+/// returns the new light per stored cell.
+fn bounce(
+    cells: &dyn CellsDyn,
+    direct: &[glam::Vec4],
+    chain: &impl Chain,
+    sky: glam::Vec3,
+    cones: &ConeSettings,
+) -> Vec<glam::Vec4> {
+    let add = crate::render::cpu::par_map(cells.count(), |i| {
+        let c = cells.get(i);
+        let (occ, n) = (c.occupancy, c.normal);
         if occ <= 0.0 || n.length_squared() <= 1e-6 {
             return glam::Vec4::ZERO;
         }
-        let c = [(i % r) as u32, ((i / r) % r) as u32, (i / (r * r)) as u32];
-        let (light, _) = gather(chain, vol.spec.cell_centre(c), n.normalize().as_dvec3(), sky, cones);
-        (vol.albedo[i] / occ * light * occ.min(1.0)).extend(0.0)
+        let (light, _) = gather(chain, c.centre, n.normalize().as_dvec3(), sky, cones);
+        (c.albedo / occ * light * occ.min(1.0)).extend(0.0)
     });
-    let rgba = direct.rgba.iter().zip(add).map(|(d, a)| *d + a).collect();
-    Injected { rgba, ..direct.clone() }
+    direct.iter().zip(add).map(|(d, a)| *d + a).collect()
 }
 
 /// Where a GI frame's time went (milliseconds) and what it did.
@@ -199,6 +358,12 @@ pub struct GiStats {
     pub occupied: usize,
     /// What was kept from the frame before.
     pub reuse: GiReuse,
+    /// The volume's layout.
+    pub layout: Option<Layout>,
+    /// Bytes the volume's cells take (for the dense layout, all of them).
+    pub volume_bytes: u64,
+    /// Bytes a dense volume of the same resolution takes.
+    pub dense_bytes: u64,
 }
 
 /// Where the world volume is centred: on the camera's target, moved (per axis) as far as
@@ -227,7 +392,7 @@ pub fn plan_volume(
     if !(extent.is_finite() && extent > 0.0) {
         return Err(GiError::Settings(format!("volume extent {extent} must be finite and positive")));
     }
-    let spec = VolumeSpec::following(volume_centre(camera.target, lo, hi, extent), extent, s.res)?;
+    let spec = VolumeSpec::following_with(volume_centre(camera.target, lo, hi, extent), extent, s.res, s.layout())?;
     let levels_of: Vec<u32> = scene
         .parts
         .iter()
@@ -255,41 +420,59 @@ pub fn apply(
     let t0 = Instant::now();
     let (spec, levels_of) = plan_volume(scene, camera, s, caches)?;
     let t1 = Instant::now();
-    let key = VolumeKey::new(scene, spec, s.filter, &levels_of);
+    let layout = s.layout();
+    let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
     let last = caches.last.take();
     let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
     if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
         stats.reuse = GiReuse::Volume;
     }
-    let volume = match last {
-        Some(l) if stats.reuse != GiReuse::Nothing => {
-            stats.occupied = l.volume.occupancy.iter().filter(|&&o| o > 0.0).count();
-            Some(l)
-        }
-        _ => None,
-    };
-    let (vol, kept_chain) = match volume {
-        Some(l) => (l.volume, (stats.reuse == GiReuse::Levels).then_some(l.chain)),
-        None => {
-            let mut vol = Volume::new(spec);
-            for (i, inst) in scene.instances().iter().enumerate() {
-                let cache = caches.get(&scene.parts[inst.part], levels_of[inst.part])?;
-                stats.voxels += vol.splat(cache, &scene.world(i), s.filter)?.voxels;
-            }
-            stats.occupied = vol.occupancy.iter().filter(|&&o| o > 0.0).count();
+    let (vol, kept_chain) = match last {
+        Some(l) if stats.reuse != GiReuse::Nothing => (l.volume, (stats.reuse == GiReuse::Levels).then_some(l.chain)),
+        _ => {
+            let vol = match layout {
+                Layout::Dense => {
+                    let mut vol = Volume::new(spec);
+                    for (i, inst) in scene.instances().iter().enumerate() {
+                        let cache = caches.get(&scene.parts[inst.part], levels_of[inst.part])?;
+                        stats.voxels += vol.splat(cache, &scene.world(i), s.filter)?.voxels;
+                    }
+                    WorldVolume::Dense(vol)
+                }
+                Layout::Sparse => {
+                    let mut moves = Vec::with_capacity(scene.instances().len());
+                    for (i, inst) in scene.instances().iter().enumerate() {
+                        let part = &scene.parts[inst.part];
+                        let cache = caches
+                            .built(part, levels_of[inst.part])
+                            .ok_or_else(|| GiError::Settings("a part's GI cache was not built".into()))?;
+                        moves.push((cache, scene.world(i)));
+                    }
+                    let (vol, splat) = SparseVolume::build(spec, &moves, s.filter)?;
+                    stats.voxels = splat.voxels;
+                    WorldVolume::Sparse(vol)
+                }
+            };
             (vol, None)
         }
     };
+    stats.occupied = vol.occupied();
+    stats.layout = Some(layout);
+    stats.volume_bytes = vol.bytes();
+    stats.dense_bytes = SparseVolume::dense_bytes(spec.res);
     let t2 = Instant::now();
     let (chain, t3) = match kept_chain {
         Some(chain) => (chain, Instant::now()),
         None => {
-            let injected = inject(&vol, scene, lights);
+            let (direct, _shadow_rays) = match &vol {
+                WorldVolume::Dense(v) => inject_cells(v, scene, lights),
+                WorldVolume::Sparse(v) => inject_cells(v, scene, lights),
+            };
             let t3 = Instant::now();
-            let mut chain = levels::build(&injected);
+            let mut chain = vol.chain(direct.clone());
             for _ in 1..s.bounces {
-                chain = levels::build(&bounce(&vol, &injected, &chain, lights.sky(), &cones));
+                chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones));
             }
             (chain, t3)
         }

@@ -43,12 +43,35 @@ impl std::str::FromStr for Filter {
     }
 }
 
+/// How the world volume is stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Layout {
+    /// Every cell (up to [`MAX_DENSE_RES`] per side).
+    Dense,
+    /// A top table and 8³ bricks where voxels land ([`super::sparse`], up to
+    /// [`super::sparse::MAX_SPARSE_RES`] per side, a multiple of 8).
+    Sparse,
+}
+
+impl Layout {
+    /// Largest resolution this layout holds.
+    pub fn max_res(self) -> u32 {
+        match self {
+            Layout::Dense => MAX_DENSE_RES,
+            Layout::Sparse => super::sparse::MAX_SPARSE_RES,
+        }
+    }
+}
+
 /// Invalid GI settings or inputs.
 #[derive(Debug, thiserror::Error)]
 pub enum GiError {
     /// Resolution outside 1..=MAX_DENSE_RES.
     #[error("GI volume resolution {0} must be 1…{MAX_DENSE_RES} (finer coverage needs the sparse volume)")]
     Resolution(u32),
+    /// Sparse resolution not a multiple of 8 or above the sparse limit.
+    #[error("sparse GI volume resolution {0} must be a multiple of 8 from 8 to {max}", max = super::sparse::MAX_SPARSE_RES)]
+    SparseResolution(u32),
     /// Cell size or corner not finite / not positive.
     #[error("GI volume: cell size {cell} and corner {min:?} must be finite, the cell positive")]
     Placement {
@@ -77,10 +100,19 @@ pub fn check_world(world: &DAffine3) -> Result<(), GiError> {
 }
 
 impl VolumeSpec {
-    /// A checked placement.
+    /// A checked placement of a dense volume.
     pub fn new(res: u32, min: DVec3, cell: f64) -> Result<Self, GiError> {
-        if res == 0 || res > MAX_DENSE_RES {
-            return Err(GiError::Resolution(res));
+        Self::with_layout(res, min, cell, Layout::Dense)
+    }
+
+    /// A checked placement for `layout`.
+    pub fn with_layout(res: u32, min: DVec3, cell: f64, layout: Layout) -> Result<Self, GiError> {
+        match layout {
+            Layout::Dense if res == 0 || res > MAX_DENSE_RES => return Err(GiError::Resolution(res)),
+            Layout::Sparse if res == 0 || res % super::sparse::BRICK != 0 || res > layout.max_res() => {
+                return Err(GiError::SparseResolution(res))
+            }
+            _ => {}
         }
         if !(min.is_finite() && cell.is_finite() && cell > 0.0) {
             return Err(GiError::Placement { cell, min });
@@ -91,12 +123,17 @@ impl VolumeSpec {
     /// A volume of `extent` world units per side centred near `centre`, its corner snapped
     /// to whole cells so that following a moving camera does not make the voxels swim.
     pub fn following(centre: DVec3, extent: f64, res: u32) -> Result<Self, GiError> {
+        Self::following_with(centre, extent, res, Layout::Dense)
+    }
+
+    /// [`VolumeSpec::following`] for `layout`.
+    pub fn following_with(centre: DVec3, extent: f64, res: u32, layout: Layout) -> Result<Self, GiError> {
         let cell = extent / res.max(1) as f64;
         if !(cell.is_finite() && cell > 0.0) {
             return Err(GiError::Placement { cell, min: centre });
         }
         let min = ((centre - DVec3::splat(extent * 0.5)) / cell).floor() * cell;
-        Self::new(res, min, cell)
+        Self::with_layout(res, min, cell, layout)
     }
 
     /// World-space centre of cell `c`.
@@ -112,6 +149,65 @@ pub struct SplatStats {
     pub voxels: u64,
     /// Occupancy weight that fell outside the volume and was dropped.
     pub outside: f64,
+}
+
+/// A cache voxel moved into world space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MovedVoxel {
+    /// Linear albedo.
+    pub albedo: Vec3,
+    /// Unit world normal (zero when degenerate).
+    pub normal: Vec3,
+    /// Emitted radiance.
+    pub emission: Vec3,
+}
+
+/// Calls `f(cell, weight, voxel)` for every world cell (cell-index coordinates, possibly outside
+/// the volume) that `cache`'s voxels moved by `world` write with `filter`, in cache order and,
+/// per voxel, in a fixed neighbour order — the one definition of the transformation that the
+/// dense and the sparse volume share, so they sum the same weights in the same order. Zero
+/// weights are skipped. Returns the voxel count (`outside` is the caller's to count).
+pub fn for_each_target(
+    cache: &VoxelCache,
+    world: &DAffine3,
+    spec: &VolumeSpec,
+    filter: Filter,
+    mut f: impl FnMut([i64; 3], f64, &MovedVoxel),
+) -> Result<SplatStats, GiError> {
+    check_world(world)?;
+    // Normals move by the inverse transpose.
+    let normal_m: DMat3 = world.matrix3.inverse().transpose();
+    for v in &cache.voxels {
+        let p = world.transform_point3(cache.centre(v).as_dvec3());
+        // Cell-centre coordinates: cell c's centre sits at g = c.
+        let g = (p - spec.min) / spec.cell - DVec3::splat(0.5);
+        let attr = v.attr();
+        let moved = MovedVoxel {
+            albedo: attr.albedo_linear(),
+            normal: (normal_m * attr.normal().as_dvec3()).normalize_or_zero().as_vec3(),
+            emission: attr.emission(),
+        };
+        match filter {
+            Filter::Nearest => {
+                let c = (g + DVec3::splat(0.5)).floor();
+                f([c.x as i64, c.y as i64, c.z as i64], 1.0, &moved);
+            }
+            Filter::Split => {
+                let base = g.floor();
+                let fr = g - base;
+                for k in 0..8 {
+                    let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
+                    let w = if dx == 1 { fr.x } else { 1.0 - fr.x }
+                        * if dy == 1 { fr.y } else { 1.0 - fr.y }
+                        * if dz == 1 { fr.z } else { 1.0 - fr.z };
+                    if w != 0.0 {
+                        f([base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz], w, &moved);
+                    }
+                }
+            }
+        }
+    }
+    Ok(SplatStats { voxels: cache.voxels.len() as u64, outside: 0.0 })
 }
 
 /// A dense world volume (the CPU reference).
@@ -158,54 +254,22 @@ impl Volume {
 
     /// Moves `cache`'s voxels by `world` (object → world) into the volume.
     pub fn splat(&mut self, cache: &VoxelCache, world: &DAffine3, filter: Filter) -> Result<SplatStats, GiError> {
-        check_world(world)?;
-        let lin = world.matrix3;
-        // Normals move by the inverse transpose.
-        let normal_m: DMat3 = lin.inverse().transpose();
-        let res = self.spec.res as i64;
-        let mut stats = SplatStats { voxels: cache.voxels.len() as u64, outside: 0.0 };
-        for v in &cache.voxels {
-            let p = world.transform_point3(cache.centre(v).as_dvec3());
-            // Cell-centre coordinates: cell c's centre sits at g = c.
-            let g = (p - self.spec.min) / self.spec.cell - DVec3::splat(0.5);
-            let attr = v.attr();
-            let albedo = attr.albedo_linear();
-            let emission = attr.emission();
-            let n = (normal_m * attr.normal().as_dvec3()).normalize_or_zero().as_vec3();
-            let mut add = |c: [i64; 3], w: f64| {
-                if w == 0.0 {
-                    return;
-                }
-                if c.iter().any(|&k| k < 0 || k >= res) {
-                    stats.outside += w;
-                    return;
-                }
-                let i = self.index([c[0] as u32, c[1] as u32, c[2] as u32]);
-                let w32 = w as f32;
-                self.occupancy[i] += w32;
-                self.albedo[i] += albedo * w32;
-                self.normal[i] += n * w32;
-                self.emission[i] += emission * w32;
-            };
-            match filter {
-                Filter::Nearest => {
-                    let c = (g + DVec3::splat(0.5)).floor();
-                    add([c.x as i64, c.y as i64, c.z as i64], 1.0);
-                }
-                Filter::Split => {
-                    let base = g.floor();
-                    let f = g - base;
-                    for k in 0..8 {
-                        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-                        let w = if dx == 1 { f.x } else { 1.0 - f.x }
-                            * if dy == 1 { f.y } else { 1.0 - f.y }
-                            * if dz == 1 { f.z } else { 1.0 - f.z };
-                        add([base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz], w);
-                    }
-                }
+        let spec = self.spec;
+        let res = spec.res as i64;
+        let mut outside = 0.0;
+        let stats = for_each_target(cache, world, &spec, filter, |c, w, v| {
+            if c.iter().any(|&k| k < 0 || k >= res) {
+                outside += w;
+                return;
             }
-        }
-        Ok(stats)
+            let i = self.index([c[0] as u32, c[1] as u32, c[2] as u32]);
+            let w32 = w as f32;
+            self.occupancy[i] += w32;
+            self.albedo[i] += v.albedo * w32;
+            self.normal[i] += v.normal * w32;
+            self.emission[i] += v.emission * w32;
+        })?;
+        Ok(SplatStats { outside, ..stats })
     }
 
     /// Writes a grid voxelized in this volume's own cells (the re-voxelization baseline: the

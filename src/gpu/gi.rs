@@ -404,7 +404,7 @@ impl GpuGi {
     ) -> Result<GiWork, GpuError> {
         let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
         let (spec, levels_of) = plan_volume(scene, camera, s, &mut self.caches)?;
-        let key = VolumeKey::new(scene, spec, s.filter, &levels_of);
+        let key = VolumeKey::new(scene, spec, crate::gi::Layout::Dense, s.filter, &levels_of);
         // Decided before any upload: a changed pool or volume size changes the key too.
         let mut reuse = GiReuse::decide(self.last.as_ref().map(|(k, l, _)| (k, l)), &key, lights);
         let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });

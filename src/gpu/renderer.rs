@@ -229,6 +229,14 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(s) = &settings {
             s.validated()?;
+            if s.layout() == crate::gi::Layout::Sparse {
+                return Err(crate::gi::GiError::Settings(format!(
+                    "the sparse GI volume ({}³) runs on the CPU: use --gi-volume dense (up to 512³) on the GPU, \
+                     or let the backend hand GI to the CPU",
+                    s.res
+                ))
+                .into());
+            }
         }
         if settings.is_some() && self.gi.is_none() {
             let gi = super::gi::GpuGi::new(&self.ctx.device);
