@@ -276,7 +276,7 @@ part's transformed triangles again into the same cells. Only the writing into th
         md += "### GI: dense against sparse world volume\n\n";
         md += "The whole CPU GI pass on the box (transformation, injection, levels, cones at every pixel) \
 with the volume stored densely or as 8³ bricks where voxels land; both give the same image \
-(`tests/gi.rs`). Memory is the volume's cells (40 bytes each) and, sparse, its top table.\n\n";
+(`tests/gi_sparse.rs`). Memory is the volume's cells (40 bytes each) and, sparse, its top table.\n\n";
         md += &provenance(&rs);
         md += "\n| cells per side | dense ms | sparse ms | dense MiB | sparse MiB | occupied cells |\n|---|---|---|---|---|---|\n";
         let mut xs: Vec<f64> = rs.iter().map(|r| r.x).collect();

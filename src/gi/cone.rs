@@ -80,23 +80,7 @@ impl ConeSettings {
 /// Trilinear sample of one level at world point `p` (cell centres hold the cell values;
 /// outside the volume is empty).
 pub fn sample_level<C: Chain + ?Sized>(levels: &C, level: usize, p: DVec3) -> Vec4 {
-    let g = (p - levels.min()) / levels.cell(level) - DVec3::splat(0.5);
-    let base = g.floor();
-    let f = (g - base).as_vec3();
-    let r = levels.res(level) as i64;
-    let mut out = Vec4::ZERO;
-    for k in 0..8 {
-        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-        let c = [base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz];
-        if c.iter().any(|&v| v < 0 || v >= r) {
-            continue;
-        }
-        let w = if dx == 1 { f.x } else { 1.0 - f.x }
-            * if dy == 1 { f.y } else { 1.0 - f.y }
-            * if dz == 1 { f.z } else { 1.0 - f.z };
-        out += levels.value(level, [c[0] as u32, c[1] as u32, c[2] as u32]) * w;
-    }
-    out
+    levels.trilinear(level, p)
 }
 
 /// Quadrilinear sample: trilinear in the levels either side of the fractional `level`.

@@ -48,6 +48,35 @@ pub trait Chain: Sync {
     fn cell(&self, l: usize) -> f64;
     /// (radiance × alpha, alpha) of cell `c` (inside the level) of level `l`.
     fn value(&self, l: usize, c: [u32; 3]) -> Vec4;
+    /// Trilinear sample of level `l` at world point `p` (cell centres hold the cell values;
+    /// outside the volume is empty). A layout may override it to find its storage once per
+    /// sample instead of once per corner; the result must not change.
+    fn trilinear(&self, l: usize, p: DVec3) -> Vec4 {
+        trilinear_with(self.min(), self.cell(l), self.res(l), p, |c| self.value(l, c))
+    }
+}
+
+/// The trilinear sample at `p` of a level with corner `min`, cell edge `cell` and `res` cells
+/// per side whose cells `fetch` returns: the corners' values weighted by their overlaps, in a
+/// fixed corner order, corners outside the level skipped.
+pub fn trilinear_with(min: DVec3, cell: f64, res: u32, p: DVec3, mut fetch: impl FnMut([u32; 3]) -> Vec4) -> Vec4 {
+    let g = (p - min) / cell - DVec3::splat(0.5);
+    let base = g.floor();
+    let f = (g - base).as_vec3();
+    let r = res as i64;
+    let mut out = Vec4::ZERO;
+    for k in 0..8 {
+        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
+        let c = [base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz];
+        if c.iter().any(|&v| v < 0 || v >= r) {
+            continue;
+        }
+        let w = if dx == 1 { f.x } else { 1.0 - f.x }
+            * if dy == 1 { f.y } else { 1.0 - f.y }
+            * if dz == 1 { f.z } else { 1.0 - f.z };
+        out += fetch([c[0] as u32, c[1] as u32, c[2] as u32]) * w;
+    }
+    out
 }
 
 impl Chain for Levels {

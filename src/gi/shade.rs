@@ -127,6 +127,13 @@ impl Chain for WorldChain {
             WorldChain::Sparse(ch) => ch.value(l, c),
         }
     }
+    // Dispatched once per sample, not once per corner.
+    fn trilinear(&self, l: usize, p: DVec3) -> glam::Vec4 {
+        match self {
+            WorldChain::Dense(ch) => ch.trilinear(l, p),
+            WorldChain::Sparse(ch) => ch.trilinear(l, p),
+        }
+    }
 }
 
 /// Which world volume layout GI uses (`--gi-volume`).

@@ -14,7 +14,7 @@
 
 use super::cache::VoxelCache;
 use super::inject::{CellSums, Cells};
-use super::levels::{build_from, coarsen, Chain, Level, Levels};
+use super::levels::{build_from, coarsen, trilinear_with, Chain, Level, Levels};
 use super::volume::{for_each_target, Filter, GiError, SplatStats, VolumeSpec};
 use glam::{DAffine3, DVec3, Vec3, Vec4};
 
@@ -296,5 +296,30 @@ impl Chain for SparseLevels {
         let side = BRICK >> l;
         let local = [c[0] % side, c[1] % side, c[2] % side];
         self.bricks[l][b as usize * (side as usize).pow(3) + (local[0] + side * (local[1] + side * local[2])) as usize]
+    }
+    // When the 8 corners lie in one brick (most samples at the finest level), its table entry
+    // is read once.
+    fn trilinear(&self, l: usize, p: DVec3) -> Vec4 {
+        let (cell, res) = (self.cell(l), self.res(l));
+        if l >= BRICK_LEVELS {
+            return self.coarse.trilinear(l - BRICK_LEVELS, p);
+        }
+        let base = ((p - self.min) / cell - DVec3::splat(0.5)).floor();
+        let side = BRICK >> l;
+        let inside = base.min_element() >= 0.0 && base.max_element() + 1.0 < res as f64;
+        let b = [base.x as u32, base.y as u32, base.z as u32];
+        if !(inside && b.iter().all(|&v| v % side != side - 1)) {
+            return trilinear_with(self.min, cell, res, p, |c| self.value(l, c));
+        }
+        let r = self.top_res as usize;
+        let t = [b[0] / side, b[1] / side, b[2] / side];
+        let brick = self.top[t[0] as usize + r * (t[1] as usize + r * t[2] as usize)];
+        if brick == EMPTY {
+            return trilinear_with(self.min, cell, res, p, |_| Vec4::ZERO);
+        }
+        let cells = &self.bricks[l][brick as usize * (side as usize).pow(3)..];
+        trilinear_with(self.min, cell, res, p, |c| {
+            cells[(c[0] % side + side * (c[1] % side + side * (c[2] % side))) as usize]
+        })
     }
 }
