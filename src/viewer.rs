@@ -133,6 +133,10 @@ struct Ui {
     gi: crate::gi::GiSettings,
     gi_caches: crate::gi::GiCaches,
     gi_ms: Option<f64>,
+    // GI ran in the backend (the GPU passes), not on the CPU after it.
+    gi_on_gpu: bool,
+    // Most rays hit at t = 0 last frame.
+    eye_inside: bool,
     gpu_ms: Option<(f64, f64)>,
     reset: bool,
 }
@@ -383,6 +387,8 @@ impl App {
             .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions { max_level: self.ui.lod }, &|_, _| {})
             .map_err(|e| ViewerError::Other(e.to_string()))?;
         self.ui.gi_ms = backend.gi_pass_ms();
+        self.ui.gi_on_gpu = gi_in_backend;
+        self.ui.eye_inside = frame.eye_inside_fraction() > 0.5;
         if self.ui.gi_on && !gi_in_backend {
             let g = Instant::now();
             crate::gi::apply(&mut frame, &self.scene, &camera, &self.lights, &self.ui.gi, &mut self.ui.gi_caches)
@@ -773,8 +779,14 @@ impl App {
                     ui_.strong("Statistics");
                     let last = ui.frame_ms.back().copied().unwrap_or(0.0);
                     ui_.label(format!("frame {last:.1} ms, {render_w}×{h}, {instances} instances"));
+                    if ui.eye_inside {
+                        ui_.colored_label(
+                            egui::Color32::from_rgb(230, 160, 60),
+                            "the eye is inside a voxel: move the camera out of the geometry",
+                        );
+                    }
                     if let Some(ms) = ui.gi_ms {
-                        if ui.gpu_ms.is_some() {
+                        if ui.gi_on_gpu {
                             ui_.label(format!("GI passes on the GPU: {ms:.2} ms (cones in shade)"));
                         } else {
                             ui_.label(format!("GI (CPU): {ms:.0} ms of the frame"));
@@ -1054,6 +1066,8 @@ pub fn run(
             gi: crate::gi::GiSettings { res: 64, ..Default::default() },
             gi_caches: crate::gi::GiCaches::new(),
             gi_ms: None,
+            gi_on_gpu: false,
+            eye_inside: false,
             gpu_ms: None,
             reset: false,
         },

@@ -202,3 +202,19 @@ fn absurd_resolutions_are_refused_before_allocating() {
     let msg = e.unwrap_err().to_string();
     assert!(msg.contains("million voxels") && msg.contains("--depth"), "{msg}");
 }
+
+/// An eye inside a voxel gives a flat image (every ray hits at t = 0); the frame says so, so
+/// the CLI and the demo can warn. Outside, no pixel hits at t = 0.
+#[test]
+fn an_eye_inside_a_voxel_is_reported() {
+    let parts = build(vec![quad("floor", 0.0, 2.0)], 0.25);
+    let lights = Lights::default();
+    let outside = frame(&parts, &top_down(16), &lights, Features::default());
+    assert_eq!(outside.eye_inside_fraction(), 0.0);
+    let mut cam = top_down(16);
+    cam.eye = DVec3::new(0.3, 0.01, 0.2); // inside the floor's voxel layer
+    cam.target = DVec3::new(1.0, 0.01, 0.2);
+    cam.up = DVec3::Y;
+    let inside = frame(&parts, &cam, &lights, Features::default());
+    assert!(inside.eye_inside_fraction() > 0.9, "{}", inside.eye_inside_fraction());
+}

@@ -606,6 +606,15 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 pb.set_position(d as u64)
             }
         })?;
+        if f == 0 && frame.eye_inside_fraction() > 0.5 {
+            pb.suspend(|| {
+                eprintln!(
+                    "warning: the eye is inside a voxel ({:.0} % of the rays hit at t = 0), so the image is one flat \
+                     colour: move the camera (--camera-json) out of the geometry",
+                    100.0 * frame.eye_inside_fraction()
+                )
+            });
+        }
         let mut gi_reuse = backend.gi_reuse();
         if let (Some(g), false) = (&gi, gi_in_backend) {
             let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g, &mut gi_caches)?;

@@ -59,6 +59,15 @@ pub struct Frame {
     pub spheres_culled: u64,
 }
 
+impl Frame {
+    /// Fraction of pixels whose primary hit is at t = 0: the eye sits inside a voxel, which
+    /// every ray then hits at once (a uniform image). Worth a warning above about a half.
+    pub fn eye_inside_fraction(&self) -> f32 {
+        let inside = self.t.iter().zip(&self.instance).filter(|(t, i)| **i >= 0 && **t <= 0.0).count();
+        inside as f32 / self.t.len().max(1) as f32
+    }
+}
+
 /// `f(0..n)` collected in order, in parallel when enabled.
 pub(crate) fn par_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     #[cfg(feature = "parallel")]
