@@ -166,3 +166,40 @@ fn interior_nodes_average_their_children() {
     assert_eq!(hit.level, 0);
     assert!((hit.t - 1.0).abs() < 1e-6);
 }
+
+/// A version 1 file (snorm16 normals, no specular lobe) still loads: its normals are
+/// re-encoded and come back within the 12-bit precision, everything else unchanged.
+#[test]
+fn version_1_files_load_with_their_normals() {
+    let (mut s, _) = random_svo(5, 800, 4);
+    let mut rng = Rng::new(9);
+    for a in &mut s.attrs {
+        *a = svo::Attr::pack(a.albedo_linear(), rng.unit_vector(), Vec3::ZERO);
+    }
+    let mut b = to_bytes(&s);
+    b[8..12].copy_from_slice(&1u32.to_le_bytes());
+    let attrs = HEADER_LEN + 8 * s.nodes.len();
+    for (k, a) in s.attrs.iter().enumerate() {
+        // The version 1 word of this attribute's normal: octahedral x, y as snorm16.
+        let n = a.normal();
+        let p = n / n.abs().element_sum();
+        let (x, y) =
+            if p.z >= 0.0 { (p.x, p.y) } else { ((1.0 - p.y.abs()) * p.x.signum(), (1.0 - p.x.abs()) * p.y.signum()) };
+        let q = |v: f32| (v * 32767.0).round() as i16 as u16 as u32;
+        let o = attrs + 8 * k + 4;
+        b[o..o + 4].copy_from_slice(&(q(x) | (q(y) << 16)).to_le_bytes());
+    }
+    reseal(&mut b);
+    let back = from_bytes(&b).unwrap();
+    assert_eq!(back.nodes, s.nodes);
+    for (old, new) in s.attrs.iter().zip(&back.attrs) {
+        assert_eq!(old.albedo, new.albedo);
+        assert!(old.normal().dot(new.normal()) > 0.1f32.to_radians().cos(), "{} -> {}", old.normal(), new.normal());
+    }
+    // Read as version 2 instead, the same words would be garbage normals: the version matters.
+    b[8..12].copy_from_slice(&2u32.to_le_bytes());
+    reseal(&mut b);
+    let wrong = from_bytes(&b).unwrap();
+    let off = s.attrs.iter().zip(&wrong.attrs).filter(|(a, w)| a.normal().dot(w.normal()) < 0.99).count();
+    assert!(off > s.attrs.len() / 2, "{off} of {} normals differ", s.attrs.len());
+}
