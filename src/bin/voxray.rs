@@ -640,8 +640,9 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
             pb.suspend(|| {
                 eprintln!(
-                    "GI on the GPU: {}³ volume; transform + inject + levels {ms} (cones are in the shade pass)",
-                    g.res
+                    "GI on the GPU: {}³ volume; transform + inject + levels{} {ms} (cones are in the shade pass)",
+                    g.res,
+                    if g.bounces > 1 { format!(" + {} more bounces", g.bounces - 1) } else { String::new() }
                 )
             });
         }
