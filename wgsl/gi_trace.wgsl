@@ -22,6 +22,27 @@ fn gi_put_injected(i: u32, v: vec4<f32>) {
 // gi::cone::CLEARANCE.
 const GI_CLEARANCE: f32 = 1.5;
 
+// One cell of the accumulation volume, decoded: occupancy, mean albedo, summed normal.
+struct GiCell {
+    occ: f32,
+    albedo: vec3<f32>,
+    n: vec3<f32>,
+}
+
+fn gi_cell(i: u32) -> GiCell {
+    let base = i * STRIDE;
+    var c: GiCell;
+    c.occ = f32(gi_accum[base]) / FIX;
+    let a = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u]));
+    c.albedo = select(vec3<f32>(0.0), a / (FIX * c.occ), c.occ > 0.0);
+    c.n = vec3<f32>(
+        f32(bitcast<i32>(gi_accum[base + 4u])),
+        f32(bitcast<i32>(gi_accum[base + 5u])),
+        f32(bitcast<i32>(gi_accum[base + 6u])),
+    ) / FIX;
+    return c;
+}
+
 @compute @workgroup_size(4, 4, 4)
 fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = gi.res;
@@ -30,17 +51,14 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let i = gid.x + r * (gid.y + r * gid.z);
     let base = i * STRIDE;
-    let occ = f32(gi_accum[base]) / FIX;
+    let cell = gi_cell(i);
+    let occ = cell.occ;
     if occ <= 0.0 {
         gi_put_injected(i, vec4<f32>(0.0));
         return;
     }
-    let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (FIX * occ);
-    let n = vec3<f32>(
-        f32(bitcast<i32>(gi_accum[base + 4u])),
-        f32(bitcast<i32>(gi_accum[base + 5u])),
-        f32(bitcast<i32>(gi_accum[base + 6u])),
-    ) / FIX;
+    let albedo = cell.albedo;
+    let n = cell.n;
     var radiance = vec3<f32>(0.0);
     if frame.sun_dir.w > 0.0 && dot(n, n) > 1e-6 {
         let nn = normalize(n);
@@ -216,19 +234,12 @@ fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let i = gid.x + r * (gid.y + r * gid.z);
-    let base = i * STRIDE;
-    let occ = f32(gi_accum[base]) / FIX;
+    let cell = gi_cell(i);
     var out = gi_direct[i];
-    let n = vec3<f32>(
-        f32(bitcast<i32>(gi_accum[base + 4u])),
-        f32(bitcast<i32>(gi_accum[base + 5u])),
-        f32(bitcast<i32>(gi_accum[base + 6u])),
-    ) / FIX;
-    if occ > 0.0 && dot(n, n) > 1e-6 {
-        let albedo = vec3<f32>(f32(gi_accum[base + 1u]), f32(gi_accum[base + 2u]), f32(gi_accum[base + 3u])) / (FIX * occ);
+    if cell.occ > 0.0 && dot(cell.n, cell.n) > 1e-6 {
         let centre = gi.min_cell.xyz + (vec3<f32>(gid) + 0.5) * gi.min_cell.w;
-        let light = gi_gather(centre, normalize(n));
-        out += vec4<f32>(albedo * light * min(occ, 1.0), 0.0);
+        let light = gi_gather(centre, normalize(cell.n));
+        out += vec4<f32>(cell.albedo * light * min(cell.occ, 1.0), 0.0);
     }
     gi_next[i] = out;
 }

@@ -121,6 +121,21 @@ pub fn cosine_sample(n: DVec3, rng: &mut Rng) -> DVec3 {
 mod tests {
     use super::*;
 
+    /// ∫ f(l) cos θ dω over the upper hemisphere about +Z, by the midpoint rule.
+    fn hemisphere(steps: usize, f: impl Fn(DVec3) -> f64) -> f64 {
+        let (dt, dp) = (std::f64::consts::FRAC_PI_2 / steps as f64, std::f64::consts::TAU / steps as f64);
+        let mut sum = 0.0;
+        for i in 0..steps {
+            let theta = (i as f64 + 0.5) * dt;
+            for j in 0..steps {
+                let phi = (j as f64 + 0.5) * dp;
+                let l = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+                sum += f(l) * theta.cos() * theta.sin() * dt * dp;
+            }
+        }
+        sum
+    }
+
     /// The lobe integrated over the hemisphere (times cos θ) is at most 1 and close to 1 for
     /// a mirror direction near the normal — the normalization the whole model relies on.
     #[test]
@@ -129,19 +144,7 @@ mod tests {
             let n = DVec3::Z;
             let d = -DVec3::Z;
             let r = reflect(d, n);
-            let steps = 800;
-            let mut sum = 0.0f64;
-            for i in 0..steps {
-                let theta = (i as f64 + 0.5) / steps as f64 * std::f64::consts::FRAC_PI_2;
-                for j in 0..steps {
-                    let phi = (j as f64 + 0.5) / steps as f64 * std::f64::consts::TAU;
-                    let l = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
-                    let dw = theta.sin()
-                        * (std::f64::consts::FRAC_PI_2 / steps as f64)
-                        * (std::f64::consts::TAU / steps as f64);
-                    sum += phong(e, r.dot(l) as f32) as f64 * theta.cos() * dw;
-                }
-            }
+            let sum = hemisphere(800, |l| phong(e, r.dot(l) as f32) as f64);
             assert!(sum <= 1.0 + 1e-3 && sum > 0.6, "exponent {e}: ∫ f cos = {sum}");
         }
     }
@@ -163,18 +166,7 @@ mod tests {
         }
         mean /= count as f64;
         let r = reflect(d, n);
-        let steps = 600;
-        let mut spec = 0.0f64;
-        for i in 0..steps {
-            let theta = (i as f64 + 0.5) / steps as f64 * std::f64::consts::FRAC_PI_2;
-            for j in 0..steps {
-                let phi = (j as f64 + 0.5) / steps as f64 * std::f64::consts::TAU;
-                let l = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
-                let dw =
-                    theta.sin() * (std::f64::consts::FRAC_PI_2 / steps as f64) * (std::f64::consts::TAU / steps as f64);
-                spec += (ks * phong(e, r.dot(l) as f32)) as f64 * theta.cos() * dw;
-            }
-        }
+        let spec = hemisphere(600, |l| (ks * phong(e, r.dot(l) as f32)) as f64);
         let want = albedo.as_dvec3() + DVec3::splat(spec);
         assert!((mean - want).abs().max_element() < 0.01, "mean weight {mean} against {want}");
     }
