@@ -120,29 +120,19 @@ impl Backend {
         match self {
             Backend::Cpu(_) => Ok(false),
             #[cfg(feature = "gpu")]
-            Backend::Gpu(g) => {
-                use crate::gi::{shade::VolumeChoice, Layout};
-                // The GPU builds the dense volume only: `auto` stays dense on it while a dense
-                // volume can hold the resolution; an explicitly sparse or larger volume's GI runs
-                // on the CPU over the GPU's frame.
-                let gi = gi.map(|s| match s.volume {
-                    VolumeChoice::Auto if s.res <= Layout::Dense.max_res() => {
-                        crate::gi::GiSettings { volume: VolumeChoice::Dense, ..s }
-                    }
-                    _ => s,
-                });
-                match gi {
-                    Some(s) if s.layout() == Layout::Sparse => {
-                        s.validated()?;
-                        g.set_gi(None)?;
-                        Ok(false)
-                    }
-                    _ => {
-                        g.set_gi(gi)?;
-                        Ok(gi.is_some())
-                    }
+            Backend::Gpu(g) => match gi {
+                // The GPU builds dense volumes only; a frame that needs the sparse one has its
+                // GI run on the CPU over the GPU's frame.
+                Some(s) if s.volume.pick_dense_first(s.res) == crate::gi::Layout::Sparse => {
+                    s.validated()?;
+                    g.set_gi(None)?;
+                    Ok(false)
                 }
-            }
+                _ => {
+                    g.set_gi(gi)?;
+                    Ok(gi.is_some())
+                }
+            },
         }
     }
 

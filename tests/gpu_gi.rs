@@ -271,6 +271,12 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     assert!(gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).is_err());
     let e = gpu.set_gi(Some(GiSettings { bounces: 9, ..Default::default() })).unwrap_err().to_string();
     assert!(e.contains("bounces"), "{e}");
+    // The GPU builds dense volumes: `auto` stays dense on it up to 512³; sparse is refused.
+    gpu.set_gi(Some(GiSettings { res: 256, ..Default::default() })).unwrap();
+    assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Dense));
+    let sparse = GiSettings { res: 64, volume: voxray::gi::shade::VolumeChoice::Sparse, ..Default::default() };
+    let e = gpu.set_gi(Some(sparse)).unwrap_err().to_string();
+    assert!(e.contains("runs on the CPU"), "{e}");
     // No lights at all: GI would add nothing, so it is skipped.
     let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false };
     assert_eq!(dark.sky(), Vec3::ZERO);

@@ -198,15 +198,11 @@ fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 // shade_main with the ambient term from the cones instead of the flat sky.
 @compute @workgroup_size(8, 8, 1)
 fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= frame.width || gid.y >= frame.height {
+    let idx = pixel_to_shade(gid);
+    if idx == NO_PIXEL {
         return;
     }
-    let idx = gid.y * frame.width + gid.x;
     let h = hits[idx];
-    if h.instance < 0 {
-        radiance[idx] = vec4<f32>(frame.sky.xyz, 1.0);
-        return;
-    }
     let albedo = albedo_of(h.albedo);
     let n = vec3<f32>(h.nx, h.ny, h.nz);
     let p = ray_dir(gid.x, gid.y) * h.t;

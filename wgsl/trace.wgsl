@@ -403,18 +403,30 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
     return c;
 }
 
+// What both shading entry points do first: the pixel's index in the hit buffer, or NO_PIXEL
+// when there is nothing left to shade (outside the image, or a miss, which gets the sky).
+const NO_PIXEL: u32 = 0xFFFFFFFFu;
+
+fn pixel_to_shade(gid: vec3<u32>) -> u32 {
+    if gid.x >= frame.width || gid.y >= frame.height {
+        return NO_PIXEL;
+    }
+    let idx = gid.y * frame.width + gid.x;
+    if hits[idx].instance < 0 {
+        radiance[idx] = vec4<f32>(frame.sky.xyz, 1.0);
+        return NO_PIXEL;
+    }
+    return idx;
+}
+
 // Without GI the ambient term is the flat sky: albedo * sky.
 @compute @workgroup_size(8, 8, 1)
 fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= frame.width || gid.y >= frame.height {
+    let idx = pixel_to_shade(gid);
+    if idx == NO_PIXEL {
         return;
     }
-    let idx = gid.y * frame.width + gid.x;
     let h = hits[idx];
-    if h.instance < 0 {
-        radiance[idx] = vec4<f32>(frame.sky.xyz, 1.0);
-        return;
-    }
     let albedo = albedo_of(h.albedo);
     // The sky is uniform: either lobe's ambient term is its reflectance times the sky.
     let ambient = (albedo + vec3<f32>(specular_of(h.material))) * frame.sky.xyz;

@@ -162,6 +162,16 @@ impl VolumeChoice {
             VolumeChoice::Auto => Layout::Dense,
         }
     }
+
+    /// The layout on a backend that builds dense volumes only (the GPU): `auto` stays dense
+    /// while a dense volume holds `res`; sparse only when asked for or past the dense limit.
+    pub fn pick_dense_first(self, res: u32) -> Layout {
+        match self {
+            VolumeChoice::Auto if res <= Layout::Dense.max_res() => Layout::Dense,
+            VolumeChoice::Auto => Layout::Sparse,
+            other => other.pick(res),
+        }
+    }
 }
 
 impl std::str::FromStr for VolumeChoice {
@@ -477,10 +487,17 @@ pub fn apply(
                 WorldVolume::Sparse(v) => inject_cells(v, scene, lights),
             };
             let t3 = Instant::now();
-            let mut chain = vol.chain(direct.clone());
-            for _ in 1..s.bounces {
-                chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones));
-            }
+            // The direct light is kept apart only when bounces add to it (at 1024³ it is hundreds
+            // of MiB).
+            let chain = if s.bounces > 1 {
+                let mut chain = vol.chain(direct.clone());
+                for _ in 1..s.bounces {
+                    chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones));
+                }
+                chain
+            } else {
+                vol.chain(direct)
+            };
             (chain, t3)
         }
     };
@@ -493,14 +510,14 @@ pub fn apply(
             return None;
         }
         let (x, y) = ((k % w) as u32, (k / w) as u32);
-        let p = camera.eye + camera.ray_dir(&basis, x, y) * frame.t[k] as f64;
+        let d = camera.ray_dir(&basis, x, y);
+        let p = camera.eye + d * frame.t[k] as f64;
         let n = frame.normal[k].as_dvec3();
         let (light, _open) = gather(&chain, p, n, sky, &cones);
         let mut add = frame.albedo[k] * (light - sky);
         let ks = frame.specular[k];
         if ks > 0.0 {
             // The specular cone: the Phong lobe's light, the sky where the cone escapes.
-            let d = camera.ray_dir(&basis, x, y);
             let r = crate::render::brdf::reflect(d, n).normalize();
             let aperture = crate::render::brdf::cone_aperture(frame.shininess[k]);
             let s = trace(&chain, p, n, r, aperture, cones.max_distance);

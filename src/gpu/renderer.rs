@@ -227,17 +227,19 @@ impl GpuRenderer {
     /// Turns voxel-cone-traced GI on (with these knobs) or off for the following frames. The
     /// knobs are checked here; the GPU state (caches, volume) is kept while GI stays on.
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
-        if let Some(s) = &settings {
-            s.validated()?;
-            if s.layout() == crate::gi::Layout::Sparse {
+        if let Some(asked) = &settings {
+            asked.validated()?;
+            if asked.volume.pick_dense_first(asked.res) == crate::gi::Layout::Sparse {
                 return Err(crate::gi::GiError::Settings(format!(
                     "the sparse GI volume ({}³) runs on the CPU: use --gi-volume dense (up to 512³) on the GPU, \
                      or let the backend hand GI to the CPU",
-                    s.res
+                    asked.res
                 ))
                 .into());
             }
         }
+        // The GPU builds dense volumes: `auto` stays dense while one holds the resolution.
+        let settings = settings.map(|s| crate::gi::GiSettings { volume: crate::gi::shade::VolumeChoice::Dense, ..s });
         if settings.is_some() && self.gi.is_none() {
             let gi = super::gi::GpuGi::new(&self.ctx.device);
             self.gi_pipeline_layout = Some(self.ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
