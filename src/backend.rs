@@ -113,26 +113,16 @@ impl Backend {
     }
 
     /// Sets the GI knobs for the following frames (None: GI off). Returns true when the
-    /// backend runs GI itself (the GPU: transform, injection, levels and cones in WGSL); false
-    /// when the caller adds it to each frame with `gi::apply` (the CPU, and the sparse volume on
-    /// either backend).
+    /// backend runs GI itself (the GPU: transform, injection, levels and cones in WGSL, dense
+    /// or sparse volume); false when the caller adds it to each frame with `gi::apply` (the CPU).
     pub fn set_gi(&mut self, gi: Option<crate::gi::GiSettings>) -> Result<bool, crate::Error> {
         match self {
             Backend::Cpu(_) => Ok(false),
             #[cfg(feature = "gpu")]
-            Backend::Gpu(g) => match gi {
-                // The GPU builds dense volumes only; a frame that needs the sparse one has its
-                // GI run on the CPU over the GPU's frame.
-                Some(s) if s.volume.pick_dense_first(s.res) == crate::gi::Layout::Sparse => {
-                    s.validated()?;
-                    g.set_gi(None)?;
-                    Ok(false)
-                }
-                _ => {
-                    g.set_gi(gi)?;
-                    Ok(gi.is_some())
-                }
-            },
+            Backend::Gpu(g) => {
+                g.set_gi(gi)?;
+                Ok(gi.is_some())
+            }
         }
     }
 
@@ -142,6 +132,16 @@ impl Backend {
             Backend::Cpu(_) => None,
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => g.gi_stats.and(g.times.map(|t| t.gi_ms)),
+        }
+    }
+
+    /// The layout, bricks (sparse) and bytes of the backend's own GI volume in the last frame
+    /// (None on the CPU or without GI).
+    pub fn gi_volume(&self) -> Option<(crate::gi::Layout, u32, u64)> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.gi_stats.map(|s| (s.layout, s.bricks, s.bytes)),
         }
     }
 

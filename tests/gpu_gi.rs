@@ -271,18 +271,71 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     assert!(gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).is_err());
     let e = gpu.set_gi(Some(GiSettings { bounces: 9, ..Default::default() })).unwrap_err().to_string();
     assert!(e.contains("bounces"), "{e}");
-    // The GPU builds dense volumes: `auto` stays dense on it up to 512³; sparse is refused.
+    // `auto` stays dense on the GPU up to 512³ (no readback), sparse past it; a sparse volume
+    // needs a multiple of 8 cells per side.
     gpu.set_gi(Some(GiSettings { res: 256, ..Default::default() })).unwrap();
     assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Dense));
-    let sparse = GiSettings { res: 64, volume: voxray::gi::shade::VolumeChoice::Sparse, ..Default::default() };
+    gpu.set_gi(Some(GiSettings { res: 1024, ..Default::default() })).unwrap();
+    assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Sparse));
+    let sparse = GiSettings { res: 60, volume: voxray::gi::shade::VolumeChoice::Sparse, ..Default::default() };
     let e = gpu.set_gi(Some(sparse)).unwrap_err().to_string();
-    assert!(e.contains("runs on the CPU"), "{e}");
+    assert!(e.contains("multiple of 8"), "{e}");
     // No lights at all: GI would add nothing, so it is skipped.
     let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false };
     assert_eq!(dark.sky(), Vec3::ZERO);
     gpu.set_gi(Some(GiSettings { res: 16, ..Default::default() })).unwrap();
     gpu.render(&scene, &cam, &dark, &plan, &RenderOptions::default()).unwrap();
     assert!(gpu.gi_stats.is_none(), "GI ran without lights");
+}
+
+/// The sparse volume on the GPU holds exactly what the dense one holds: the same fixed-point
+/// sums (integer atomics add the same values in any order), the same injected light and levels
+/// (the same children averaged in the same order), hence the same image, with one bounce and
+/// with two; and a brick pool that grows for a fuller scene renders what a fresh one renders.
+#[test]
+fn gpu_sparse_volume_equals_the_dense_one() {
+    use voxray::gi::shade::VolumeChoice;
+    use voxray::gi::Layout;
+    let Some(ctx) = context() else { return };
+    let scene = cars();
+    let cam = car_camera();
+    let lights = Lights::default();
+    for bounces in [1, 2] {
+        // Smaller than the scene, so weight also falls outside.
+        let s = GiSettings { res: 48, extent: Some(14.0), bounces, ..Default::default() };
+        let dense = GiSettings { volume: VolumeChoice::Dense, ..s };
+        let sparse = GiSettings { volume: VolumeChoice::Sparse, ..s };
+        let (fd, cd) = gpu_frame(ctx.clone(), &scene, &cam, &lights, dense);
+        let (fs, cs) = gpu_frame(ctx.clone(), &scene, &cam, &lights, sparse);
+        assert!(cd.outside > 10.0, "the test volume leaves some voxels out ({})", cd.outside);
+        assert_eq!(cs.outside, cd.outside);
+        assert_eq!(cs.volume, cd.volume, "{bounces} bounces: volume");
+        assert_eq!(cs.levels.levels.len(), cd.levels.levels.len());
+        for (l, (a, b)) in cs.levels.levels.iter().zip(&cd.levels.levels).enumerate() {
+            assert_eq!(a, b, "{bounces} bounces: level {l}");
+        }
+        assert!(cd.levels.levels[0].rgba.iter().any(|v| v.truncate().max_element() > 0.0), "lit");
+        assert_eq!(fs.radiance, fd.radiance, "{bounces} bounces: image");
+    }
+    // Stats, reuse, and a pool grown from the box's bricks to the cars' ones.
+    let s = GiSettings { res: 48, extent: Some(14.0), volume: VolumeChoice::Sparse, ..Default::default() };
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let mut gpu = GpuRenderer::new(ctx.clone());
+    gpu.set_gi(Some(GiSettings { res: 16, ..s })).unwrap();
+    let room = room_scene(4).unwrap();
+    let room_plan = FramePlan::new(&room, &cam, &lights, &Features::default(), None);
+    gpu.render(&room, &voxray::model::room::camera(16, 12), &lights, &room_plan, &RenderOptions::default()).unwrap();
+    let small = gpu.gi_stats.expect("GI ran");
+    gpu.set_gi(Some(s)).unwrap();
+    let a = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    let stats = gpu.gi_stats.expect("GI ran");
+    assert_eq!((stats.layout, stats.reuse), (Layout::Sparse, GiReuse::Nothing));
+    assert!(stats.bricks > small.bricks && stats.bricks < 6 * 6 * 6, "{} bricks of 216", stats.bricks);
+    let b = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    assert_eq!(gpu.gi_stats.expect("GI ran").reuse, GiReuse::Levels);
+    assert_eq!(a.radiance, b.radiance);
+    let (fresh, _) = gpu_frame(ctx, &scene, &cam, &lights, s);
+    assert_eq!(a.radiance, fresh.radiance);
 }
 
 #[test]

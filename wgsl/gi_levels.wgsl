@@ -1,9 +1,22 @@
 // One step down the GI level chain (the WGSL twin of gi::levels::build): each coarser cell
 // averages its 2x2x2 finer cells; opacity is surface coverage, the children's summed alpha / 4
-// clamped to 1, and the premultiplied radiance scales with the same clamp. Needs layout.wgsl.
+// clamped to 1, and the premultiplied radiance scales with the same clamp. levels_main steps a
+// dense level; brick_levels_main steps the sparse volume's bricks (gi::sparse::SparseLevels):
+// 8³ → 4³ → 2³ within each brick, then 2³ → the brick's cell of the dense top level.
+// Needs layout.wgsl.
 
 @group(0) @binding(0) var<storage, read_write> levels: array<vec4<f32>>;
 @group(0) @binding(1) var<uniform> step: GiLevelStep;
+
+// gi::levels::coarsen: the 8 children's sum into the coarser cell.
+fn coarsen(sum: vec4<f32>) -> vec4<f32> {
+    let a = sum.w / 4.0;
+    if a <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    let keep = min(a, 1.0) / a;
+    return vec4<f32>(sum.xyz / 4.0 * keep, min(a, 1.0));
+}
 
 @compute @workgroup_size(4, 4, 4)
 fn levels_main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -17,11 +30,35 @@ fn levels_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             sum += levels[step.src_offset + c.x + step.src_res * (c.y + step.src_res * c.z)];
         }
     }
-    let a = sum.w / 4.0;
-    var out = vec4<f32>(0.0);
-    if a > 0.0 {
-        let keep = min(a, 1.0) / a;
-        out = vec4<f32>(sum.xyz / 4.0 * keep, min(a, 1.0));
+    levels[step.dst_offset + gid.x + step.dst_res * (gid.y + step.dst_res * gid.z)] = coarsen(sum);
+}
+
+// The top cell of each brick (written by gi_sparse_cell.wgsl's alloc_main).
+@group(0) @binding(2) var<storage, read> brick_top: array<u32>;
+
+// One thread per cell of the coarser brick level (src_res / dst_res cells per brick side; a
+// dst_res of 1 writes the dense top level at the brick's top cell).
+@compute @workgroup_size(64, 1, 1)
+fn brick_levels_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x + gid.y * step.row_threads;
+    let side = step.dst_res;
+    let n = side * side * side;
+    if i >= step.bricks * n {
+        return;
     }
-    levels[step.dst_offset + gid.x + step.dst_res * (gid.y + step.dst_res * gid.z)] = out;
+    let b = i / n;
+    let k = i % n;
+    let c = vec3<u32>(k % side, (k / side) % side, k / (side * side));
+    let fs = step.src_res;
+    let src = step.src_offset + b * fs * fs * fs;
+    var sum = vec4<f32>(0.0);
+    for (var j = 0u; j < 8u; j++) {
+        let f = 2u * c + vec3<u32>(j & 1u, (j >> 1u) & 1u, j >> 2u);
+        sum += levels[src + f.x + fs * (f.y + fs * f.z)];
+    }
+    var dst = step.dst_offset + b * n + k;
+    if side == 1u {
+        dst = step.dst_offset + brick_top[b];
+    }
+    levels[dst] = coarsen(sum);
 }

@@ -1,7 +1,12 @@
-// The GI passes that need the tracer: light injection (gi::inject: one thread per volume
-// cell, with a shadow ray through the SVO instances) and shading with voxel cone tracing
+// The GI passes that need the tracer: light injection (gi::inject: one thread per stored
+// volume cell, with a shadow ray through the SVO instances) and shading with voxel cone tracing
 // (gi::cone and gi::shade::apply). Appended to trace.wgsl; its bindings are group 1.
 // Positions are camera-relative, as everywhere in trace.wgsl. Needs gi_fixed.wgsl.
+// Both layouts of the world volume: dense (cell i at its grid position) and, with GI_SPARSE,
+// the sparse one (gi::sparse: cells stored in 8³ bricks found through a top table; levels 0-2
+// per brick, the top table's level and coarser ones dense).
+
+override GI_SPARSE: bool = false;
 
 @group(1) @binding(0) var<storage, read> gi_accum: array<u32>;
 @group(1) @binding(1) var<storage, read_write> gi_levels: array<vec4<f32>>;
@@ -11,6 +16,32 @@
 // otherwise.
 @group(1) @binding(3) var<storage, read_write> gi_direct: array<vec4<f32>>;
 @group(1) @binding(4) var<storage, read_write> gi_next: array<vec4<f32>>;
+// Sparse: the brick of each top cell (GI_NO_BRICK for none) and the top cell of each brick.
+// One-element placeholders when dense.
+@group(1) @binding(5) var<storage, read> gi_top: array<u32>;
+@group(1) @binding(6) var<storage, read> gi_brick_top: array<u32>;
+
+const GI_NO_BRICK: u32 = 4294967295u;
+// Brick levels stored per brick (8³, 4³, 2³), as gi::sparse.
+const GI_BRICK_LEVELS: u32 = 3u;
+
+// The stored cell of this thread of a cell pass, or GI_NO_BRICK past the last.
+fn gi_thread_cell(gid: vec3<u32>) -> u32 {
+    let i = gid.x + gid.y * gi.row_threads;
+    return select(GI_NO_BRICK, i, i < gi.cells);
+}
+
+// Grid coordinates of stored cell i.
+fn gi_cell_coord(i: u32) -> vec3<u32> {
+    if GI_SPARSE {
+        let t = gi_brick_top[i / 512u];
+        let k = i % 512u;
+        let tc = vec3<u32>(t % gi.top_res, (t / gi.top_res) % gi.top_res, t / (gi.top_res * gi.top_res));
+        return tc * 8u + vec3<u32>(k % 8u, (k / 8u) % 8u, k / 64u);
+    }
+    let r = gi.res;
+    return vec3<u32>(i % r, (i / r) % r, i / (r * r));
+}
 
 fn gi_put_injected(i: u32, v: vec4<f32>) {
     gi_levels[i] = v;
@@ -43,13 +74,12 @@ fn gi_cell(i: u32) -> GiCell {
     return c;
 }
 
-@compute @workgroup_size(4, 4, 4)
+@compute @workgroup_size(64, 1, 1)
 fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gi.res;
-    if any(gid >= vec3<u32>(r)) {
+    let i = gi_thread_cell(gid);
+    if i == GI_NO_BRICK {
         return;
     }
-    let i = gid.x + r * (gid.y + r * gid.z);
     let base = i * STRIDE;
     let cell = gi_cell(i);
     let occ = cell.occ;
@@ -66,7 +96,7 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if cosv > 0.0 {
             let cell = gi.min_cell.w;
             // One cell off the surface so the cell's own voxels do not shadow it.
-            let start = gi.min_cell.xyz + (vec3<f32>(gid) + 0.5) * cell + nn * cell;
+            let start = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * cell + nn * cell;
             if !occluded(start, frame.sun_dir.xyz) {
                 radiance += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
             }
@@ -100,6 +130,22 @@ fn gi_level_res(l: u32) -> u32 {
     return gi.res_c[l - 8u];
 }
 
+// Index in gi_levels of cell c (inside) of level l, or GI_NO_BRICK where a sparse volume
+// stores nothing.
+fn gi_level_index(l: u32, c: vec3<u32>, r: u32, off: u32) -> u32 {
+    if GI_SPARSE && l < GI_BRICK_LEVELS {
+        let side = 8u >> l;
+        let t = c / side;
+        let b = gi_top[t.x + gi.top_res * (t.y + gi.top_res * t.z)];
+        if b == GI_NO_BRICK {
+            return GI_NO_BRICK;
+        }
+        let k = c % side;
+        return off + b * side * side * side + k.x + side * (k.y + side * k.z);
+    }
+    return off + c.x + r * (c.y + r * c.z);
+}
+
 // cone::sample_level: trilinear, cell centres hold the values, outside is empty.
 fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
     let cell = gi.min_cell.w * f32(1u << l);
@@ -116,8 +162,11 @@ fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
         if any(c < vec3<i32>(0)) || any(c >= vec3<i32>(r)) {
             continue;
         }
+        let idx = gi_level_index(l, vec3<u32>(c), u32(r), off);
+        if idx == GI_NO_BRICK {
+            continue;
+        }
         let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
-        let idx = off + u32(c.x) + u32(r) * (u32(c.y) + u32(r) * u32(c.z));
         out += gi_levels[idx] * (w3.x * w3.y * w3.z);
     }
     return out;
@@ -223,17 +272,16 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
 // shade::bounce: every occupied cell gathers the previous chain's light over its hemisphere
 // (the pixels' cones, from the cell centre along its mean normal) and sends out its albedo
 // times that on top of its direct light, into gi_next.
-@compute @workgroup_size(4, 4, 4)
+@compute @workgroup_size(64, 1, 1)
 fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gi.res;
-    if any(gid >= vec3<u32>(r)) {
+    let i = gi_thread_cell(gid);
+    if i == GI_NO_BRICK {
         return;
     }
-    let i = gid.x + r * (gid.y + r * gid.z);
     let cell = gi_cell(i);
     var out = gi_direct[i];
     if cell.occ > 0.0 && dot(cell.n, cell.n) > 1e-6 {
-        let centre = gi.min_cell.xyz + (vec3<f32>(gid) + 0.5) * gi.min_cell.w;
+        let centre = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * gi.min_cell.w;
         let light = gi_gather(centre, normalize(cell.n));
         out += vec4<f32>(cell.albedo * light * min(cell.occ, 1.0), 0.0);
     }
@@ -241,12 +289,11 @@ fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 // The bounce's level 0 replaces the chain's; the levels are then averaged again.
-@compute @workgroup_size(4, 4, 4)
+@compute @workgroup_size(64, 1, 1)
 fn bounce_commit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gi.res;
-    if any(gid >= vec3<u32>(r)) {
+    let i = gi_thread_cell(gid);
+    if i == GI_NO_BRICK {
         return;
     }
-    let i = gid.x + r * (gid.y + r * gid.z);
     gi_levels[i] = gi_next[i];
 }

@@ -1,26 +1,9 @@
-// Voxel transformation (the WGSL twin of Volume::splat): one thread per cached voxel of every
-// instance, moved by its job's matrix into volume grid coordinates and added to the nearest
-// cell or split over the 8 cells around it by trilinear weights. Sums accumulate in fixed point
-// with atomicAdd (WGSL has no float atomics; layout in gi_fixed.wgsl).
-// Needs layout.wgsl, attr.wgsl, gi_fixed.wgsl and gi_splat.wgsl.
-
-@group(0) @binding(0) var<storage, read> voxels: array<CacheVoxel>;
-@group(0) @binding(1) var<storage, read> jobs: array<GiJob>;
-@group(0) @binding(2) var<storage, read_write> accum: array<atomic<u32>>;
-@group(0) @binding(3) var<uniform> splat: GiSplat;
-
-fn add_cell(c: vec3<i32>, w: f32, albedo: vec3<f32>, n: vec3<f32>, e: vec3<f32>) {
-    if w <= 0.0 {
-        return;
-    }
-    let r = i32(splat.res);
-    if any(c < vec3<i32>(0)) || any(c >= vec3<i32>(r)) {
-        atomicAdd(&accum[splat.res * splat.res * splat.res * STRIDE], u32(round(w * OUT_FIX)));
-        return;
-    }
-    let i = (u32(c.x) + splat.res * (u32(c.y) + splat.res * u32(c.z))) * STRIDE;
-    add_to_cell(i, w, albedo, n, e);
-}
+// Voxel transformation (the WGSL twin of gi::volume::for_each_target): one thread per cached
+// voxel of every instance, moved by its job's matrix into volume grid coordinates and handed to
+// the nearest cell or split over the 8 cells around it by trilinear weights. What a cell does
+// with it is the layout's add_cell (gi_dense_cell.wgsl: fixed-point atomicAdd, WGSL has no
+// float atomics; gi_sparse_cell.wgsl: mark the brick, or add into it), which also declares the
+// bindings. Needs layout.wgsl, attr.wgsl, gi_fixed.wgsl, gi_splat.wgsl and one of those.
 
 @compute @workgroup_size(64, 1, 1)
 fn splat_main(@builtin(global_invocation_id) gid: vec3<u32>) {

@@ -151,7 +151,8 @@ struct GiSplat {
     threads: u32,
     row_threads: u32,
     nearest: u32,
-    pad0: u32,
+    // Sparse volume: 1 in the pass that marks bricks, 0 in the one that accumulates.
+    mark: u32,
     pad1: u32,
     pad2: u32,
 }
@@ -176,6 +177,13 @@ struct GiFrame {
     // Angle of the cone ring from the normal.
     tilt: f32,
     max_distance: f32,
+    // Stored finest cells (res³ dense; bricks x 512 sparse), the cell passes' threads.
+    cells: u32,
+    // Threads per dispatch row of the cell passes (spread over y past 65 535 groups).
+    row_threads: u32,
+    // Sparse: top-table cells per side (res / 8).
+    top_res: u32,
+    pad0: u32,
     pad1: u32,
 }
 
@@ -185,6 +193,11 @@ struct GiLevelStep {
     src_res: u32,
     dst_offset: u32,
     dst_res: u32,
+    // Brick steps: bricks, and threads per dispatch row.
+    bricks: u32,
+    row_threads: u32,
+    pad0: u32,
+    pad1: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuGiTri: one object-space triangle for the re-voxelization

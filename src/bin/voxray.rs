@@ -173,7 +173,7 @@ struct RenderArgs {
     #[arg(long, default_value_t = 1, requires = "gi")]
     gi_bounces: u32,
     /// GI world volume: dense (every cell, up to 512³), sparse (8³ bricks where voxels land,
-    /// multiples of 8 up to 1024³; on the CPU) or auto (sparse above 128³).
+    /// multiples of 8 up to 1024³) or auto (CPU: sparse above 128³; GPU: sparse above 512³).
     #[arg(long, default_value = "auto", requires = "gi")]
     gi_volume: voxray::gi::shade::VolumeChoice,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
@@ -627,21 +627,32 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     );
                     let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
                     eprintln!(
-                        "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB){}",
+                        "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB)",
                         s.layout.unwrap_or(voxray::gi::Layout::Dense),
                         mb(s.volume_bytes),
                         g.res,
                         mb(s.dense_bytes),
-                        if backend.kind_name() == "gpu" { "; the GPU builds dense volumes only, so GI ran on the CPU" } else { "" }
                     )
                 });
             }
         } else if let (Some(g), 0) = (&gi, f) {
             let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
+            let volume = match backend.gi_volume() {
+                Some((voxray::gi::Layout::Sparse, bricks, bytes)) => {
+                    format!(
+                        "sparse {}³ volume ({bricks} bricks, {:.1} MiB of GI buffers)",
+                        g.res,
+                        bytes as f64 / 1048576.0
+                    )
+                }
+                Some((_, _, bytes)) => {
+                    format!("dense {}³ volume ({:.1} MiB of GI buffers)", g.res, bytes as f64 / 1048576.0)
+                }
+                None => format!("{}³ volume", g.res),
+            };
             pb.suspend(|| {
                 eprintln!(
-                    "GI on the GPU: {}³ volume; transform + inject + levels{} {ms} (cones are in the shade pass)",
-                    g.res,
+                    "GI on the GPU: {volume}; transform + inject + levels{} {ms} (cones are in the shade pass)",
                     if g.bounces > 1 { format!(" + {} more bounces", g.bounces - 1) } else { String::new() }
                 )
             });

@@ -44,9 +44,10 @@ impl std::str::FromStr for Filter {
 }
 
 /// How the world volume is stored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Layout {
     /// Every cell (up to [`MAX_DENSE_RES`] per side).
+    #[default]
     Dense,
     /// A top table and 8³ bricks where voxels land ([`super::sparse`], up to
     /// [`super::sparse::MAX_SPARSE_RES`] per side, a multiple of 8).

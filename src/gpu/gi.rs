@@ -1,17 +1,23 @@
 //! Voxel-transformation GI on the GPU: the WGSL twins of `gi::volume` (transformation with
-//! fixed-point atomics, `wgsl/gi_transform.wgsl`), `gi::inject` and `gi::cone`
-//! (`wgsl/gi_trace.wgsl`, part of the tracer's module so injection reuses its shadow rays) and
-//! `gi::levels` (`wgsl/gi_levels.wgsl`). Caches are built on the CPU once per part and
-//! uploaded once; each frame uploads only one job per instance (its matrices) and runs
-//! transform → inject → levels → cone-traced shading without a readback.
+//! fixed-point atomics, `wgsl/gi_transform.wgsl`), `gi::sparse` (`wgsl/gi_sparse_cell.wgsl`),
+//! `gi::inject` and `gi::cone` (`wgsl/gi_trace.wgsl`, part of the tracer's module so injection
+//! reuses its shadow rays) and `gi::levels` (`wgsl/gi_levels.wgsl`). Caches are built on the CPU
+//! once per part and uploaded once; each frame uploads only one job per instance (its matrices)
+//! and runs transform → inject → levels → cone-traced shading.
+//!
+//! The dense volume needs no readback. The sparse one reads back one number per rebuilt
+//! volume: the bricks its mark and allocate passes handed out, to size the brick pool before
+//! the voxels are accumulated into it (the pool grows with a quarter's slack, so it is
+//! reallocated only when the surfaces in the volume grow past it).
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
 use super::renderer::read;
 use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
+use crate::gi::sparse::BRICK;
 use crate::gi::{
-    CacheVoxel, ConeSettings, Filter, GiCaches, GiError, GiReuse, GiSettings, Volume, VolumeKey, VolumeSpec,
+    CacheVoxel, ConeSettings, Filter, GiCaches, GiError, GiReuse, GiSettings, Layout, Volume, VolumeKey, VolumeSpec,
 };
 use crate::scene::{Camera, Lights, Scene};
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
@@ -27,19 +33,43 @@ pub const EMIT_FIX: f64 = 4096.0;
 pub const OUT_FIX: f64 = 256.0;
 /// Words per cell in the accumulation buffer.
 const STRIDE: usize = 10;
-/// Levels the shaders can address (a 512³ volume has 10).
+/// Levels the shaders can address (a 512³ volume has 10, a sparse 1024³ one 11).
 const MAX_LEVELS: usize = 12;
+/// Finest cells per brick.
+const BRICK_CELLS: u32 = BRICK * BRICK * BRICK;
+/// Brick levels stored per brick (8³, 4³, 2³), as `gi::sparse`.
+const BRICK_LEVELS: usize = 3;
+/// Fewest bricks the pool holds.
+const MIN_BRICKS: u32 = 8;
 
-/// The transformation shader.
+/// The transformation shader into the dense volume.
 pub fn transform_source() -> String {
+    transform_source_for(include_str!("../../wgsl/gi_dense_cell.wgsl"))
+}
+
+/// The transformation shader into the sparse volume (with its allocate pass).
+pub fn sparse_transform_source() -> String {
+    transform_source_for(include_str!("../../wgsl/gi_sparse_cell.wgsl"))
+}
+
+fn transform_source_for(cells: &str) -> String {
     [
         include_str!("../../wgsl/layout.wgsl"),
         include_str!("../../wgsl/attr.wgsl"),
         include_str!("../../wgsl/gi_fixed.wgsl"),
         include_str!("../../wgsl/gi_splat.wgsl"),
+        cells,
         include_str!("../../wgsl/gi_transform.wgsl"),
     ]
     .join("\n")
+}
+
+/// Workgroups of 64 threads for `threads` threads, spread over y past 65 535 groups, and the
+/// threads per row.
+fn flat_groups(threads: u32) -> ((u32, u32), u32) {
+    let groups = threads.div_ceil(64);
+    let dims = (groups.clamp(1, 65_535), groups.div_ceil(65_535));
+    (if threads == 0 { (0, 0) } else { dims }, dims.0 * 64)
 }
 
 /// The level-chain shader.
@@ -70,22 +100,44 @@ pub struct GpuGiStats {
     pub res: u32,
     /// Levels in the chain.
     pub levels: u32,
-    /// Bytes of the GI buffers (voxel pool, accumulation, levels).
+    /// Bytes of the GI buffers (voxel pool, accumulation, levels, the sparse tables).
     pub bytes: u64,
     /// What was kept from the frame before (the passes not run).
     pub reuse: GiReuse,
+    /// How the volume is stored.
+    pub layout: Layout,
+    /// Bricks allocated (sparse; 0 for dense).
+    pub bricks: u32,
 }
 
 struct VolumeBuffers {
+    layout: Layout,
     res: u32,
+    /// Bricks the sparse buffers hold (0 for dense).
+    capacity: u32,
+    /// STRIDE words per stored cell (then, dense, the outside counter).
     accum: wgpu::Buffer,
     levels: wgpu::Buffer,
     offsets: Vec<u32>,
     resolutions: Vec<u32>,
+    /// The dense steps down the chain (sparse: from the top table's level on).
     steps: Vec<wgpu::BindGroup>,
     /// The direct and next level 0 of the bounce passes (allocated when a frame asks for more
     /// than one bounce).
     bounce: Option<(wgpu::Buffer, wgpu::Buffer)>,
+}
+
+/// The sparse volume's tables, sized by the resolution alone.
+struct SparseTables {
+    res: u32,
+    /// Brick of each top cell (or none), as `SparseVolume::top`.
+    top: wgpu::Buffer,
+    /// Top cell of each brick.
+    brick_top: wgpu::Buffer,
+    /// Bricks allocated, weight outside (`OUT_FIX`).
+    counters: wgpu::Buffer,
+    /// Bricks allocated by the last mark and allocate passes.
+    bricks: u32,
 }
 
 struct Pool {
@@ -99,6 +151,10 @@ struct Pool {
 pub(crate) struct GiWork {
     splat_bind: wgpu::BindGroup,
     splat_groups: (u32, u32),
+    /// The cell passes' workgroups (one thread per stored cell).
+    cell_groups: (u32, u32),
+    /// Sparse: the brick steps down the chain (8³ → 4³ → 2³ → top table) and their workgroups.
+    brick_steps: Vec<(wgpu::BindGroup, (u32, u32))>,
     /// Bind group 1 of the tracer's GI entry points.
     pub group1: wgpu::BindGroup,
     spec: VolumeSpec,
@@ -114,11 +170,19 @@ pub(crate) struct GpuGi {
     pool: Option<Pool>,
     splat_pipe: wgpu::ComputePipeline,
     levels_pipe: wgpu::ComputePipeline,
+    /// The sparse volume's mark/accumulate and allocate passes, and its brick level steps.
+    sparse_splat_pipe: wgpu::ComputePipeline,
+    sparse_alloc_pipe: wgpu::ComputePipeline,
+    sparse_layout: wgpu::BindGroupLayout,
+    brick_levels_pipe: wgpu::ComputePipeline,
+    sparse: Option<SparseTables>,
     /// Layout of bind group 1 (accumulation, levels, GI uniforms) of the tracer's GI entries.
     pub group1_layout: wgpu::BindGroupLayout,
     volume: Option<VolumeBuffers>,
-    /// Bound in place of the bounce buffers when a frame has one bounce.
+    /// Bound in place of the bounce buffers when a frame has one bounce (read-write) and of
+    /// the sparse tables for a dense volume (read-only).
     placeholder: wgpu::Buffer,
+    placeholder_ro: wgpu::Buffer,
     /// What the volume on the GPU was made from, and the bounces (with their cones) its chain
     /// was gathered with.
     last: Option<(VolumeKey, Lights, (u32, ConeSettings))>,
@@ -182,13 +246,12 @@ pub(crate) fn splat_dispatch(
     if threads >= u32::MAX as u64 {
         return Err(GpuError::TooLarge { what: "the GI volume pass", size: threads, limit: u32::MAX as u64 });
     }
-    let groups = (threads as u32).div_ceil(64);
-    let dims = (groups.min(65_535), groups.div_ceil(65_535));
+    let (dims, row_threads) = flat_groups(threads as u32);
     let splat = GpuGiSplat {
         res,
         jobs: jobs as u32,
         threads: threads as u32,
-        row_threads: dims.0 * 64,
+        row_threads,
         nearest: (filter == Filter::Nearest) as u32,
         ..Default::default()
     };
@@ -222,6 +285,41 @@ pub fn volume_from_accum(accum: &[u32], spec: VolumeSpec) -> (Volume, f64) {
     (volume, outside)
 }
 
+/// Finest cells stored: every cell (dense) or `capacity` bricks' (sparse).
+fn stored_cells(layout: Layout, res: u32, capacity: u32) -> u64 {
+    match layout {
+        Layout::Dense => (res as u64).pow(3),
+        Layout::Sparse => capacity as u64 * BRICK_CELLS as u64,
+    }
+}
+
+/// The bind group of one step down the level chain (`brick_top` for a brick step).
+fn level_step_bind(
+    device: &wgpu::Device,
+    pipe: &wgpu::ComputePipeline,
+    levels: &wgpu::Buffer,
+    step: &GpuGiLevelStep,
+    brick_top: Option<&wgpu::Buffer>,
+) -> wgpu::BindGroup {
+    let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("gi level step"),
+        contents: bytemuck::bytes_of(step),
+        usage: wgpu::BufferUsages::UNIFORM,
+    });
+    let mut entries = vec![
+        wgpu::BindGroupEntry { binding: 0, resource: levels.as_entire_binding() },
+        wgpu::BindGroupEntry { binding: 1, resource: ubuf.as_entire_binding() },
+    ];
+    if let Some(b) = brick_top {
+        entries.push(wgpu::BindGroupEntry { binding: 2, resource: b.as_entire_binding() });
+    }
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("gi level step"),
+        layout: &pipe.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
 fn gi_layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -233,44 +331,88 @@ fn gi_layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroup
 
 impl GpuGi {
     pub(crate) fn new(device: &wgpu::Device) -> GpuGi {
-        let make = |label: &str, src: String, entry: &str| {
+        let make_with = |label: &str, src: String, entries: &[&str], layout: Option<&wgpu::PipelineLayout>| {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(label),
                 source: wgpu::ShaderSource::Wgsl(src.into()),
             });
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: None,
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+            entries
+                .iter()
+                .map(|entry| {
+                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(entry),
+                        layout,
+                        module: &module,
+                        entry_point: Some(entry),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+                })
+                .collect::<Vec<_>>()
         };
+        let make = |label: &str, src: String, entry: &str| make_with(label, src, &[entry], None).remove(0);
+        // The sparse passes share one bind group, so their layout is explicit.
+        let rw = wgpu::BufferBindingType::Storage { read_only: false };
+        let ro = wgpu::BufferBindingType::Storage { read_only: true };
+        let sparse_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("gi sparse volume"),
+            entries: &[
+                gi_layout_entry(0, ro),
+                gi_layout_entry(1, ro),
+                gi_layout_entry(2, rw),
+                gi_layout_entry(3, wgpu::BufferBindingType::Uniform),
+                gi_layout_entry(4, rw),
+                gi_layout_entry(5, rw),
+                gi_layout_entry(6, rw),
+            ],
+        });
+        let sparse_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("gi sparse volume"),
+            bind_group_layouts: &[Some(&sparse_layout)],
+            immediate_size: 0,
+        });
+        let mut sparse_pipes = make_with(
+            "gi_sparse_cell.wgsl",
+            sparse_transform_source(),
+            &["splat_main", "alloc_main"],
+            Some(&sparse_pl),
+        );
+        let sparse_alloc_pipe = sparse_pipes.remove(1);
+        let sparse_splat_pipe = sparse_pipes.remove(0);
         let group1_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("gi (tracer group 1)"),
             entries: &[
                 gi_layout_entry(0, wgpu::BufferBindingType::Storage { read_only: true }),
                 gi_layout_entry(1, wgpu::BufferBindingType::Storage { read_only: false }),
                 gi_layout_entry(2, wgpu::BufferBindingType::Uniform),
-                gi_layout_entry(3, wgpu::BufferBindingType::Storage { read_only: false }),
-                gi_layout_entry(4, wgpu::BufferBindingType::Storage { read_only: false }),
+                gi_layout_entry(3, rw),
+                gi_layout_entry(4, rw),
+                gi_layout_entry(5, ro),
+                gi_layout_entry(6, ro),
             ],
         });
-        let placeholder = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("gi bounce placeholder"),
-            size: 16,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
+        let placeholder_of = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            })
+        };
         GpuGi {
             caches: GiCaches::new(),
             pool: None,
             splat_pipe: make("gi_transform.wgsl", transform_source(), "splat_main"),
             levels_pipe: make("gi_levels.wgsl", levels_source(), "levels_main"),
+            sparse_splat_pipe,
+            sparse_alloc_pipe,
+            sparse_layout,
+            brick_levels_pipe: make("gi_levels.wgsl", levels_source(), "brick_levels_main"),
+            sparse: None,
             group1_layout,
             volume: None,
-            placeholder,
+            placeholder: placeholder_of("gi bounce placeholder"),
+            placeholder_ro: placeholder_of("gi sparse table placeholder"),
             last: None,
         }
     }
@@ -310,17 +452,28 @@ impl GpuGi {
         Ok(())
     }
 
-    /// Allocates the accumulation and level buffers for `res` cells per side.
-    fn volume_buffers(&mut self, ctx: &GpuContext, res: u32) -> Result<(), GpuError> {
-        if self.volume.as_ref().is_some_and(|v| v.res == res) {
+    /// Allocates the accumulation and level buffers for `res` cells per side: every cell
+    /// (dense) or `capacity` bricks (sparse).
+    fn volume_buffers(&mut self, ctx: &GpuContext, layout: Layout, res: u32, capacity: u32) -> Result<(), GpuError> {
+        if self.volume.as_ref().is_some_and(|v| v.layout == layout && v.res == res && v.capacity == capacity) {
             return Ok(());
         }
         self.volume = None; // free the old volume before allocating the new one
-        let cells = (res as u64).pow(3);
+        let cells = stored_cells(layout, res, capacity);
         let accum_size = (cells * STRIDE as u64 + 1) * 4;
         ctx.check_binding("the GI accumulation volume", accum_size)?;
         let (mut offsets, mut resolutions, mut total) = (Vec::new(), Vec::new(), 0u64);
         let mut r = res;
+        if layout == Layout::Sparse {
+            // The bricks' levels, then the dense chain from the top table.
+            for l in 0..BRICK_LEVELS {
+                offsets.push(total as u32);
+                resolutions.push(res >> l);
+                total += capacity as u64 * ((BRICK >> l) as u64).pow(3);
+            }
+            r = res / BRICK;
+        }
+        let first_dense = offsets.len();
         loop {
             offsets.push(total as u32);
             resolutions.push(r);
@@ -344,34 +497,121 @@ impl GpuGi {
         let levels = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("gi levels"),
             size: total * 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let steps = (1..offsets.len())
+        let steps = (first_dense + 1..offsets.len())
             .map(|l| {
                 let step = GpuGiLevelStep {
                     src_offset: offsets[l - 1],
                     src_res: resolutions[l - 1],
                     dst_offset: offsets[l],
                     dst_res: resolutions[l],
+                    ..Default::default()
                 };
-                let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("gi level step"),
-                    contents: bytemuck::bytes_of(&step),
-                    usage: wgpu::BufferUsages::UNIFORM,
-                });
-                device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("gi level step"),
-                    layout: &self.levels_pipe.get_bind_group_layout(0),
-                    entries: &[
-                        wgpu::BindGroupEntry { binding: 0, resource: levels.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 1, resource: ubuf.as_entire_binding() },
-                    ],
-                })
+                level_step_bind(device, &self.levels_pipe, &levels, &step, None)
             })
             .collect();
-        self.volume = Some(VolumeBuffers { res, accum, levels, offsets, resolutions, steps, bounce: None });
+        self.volume =
+            Some(VolumeBuffers { layout, res, capacity, accum, levels, offsets, resolutions, steps, bounce: None });
         Ok(())
+    }
+
+    /// Allocates the sparse volume's top tables for `res` cells per side.
+    fn sparse_tables(&mut self, ctx: &GpuContext, res: u32) -> Result<(), GpuError> {
+        if self.sparse.as_ref().is_some_and(|t| t.res == res) {
+            return Ok(());
+        }
+        let top_cells = ((res / BRICK) as u64).pow(3).max(1);
+        ctx.check_binding("the GI top table", top_cells * 4)?;
+        let make = |label, size, usage| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE | usage,
+                mapped_at_creation: false,
+            })
+        };
+        let copy = wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
+        self.sparse = Some(SparseTables {
+            res,
+            top: make("gi top table", top_cells * 4, copy),
+            brick_top: make("gi brick top cells", top_cells * 4, copy),
+            counters: make("gi sparse counters", 16, copy),
+            bricks: 0,
+        });
+        Ok(())
+    }
+
+    /// Marks and allocates the sparse volume's bricks for `threads` moved voxels (submitted at
+    /// once) and reads back how many there are.
+    fn allocate_bricks(
+        &self,
+        ctx: &GpuContext,
+        voxels: &wgpu::Buffer,
+        jobs: &wgpu::Buffer,
+        splat: GpuGiSplat,
+        groups: (u32, u32),
+    ) -> Result<u32, GpuError> {
+        let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
+        let device = &ctx.device;
+        let mark = GpuGiSplat { mark: 1, ..splat };
+        let bind = self.sparse_bind(device, voxels, jobs, &self.placeholder, &mark, tables);
+        let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
+        enc.clear_buffer(&tables.top, 0, None);
+        enc.clear_buffer(&tables.counters, 0, None);
+        {
+            let mut pass = enc
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("gi bricks"), timestamp_writes: None });
+            pass.set_bind_group(0, &bind, &[]);
+            if groups.0 > 0 {
+                pass.set_pipeline(&self.sparse_splat_pipe);
+                pass.dispatch_workgroups(groups.0, groups.1, 1);
+            }
+            let g = (tables.res / BRICK).div_ceil(4);
+            pass.set_pipeline(&self.sparse_alloc_pipe);
+            pass.dispatch_workgroups(g, g, g);
+        }
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("gi brick count"),
+            size: 4,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        enc.copy_buffer_to_buffer(&tables.counters, 0, &readback, 0, 4);
+        ctx.queue.submit([enc.finish()]);
+        let count: Vec<u32> = read(ctx, &readback)?;
+        Ok(count.first().copied().unwrap_or(0))
+    }
+
+    /// The bind group of the sparse passes.
+    fn sparse_bind(
+        &self,
+        device: &wgpu::Device,
+        voxels: &wgpu::Buffer,
+        jobs: &wgpu::Buffer,
+        accum: &wgpu::Buffer,
+        splat: &GpuGiSplat,
+        tables: &SparseTables,
+    ) -> wgpu::BindGroup {
+        let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("gi sparse splat"),
+            contents: bytemuck::bytes_of(splat),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("gi sparse volume"),
+            layout: &self.sparse_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: voxels.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: jobs.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: accum.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: ubuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: tables.top.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: tables.counters.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: tables.brick_top.as_entire_binding() },
+            ],
+        })
     }
 
     /// Allocates the bounce passes' two level-0 buffers if a frame needs them.
@@ -379,7 +619,7 @@ impl GpuGi {
         let Some(vol) = self.volume.as_mut().filter(|v| v.bounce.is_none()) else {
             return Ok(());
         };
-        let size = (vol.res as u64).pow(3) * 16;
+        let size = stored_cells(vol.layout, vol.res, vol.capacity) * 16;
         ctx.check_binding("the GI bounce volume", size)?;
         let make = |label| {
             ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -393,7 +633,8 @@ impl GpuGi {
         Ok(())
     }
 
-    /// Places this frame's volume, uploads what changed and the instances' jobs.
+    /// Places this frame's volume, uploads what changed and the instances' jobs; for a sparse
+    /// volume to rebuild, also marks and allocates its bricks (one submit and a 4-byte read).
     pub(crate) fn prepare(
         &mut self,
         ctx: &GpuContext,
@@ -403,8 +644,9 @@ impl GpuGi {
         s: &GiSettings,
     ) -> Result<GiWork, GpuError> {
         let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
+        let layout = s.layout();
         let (spec, levels_of) = plan_volume(scene, camera, s, &mut self.caches)?;
-        let key = VolumeKey::new(scene, spec, crate::gi::Layout::Dense, s.filter, &levels_of);
+        let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
         // Decided before any upload: a changed pool or volume size changes the key too.
         let mut reuse = GiReuse::decide(self.last.as_ref().map(|(k, l, _)| (k, l)), &key, lights);
         let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
@@ -415,14 +657,7 @@ impl GpuGi {
         let keys: Vec<(usize, u32)> =
             scene.parts.iter().zip(&levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect();
         self.upload_pool(ctx, scene, keys.clone())?;
-        self.volume_buffers(ctx, spec.res)?;
-        if s.bounces > 1 {
-            self.bounce_buffers(ctx)?;
-        }
-        let (pool, vol) = match (&self.pool, &self.volume) {
-            (Some(p), Some(v)) => (p, v),
-            _ => return Err(GpuError::Device("GI buffers missing".into())),
-        };
+        let pool = self.pool.as_ref().ok_or_else(|| GpuError::Device("GI voxel pool missing".into()))?;
         let mut jobs = Vec::new();
         let mut threads = 0u64;
         for (i, inst) in scene.instances().iter().enumerate() {
@@ -436,6 +671,61 @@ impl GpuGi {
             }
         }
         let (splat, splat_groups) = splat_dispatch(spec.res, jobs.len(), threads, s.filter)?;
+        let device = &ctx.device;
+        let jobs_len = jobs.len();
+        if jobs.is_empty() {
+            jobs.push(GpuGiJob::default());
+        }
+        ctx.check_binding("the GI jobs", std::mem::size_of_val(jobs.as_slice()) as u64)?;
+        let init = |label, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+        };
+        let jobs_buf = init("gi jobs", bytemuck::cast_slice(&jobs), wgpu::BufferUsages::STORAGE);
+        let voxels = pool.voxels.clone();
+        // The sparse volume's bricks: counted on the GPU when the volume is rebuilt, kept
+        // otherwise; the pool grows with a quarter's slack and shrinks when 4× too large.
+        let mut capacity = 0;
+        if layout == Layout::Sparse {
+            self.sparse_tables(ctx, spec.res)?;
+            let bricks = match (reuse, &self.sparse) {
+                (GiReuse::Nothing, _) => self.allocate_bricks(ctx, &voxels, &jobs_buf, splat, splat_groups)?,
+                (_, Some(t)) => t.bricks,
+                (_, None) => 0,
+            };
+            if let Some(t) = self.sparse.as_mut() {
+                t.bricks = bricks;
+            }
+            let want = (bricks + bricks / 4).max(MIN_BRICKS);
+            capacity = match &self.volume {
+                Some(v)
+                    if v.layout == Layout::Sparse
+                        && v.res == spec.res
+                        && v.capacity >= bricks
+                        && v.capacity <= 4 * want =>
+                {
+                    v.capacity
+                }
+                _ => want,
+            };
+        }
+        self.volume_buffers(ctx, layout, spec.res, capacity)?;
+        if s.bounces > 1 {
+            self.bounce_buffers(ctx)?;
+        }
+        let (pool, vol) = match (&self.pool, &self.volume) {
+            (Some(p), Some(v)) => (p, v),
+            _ => return Err(GpuError::Device("GI buffers missing".into())),
+        };
+        let tables = self.sparse.as_ref().filter(|_| layout == Layout::Sparse);
+        let bricks = tables.map_or(0, |t| t.bricks);
+        let cells = match layout {
+            Layout::Dense => (spec.res as u64).pow(3),
+            Layout::Sparse => bricks as u64 * BRICK_CELLS as u64,
+        };
+        if cells >= u32::MAX as u64 {
+            return Err(GpuError::TooLarge { what: "the GI cell passes", size: cells, limit: u32::MAX as u64 });
+        }
+        let (cell_groups, cell_row) = flat_groups(cells as u32);
         let quad = |v: &[u32], k: usize| {
             let mut q = [0u32; 4];
             for (j, slot) in q.iter_mut().enumerate() {
@@ -459,33 +749,53 @@ impl GpuGi {
             spread: (2.0 * (cones.aperture_deg.to_radians() * 0.5).tan()) as f32,
             tilt: cones.aperture_deg.to_radians().min(80f64.to_radians()) as f32,
             max_distance: if cones.max_distance.is_finite() { cones.max_distance as f32 } else { f32::MAX },
-            pad1: 0,
+            cells: cells as u32,
+            row_threads: cell_row,
+            top_res: spec.res / BRICK,
+            ..Default::default()
         };
-        let device = &ctx.device;
-        let jobs_len = jobs.len();
-        if jobs.is_empty() {
-            jobs.push(GpuGiJob::default());
-        }
-        ctx.check_binding("the GI jobs", std::mem::size_of_val(jobs.as_slice()) as u64)?;
-        let init = |label, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
-        };
-        let jobs_buf = init("gi jobs", bytemuck::cast_slice(&jobs), wgpu::BufferUsages::STORAGE);
         let splat_buf = init("gi splat", bytemuck::bytes_of(&splat), wgpu::BufferUsages::UNIFORM);
         let frame_buf = init("gi frame", bytemuck::bytes_of(&gframe), wgpu::BufferUsages::UNIFORM);
-        let splat_bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("gi splat"),
-            layout: &self.splat_pipe.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: pool.voxels.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: jobs_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: vol.accum.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: splat_buf.as_entire_binding() },
-            ],
-        });
+        let splat_bind = match tables {
+            Some(t) => self.sparse_bind(device, &pool.voxels, &jobs_buf, &vol.accum, &splat, t),
+            None => device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("gi splat"),
+                layout: &self.splat_pipe.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: pool.voxels.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: jobs_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: vol.accum.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: splat_buf.as_entire_binding() },
+                ],
+            }),
+        };
+        // Sparse: 8³ → 4³ → 2³ within each brick, then 2³ → the top table's level.
+        let brick_steps = match tables {
+            Some(t) => (1..=BRICK_LEVELS)
+                .map(|l| {
+                    let side = BRICK >> l;
+                    let (groups, row_threads) = flat_groups(bricks * side.pow(3));
+                    let step = GpuGiLevelStep {
+                        src_offset: vol.offsets[l - 1],
+                        src_res: BRICK >> (l - 1),
+                        dst_offset: vol.offsets[l],
+                        dst_res: side,
+                        bricks,
+                        row_threads,
+                        ..Default::default()
+                    };
+                    (level_step_bind(device, &self.brick_levels_pipe, &vol.levels, &step, Some(&t.brick_top)), groups)
+                })
+                .collect(),
+            None => Vec::new(),
+        };
         let (direct, next) = match (&vol.bounce, s.bounces > 1) {
             (Some((d, n)), true) => (d, n),
             _ => (&self.placeholder, &self.placeholder),
+        };
+        let (top, brick_top) = match tables {
+            Some(t) => (&t.top, &t.brick_top),
+            None => (&self.placeholder_ro, &self.placeholder_ro),
         };
         let group1 = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("gi (tracer group 1)"),
@@ -496,6 +806,8 @@ impl GpuGi {
                 wgpu::BindGroupEntry { binding: 2, resource: frame_buf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: direct.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 4, resource: next.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: top.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: brick_top.as_entire_binding() },
             ],
         });
         let stats = GpuGiStats {
@@ -507,12 +819,14 @@ impl GpuGi {
                 + vol.accum.size()
                 + vol.levels.size()
                 + jobs_buf.size()
-                + vol.bounce.as_ref().map_or(0, |(d, n)| d.size() + n.size()),
+                + vol.bounce.as_ref().map_or(0, |(d, n)| d.size() + n.size())
+                + tables.map_or(0, |t| t.top.size() + t.brick_top.size() + t.counters.size()),
             reuse,
+            layout,
+            bricks,
         };
         self.last = Some((key, *lights, bounce_key));
-        let splat_groups = if threads == 0 { (0, 0) } else { splat_groups };
-        Ok(GiWork { splat_bind, splat_groups, group1, spec, bounces: s.bounces, stats })
+        Ok(GiWork { splat_bind, splat_groups, cell_groups, brick_steps, group1, spec, bounces: s.bounces, stats })
     }
 
     /// Records the GI passes: clear, transform, inject (the tracer's pipelines, with its bind
@@ -530,26 +844,43 @@ impl GpuGi {
         if reuse == GiReuse::Nothing {
             enc.clear_buffer(&vol.accum, 0, None);
         }
+        if reuse != GiReuse::Levels && vol.layout == Layout::Sparse {
+            // Top cells without a brick this frame must read empty.
+            let (off, r) = (vol.offsets[BRICK_LEVELS] as u64, vol.resolutions[BRICK_LEVELS] as u64);
+            enc.clear_buffer(&vol.levels, off * 16, Some(r.pow(3) * 16));
+        }
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("gi"), timestamp_writes });
         if reuse == GiReuse::Levels {
             return Ok(()); // the pass stays for its timestamps
         }
         if work.splat_groups.0 > 0 && reuse == GiReuse::Nothing {
-            pass.set_pipeline(&self.splat_pipe);
+            let pipe = match vol.layout {
+                Layout::Dense => &self.splat_pipe,
+                Layout::Sparse => &self.sparse_splat_pipe,
+            };
+            pass.set_pipeline(pipe);
             pass.set_bind_group(0, &work.splat_bind, &[]);
             pass.dispatch_workgroups(work.splat_groups.0, work.splat_groups.1, 1);
         }
-        let g = vol.res.div_ceil(4);
+        let groups = work.cell_groups;
         let tracer = |pass: &mut wgpu::ComputePass, pipe: &wgpu::ComputePipeline| {
-            pass.set_pipeline(pipe);
-            pass.set_bind_group(0, group0, &[]);
-            pass.set_bind_group(1, &work.group1, &[]);
-            pass.dispatch_workgroups(g, g, g);
+            if groups.0 > 0 {
+                pass.set_pipeline(pipe);
+                pass.set_bind_group(0, group0, &[]);
+                pass.set_bind_group(1, &work.group1, &[]);
+                pass.dispatch_workgroups(groups.0, groups.1, 1);
+            }
         };
         let levels = |pass: &mut wgpu::ComputePass| {
+            for (step, g) in work.brick_steps.iter().filter(|(_, g)| g.0 > 0) {
+                pass.set_pipeline(&self.brick_levels_pipe);
+                pass.set_bind_group(0, step, &[]);
+                pass.dispatch_workgroups(g.0, g.1, 1);
+            }
             pass.set_pipeline(&self.levels_pipe);
+            let first = vol.resolutions.len() - vol.steps.len();
             for (l, step) in vol.steps.iter().enumerate() {
-                let g = vol.resolutions[l + 1].div_ceil(4);
+                let g = vol.resolutions[first + l].div_ceil(4);
                 pass.set_bind_group(0, step, &[]);
                 pass.dispatch_workgroups(g, g, g);
             }
@@ -565,11 +896,7 @@ impl GpuGi {
     }
 
     /// Copies the volume to readback buffers (submit `enc`, then [`GpuGi::read_capture`]).
-    pub(crate) fn copy_capture(
-        &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-    ) -> Option<(wgpu::Buffer, wgpu::Buffer)> {
+    pub(crate) fn copy_capture(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder) -> Option<Vec<wgpu::Buffer>> {
         let vol = self.volume.as_ref()?;
         let copy = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer| {
             let dst = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -581,22 +908,72 @@ impl GpuGi {
             enc.copy_buffer_to_buffer(src, 0, &dst, 0, src.size());
             dst
         };
-        Some((copy(enc, &vol.accum), copy(enc, &vol.levels)))
+        let mut out = vec![copy(enc, &vol.accum), copy(enc, &vol.levels)];
+        if let Some(t) = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse) {
+            out.extend([copy(enc, &t.brick_top), copy(enc, &t.counters)]);
+        }
+        Some(out)
     }
 
-    /// Reads the copies of [`GpuGi::copy_capture`] back into CPU structures.
+    /// Reads the copies of [`GpuGi::copy_capture`] back into CPU structures; a sparse volume
+    /// comes back scattered into the dense layout (cells and levels without a brick empty), so
+    /// both compare with the CPU's dense volume.
     pub(crate) fn read_capture(
         &self,
         ctx: &GpuContext,
         work: &GiWork,
-        bufs: &(wgpu::Buffer, wgpu::Buffer),
+        bufs: &[wgpu::Buffer],
     ) -> Result<GiCapture, GpuError> {
         let vol = self.volume.as_ref().ok_or_else(|| GpuError::Device("GI volume missing".into()))?;
-        let accum: Vec<u32> = read(ctx, &bufs.0)?;
-        let rgba: Vec<[f32; 4]> = read(ctx, &bufs.1)?;
+        let missing = || GpuError::Readback("GI capture incomplete".into());
+        let mut accum: Vec<u32> = read(ctx, bufs.first().ok_or_else(missing)?)?;
+        let mut rgba: Vec<[f32; 4]> = read(ctx, bufs.get(1).ok_or_else(missing)?)?;
+        let mut offsets = vol.offsets.clone();
+        if vol.layout == Layout::Sparse {
+            let brick_top: Vec<u32> = read(ctx, bufs.get(2).ok_or_else(missing)?)?;
+            let counters: Vec<u32> = read(ctx, bufs.get(3).ok_or_else(missing)?)?;
+            let bricks = work.stats.bricks as usize;
+            let (res, tr) = (vol.res as usize, (vol.res / BRICK) as usize);
+            // The finest cell (dense index) of cell k of brick level l's brick b.
+            let dense_index = |l: usize, b: usize, k: usize| {
+                let (side, r) = ((BRICK >> l) as usize, res >> l);
+                let t = brick_top[b] as usize;
+                let c = [
+                    (t % tr) * side + k % side,
+                    ((t / tr) % tr) * side + (k / side) % side,
+                    (t / (tr * tr)) * side + k / (side * side),
+                ];
+                c[0] + r * (c[1] + r * c[2])
+            };
+            let mut dense_accum = vec![0u32; res.pow(3) * STRIDE + 1];
+            for b in 0..bricks {
+                for k in 0..BRICK_CELLS as usize {
+                    let (src, dst) = ((b * BRICK_CELLS as usize + k) * STRIDE, dense_index(0, b, k) * STRIDE);
+                    dense_accum[dst..dst + STRIDE].copy_from_slice(&accum[src..src + STRIDE]);
+                }
+            }
+            dense_accum[res.pow(3) * STRIDE] = counters.get(1).copied().unwrap_or(0);
+            accum = dense_accum;
+            let mut dense_rgba = Vec::new();
+            offsets.clear();
+            for l in 0..BRICK_LEVELS {
+                offsets.push(dense_rgba.len() as u32);
+                let n = (BRICK >> l).pow(3) as usize;
+                let base = dense_rgba.len();
+                dense_rgba.resize(base + (res >> l).pow(3), [0.0; 4]);
+                for b in 0..bricks {
+                    for k in 0..n {
+                        dense_rgba[base + dense_index(l, b, k)] = rgba[vol.offsets[l] as usize + b * n + k];
+                    }
+                }
+            }
+            let shift = dense_rgba.len() as u32 - vol.offsets[BRICK_LEVELS];
+            offsets.extend(vol.offsets[BRICK_LEVELS..].iter().map(|o| o + shift));
+            dense_rgba.extend_from_slice(&rgba[vol.offsets[BRICK_LEVELS] as usize..]);
+            rgba = dense_rgba;
+        }
         let (volume, outside) = volume_from_accum(&accum, work.spec);
-        let levels = vol
-            .offsets
+        let levels = offsets
             .iter()
             .zip(&vol.resolutions)
             .enumerate()

@@ -208,8 +208,8 @@ pub struct GpuGiSplat {
     pub row_threads: u32,
     /// 1: nearest filtering, 0: 8-neighbour split.
     pub nearest: u32,
-    /// Padding.
-    pub pad0: u32,
+    /// Sparse volume: 1 in the pass that marks bricks, 0 in the one that accumulates.
+    pub mark: u32,
     /// Padding.
     pub pad1: u32,
     /// Padding.
@@ -248,6 +248,14 @@ pub struct GpuGiFrame {
     pub tilt: f32,
     /// Longest cone (world units; f32::MAX for unbounded).
     pub max_distance: f32,
+    /// Stored finest cells (res³ dense; bricks × 512 sparse): the cell passes' threads.
+    pub cells: u32,
+    /// Threads per dispatch row of the cell passes (spread over y past 65 535 groups).
+    pub row_threads: u32,
+    /// Sparse: top-table cells per side (res / 8).
+    pub top_res: u32,
+    /// Padding.
+    pub pad0: u32,
     /// Padding.
     pub pad1: u32,
 }
@@ -264,6 +272,14 @@ pub struct GpuGiLevelStep {
     pub dst_offset: u32,
     /// Its cells per side.
     pub dst_res: u32,
+    /// Bricks (the sparse volume's brick steps; 0 for a dense step).
+    pub bricks: u32,
+    /// Threads per dispatch row of a brick step (spread over y past 65 535 groups).
+    pub row_threads: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
 }
 
 /// One object-space triangle of the re-voxelization baseline. WGSL: `GiTri`.

@@ -104,7 +104,7 @@ pub struct GpuRenderer {
     gi: Option<super::gi::GpuGi>,
     gi_settings: Option<crate::gi::GiSettings>,
     gi_pipeline_layout: Option<wgpu::PipelineLayout>,
-    gi_pipelines: HashMap<(u32, bool), super::gi::GiPipelines>,
+    gi_pipelines: HashMap<(u32, bool, bool), super::gi::GiPipelines>,
     /// What GI did in the last frame (None without GI).
     pub gi_stats: Option<super::gi::GpuGiStats>,
     /// Read the GI volume back after each frame into [`GpuRenderer::gi_captured`] (slow; for
@@ -229,17 +229,15 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
-            if asked.volume.pick_dense_first(asked.res) == crate::gi::Layout::Sparse {
-                return Err(crate::gi::GiError::Settings(format!(
-                    "the sparse GI volume ({}³) runs on the CPU: use --gi-volume dense (up to 512³) on the GPU, \
-                     or let the backend hand GI to the CPU",
-                    asked.res
-                ))
-                .into());
-            }
         }
-        // The GPU builds dense volumes: `auto` stays dense while one holds the resolution.
-        let settings = settings.map(|s| crate::gi::GiSettings { volume: crate::gi::shade::VolumeChoice::Dense, ..s });
+        // `auto` stays dense while a dense volume holds the resolution (VolumeChoice::pick_dense_first).
+        let settings = settings.map(|s| crate::gi::GiSettings {
+            volume: match s.volume.pick_dense_first(s.res) {
+                crate::gi::Layout::Dense => crate::gi::shade::VolumeChoice::Dense,
+                crate::gi::Layout::Sparse => crate::gi::shade::VolumeChoice::Sparse,
+            },
+            ..s
+        });
         if settings.is_some() && self.gi.is_none() {
             let gi = super::gi::GpuGi::new(&self.ctx.device);
             self.gi_pipeline_layout = Some(self.ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -259,14 +257,15 @@ impl GpuRenderer {
     }
 
     /// Builds (once) the injection and GI shading pipelines of a plan variant.
-    fn gi_pipeline(&mut self, search: u32, shadows: bool) -> Result<(), GpuError> {
+    fn gi_pipeline(&mut self, search: u32, shadows: bool, sparse: bool) -> Result<(), GpuError> {
         let (node_split, attr_split) = self.splits();
         let layout = self.gi_pipeline_layout.as_ref().ok_or_else(|| GpuError::Device("GI is off".into()))?;
         let (device, module) = (&self.ctx.device, &self.module);
-        self.gi_pipelines.entry((search, shadows)).or_insert_with(|| {
+        self.gi_pipelines.entry((search, shadows, sparse)).or_insert_with(|| {
             let constants = [
                 ("SEARCH", search as f64),
                 ("SHADOWS", shadows as u32 as f64),
+                ("GI_SPARSE", sparse as u32 as f64),
                 ("NODE_SPLIT", node_split as f64),
                 ("ATTR_SPLIT", attr_split as f64),
             ];
@@ -423,7 +422,7 @@ impl GpuRenderer {
         let gi_work = match (&self.gi_settings, lit) {
             (Some(settings), true) => {
                 let settings = *settings;
-                self.gi_pipeline(search, plan.shadows)?;
+                self.gi_pipeline(search, plan.shadows, settings.layout() == crate::gi::Layout::Sparse)?;
                 let gi = self.gi.as_mut().ok_or_else(|| GpuError::Device("GI state missing".into()))?;
                 Some(gi.prepare(&self.ctx, scene, camera, lights, &settings)?)
             }
@@ -431,7 +430,9 @@ impl GpuRenderer {
         };
         self.gi_stats = gi_work.as_ref().map(|w| w.stats);
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
-        let gi_pipes = gi_work.as_ref().map(|_| &self.gi_pipelines[&(search, plan.shadows)]);
+        let gi_pipes = gi_work
+            .as_ref()
+            .map(|w| &self.gi_pipelines[&(search, plan.shadows, w.stats.layout == crate::gi::Layout::Sparse)]);
         let device = &self.ctx.device;
         // Bindings must not be empty: pad with one zeroed element.
         fn nonempty<T: bytemuck::Pod + Default>(v: &[T]) -> Vec<T> {

@@ -1,0 +1,73 @@
+// The sparse volume's cells for the voxel transformation (gi_transform.wgsl), the GPU twin of
+// gi::sparse::SparseVolume::build: a top table of 8³-cell bricks (res / 8 per side). Three
+// dispatches, lock-free: splat_main with splat.mark = 1 marks every top cell a voxel writes,
+// alloc_main gives each marked cell the next brick from a counter, splat_main with
+// splat.mark = 0 adds each voxel into its brick's cells. The host reads the counter back between
+// alloc and accumulate to size the brick pool (gpu::gi).
+
+@group(0) @binding(0) var<storage, read> voxels: array<CacheVoxel>;
+@group(0) @binding(1) var<storage, read> jobs: array<GiJob>;
+// STRIDE words per cell, 512 cells per brick (x fastest within a brick), in brick order.
+@group(0) @binding(2) var<storage, read_write> accum: array<atomic<u32>>;
+@group(0) @binding(3) var<uniform> splat: GiSplat;
+// Per top cell: 0 unwritten / 1 marked (mark pass), then its brick or GI_EMPTY (alloc pass).
+@group(0) @binding(4) var<storage, read_write> top: array<atomic<u32>>;
+// [0]: bricks allocated; [1]: weight outside the volume (OUT_FIX).
+@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>>;
+// The top cell of each brick.
+@group(0) @binding(6) var<storage, read_write> brick_top: array<u32>;
+
+const GI_BRICK: u32 = 8u;
+const GI_EMPTY: u32 = 4294967295u;
+
+fn top_index(c: vec3<u32>) -> u32 {
+    let tr = splat.res / GI_BRICK;
+    let t = c / GI_BRICK;
+    return t.x + tr * (t.y + tr * t.z);
+}
+
+fn add_cell(c: vec3<i32>, w: f32, albedo: vec3<f32>, n: vec3<f32>, e: vec3<f32>) {
+    if w <= 0.0 {
+        return;
+    }
+    let r = i32(splat.res);
+    if any(c < vec3<i32>(0)) || any(c >= vec3<i32>(r)) {
+        if splat.mark == 0u {
+            atomicAdd(&counters[1], u32(round(w * OUT_FIX)));
+        }
+        return;
+    }
+    let cu = vec3<u32>(c);
+    let t = top_index(cu);
+    if splat.mark != 0u {
+        // Most voxels land in a brick already marked: read before writing.
+        if atomicLoad(&top[t]) == 0u {
+            atomicStore(&top[t], 1u);
+        }
+        return;
+    }
+    let b = atomicLoad(&top[t]);
+    if b == GI_EMPTY {
+        return; // unreachable: the mark pass saw this cell
+    }
+    let l = cu % GI_BRICK;
+    let i = (b * GI_BRICK * GI_BRICK * GI_BRICK + l.x + GI_BRICK * (l.y + GI_BRICK * l.z)) * STRIDE;
+    add_to_cell(i, w, albedo, n, e);
+}
+
+// One thread per top cell: marked cells take the next brick.
+@compute @workgroup_size(4, 4, 4)
+fn alloc_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let tr = splat.res / GI_BRICK;
+    if any(gid >= vec3<u32>(tr)) {
+        return;
+    }
+    let t = gid.x + tr * (gid.y + tr * gid.z);
+    if atomicLoad(&top[t]) == 0u {
+        atomicStore(&top[t], GI_EMPTY);
+        return;
+    }
+    let b = atomicAdd(&counters[0], 1u);
+    atomicStore(&top[t], b);
+    brick_top[b] = t;
+}
