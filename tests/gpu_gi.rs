@@ -171,7 +171,14 @@ fn gpu_gi_image_matches_cpu_gi_on_the_box() {
     let s = GiSettings { res: 32, ..Default::default() };
     box_images_agree(ctx.clone(), &room_scene(6).unwrap(), s);
     let glossy = voxray::bench::gi::glossy_room_scene(6).unwrap();
-    box_images_agree(ctx, &glossy, s);
+    box_images_agree(ctx.clone(), &glossy, s);
+    // The sparse volume on both backends (its GPU buffers a fraction of a dense 256³ one's).
+    let sparse = GiSettings { res: 256, volume: voxray::gi::shade::VolumeChoice::Sparse, ..s };
+    let (_, _, stats) = box_images_agree_with_stats(ctx, &room_scene(6).unwrap(), sparse);
+    // The box's six walls touch 15 % of the bricks; a dense volume holds 40 bytes of sums per
+    // cell and 16 of levels per cell at level 0 (8/7 of that over the chain).
+    let dense = 256u64.pow(3) * (40 + 16 * 8 / 7);
+    assert!(stats.bytes < dense / 4, "{} bytes against {dense} dense", stats.bytes);
 }
 
 /// More bounces on the GPU: the two- and three-bounce images equal the CPU's, and each bounce
@@ -200,13 +207,27 @@ fn gpu_gi_bounces_match_the_cpu() {
 
 /// Renders the box on both backends with `s` and checks the images agree; returns them.
 fn box_images_agree(ctx: Arc<GpuContext>, scene: &Scene, s: GiSettings) -> (Frame, Frame) {
+    let (cpu, gpu, _) = box_images_agree_with_stats(ctx, scene, s);
+    (cpu, gpu)
+}
+
+/// [`box_images_agree`], with what the GPU's GI did.
+fn box_images_agree_with_stats(
+    ctx: Arc<GpuContext>,
+    scene: &Scene,
+    s: GiSettings,
+) -> (Frame, Frame, voxray::gpu::gi::GpuGiStats) {
     let cam = voxray::model::room::camera(64, 48);
     let lights = voxray::model::room::lights();
     let plan = FramePlan::new(scene, &cam, &lights, &Features::default(), None);
     let mut cpu = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     let flat = cpu.radiance.clone();
     voxray::gi::apply(&mut cpu, scene, &cam, &lights, &s, &mut GiCaches::new()).unwrap();
-    let (gpu, _) = gpu_frame(ctx, scene, &cam, &lights, s);
+    let mut renderer = GpuRenderer::new(ctx);
+    renderer.set_gi(Some(s)).unwrap();
+    let gpu = renderer.render(scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    let stats = renderer.gi_stats.expect("GI ran");
+    assert_eq!(stats.layout, s.layout());
     let n = cpu.radiance.len();
     let mean = |v: &[Vec3]| v.iter().map(|c| c.element_sum()).sum::<f32>() / n as f32;
     // GI changes the closed box a lot (bounced sun instead of a flat sky everywhere): the
@@ -225,7 +246,7 @@ fn box_images_agree(ctx: Arc<GpuContext>, scene: &Scene, s: GiSettings) -> (Fram
         .filter(|(a, b)| (**a - **b).abs().max_element() > 0.1 * a.max_element().max(0.05))
         .count();
     assert!(off as f64 <= 0.01 * n as f64, "{off} of {n} pixels differ by more than 10 %");
-    (cpu, gpu)
+    (cpu, gpu, stats)
 }
 
 #[test]
@@ -235,7 +256,7 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     let mut cam = car_camera();
     cam.width = 32;
     cam.height = 24;
-    let mut gpu = GpuRenderer::new(ctx);
+    let mut gpu = GpuRenderer::new(ctx.clone());
     // Bad knobs are refused before any frame.
     for bad in [
         GiSettings { res: 0, ..Default::default() },
@@ -271,10 +292,15 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     assert!(gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).is_err());
     let e = gpu.set_gi(Some(GiSettings { bounces: 9, ..Default::default() })).unwrap_err().to_string();
     assert!(e.contains("bounces"), "{e}");
-    // `auto` stays dense on the GPU up to 512³ (no readback), sparse past it; a sparse volume
-    // needs a multiple of 8 cells per side.
-    gpu.set_gi(Some(GiSettings { res: 256, ..Default::default() })).unwrap();
-    assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Dense));
+    // `auto` stays dense on the GPU (no readback) while this device can bind a dense volume's
+    // cells and up to 512³, sparse past it; a sparse volume needs a multiple of 8 cells per side.
+    let limit = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);
+    for res in [64, 256] {
+        gpu.set_gi(Some(GiSettings { res, ..Default::default() })).unwrap();
+        let fits = (res as u64).pow(3) * 40 + 4 <= limit;
+        let want = if fits { voxray::gi::Layout::Dense } else { voxray::gi::Layout::Sparse };
+        assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(want), "{res}³, binding limit {limit}");
+    }
     gpu.set_gi(Some(GiSettings { res: 1024, ..Default::default() })).unwrap();
     assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Sparse));
     let sparse = GiSettings { res: 60, volume: voxray::gi::shade::VolumeChoice::Sparse, ..Default::default() };

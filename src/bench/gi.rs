@@ -218,6 +218,85 @@ fn scene_of(mesh: &Mesh, depth: u32) -> Result<Scene, crate::Error> {
     Ok(scene)
 }
 
+/// The dense and the sparse world volume on the box on the GPU (`--scenarios gi-volume
+/// --backends gpu`): per frame with the volume rebuilt, the GPU time of the GI passes and the
+/// shade pass (which holds the cones) from timestamp queries, plus, sparse, the wall-clock time
+/// of the brick count's submit and read; memory is all the GI buffers. A resolution whose
+/// buffers exceed the device's binding limit is left out, with a message.
+#[cfg(feature = "gpu")]
+pub fn layouts_gpu(
+    cfg: &LayoutConfig,
+    ctx: Arc<crate::gpu::GpuContext>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
+    use crate::gi::shade::VolumeChoice;
+    let scene = room_scene(8)?;
+    let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
+    let lights = crate::model::room::lights();
+    let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
+    let backend = format!("GPU: {}", ctx.describe());
+    let mut out = Vec::new();
+    for &res in &cfg.resolutions {
+        for (choice, name) in [(VolumeChoice::Dense, "dense"), (VolumeChoice::Sparse, "sparse")] {
+            let s = GiSettings { res, volume: choice, ..GiSettings::default() };
+            if s.validated().is_err() {
+                continue;
+            }
+            progress(&format!("gi-volume (GPU): {name} {res}³"));
+            let mut gpu = crate::gpu::GpuRenderer::new(ctx.clone());
+            gpu.set_gi(Some(s))?;
+            let (mut times, mut stats, mut timed) = (Vec::new(), None, true);
+            for k in 0..cfg.repeats.max(1) + 1 {
+                gpu.forget_gi_frame();
+                let t0 = Instant::now();
+                match gpu.render(&scene, &camera, &lights, &plan, &RenderOptions::default()) {
+                    Ok(_) => {}
+                    Err(e @ crate::gpu::GpuError::TooLarge { .. }) => {
+                        progress(&format!("gi-volume (GPU): {name} {res}³ left out: {e}"));
+                        break;
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+                let wall = t0.elapsed().as_secs_f64() * 1e3;
+                let st = gpu.gi_stats.ok_or_else(|| crate::gi::GiError::Settings("GI did not run".into()))?;
+                // The first frame compiles pipelines and first-touches buffers: not timed.
+                if k > 0 {
+                    times.push(match gpu.times {
+                        Some(t) => t.gi_ms + t.shade_ms + st.bricks_ms,
+                        None => {
+                            timed = false;
+                            wall
+                        }
+                    });
+                }
+                stats = Some(st);
+            }
+            let Some(st) = stats.filter(|_| !times.is_empty()) else { continue };
+            let (median, p95, min) = summarize(&times);
+            out.push(Record {
+                group: "gi-volume".into(),
+                name: name.into(),
+                setting: if st.bricks > 0 { format!("{} bricks", st.bricks) } else { String::new() },
+                x: res as f64,
+                backend_kind: "gpu".into(),
+                backend: format!("{backend}{}", if timed { "" } else { " (wall clock)" }),
+                width: cfg.size.0,
+                height: cfg.size.1,
+                frames: cfg.repeats,
+                instances: scene.instances().len(),
+                median_ms: median,
+                p95_ms: p95,
+                min_ms: min,
+                volume_bytes: Some(st.bytes),
+                machine: cfg.machine.clone(),
+                command: cfg.command.clone(),
+                ..Default::default()
+            });
+        }
+    }
+    Ok(out)
+}
+
 /// What the accuracy scenario measures.
 #[derive(Clone, Debug)]
 pub struct AccuracyConfig {

@@ -271,32 +271,54 @@ part's transformed triangles again into the same cells. Only the writing into th
         chart(&mut md, "gi-scaling");
         md += "\n";
     }
-    let rs = of("gi-volume");
-    if !rs.is_empty() {
-        md += "### GI: dense against sparse world volume\n\n";
-        md += "The whole CPU GI pass on the box (transformation, injection, levels, cones at every pixel) \
+    let all = of("gi-volume");
+    for kind in ["cpu", "gpu"] {
+        let rs: Vec<&Record> = all.iter().copied().filter(|r| r.backend_kind == kind).collect();
+        if rs.is_empty() {
+            continue;
+        }
+        if kind == "cpu" {
+            md += "### GI: dense against sparse world volume (CPU)\n\n";
+            md += "The whole CPU GI pass on the box (transformation, injection, levels, cones at every pixel) \
 with the volume stored densely or as 8³ bricks where voxels land; both give the same image \
 (`tests/gi_sparse.rs`). Memory is the volume's cells (40 bytes each) and, sparse, its top table.\n\n";
+        } else {
+            md += "### GI: dense against sparse world volume (GPU)\n\n";
+            md += "The same box on the GPU, the volume rebuilt every frame: GPU time of the GI passes \
+(transformation, injection, levels) and of the shade pass that traces the cones, from timestamp queries, \
+plus, sparse, the wall-clock time of submitting the mark and allocate passes and reading the brick count \
+back (the sparse volume's one synchronization). Memory is every GI buffer: the voxel caches, the \
+accumulation cells (40 bytes each), the level chain, and, sparse, the top tables and the brick pool's \
+slack. Dense and sparse give the same image bit for bit (`tests/gpu_gi.rs`); a resolution whose buffers \
+exceed the device's storage-binding limit is missing.\n\n";
+        }
         md += &provenance(&rs);
-        md += "\n| cells per side | dense ms | sparse ms | dense MiB | sparse MiB | occupied cells |\n|---|---|---|---|---|---|\n";
+        md += "\n| cells per side | dense ms | sparse ms | dense MiB | sparse MiB | ";
+        md += if kind == "cpu" { "occupied cells |\n" } else { "bricks |\n" };
+        md += "|---|---|---|---|---|---|\n";
         let mut xs: Vec<f64> = rs.iter().map(|r| r.x).collect();
         xs.dedup();
         for x in xs {
             let get = |n: &str| rs.iter().find(|r| r.x == x && r.name == n);
-            let ms = |r: Option<&&Record>| r.map_or("–".into(), |r| format!("{:.0}", r.median_ms));
+            let ms = |r: Option<&&Record>| {
+                r.map_or("–".into(), |r| {
+                    if r.median_ms < 10.0 {
+                        format!("{:.2}", r.median_ms)
+                    } else {
+                        format!("{:.0}", r.median_ms)
+                    }
+                })
+            };
             let mib = |r: Option<&&Record>| {
                 r.and_then(|r| r.volume_bytes)
                     .map_or("–".into(), |b| format!("{:.1}", b as f64 / (1u64 << 20) as f64))
             };
             let (d, s) = (get("dense"), get("sparse"));
-            md += &format!(
-                "| {x} | {} | {} | {} | {} | {} |\n",
-                ms(d),
-                ms(s),
-                mib(d),
-                mib(s),
-                s.or(d).map_or("–".into(), |r| r.setting.trim_end_matches(" occupied cells").to_string())
-            );
+            let last = match kind {
+                "cpu" => s.or(d).map_or("–".into(), |r| r.setting.trim_end_matches(" occupied cells").to_string()),
+                _ => s.map_or("–".into(), |r| r.setting.trim_end_matches(" bricks").to_string()),
+            };
+            md += &format!("| {x} | {} | {} | {} | {} | {last} |\n", ms(d), ms(s), mib(d), mib(s));
         }
         md += "\n";
     }

@@ -953,7 +953,31 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             command: command.clone(),
             machine: cfg.machine.clone(),
         };
-        records.extend(voxray::bench::gi::layouts(&lc, &mut |w| pb.set_message(w.to_string()))?);
+        use voxray::backend::BackendKind;
+        // As gi-scaling: the CPU for cpu and auto, the GPU for gpu and auto on a hardware adapter.
+        if a.backends.iter().any(|k| *k != BackendKind::Gpu) {
+            records.extend(voxray::bench::gi::layouts(&lc, &mut |w| pb.set_message(w.to_string()))?);
+        }
+        #[cfg(feature = "gpu")]
+        if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
+            let want = |ctx: &voxray::gpu::GpuContext| {
+                a.backends.contains(&BackendKind::Gpu) || ctx.info.device_type != wgpu::DeviceType::Cpu
+            };
+            match voxray::gpu::GpuContext::headless() {
+                Ok(ctx) if !want(&ctx) => {}
+                Ok(ctx) => {
+                    let mut say = |w: &str| {
+                        if w.contains("left out") {
+                            pb.println(w.to_string());
+                        } else {
+                            pb.set_message(w.to_string());
+                        }
+                    };
+                    records.extend(voxray::bench::gi::layouts_gpu(&lc, std::sync::Arc::new(ctx), &mut say)?)
+                }
+                Err(e) => pb.println(format!("skipping GPU gi-volume: {e}")),
+            }
+        }
         pb.inc(1);
     }
     if gi_accuracy {

@@ -163,11 +163,14 @@ impl VolumeChoice {
         }
     }
 
-    /// The layout on a backend that builds dense volumes only (the GPU): `auto` stays dense
-    /// while a dense volume holds `res`; sparse only when asked for or past the dense limit.
-    pub fn pick_dense_first(self, res: u32) -> Layout {
+    /// The layout on the GPU, whose storage bindings hold at most `max_binding` bytes: `auto`
+    /// stays dense (no readback) while a dense volume's accumulation cells fit one binding and
+    /// `res` is at most 512; sparse past that, where 8 divides `res`.
+    pub fn pick_dense_first(self, res: u32, max_binding: u64) -> Layout {
+        let dense_fits = res <= Layout::Dense.max_res()
+            && super::sparse::SparseVolume::dense_bytes(res).saturating_add(4) <= max_binding;
         match self {
-            VolumeChoice::Auto if res <= Layout::Dense.max_res() => Layout::Dense,
+            VolumeChoice::Auto if dense_fits || res % super::sparse::BRICK != 0 => Layout::Dense,
             VolumeChoice::Auto => Layout::Sparse,
             other => other.pick(res),
         }

@@ -12,7 +12,7 @@ pub enum GpuError {
     #[error("GPU device: {0}")]
     Device(String),
     /// A buffer would exceed a device limit.
-    #[error("{what} needs {size} bytes, more than this device allows ({limit} bytes)")]
+    #[error("{what} needs {size} bytes, more than this device allows ({limit} bytes){}", hint(what))]
     TooLarge {
         /// The buffer.
         what: &'static str,
@@ -27,6 +27,15 @@ pub enum GpuError {
     /// Invalid GI settings or inputs.
     #[error(transparent)]
     Gi(#[from] crate::gi::GiError),
+}
+
+/// What a user can do about a GI buffer too large for the device.
+fn hint(what: &str) -> &'static str {
+    if what.starts_with("the GI") {
+        ": lower --gi-res (a dense volume: or use --gi-volume sparse, which stores only the bricks voxels land in), or run GI on the CPU with --backend cpu"
+    } else {
+        ""
+    }
 }
 
 /// A device, its queue and what it can do.

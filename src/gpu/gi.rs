@@ -108,6 +108,9 @@ pub struct GpuGiStats {
     pub layout: Layout,
     /// Bricks allocated (sparse; 0 for dense).
     pub bricks: u32,
+    /// Sparse, volume rebuilt: wall-clock milliseconds of the mark and allocate passes'
+    /// submit and the brick count's read (outside the GI pass's timestamps; 0 otherwise).
+    pub bricks_ms: f64,
 }
 
 struct VolumeBuffers {
@@ -417,6 +420,12 @@ impl GpuGi {
         }
     }
 
+    /// Forgets what the last frame built, so the next one rebuilds the volume (for timing the
+    /// whole pass on a still scene).
+    pub(crate) fn forget_last_frame(&mut self) {
+        self.last = None;
+    }
+
     /// Uploads the caches of `keys` if they are not the ones on the GPU.
     fn upload_pool(&mut self, ctx: &GpuContext, scene: &Scene, keys: Vec<(usize, u32)>) -> Result<(), GpuError> {
         if self.pool.as_ref().is_some_and(|p| p.keys == keys) {
@@ -552,7 +561,8 @@ impl GpuGi {
         jobs: &wgpu::Buffer,
         splat: GpuGiSplat,
         groups: (u32, u32),
-    ) -> Result<u32, GpuError> {
+    ) -> Result<(u32, f64), GpuError> {
+        let t0 = std::time::Instant::now();
         let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
         let device = &ctx.device;
         let mark = GpuGiSplat { mark: 1, ..splat };
@@ -581,7 +591,7 @@ impl GpuGi {
         enc.copy_buffer_to_buffer(&tables.counters, 0, &readback, 0, 4);
         ctx.queue.submit([enc.finish()]);
         let count: Vec<u32> = read(ctx, &readback)?;
-        Ok(count.first().copied().unwrap_or(0))
+        Ok((count.first().copied().unwrap_or(0), t0.elapsed().as_secs_f64() * 1e3))
     }
 
     /// The bind group of the sparse passes.
@@ -684,11 +694,15 @@ impl GpuGi {
         let voxels = pool.voxels.clone();
         // The sparse volume's bricks: counted on the GPU when the volume is rebuilt, kept
         // otherwise; the pool grows with a quarter's slack and shrinks when 4× too large.
-        let mut capacity = 0;
+        let (mut capacity, mut bricks_ms) = (0, 0.0);
         if layout == Layout::Sparse {
             self.sparse_tables(ctx, spec.res)?;
             let bricks = match (reuse, &self.sparse) {
-                (GiReuse::Nothing, _) => self.allocate_bricks(ctx, &voxels, &jobs_buf, splat, splat_groups)?,
+                (GiReuse::Nothing, _) => {
+                    let (n, ms) = self.allocate_bricks(ctx, &voxels, &jobs_buf, splat, splat_groups)?;
+                    bricks_ms = ms;
+                    n
+                }
                 (_, Some(t)) => t.bricks,
                 (_, None) => 0,
             };
@@ -824,6 +838,7 @@ impl GpuGi {
             reuse,
             layout,
             bricks,
+            bricks_ms,
         };
         self.last = Some((key, *lights, bounce_key));
         Ok(GiWork { splat_bind, splat_groups, cell_groups, brick_steps, group1, spec, bounces: s.bounces, stats })

@@ -230,9 +230,10 @@ impl GpuRenderer {
         if let Some(asked) = &settings {
             asked.validated()?;
         }
-        // `auto` stays dense while a dense volume holds the resolution (VolumeChoice::pick_dense_first).
+        // `auto` stays dense while this device can hold a dense volume (VolumeChoice::pick_dense_first).
+        let max_binding = self.ctx.limits.max_storage_buffer_binding_size.min(self.ctx.limits.max_buffer_size);
         let settings = settings.map(|s| crate::gi::GiSettings {
-            volume: match s.volume.pick_dense_first(s.res) {
+            volume: match s.volume.pick_dense_first(s.res, max_binding) {
                 crate::gi::Layout::Dense => crate::gi::shade::VolumeChoice::Dense,
                 crate::gi::Layout::Sparse => crate::gi::shade::VolumeChoice::Sparse,
             },
@@ -249,6 +250,14 @@ impl GpuRenderer {
         }
         self.gi_settings = settings;
         Ok(())
+    }
+
+    /// Makes the next frame rebuild its GI volume even if nothing moved (the harness times
+    /// whole GI passes on still scenes with it).
+    pub fn forget_gi_frame(&mut self) {
+        if let Some(gi) = self.gi.as_mut() {
+            gi.forget_last_frame();
+        }
     }
 
     /// The GI settings in use.
