@@ -968,7 +968,7 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
                 Ok(ctx) => {
                     let mut say = |w: &str| {
                         if w.contains("left out") {
-                            pb.println(w.to_string());
+                            pb.println(w);
                         } else {
                             pb.set_message(w.to_string());
                         }
