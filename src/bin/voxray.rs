@@ -880,12 +880,12 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         let (mut backend, name) = match Backend::open(kind) {
             Ok(b) => b,
             Err(e) => {
-                pb.println(format!("skipping backend {kind:?}: {e}"));
+                pb.suspend(|| eprintln!("skipping backend {kind:?}: {e}"));
                 pb.inc(cfg.steps() as u64);
                 continue;
             }
         };
-        pb.println(format!("backend: {name}"));
+        pb.suspend(|| eprintln!("backend: {name}"));
         let mut progress = |what: &str| {
             pb.set_message(what.to_string());
             pb.inc(1);
@@ -940,7 +940,7 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
                     std::sync::Arc::new(ctx),
                     &mut |w| pb.set_message(w.to_string()),
                 )?),
-                Err(e) => pb.println(format!("skipping GPU gi-scaling: {e}")),
+                Err(e) => pb.suspend(|| eprintln!("skipping GPU gi-scaling: {e}")),
             }
         }
         pb.inc(1);
@@ -968,14 +968,14 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
                 Ok(ctx) => {
                     let mut say = |w: &str| {
                         if w.contains("left out") {
-                            pb.println(w);
+                            pb.suspend(|| eprintln!("{w}"));
                         } else {
                             pb.set_message(w.to_string());
                         }
                     };
                     records.extend(voxray::bench::gi::layouts_gpu(&lc, std::sync::Arc::new(ctx), &mut say)?)
                 }
-                Err(e) => pb.println(format!("skipping GPU gi-volume: {e}")),
+                Err(e) => pb.suspend(|| eprintln!("skipping GPU gi-volume: {e}")),
             }
         }
         pb.inc(1);

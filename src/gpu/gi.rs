@@ -709,7 +709,10 @@ impl GpuGi {
             if let Some(t) = self.sparse.as_mut() {
                 t.bricks = bricks;
             }
-            let want = (bricks + bricks / 4).max(MIN_BRICKS);
+            // The slack stops where it alone would break the device's binding limit.
+            let limit = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);
+            let fit = (limit.saturating_sub(4) / (BRICK_CELLS as u64 * STRIDE as u64 * 4)).min(u32::MAX as u64) as u32;
+            let want = (bricks + bricks / 4).max(MIN_BRICKS).min(fit.max(bricks));
             capacity = match &self.volume {
                 Some(v)
                     if v.layout == Layout::Sparse
