@@ -223,7 +223,7 @@ fn wgsl_structs_match_rust() {
                 ("cells", offset_of!(GpuGiFrame, cells)),
                 ("row_threads", offset_of!(GpuGiFrame, row_threads)),
                 ("top_res", offset_of!(GpuGiFrame, top_res)),
-                ("pad0", offset_of!(GpuGiFrame, pad0)),
+                ("tex_size", offset_of!(GpuGiFrame, tex_size)),
                 ("pad1", offset_of!(GpuGiFrame, pad1)),
             ],
         ),

@@ -33,6 +33,23 @@ fn levels_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     levels[step.dst_offset + gid.x + step.dst_res * (gid.y + step.dst_res * gid.z)] = coarsen(sum);
 }
 
+// One mip of the level texture (LevelStore::Texture).
+@group(0) @binding(3) var level_tex: texture_storage_3d<rgba16float, write>;
+
+// Copies level src_res³ at src_offset into the mip of dst_res³ texels (a power of two, at
+// least src_res: the texels past the level hold nothing, as cells past a level do).
+@compute @workgroup_size(4, 4, 4)
+fn texture_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if any(gid >= vec3<u32>(step.dst_res)) {
+        return;
+    }
+    var v = vec4<f32>(0.0);
+    if all(gid < vec3<u32>(step.src_res)) {
+        v = levels[step.src_offset + gid.x + step.src_res * (gid.y + step.src_res * gid.z)];
+    }
+    textureStore(level_tex, gid, v);
+}
+
 // The top cell of each brick (written by gi_sparse_cell.wgsl's alloc_main).
 @group(0) @binding(2) var<storage, read> brick_top: array<u32>;
 

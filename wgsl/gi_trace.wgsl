@@ -7,6 +7,9 @@
 // per brick, the top table's level and coarser ones dense).
 
 override GI_SPARSE: bool = false;
+// LevelStore::Texture: cones read the chain from gi_tex with the sampler's quadrilinear
+// filtering (border: transparent black, as outside the volume is empty).
+override GI_TEXTURE: bool = false;
 
 @group(1) @binding(0) var<storage, read> gi_accum: array<u32>;
 @group(1) @binding(1) var<storage, read_write> gi_levels: array<vec4<f32>>;
@@ -20,6 +23,10 @@ override GI_SPARSE: bool = false;
 // One-element placeholders when dense.
 @group(1) @binding(5) var<storage, read> gi_top: array<u32>;
 @group(1) @binding(6) var<storage, read> gi_brick_top: array<u32>;
+
+// The level chain as a 3D texture with mips (a 1³ placeholder unless GI_TEXTURE).
+@group(1) @binding(7) var gi_tex: texture_3d<f32>;
+@group(1) @binding(8) var gi_sampler: sampler;
 
 const GI_NO_BRICK: u32 = 4294967295u;
 // Brick levels stored per brick (8³, 4³, 2³), as gi::sparse.
@@ -176,6 +183,10 @@ fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
 fn gi_sample(p: vec3<f32>, level: f32) -> vec4<f32> {
     let top = f32(gi.levels - 1u);
     let l = clamp(level, 0.0, top);
+    if GI_TEXTURE {
+        let uvw = (p - gi.min_cell.xyz) / (gi.min_cell.w * f32(gi.tex_size));
+        return textureSampleLevel(gi_tex, gi_sampler, uvw, l);
+    }
     let lo = u32(floor(l));
     let hi = min(lo + 1u, gi.levels - 1u);
     let f = l - f32(lo);

@@ -183,7 +183,8 @@ struct GiFrame {
     row_threads: u32,
     // Sparse: top-table cells per side (res / 8).
     top_res: u32,
-    pad0: u32,
+    // Texture levels: the texture's cells per side (res rounded up to a power of two).
+    tex_size: u32,
     pad1: u32,
 }
 

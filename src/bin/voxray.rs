@@ -176,6 +176,10 @@ struct RenderArgs {
     /// multiples of 8 up to 1024³) or auto (CPU: sparse above 128³; GPU: sparse above 512³).
     #[arg(long, default_value = "auto", requires = "gi")]
     gi_volume: voxray::gi::shade::VolumeChoice,
+    /// Where the GPU's cones read the GI level chain: buffer (filtered in f32 in the shader,
+    /// equal to the CPU) or texture (a 3D texture with mips, hardware filtering; dense volume).
+    #[arg(long, default_value = "buffer", requires = "gi")]
+    gi_levels: voxray::gi::shade::LevelStore,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]
@@ -574,6 +578,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         extent: a.gi_extent,
         bounces: a.gi_bounces,
         volume: a.gi_volume,
+        levels: a.gi_levels,
     });
     let mut gi_caches = voxray::gi::GiCaches::new();
     if let Some(g) = &gi {

@@ -189,6 +189,30 @@ impl std::str::FromStr for VolumeChoice {
     }
 }
 
+/// Where the GPU's cones read the dense level chain (`--gi-levels`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum LevelStore {
+    /// A storage buffer filtered in the shader in f32, exactly as the CPU filters (the GPU
+    /// image equals the CPU's).
+    #[default]
+    Buffer,
+    /// A 3D texture with a mip chain (rgba16float, cells per side rounded up to a power of
+    /// two), filtered by the sampler: one quadrilinear sample per cone step instead of 16
+    /// fetches. GPU and dense volume only; the CPU always filters as `Buffer`.
+    Texture,
+}
+
+impl std::str::FromStr for LevelStore {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "buffer" => Ok(LevelStore::Buffer),
+            "texture" => Ok(LevelStore::Texture),
+            other => Err(format!("unknown GI level store '{other}' (use buffer or texture)")),
+        }
+    }
+}
+
 /// What a GI frame can keep from the frame before (DESIGN.md, "Leave out what a scene does not
 /// need").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -296,6 +320,8 @@ pub struct GiSettings {
     pub bounces: u32,
     /// The world volume's layout.
     pub volume: VolumeChoice,
+    /// Where the GPU's cones read the level chain (ignored on the CPU).
+    pub levels: LevelStore,
 }
 
 impl GiSettings {
@@ -317,6 +343,7 @@ impl Default for GiSettings {
             extent: None,
             bounces: 1,
             volume: VolumeChoice::Auto,
+            levels: LevelStore::Buffer,
         }
     }
 }

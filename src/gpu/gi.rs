@@ -15,6 +15,7 @@ use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
 use super::renderer::read;
 use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
+use crate::gi::shade::LevelStore;
 use crate::gi::sparse::BRICK;
 use crate::gi::{
     CacheVoxel, ConeSettings, Filter, GiCaches, GiError, GiReuse, GiSettings, Layout, Volume, VolumeKey, VolumeSpec,
@@ -113,8 +114,19 @@ pub struct GpuGiStats {
     pub bricks_ms: f64,
 }
 
+/// The level chain copied into a 3D texture's mips (`LevelStore::Texture`).
+struct LevelTexture {
+    /// Texels per side of mip 0 (res rounded up to a power of two).
+    size: u32,
+    view: wgpu::TextureView,
+    /// Per level: the copy's bind group and its workgroups per side.
+    steps: Vec<(wgpu::BindGroup, u32)>,
+}
+
 struct VolumeBuffers {
     layout: Layout,
+    /// The chain's texture copy, when the cones read it from a texture.
+    texture: Option<LevelTexture>,
     res: u32,
     /// Bricks the sparse buffers hold (0 for dense).
     capacity: u32,
@@ -158,6 +170,9 @@ pub(crate) struct GiWork {
     cell_groups: (u32, u32),
     /// Sparse: the brick steps down the chain (8³ → 4³ → 2³ → top table) and their workgroups.
     brick_steps: Vec<(wgpu::BindGroup, (u32, u32))>,
+    /// Whether the chain is copied into the level texture after each levels pass (and the
+    /// cones sample it there).
+    pub texture: bool,
     /// Bind group 1 of the tracer's GI entry points.
     pub group1: wgpu::BindGroup,
     spec: VolumeSpec,
@@ -179,6 +194,13 @@ pub(crate) struct GpuGi {
     sparse_layout: wgpu::BindGroupLayout,
     brick_levels_pipe: wgpu::ComputePipeline,
     sparse: Option<SparseTables>,
+    /// The copy of a level into the level texture's mip.
+    texture_pipe: wgpu::ComputePipeline,
+    /// Bound in place of the level texture when the cones read the buffer.
+    placeholder_tex: wgpu::TextureView,
+    /// The level texture's sampler: trilinear within and linear between mips, a transparent
+    /// black border where the device has one.
+    sampler: wgpu::Sampler,
     /// Layout of bind group 1 (accumulation, levels, GI uniforms) of the tracer's GI entries.
     pub group1_layout: wgpu::BindGroupLayout,
     volume: Option<VolumeBuffers>,
@@ -288,6 +310,21 @@ pub fn volume_from_accum(accum: &[u32], spec: VolumeSpec) -> (Volume, f64) {
     (volume, outside)
 }
 
+/// A 3D rgba16float texture of `size`³ texels with `mips` levels, sampled by the cones and
+/// written by the level copies.
+fn level_texture(device: &wgpu::Device, size: u32, mips: u32) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("gi level texture"),
+        size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: size },
+        mip_level_count: mips,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D3,
+        format: wgpu::TextureFormat::Rgba16Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING,
+        view_formats: &[],
+    })
+}
+
 /// Finest cells stored: every cell (dense) or `capacity` bricks' (sparse).
 fn stored_cells(layout: Layout, res: u32, capacity: u32) -> u64 {
     match layout {
@@ -392,8 +429,38 @@ impl GpuGi {
                 gi_layout_entry(4, rw),
                 gi_layout_entry(5, ro),
                 gi_layout_entry(6, ro),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 7,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D3,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 8,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
             ],
         });
+        let border = device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
+        let address = if border { wgpu::AddressMode::ClampToBorder } else { wgpu::AddressMode::ClampToEdge };
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("gi levels"),
+            address_mode_u: address,
+            address_mode_v: address,
+            address_mode_w: address,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            border_color: border.then_some(wgpu::SamplerBorderColor::TransparentBlack),
+            ..Default::default()
+        });
+        let placeholder_tex = level_texture(device, 1, 1).create_view(&Default::default());
         let placeholder_of = |label| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -412,6 +479,9 @@ impl GpuGi {
             sparse_layout,
             brick_levels_pipe: make("gi_levels.wgsl", levels_source(), "brick_levels_main"),
             sparse: None,
+            texture_pipe: make("gi_levels.wgsl", levels_source(), "texture_main"),
+            placeholder_tex,
+            sampler,
             group1_layout,
             volume: None,
             placeholder: placeholder_of("gi bounce placeholder"),
@@ -463,8 +533,17 @@ impl GpuGi {
 
     /// Allocates the accumulation and level buffers for `res` cells per side: every cell
     /// (dense) or `capacity` bricks (sparse).
-    fn volume_buffers(&mut self, ctx: &GpuContext, layout: Layout, res: u32, capacity: u32) -> Result<(), GpuError> {
-        if self.volume.as_ref().is_some_and(|v| v.layout == layout && v.res == res && v.capacity == capacity) {
+    fn volume_buffers(
+        &mut self,
+        ctx: &GpuContext,
+        layout: Layout,
+        res: u32,
+        capacity: u32,
+        texture: bool,
+    ) -> Result<(), GpuError> {
+        if self.volume.as_ref().is_some_and(|v| {
+            v.layout == layout && v.res == res && v.capacity == capacity && v.texture.is_some() == texture
+        }) {
             return Ok(());
         }
         self.volume = None; // free the old volume before allocating the new one
@@ -521,9 +600,81 @@ impl GpuGi {
                 level_step_bind(device, &self.levels_pipe, &levels, &step, None)
             })
             .collect();
-        self.volume =
-            Some(VolumeBuffers { layout, res, capacity, accum, levels, offsets, resolutions, steps, bounce: None });
+        let texture = match texture {
+            true => Some(self.level_texture_for(ctx, &levels, &offsets, &resolutions)?),
+            false => None,
+        };
+        self.volume = Some(VolumeBuffers {
+            layout,
+            texture,
+            res,
+            capacity,
+            accum,
+            levels,
+            offsets,
+            resolutions,
+            steps,
+            bounce: None,
+        });
         Ok(())
+    }
+
+    /// The level texture of a dense chain and the copies that fill its mips.
+    fn level_texture_for(
+        &self,
+        ctx: &GpuContext,
+        levels: &wgpu::Buffer,
+        offsets: &[u32],
+        resolutions: &[u32],
+    ) -> Result<LevelTexture, GpuError> {
+        let size = resolutions[0].next_power_of_two();
+        let mips = offsets.len() as u32;
+        if size.trailing_zeros() + 1 != mips || size > ctx.limits.max_texture_dimension_3d {
+            return Err(GiError::Settings(format!(
+                "a {}³ GI level texture is beyond this device (3D textures up to {}³)",
+                size, ctx.limits.max_texture_dimension_3d
+            ))
+            .into());
+        }
+        let tex = level_texture(&ctx.device, size, mips);
+        let steps = (0..mips as usize)
+            .map(|l| {
+                let step = GpuGiLevelStep {
+                    src_offset: offsets[l],
+                    src_res: resolutions[l],
+                    dst_res: size >> l,
+                    ..Default::default()
+                };
+                let ubuf = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("gi level copy"),
+                    contents: bytemuck::bytes_of(&step),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+                let view = tex.create_view(&wgpu::TextureViewDescriptor {
+                    label: Some("gi level mip"),
+                    dimension: Some(wgpu::TextureViewDimension::D3),
+                    base_mip_level: l as u32,
+                    mip_level_count: Some(1),
+                    ..Default::default()
+                });
+                let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("gi level copy"),
+                    layout: &self.texture_pipe.get_bind_group_layout(0),
+                    entries: &[
+                        wgpu::BindGroupEntry { binding: 0, resource: levels.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 1, resource: ubuf.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&view) },
+                    ],
+                });
+                (bind, (size >> l).div_ceil(4))
+            })
+            .collect();
+        let view = tex.create_view(&wgpu::TextureViewDescriptor {
+            label: Some("gi level texture"),
+            dimension: Some(wgpu::TextureViewDimension::D3),
+            ..Default::default()
+        });
+        Ok(LevelTexture { size, view, steps })
     }
 
     /// Allocates the sparse volume's top tables for `res` cells per side.
@@ -663,6 +814,10 @@ impl GpuGi {
         if reuse == GiReuse::Levels && self.last.as_ref().is_some_and(|l| l.2 != bounce_key) {
             reuse = GiReuse::Volume; // the chain was gathered with other bounces
         }
+        let texture = s.levels == LevelStore::Texture;
+        if self.volume.as_ref().is_some_and(|v| v.texture.is_some() != texture) {
+            reuse = GiReuse::Nothing; // the buffers are allocated afresh
+        }
         self.last = None; // until this frame's passes are encoded
         let keys: Vec<(usize, u32)> =
             scene.parts.iter().zip(&levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect();
@@ -725,7 +880,7 @@ impl GpuGi {
                 _ => want,
             };
         }
-        self.volume_buffers(ctx, layout, spec.res, capacity)?;
+        self.volume_buffers(ctx, layout, spec.res, capacity, texture)?;
         if s.bounces > 1 {
             self.bounce_buffers(ctx)?;
         }
@@ -769,6 +924,7 @@ impl GpuGi {
             cells: cells as u32,
             row_threads: cell_row,
             top_res: spec.res / BRICK,
+            tex_size: vol.texture.as_ref().map_or(0, |t| t.size),
             ..Default::default()
         };
         let splat_buf = init("gi splat", bytemuck::bytes_of(&splat), wgpu::BufferUsages::UNIFORM);
@@ -825,6 +981,13 @@ impl GpuGi {
                 wgpu::BindGroupEntry { binding: 4, resource: next.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 5, resource: top.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 6, resource: brick_top.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: wgpu::BindingResource::TextureView(
+                        vol.texture.as_ref().map_or(&self.placeholder_tex, |t| &t.view),
+                    ),
+                },
+                wgpu::BindGroupEntry { binding: 8, resource: wgpu::BindingResource::Sampler(&self.sampler) },
             ],
         });
         let stats = GpuGiStats {
@@ -837,14 +1000,25 @@ impl GpuGi {
                 + vol.levels.size()
                 + jobs_buf.size()
                 + vol.bounce.as_ref().map_or(0, |(d, n)| d.size() + n.size())
-                + tables.map_or(0, |t| t.top.size() + t.brick_top.size() + t.counters.size()),
+                + tables.map_or(0, |t| t.top.size() + t.brick_top.size() + t.counters.size())
+                + vol.texture.as_ref().map_or(0, |t| (t.size as u64).pow(3) * 8 * 8 / 7),
             reuse,
             layout,
             bricks,
             bricks_ms,
         };
         self.last = Some((key, *lights, bounce_key));
-        Ok(GiWork { splat_bind, splat_groups, cell_groups, brick_steps, group1, spec, bounces: s.bounces, stats })
+        Ok(GiWork {
+            splat_bind,
+            splat_groups,
+            cell_groups,
+            brick_steps,
+            texture,
+            group1,
+            spec,
+            bounces: s.bounces,
+            stats,
+        })
     }
 
     /// Records the GI passes: clear, transform, inject (the tracer's pipelines, with its bind
@@ -901,6 +1075,13 @@ impl GpuGi {
                 let g = vol.resolutions[first + l].div_ceil(4);
                 pass.set_bind_group(0, step, &[]);
                 pass.dispatch_workgroups(g, g, g);
+            }
+            if let Some(t) = vol.texture.as_ref().filter(|_| work.texture) {
+                pass.set_pipeline(&self.texture_pipe);
+                for (bind, g) in &t.steps {
+                    pass.set_bind_group(0, bind, &[]);
+                    pass.dispatch_workgroups(*g, *g, *g);
+                }
             }
         };
         tracer(&mut pass, &pipes.inject);

@@ -254,8 +254,8 @@ pub struct GpuGiFrame {
     pub row_threads: u32,
     /// Sparse: top-table cells per side (res / 8).
     pub top_res: u32,
-    /// Padding.
-    pub pad0: u32,
+    /// Texture levels: the texture's cells per side (res rounded up to a power of two).
+    pub tex_size: u32,
     /// Padding.
     pub pad1: u32,
 }

@@ -104,7 +104,7 @@ pub struct GpuRenderer {
     gi: Option<super::gi::GpuGi>,
     gi_settings: Option<crate::gi::GiSettings>,
     gi_pipeline_layout: Option<wgpu::PipelineLayout>,
-    gi_pipelines: HashMap<(u32, bool, bool), super::gi::GiPipelines>,
+    gi_pipelines: HashMap<(u32, bool, bool, bool), super::gi::GiPipelines>,
     /// What GI did in the last frame (None without GI).
     pub gi_stats: Option<super::gi::GpuGiStats>,
     /// Read the GI volume back after each frame into [`GpuRenderer::gi_captured`] (slow; for
@@ -229,6 +229,15 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
+            let border = self.ctx.device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
+            if asked.levels == crate::gi::shade::LevelStore::Texture && !border {
+                return Err(crate::gi::GiError::Settings(
+                    "texture GI levels need a sampler border (ADDRESS_MODE_CLAMP_TO_BORDER), which this adapter \
+                     lacks: use --gi-levels buffer"
+                        .into(),
+                )
+                .into());
+            }
         }
         // `auto` stays dense while this device can hold a dense volume (VolumeChoice::pick_dense_first).
         let max_binding = self.ctx.limits.max_storage_buffer_binding_size.min(self.ctx.limits.max_buffer_size);
@@ -239,6 +248,16 @@ impl GpuRenderer {
             },
             ..s
         });
+        if let Some(s) = settings.filter(|s| s.levels == crate::gi::shade::LevelStore::Texture) {
+            if s.layout() == crate::gi::Layout::Sparse {
+                return Err(crate::gi::GiError::Settings(format!(
+                    "texture GI levels need the dense volume, and {}³ is sparse here: use --gi-levels buffer or a \
+                     lower --gi-res",
+                    s.res
+                ))
+                .into());
+            }
+        }
         if settings.is_some() && self.gi.is_none() {
             let gi = super::gi::GpuGi::new(&self.ctx.device);
             self.gi_pipeline_layout = Some(self.ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -266,15 +285,16 @@ impl GpuRenderer {
     }
 
     /// Builds (once) the injection and GI shading pipelines of a plan variant.
-    fn gi_pipeline(&mut self, search: u32, shadows: bool, sparse: bool) -> Result<(), GpuError> {
+    fn gi_pipeline(&mut self, search: u32, shadows: bool, sparse: bool, texture: bool) -> Result<(), GpuError> {
         let (node_split, attr_split) = self.splits();
         let layout = self.gi_pipeline_layout.as_ref().ok_or_else(|| GpuError::Device("GI is off".into()))?;
         let (device, module) = (&self.ctx.device, &self.module);
-        self.gi_pipelines.entry((search, shadows, sparse)).or_insert_with(|| {
+        self.gi_pipelines.entry((search, shadows, sparse, texture)).or_insert_with(|| {
             let constants = [
                 ("SEARCH", search as f64),
                 ("SHADOWS", shadows as u32 as f64),
                 ("GI_SPARSE", sparse as u32 as f64),
+                ("GI_TEXTURE", texture as u32 as f64),
                 ("NODE_SPLIT", node_split as f64),
                 ("ATTR_SPLIT", attr_split as f64),
             ];
@@ -431,7 +451,9 @@ impl GpuRenderer {
         let gi_work = match (&self.gi_settings, lit) {
             (Some(settings), true) => {
                 let settings = *settings;
-                self.gi_pipeline(search, plan.shadows, settings.layout() == crate::gi::Layout::Sparse)?;
+                let sparse = settings.layout() == crate::gi::Layout::Sparse;
+                let texture = settings.levels == crate::gi::shade::LevelStore::Texture;
+                self.gi_pipeline(search, plan.shadows, sparse, texture)?;
                 let gi = self.gi.as_mut().ok_or_else(|| GpuError::Device("GI state missing".into()))?;
                 Some(gi.prepare(&self.ctx, scene, camera, lights, &settings)?)
             }
@@ -439,9 +461,9 @@ impl GpuRenderer {
         };
         self.gi_stats = gi_work.as_ref().map(|w| w.stats);
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
-        let gi_pipes = gi_work
-            .as_ref()
-            .map(|w| &self.gi_pipelines[&(search, plan.shadows, w.stats.layout == crate::gi::Layout::Sparse)]);
+        let gi_pipes = gi_work.as_ref().map(|w| {
+            &self.gi_pipelines[&(search, plan.shadows, w.stats.layout == crate::gi::Layout::Sparse, w.texture)]
+        });
         let device = &self.ctx.device;
         // Bindings must not be empty: pad with one zeroed element.
         fn nonempty<T: bytemuck::Pod + Default>(v: &[T]) -> Vec<T> {
