@@ -348,6 +348,71 @@ pub fn gi_frame(
     Ok((summarize(&times).0, last))
 }
 
+/// The GPU's own GI knob against the path-traced box (`--scenarios gi-accuracy --backends
+/// gpu`): the level chain read from the f32 buffer or from the 3D texture, at the default
+/// 128³ dense volume. The reference is the CPU sweep's (same samples and seed); each row's time
+/// is the GPU time of the GI passes and the shade pass that traces the cones (timestamp
+/// queries; wall clock of the frame where the adapter has none), the volume rebuilt per frame.
+#[cfg(feature = "gpu")]
+pub fn accuracy_gpu(
+    cfg: &AccuracyConfig,
+    ctx: Arc<crate::gpu::GpuContext>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
+    use crate::gi::shade::{LevelStore, VolumeChoice};
+    let scene = room_scene(cfg.depth)?;
+    let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
+    let lights = crate::model::room::lights();
+    let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
+    progress(&format!("gi-accuracy (GPU): reference, {} spp", cfg.spp));
+    let mut pt =
+        PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 })
+            .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+    pt.run(&mut |_, _| {});
+    let reference = pt.frame();
+    let backend = format!("GPU: {}", ctx.describe());
+    let mut out = Vec::new();
+    for (store, name) in [
+        (LevelStore::Buffer, "buffer (f32, filtered in the shader)"),
+        (LevelStore::Texture, "texture (rgba16float, sampler)"),
+    ] {
+        progress(&format!("gi-accuracy (GPU): {name}"));
+        let mut gpu = crate::gpu::GpuRenderer::new(ctx.clone());
+        gpu.set_gi(Some(GiSettings { volume: VolumeChoice::Dense, levels: store, ..GiSettings::default() }))?;
+        let (mut times, mut last, mut timed) = (Vec::new(), None, true);
+        for k in 0..cfg.repeats.max(1) + 1 {
+            gpu.forget_gi_frame();
+            let t0 = Instant::now();
+            let f = gpu.render(&scene, &camera, &lights, &plan, &RenderOptions::default())?;
+            let wall = t0.elapsed().as_secs_f64() * 1e3;
+            if k > 0 {
+                times.push(gpu.times.map_or_else(
+                    || {
+                        timed = false;
+                        wall
+                    },
+                    |t| t.gi_ms + t.shade_ms,
+                ));
+            }
+            last = Some(f);
+        }
+        let f = last.ok_or_else(|| crate::gi::GiError::Settings("no GPU frame".into()))?;
+        let mut r = accuracy_record(
+            cfg,
+            scene.instances().len(),
+            "level chain store (GPU, 128³)",
+            name.into(),
+            (store == LevelStore::Texture) as u32 as f64,
+            summarize(&times).0,
+            compare_to(&f, &reference)?,
+        );
+        r.backend_kind = "gpu".into();
+        r.backend = format!("{backend}{}", if timed { "" } else { " (wall clock)" });
+        out.push(r);
+    }
+    Ok(out)
+}
+
 fn compare_to(frame: &Frame, reference: &Frame) -> Result<ImageError, crate::Error> {
     compare(frame, reference).map_err(|e| crate::gi::GiError::Settings(e.to_string()).into())
 }

@@ -395,6 +395,27 @@ fn default_cmd() -> Result<(), Error> {
     demo_cmd(defaults()?)
 }
 
+/// The GPU for a GI scenario's GPU rows: on `--backends gpu`, and on `auto` where the adapter
+/// is hardware (as `Backend::open` decides); None (saying why where it failed) otherwise.
+#[cfg(feature = "gpu")]
+fn bench_gpu(
+    backends: &[voxray::backend::BackendKind],
+    pb: &ProgressBar,
+    scenario: &str,
+) -> Option<std::sync::Arc<voxray::gpu::GpuContext>> {
+    use voxray::backend::BackendKind;
+    match voxray::gpu::GpuContext::headless() {
+        Ok(ctx) if backends.contains(&BackendKind::Gpu) || ctx.info.device_type != wgpu::DeviceType::Cpu => {
+            Some(std::sync::Arc::new(ctx))
+        }
+        Ok(_) => None,
+        Err(e) => {
+            pb.suspend(|| eprintln!("skipping GPU {scenario}: {e}"));
+            None
+        }
+    }
+}
+
 fn bar(len: u64, what: &str) -> ProgressBar {
     let b = ProgressBar::new(len);
     b.set_style(
@@ -933,19 +954,10 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         }
         #[cfg(feature = "gpu")]
         if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
-            let want = |ctx: &voxray::gpu::GpuContext| {
-                a.backends.contains(&BackendKind::Gpu) || ctx.info.device_type != wgpu::DeviceType::Cpu
-            };
-            match voxray::gpu::GpuContext::headless() {
-                Ok(ctx) if !want(&ctx) => {}
-                Ok(ctx) => records.extend(voxray::bench::gi::scaling_gpu(
-                    &sc,
-                    &mesh,
-                    &car.parts,
-                    std::sync::Arc::new(ctx),
-                    &mut |w| pb.set_message(w.to_string()),
-                )?),
-                Err(e) => pb.suspend(|| eprintln!("skipping GPU gi-scaling: {e}")),
+            if let Some(ctx) = bench_gpu(&a.backends, &pb, "gi-scaling") {
+                records.extend(voxray::bench::gi::scaling_gpu(&sc, &mesh, &car.parts, ctx, &mut |w| {
+                    pb.set_message(w.to_string())
+                })?);
             }
         }
         pb.inc(1);
@@ -965,22 +977,15 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         }
         #[cfg(feature = "gpu")]
         if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
-            let want = |ctx: &voxray::gpu::GpuContext| {
-                a.backends.contains(&BackendKind::Gpu) || ctx.info.device_type != wgpu::DeviceType::Cpu
-            };
-            match voxray::gpu::GpuContext::headless() {
-                Ok(ctx) if !want(&ctx) => {}
-                Ok(ctx) => {
-                    let mut say = |w: &str| {
-                        if w.contains("left out") {
-                            pb.suspend(|| eprintln!("{w}"));
-                        } else {
-                            pb.set_message(w.to_string());
-                        }
-                    };
-                    records.extend(voxray::bench::gi::layouts_gpu(&lc, std::sync::Arc::new(ctx), &mut say)?)
-                }
-                Err(e) => pb.suspend(|| eprintln!("skipping GPU gi-volume: {e}")),
+            if let Some(ctx) = bench_gpu(&a.backends, &pb, "gi-volume") {
+                let mut say = |w: &str| {
+                    if w.contains("left out") {
+                        pb.suspend(|| eprintln!("{w}"));
+                    } else {
+                        pb.set_message(w.to_string());
+                    }
+                };
+                records.extend(voxray::bench::gi::layouts_gpu(&lc, ctx, &mut say)?);
             }
         }
         pb.inc(1);
@@ -1003,7 +1008,18 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             command: command.clone(),
             machine: cfg.machine.clone(),
         };
-        records.extend(voxray::bench::gi::accuracy(&ac, &mut |w| pb.set_message(w.to_string()))?);
+        use voxray::backend::BackendKind;
+        // As gi-scaling: the CPU sweep for cpu and auto, the GPU's own knob for gpu and auto on
+        // a hardware adapter.
+        if a.backends.iter().any(|k| *k != BackendKind::Gpu) {
+            records.extend(voxray::bench::gi::accuracy(&ac, &mut |w| pb.set_message(w.to_string()))?);
+        }
+        #[cfg(feature = "gpu")]
+        if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
+            if let Some(ctx) = bench_gpu(&a.backends, &pb, "gi-accuracy") {
+                records.extend(voxray::bench::gi::accuracy_gpu(&ac, ctx, &mut |w| pb.set_message(w.to_string()))?);
+            }
+        }
         pb.inc(1);
     }
     pb.finish_and_clear();
