@@ -372,10 +372,7 @@ pub fn accuracy_gpu(
     let reference = pt.frame();
     let backend = format!("GPU: {}", ctx.describe());
     let mut out = Vec::new();
-    for (store, name) in [
-        (LevelStore::Buffer, "buffer (f32, filtered in the shader)"),
-        (LevelStore::Texture, "texture (rgba16float, sampler)"),
-    ] {
+    for (store, name) in [(LevelStore::Buffer, "buffer"), (LevelStore::Texture, "texture")] {
         progress(&format!("gi-accuracy (GPU): {name}"));
         let mut gpu = crate::gpu::GpuRenderer::new(ctx.clone());
         gpu.set_gi(Some(GiSettings { volume: VolumeChoice::Dense, levels: store, ..GiSettings::default() }))?;
