@@ -135,6 +135,8 @@ struct Ui {
     gi_ms: Option<f64>,
     // GI ran in the backend (the GPU passes), not on the CPU after it.
     gi_on_gpu: bool,
+    /// Why GI was switched off (knobs this device cannot run), shown in the panel.
+    gi_error: Option<String>,
     // Most rays hit at t = 0 last frame.
     eye_inside: bool,
     gpu_ms: Option<(f64, f64)>,
@@ -379,13 +381,33 @@ impl App {
         let camera = self.camera(w.saturating_sub(panel).max(1), h);
         let start = Instant::now();
         let backend = self.backend.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
-        let gi_in_backend =
-            backend.set_gi(self.ui.gi_on.then_some(self.ui.gi)).map_err(|e| ViewerError::Other(e.to_string()))?;
+        let other = |e: crate::Error| ViewerError::Other(e.to_string());
+        // GI knobs this device cannot run (a volume past its binding limit, texture levels on a
+        // sparse volume) switch GI off with the reason in the panel instead of ending the demo.
+        let mut gi_in_backend = match backend.set_gi(self.ui.gi_on.then_some(self.ui.gi)) {
+            Ok(b) => b,
+            Err(e) => {
+                self.ui.gi_error = Some(e.to_string());
+                self.ui.gi_on = false;
+                backend.set_gi(None).map_err(other)?
+            }
+        };
         let plan = backend.plan(&self.scene, &camera, &self.lights, &self.opts.features, self.first_frame);
         self.first_frame = false;
-        let mut frame = backend
-            .render(&self.scene, &camera, &self.lights, &plan, &RenderOptions { max_level: self.ui.lod }, &|_, _| {})
-            .map_err(|e| ViewerError::Other(e.to_string()))?;
+        let opts = RenderOptions { max_level: self.ui.lod };
+        let mut frame = match backend.render(&self.scene, &camera, &self.lights, &plan, &opts, &|_, _| {}) {
+            Ok(f) => f,
+            Err(e) if gi_in_backend => {
+                self.ui.gi_error = Some(e.to_string());
+                self.ui.gi_on = false;
+                gi_in_backend = backend.set_gi(None).map_err(other)?;
+                backend.render(&self.scene, &camera, &self.lights, &plan, &opts, &|_, _| {}).map_err(other)?
+            }
+            Err(e) => return Err(other(e)),
+        };
+        if self.ui.gi_on {
+            self.ui.gi_error = None;
+        }
         self.ui.gi_ms = backend.gi_pass_ms();
         self.ui.gi_on_gpu = gi_in_backend;
         self.ui.eye_inside = frame.eye_inside_fraction() > 0.5;
@@ -757,6 +779,15 @@ impl App {
                             row.radio_value(&mut ui.gi.volume, VolumeChoice::Dense, "dense");
                             row.radio_value(&mut ui.gi.volume, VolumeChoice::Sparse, "sparse");
                         });
+                        ui_.horizontal(|row| {
+                            use crate::gi::shade::LevelStore;
+                            row.label("GI levels (GPU):");
+                            row.radio_value(&mut ui.gi.levels, LevelStore::Buffer, "buffer");
+                            row.radio_value(&mut ui.gi.levels, LevelStore::Texture, "texture");
+                        });
+                    }
+                    if let Some(e) = &ui.gi_error {
+                        ui_.colored_label(egui::Color32::from_rgb(230, 110, 90), format!("GI off: {e}"));
                     }
                     let mut full = ui.lod == u32::MAX;
                     ui_.checkbox(&mut full, "full detail");
@@ -1067,6 +1098,7 @@ pub fn run(
             gi_caches: crate::gi::GiCaches::new(),
             gi_ms: None,
             gi_on_gpu: false,
+            gi_error: None,
             eye_inside: false,
             gpu_ms: None,
             reset: false,

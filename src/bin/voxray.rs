@@ -335,7 +335,7 @@ struct DemoArgs {
     no_ground: bool,
     #[command(flatten)]
     switches: Switches,
-    /// Start with voxel-transformation GI on (CPU; switchable in the panel).
+    /// Start with voxel-transformation GI on (on the backend that renders; switchable in the panel).
     #[arg(long)]
     gi: bool,
     /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
