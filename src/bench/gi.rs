@@ -243,58 +243,68 @@ pub fn layouts_gpu(
                 continue;
             }
             progress(&format!("gi-volume (GPU): {name} {res}³"));
-            let mut gpu = crate::gpu::GpuRenderer::new(ctx.clone());
-            gpu.set_gi(Some(s))?;
-            let (mut times, mut stats, mut timed) = (Vec::new(), None, true);
-            for k in 0..cfg.repeats.max(1) + 1 {
-                gpu.forget_gi_frame();
-                let t0 = Instant::now();
-                match gpu.render(&scene, &camera, &lights, &plan, &RenderOptions::default()) {
-                    Ok(_) => {}
-                    Err(e @ crate::gpu::GpuError::TooLarge { .. }) => {
-                        progress(&format!("gi-volume (GPU): {name} {res}³ left out: {e}"));
-                        break;
-                    }
-                    Err(e) => return Err(e.into()),
+            let run = match gpu_gi_frames(&ctx, &s, &scene, &camera, &lights, &plan, cfg.repeats) {
+                Err(crate::Error::Gpu(e @ crate::gpu::GpuError::TooLarge { .. })) => {
+                    progress(&format!("gi-volume (GPU): {name} {res}³ left out: {e}"));
+                    continue;
                 }
-                let wall = t0.elapsed().as_secs_f64() * 1e3;
-                let st = gpu.gi_stats.ok_or_else(|| crate::gi::GiError::Settings("GI did not run".into()))?;
-                // The first frame compiles pipelines and first-touches buffers: not timed.
-                if k > 0 {
-                    times.push(match gpu.times {
-                        Some(t) => t.gi_ms + t.shade_ms + st.bricks_ms,
-                        None => {
-                            timed = false;
-                            wall
-                        }
-                    });
-                }
-                stats = Some(st);
-            }
-            let Some(st) = stats.filter(|_| !times.is_empty()) else { continue };
-            let (median, p95, min) = summarize(&times);
-            out.push(Record {
-                group: "gi-volume".into(),
-                name: name.into(),
-                setting: if st.bricks > 0 { format!("{} bricks", st.bricks) } else { String::new() },
-                x: res as f64,
-                backend_kind: "gpu".into(),
-                backend: format!("{backend}{}", if timed { "" } else { " (wall clock)" }),
-                width: cfg.size.0,
-                height: cfg.size.1,
-                frames: cfg.repeats,
-                instances: scene.instances().len(),
-                median_ms: median,
-                p95_ms: p95,
-                min_ms: min,
-                volume_bytes: Some(st.bytes),
-                machine: cfg.machine.clone(),
-                command: cfg.command.clone(),
-                ..Default::default()
-            });
+                other => other?,
+            };
+            let (times, st, timed) = (run.times, run.stats, run.timed);
+            let mut r = layout_record(cfg, name, res, &times, st.bytes, scene.instances().len());
+            r.setting = if st.bricks > 0 { format!("{} bricks", st.bricks) } else { String::new() };
+            r.backend_kind = "gpu".into();
+            r.backend = format!("{backend}{}", if timed { "" } else { " (wall clock)" });
+            out.push(r);
         }
     }
     Ok(out)
+}
+
+/// What [`gpu_gi_frames`] measured.
+#[cfg(feature = "gpu")]
+struct GpuGiRun {
+    /// Per timed frame: GPU milliseconds of the GI and shade passes plus the brick count's
+    /// read (wall clock of the frame where the adapter has no timestamps).
+    times: Vec<f64>,
+    /// Whether `times` came from timestamp queries.
+    timed: bool,
+    /// The last frame.
+    frame: Frame,
+    /// Its GI statistics.
+    stats: crate::gpu::gi::GpuGiStats,
+}
+
+/// Renders `repeats` + 1 GPU frames with GI `s`, each rebuilding the volume; the first
+/// (pipeline compilation, first touch of the buffers) is not timed.
+#[cfg(feature = "gpu")]
+fn gpu_gi_frames(
+    ctx: &Arc<crate::gpu::GpuContext>,
+    s: &GiSettings,
+    scene: &Scene,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    plan: &FramePlan,
+    repeats: usize,
+) -> Result<GpuGiRun, crate::Error> {
+    let mut gpu = crate::gpu::GpuRenderer::new(ctx.clone());
+    gpu.set_gi(Some(*s))?;
+    let (mut times, mut timed) = (Vec::new(), true);
+    for k in 0..repeats.max(1) + 1 {
+        gpu.forget_gi_frame();
+        let t0 = Instant::now();
+        let frame = gpu.render(scene, camera, lights, plan, &RenderOptions::default())?;
+        let wall = t0.elapsed().as_secs_f64() * 1e3;
+        let stats = gpu.gi_stats.ok_or_else(|| crate::gi::GiError::Settings("GI did not run".into()))?;
+        if k > 0 {
+            times.push(gpu.times.map_or(wall, |t| t.gi_ms + t.shade_ms + stats.bricks_ms));
+            timed &= gpu.times.is_some();
+        }
+        if k == repeats.max(1) {
+            return Ok(GpuGiRun { times, timed, frame, stats });
+        }
+    }
+    Err(crate::gi::GiError::Settings("no GPU frame".into()).into())
 }
 
 /// What the accuracy scenario measures.
@@ -374,26 +384,9 @@ pub fn accuracy_gpu(
     let mut out = Vec::new();
     for (store, name) in [(LevelStore::Buffer, "buffer"), (LevelStore::Texture, "texture")] {
         progress(&format!("gi-accuracy (GPU): {name}"));
-        let mut gpu = crate::gpu::GpuRenderer::new(ctx.clone());
-        gpu.set_gi(Some(GiSettings { volume: VolumeChoice::Dense, levels: store, ..GiSettings::default() }))?;
-        let (mut times, mut last, mut timed) = (Vec::new(), None, true);
-        for k in 0..cfg.repeats.max(1) + 1 {
-            gpu.forget_gi_frame();
-            let t0 = Instant::now();
-            let f = gpu.render(&scene, &camera, &lights, &plan, &RenderOptions::default())?;
-            let wall = t0.elapsed().as_secs_f64() * 1e3;
-            if k > 0 {
-                times.push(gpu.times.map_or_else(
-                    || {
-                        timed = false;
-                        wall
-                    },
-                    |t| t.gi_ms + t.shade_ms,
-                ));
-            }
-            last = Some(f);
-        }
-        let f = last.ok_or_else(|| crate::gi::GiError::Settings("no GPU frame".into()))?;
+        let s = GiSettings { volume: VolumeChoice::Dense, levels: store, ..GiSettings::default() };
+        let run = gpu_gi_frames(&ctx, &s, &scene, &camera, &lights, &plan, cfg.repeats)?;
+        let (times, timed, f) = (run.times, run.timed, run.frame);
         let mut r = accuracy_record(
             cfg,
             scene.instances().len(),
@@ -526,6 +519,29 @@ pub struct LayoutConfig {
     pub machine: String,
 }
 
+/// One gi-volume record (CPU; the GPU's overrides backend and setting).
+fn layout_record(cfg: &LayoutConfig, name: &str, res: u32, times: &[f64], bytes: u64, instances: usize) -> Record {
+    let (median, p95, min) = summarize(times);
+    Record {
+        group: "gi-volume".into(),
+        name: name.into(),
+        x: res as f64,
+        backend_kind: "cpu".into(),
+        backend: "CPU reference".into(),
+        width: cfg.size.0,
+        height: cfg.size.1,
+        frames: cfg.repeats,
+        instances,
+        median_ms: median,
+        p95_ms: p95,
+        min_ms: min,
+        volume_bytes: Some(bytes),
+        machine: cfg.machine.clone(),
+        command: cfg.command.clone(),
+        ..Default::default()
+    }
+}
+
 /// The dense and the sparse world volume on the box at each resolution: the whole GI pass per
 /// frame and the bytes of the volume's cells (`--scenarios gi-volume`).
 pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
@@ -555,26 +571,9 @@ pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec
                     times.push(t0.elapsed().as_secs_f64() * 1e3);
                 }
             }
-            let (median, p95, min) = summarize(&times);
-            out.push(Record {
-                group: "gi-volume".into(),
-                name: name.into(),
-                setting: format!("{} occupied cells", stats.occupied),
-                x: res as f64,
-                backend_kind: "cpu".into(),
-                backend: "CPU reference".into(),
-                width: cfg.size.0,
-                height: cfg.size.1,
-                frames: cfg.repeats,
-                instances: scene.instances().len(),
-                median_ms: median,
-                p95_ms: p95,
-                min_ms: min,
-                volume_bytes: Some(stats.volume_bytes),
-                machine: cfg.machine.clone(),
-                command: cfg.command.clone(),
-                ..Default::default()
-            });
+            let mut r = layout_record(cfg, name, res, &times, stats.volume_bytes, scene.instances().len());
+            r.setting = format!("{} occupied cells", stats.occupied);
+            out.push(r);
         }
     }
     Ok(out)
