@@ -117,24 +117,15 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     gi_put_injected(i, vec4<f32>(radiance * alpha, alpha));
 }
 
-fn gi_level_offset(l: u32) -> u32 {
+// Entry l of the 12 per-level values GiFrame packs into three vec4s (offsets, resolutions).
+fn gi_per_level(a: vec4<u32>, b: vec4<u32>, c: vec4<u32>, l: u32) -> u32 {
     if l < 4u {
-        return gi.offsets_a[l];
+        return a[l];
     }
     if l < 8u {
-        return gi.offsets_b[l - 4u];
+        return b[l - 4u];
     }
-    return gi.offsets_c[l - 8u];
-}
-
-fn gi_level_res(l: u32) -> u32 {
-    if l < 4u {
-        return gi.res_a[l];
-    }
-    if l < 8u {
-        return gi.res_b[l - 4u];
-    }
-    return gi.res_c[l - 8u];
+    return c[l - 8u];
 }
 
 // Index in gi_levels of cell c (inside) of level l, or GI_NO_BRICK where a sparse volume
@@ -160,8 +151,8 @@ fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
     let base = floor(g);
     let f = g - base;
     let b = vec3<i32>(base);
-    let r = i32(gi_level_res(l));
-    let off = gi_level_offset(l);
+    let r = i32(gi_per_level(gi.res_a, gi.res_b, gi.res_c, l));
+    let off = gi_per_level(gi.offsets_a, gi.offsets_b, gi.offsets_c, l);
     var out = vec4<f32>(0.0);
     for (var k = 0u; k < 8u; k++) {
         let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, k >> 2u);
