@@ -92,7 +92,12 @@ impl Backend {
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => &g.state,
         };
-        FramePlan::new(scene, camera, lights, features, (!first).then_some(prev))
+        let mut plan = FramePlan::new(scene, camera, lights, features, (!first).then_some(prev));
+        #[cfg(feature = "gpu")]
+        if matches!(self, Backend::Gpu(_)) && plan.beams {
+            plan.without_beams("the GPU backend traces every primary ray from the eye");
+        }
+        plan
     }
 
     /// Renders a frame.

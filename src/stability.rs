@@ -551,7 +551,8 @@ pub fn run_transform_case(case: &TransformCase) -> CaseReport {
         let one = |&(o, d): &(DVec3, DVec3)| {
             let prepared = prepare(&scene, o, true);
             // Only the instance under test (the parent of a hierarchy is a helper).
-            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared[leaf..leaf + 1], bvh: None };
+            let fi =
+                FrameInstances { parts: &scene.parts, prepared: &prepared[leaf..leaf + 1], bvh: None, starts: None };
             let got = nearest(&fi, DVec3::ZERO, d, Search::Plain, &TraceOptions::default()).map(|h| h.hit);
             let r = Ray64 {
                 origin: to_unit.transform_point3(o),

@@ -11,10 +11,17 @@
 //! Voxels are closed boxes: a ray that only touches a voxel (along a face, an edge, a corner)
 //! hits it. A ray on a midplane of a parallel axis belongs to the upper child (half-open cells,
 //! the same rule as `floor` in the DDA oracle).
+//!
+//! Revelles keeps the three t-values of every node on the stack and halves them on the way
+//! down. Here a node is its integer coordinates, and the t of a plane is computed when needed
+//! from the plane's exact position, `t(p) = (p − o)·(1/d)` with `p = k / 2^level`: a stack
+//! frame is then two words (node, next child), the coordinates of a parent are the child's
+//! shifted right, and the same plane always gets the same t whichever node asks, so
+//! neighbouring nodes agree on their shared faces exactly as in the halving scheme.
 
 use crate::ray::{Ray, UnitRay};
 use crate::svo::{Attr, Svo, MAX_DEPTH};
-use glam::Vec3;
+use glam::{BVec3A, Vec3, Vec3A};
 
 /// Options of one traversal.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -87,65 +94,102 @@ pub fn trace(svo: &Svo, ray: &Ray, opts: &TraceOptions) -> Option<Hit> {
     UnitRay::from_object(&svo.bounds, ray).and_then(|r| trace_unit(svo, &r, opts).hit)
 }
 
-#[derive(Clone, Copy, Default)]
-struct Frame {
-    slot: u32,
-    /// Next child to visit in mirrored octant numbering; 8 = done.
-    child: u32,
-    coord: [u32; 3],
-    t0: [f32; 3],
-    t1: [f32; 3],
-    tm: [f32; 3],
-}
-
 /// Stack depth needed: one frame per level above the leaves.
 const STACK: usize = MAX_DEPTH as usize;
 
-#[inline]
-fn max3(v: [f32; 3]) -> f32 {
-    v[0].max(v[1]).max(v[2])
-}
-#[inline]
-fn min3(v: [f32; 3]) -> f32 {
-    v[0].min(v[1]).min(v[2])
-}
-
-/// Midpoint t-values of a node; parallel axes by the side of the midplane (Revelles §3.3).
-#[inline]
-fn midpoints(ray: &UnitRay, t0: [f32; 3], t1: [f32; 3], level: u32, coord: [u32; 3]) -> [f32; 3] {
-    let mut tm = [0.0; 3];
-    for i in 0..3 {
-        tm[i] = if ray.parallel & (1 << i) != 0 {
-            // Exact: (2c+1)/2^(level+1) is a dyadic rational with ≤ 21 significant bits.
-            let mid = (2 * coord[i] + 1) as f32 / (1u64 << (level + 1)) as f32;
-            if ray.origin[i] >= mid {
-                f32::NEG_INFINITY
-            } else {
-                f32::INFINITY
-            }
-        } else {
-            0.5 * (t0[i] + t1[i])
-        };
-    }
-    tm
-}
-
-/// First child entered (Revelles §3.2): bit i set when the i-midpoint lies before the entry.
-#[inline]
-fn first_node(tm: [f32; 3], t_entry: f32) -> u32 {
-    (tm[0] < t_entry) as u32 | ((tm[1] < t_entry) as u32) << 1 | ((tm[2] < t_entry) as u32) << 2
-}
-
-/// Axis of the smallest value, ties to the lowest axis.
-#[inline]
-fn argmin3(v: [f32; 3]) -> u32 {
-    if v[0] <= v[1] && v[0] <= v[2] {
-        0
-    } else if v[1] <= v[2] {
-        1
+// t-values are never NaN ((p − o)·inv with finite operands; parallel axes are replaced by
+// ±∞), so a plain comparison does, without f32::max's NaN handling.
+#[inline(always)]
+fn max(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
     } else {
-        2
+        b
     }
+}
+
+/// The ray's t at planes: `(p − o)·inv` per axis, three lanes at a time.
+#[derive(Clone, Copy)]
+struct Planes {
+    origin: Vec3A,
+    inv_dir: Vec3A,
+    /// Bit i: axis i is parallel; its planes give −∞ below the origin and +∞ on or above
+    /// it (Revelles §3.3: a ray on a midplane belongs to the upper cell).
+    parallel: u32,
+}
+
+/// Lane masks of the eight children: lane i set when child k lies in the upper half on axis i.
+const UPPER: [BVec3A; 8] = {
+    let mut m = [BVec3A::FALSE; 8];
+    let mut k = 0;
+    while k < 8 {
+        m[k] = BVec3A::new(k & 1 != 0, k & 2 != 0, k & 4 != 0);
+        k += 1;
+    }
+    m
+};
+
+impl Planes {
+    /// t at the planes `k·size` of each axis (exact positions: k < 2^21, size a power of
+    /// two). `PAR`: the ray may have parallel axes.
+    #[inline(always)]
+    fn at<const PAR: bool>(&self, k: [u32; 3], size: f32) -> Vec3A {
+        let p = Vec3A::new(k[0] as i32 as f32, k[1] as i32 as f32, k[2] as i32 as f32) * size;
+        let t = (p - self.origin) * self.inv_dir;
+        if PAR && self.parallel != 0 {
+            let par = BVec3A::new(self.parallel & 1 != 0, self.parallel & 2 != 0, self.parallel & 4 != 0);
+            let side = Vec3A::select(self.origin.cmpge(p), Vec3A::NEG_INFINITY, Vec3A::INFINITY);
+            return Vec3A::select(par, side, t);
+        }
+        t
+    }
+}
+
+/// The t-values of the cell `c` of a level with cells of `size`: entry planes, midplanes
+/// and exit planes (Revelles §3.1). On a parallel axis the traversal only visits cells whose
+/// slab holds the ray, so their entry and exit are −∞ and +∞.
+#[derive(Clone, Copy)]
+struct Cell {
+    t0: Vec3A,
+    tm: Vec3A,
+    t1: Vec3A,
+}
+
+impl Cell {
+    #[inline(always)]
+    fn new<const PAR: bool>(planes: &Planes, c: [u32; 3], size: f32) -> Cell {
+        let mut t0 = planes.at::<false>(c, size);
+        let mut t1 = planes.at::<false>(c.map(|v| v + 1), size);
+        if PAR && planes.parallel != 0 {
+            let p = planes.parallel;
+            let par = BVec3A::new(p & 1 != 0, p & 2 != 0, p & 4 != 0);
+            t0 = Vec3A::select(par, Vec3A::NEG_INFINITY, t0);
+            t1 = Vec3A::select(par, Vec3A::INFINITY, t1);
+        }
+        Cell { t0, tm: planes.at::<PAR>(c.map(|v| 2 * v + 1), 0.5 * size), t1 }
+    }
+    /// Entry and exit planes of child `k` (bit i: the upper half on axis i).
+    #[inline(always)]
+    fn child(&self, k: u32) -> (Vec3A, Vec3A) {
+        let upper = UPPER[k as usize & 7];
+        (Vec3A::select(upper, self.tm, self.t0), Vec3A::select(upper, self.t1, self.tm))
+    }
+}
+
+/// First child entered (Revelles §3.2): bit i set when the i-midplane comes before the
+/// entry (on a parallel axis: when the origin lies on or above it, §3.3).
+#[inline(always)]
+fn first_node(tm: Vec3A, t_entry: f32) -> u32 {
+    tm.cmplt(Vec3A::splat(t_entry)).bitmask()
+}
+
+/// Revelles Table 2: the bit of the axis whose exit plane comes first, ties to the lowest
+/// axis; with it the child's exit t.
+#[inline(always)]
+fn exit_plane(t1: Vec3A) -> (u32, f32) {
+    let tx = t1.min_element();
+    let at = t1.cmpeq(Vec3A::splat(tx)).bitmask();
+    (at & at.wrapping_neg(), tx)
 }
 
 /// Axis of the largest value, ties to the lowest axis.
@@ -162,6 +206,15 @@ fn argmax3(v: [f32; 3]) -> u32 {
 
 /// Traces a prepared ray; see [`UnitRay`].
 pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
+    // Rays with a parallel axis take the same loop with the §3.3 cases compiled in.
+    if ray.parallel == 0 {
+        trace_impl::<false>(svo, ray, opts)
+    } else {
+        trace_impl::<true>(svo, ray, opts)
+    }
+}
+
+fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
     let miss = |steps| Traced { hit: None, steps, aborted: false };
     let t_min = ray.to_internal(opts.t_min.max(f32::MIN));
     let t_max = ray.to_internal(opts.t_max);
@@ -169,32 +222,30 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
         return miss(0);
     }
     let max_level = opts.max_level.min(svo.depth);
-
-    let (mut t0, mut t1) = ([0.0f32; 3], [0.0f32; 3]);
-    for i in 0..3 {
-        if ray.parallel & (1 << i) != 0 {
-            if !(ray.origin[i] >= 0.0 && ray.origin[i] < 1.0) {
+    let planes = Planes { origin: Vec3A::from(ray.origin), inv_dir: Vec3A::from(ray.inv_dir), parallel: ray.parallel };
+    if PAR {
+        for i in 0..3 {
+            if ray.parallel & (1 << i) != 0 && !(ray.origin[i] >= 0.0 && ray.origin[i] < 1.0) {
                 return miss(0);
             }
-            t0[i] = f32::NEG_INFINITY;
-            t1[i] = f32::INFINITY;
-        } else {
-            t0[i] = -ray.origin[i] * ray.inv_dir[i];
-            t1[i] = (1.0 - ray.origin[i]) * ray.inv_dir[i];
         }
     }
-    let (t_enter, t_exit) = (max3(t0), min3(t1));
+    let mut cell = Cell::new::<PAR>(&planes, [0; 3], 1.0);
+    let (t_enter, t_exit) = (cell.t0.max_element(), cell.t1.min_element());
     if t_enter > t_exit || t_exit < t_min || t_enter > t_max {
         return miss(0);
     }
     if max_level == 0 {
+        let t0 = cell.t0.to_array();
         return Traced { hit: finish(ray, t_enter, t_min, 0, [0; 3], svo.attrs[0], t0), steps: 1, aborted: false };
     }
 
-    let mut stack = [Frame::default(); STACK];
-    let tm = midpoints(ray, t0, t1, 0, [0; 3]);
-    stack[0] = Frame { slot: 0, child: first_node(tm, t_enter.max(t_min)), coord: [0; 3], t0, t1, tm };
-    let mut sp = 1usize; // frames on the stack; the top is stack[sp - 1], at level sp - 1
+    // Frames of the levels above the current node: its number and the next child to visit.
+    // The current node's t-values live in `cell`; a pop recomputes them from the coordinates.
+    let mut stack_node = [0u32; STACK];
+    let mut stack_child = [0u8; STACK];
+    let (mut level, mut node, mut coord) = (0u32, 0usize, [0u32; 3]);
+    let mut child = first_node(cell.tm, max(t_enter, t_min));
     let bound = step_bound(svo.depth);
     let mut steps = 0u32;
     loop {
@@ -202,52 +253,54 @@ pub fn trace_unit(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Traced {
         if steps > bound {
             return Traced { hit: None, steps, aborted: true };
         }
-        let level = (sp - 1) as u32;
-        let f = stack[sp - 1];
-        if f.child >= 8 {
-            sp -= 1;
-            if sp == 0 {
-                return miss(steps);
-            }
-            continue;
-        }
-        let c = f.child;
-        let (mut ct0, mut ct1) = ([0.0f32; 3], [0.0f32; 3]);
-        for i in 0..3 {
-            if c & (1 << i) != 0 {
-                ct0[i] = f.tm[i];
-                ct1[i] = f.t1[i];
-            } else {
-                ct0[i] = f.t0[i];
-                ct1[i] = f.tm[i];
-            }
-        }
+        let (ct0, ct1) = cell.child(child);
         // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
-        let exit_bit = 1 << argmin3(ct1);
-        stack[sp - 1].child = if c & exit_bit != 0 { 8 } else { c | exit_bit };
-
-        let (te, tx) = (max3(ct0), min3(ct1));
+        let (exit_bit, tx) = exit_plane(ct1);
+        let next = if child & exit_bit != 0 { 8 } else { child | exit_bit };
+        let te = ct0.max_element();
         if te > t_max {
             return miss(steps); // children come front to back: nothing later can be closer
         }
-        if tx < t_min {
+        let octant = child ^ ray.mirror;
+        let mask = svo.masks[node];
+        if tx >= t_min && mask as u32 & (1 << octant) != 0 {
+            let child_level = level + 1;
+            let c = [0, 1, 2].map(|i| 2 * coord[i] + ((child >> i) & 1));
+            if child_level >= max_level {
+                let attr = svo.child_attr(node, octant);
+                return Traced {
+                    hit: finish(ray, te, t_min, child_level, c, attr, ct0.to_array()),
+                    steps,
+                    aborted: false,
+                };
+            }
+            stack_node[level as usize] = node as u32;
+            stack_child[level as usize] = next as u8;
+            node = svo.child_node(node, octant);
+            coord = c;
+            level = child_level;
+            let half = 0.5 / (1u32 << level) as f32;
+            cell = Cell { t0: ct0, tm: planes.at::<PAR>(c.map(|v| 2 * v + 1), half), t1: ct1 };
+            child = first_node(cell.tm, max(te, t_min));
             continue;
         }
-        let octant = c ^ ray.mirror;
-        let node = svo.nodes[f.slot as usize];
-        if node.valid() as u32 & (1 << octant) == 0 {
-            continue;
+        child = next;
+        if child >= 8 {
+            loop {
+                if level == 0 {
+                    return miss(steps);
+                }
+                steps += 1;
+                level -= 1;
+                child = stack_child[level as usize] as u32;
+                coord = coord.map(|v| v >> 1);
+                if child < 8 {
+                    break;
+                }
+            }
+            node = stack_node[level as usize] as usize;
+            cell = Cell::new::<PAR>(&planes, coord, 1.0 / (1u32 << level) as f32);
         }
-        let child_level = level + 1;
-        let coord = [2 * f.coord[0] + (c & 1), 2 * f.coord[1] + ((c >> 1) & 1), 2 * f.coord[2] + ((c >> 2) & 1)];
-        if node.leaf() as u32 & (1 << octant) != 0 || child_level >= max_level {
-            let attr = svo.child_attr(f.slot as usize, octant);
-            return Traced { hit: finish(ray, te, t_min, child_level, coord, attr, ct0), steps, aborted: false };
-        }
-        let slot = svo.child_slot(f.slot as usize, octant) as u32;
-        let tm = midpoints(ray, ct0, ct1, child_level, coord);
-        stack[sp] = Frame { slot, child: first_node(tm, te.max(t_min)), coord, t0: ct0, t1: ct1, tm };
-        sp += 1;
     }
 }
 

@@ -195,7 +195,7 @@ fn transformed_instances_hit_where_brute_force_oriented_boxes_say() {
             let o = target + rng.unit_vector().as_dvec3() * radius * 3.0;
             let d = (target - o).normalize();
             let prepared = prepare(&scene, o, true);
-            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None };
+            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
             let got = nearest(&fi, DVec3::ZERO, d, Search::Plain, &TraceOptions::default());
             let want = brute_force(&coords, &cube, depth, &m, o, d);
             checked += 1;

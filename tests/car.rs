@@ -93,3 +93,26 @@ fn rig_pivots_match_the_geometry() {
         }
     }
 }
+
+/// The memory goal: at depth 9 every part of the car takes at most one byte of
+/// geometry (what traversal reads) per voxel; version 2's descriptors took about 2.6.
+#[test]
+fn car_geometry_takes_under_a_byte_per_voxel() {
+    let mesh = load_default_car().unwrap();
+    let parts = voxray::pipeline::build_parts(&mesh, voxray::voxelize::Resolution::Depth(9)).unwrap();
+    let (mut geometry, mut voxels) = (0, 0);
+    for (p, svo) in mesh.parts.iter().zip(&parts) {
+        let s = svo.stats();
+        println!(
+            "{}: {} voxels, {:.3} B/voxel geometry, {:.2} attributes",
+            p.name,
+            s.voxels,
+            s.geometry_bytes_per_voxel(),
+            s.attribute_bytes_per_voxel()
+        );
+        assert!(s.geometry_bytes_per_voxel() <= 1.0, "{}: {s:?}", p.name);
+        geometry += s.geometry_bytes;
+        voxels += s.voxels;
+    }
+    assert!(geometry as f64 / (voxels as f64) < 0.75, "{geometry} bytes for {voxels} voxels");
+}

@@ -6,7 +6,7 @@
 use std::mem::{offset_of, size_of};
 use voxray::gi::CacheVoxel;
 use voxray::gpu::layout::*;
-use voxray::svo::{Attr, Node};
+use voxray::svo::Attr;
 
 /// (struct name, [(field, WGSL type)]) parsed from WGSL source.
 fn wgsl_structs(src: &str) -> Vec<(String, Vec<(String, String)>)> {
@@ -61,16 +61,15 @@ type RustStruct = (&'static str, usize, Vec<(&'static str, usize)>);
 #[test]
 fn wgsl_structs_match_rust() {
     let rust: Vec<RustStruct> = vec![
-        ("Node", size_of::<Node>(), vec![("desc", offset_of!(Node, desc)), ("attr_base", offset_of!(Node, attr_base))]),
         ("Attr", size_of::<Attr>(), vec![("albedo", offset_of!(Attr, albedo)), ("normal", offset_of!(Attr, normal))]),
         (
             "Part",
             size_of::<GpuPart>(),
             vec![
                 ("node_base", offset_of!(GpuPart, node_base)),
+                ("mask_base", offset_of!(GpuPart, mask_base)),
                 ("attr_base", offset_of!(GpuPart, attr_base)),
                 ("depth", offset_of!(GpuPart, depth)),
-                ("pad", offset_of!(GpuPart, pad)),
             ],
         ),
         (

@@ -1,14 +1,6 @@
 // Structs shared between the CPU and the GPU. Each mirrors a #[repr(C)] bytemuck::Pod
 // struct in src/ (named above it); tests/layout.rs checks that sizes and offsets agree.
 
-// Mirrors voxray::svo::Node: one 64-bit slot of an SVO's node array.
-struct Node {
-    // Child descriptor: ptr:15 | far:1 | valid:8 | leaf:8 (high bits first).
-    desc: u32,
-    // Index of the attributes of the first valid child.
-    attr_base: u32,
-}
-
 // Mirrors voxray::svo::Attr: attributes of one node or voxel.
 struct Attr {
     // R, G, B sRGB-encoded albedo, then E: emitted radiance = albedo * E / 16.
@@ -19,11 +11,13 @@ struct Attr {
 }
 
 // Mirrors voxray::gpu::layout::GpuPart: where one part's SVO lives in the pools.
+// Its words in the node pool (voxray::gpu::layout::part_words): the links of its nodes from
+// node_base, their 8-bit child masks four to a word from mask_base.
 struct Part {
     node_base: u32,
+    mask_base: u32,
     attr_base: u32,
     depth: u32,
-    pad: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuInstance: one instance for this frame, camera-relative.

@@ -1,13 +1,13 @@
 // Traces an arbitrary list of rays through one SVO (parts[0]), in its unit cube: the GPU side
 // of the stability suite. Needs layout.wgsl and traverse.wgsl.
 
-@group(0) @binding(0) var<storage, read> nodes: array<Node>;
+@group(0) @binding(0) var<storage, read> nodes: array<u32>;
 @group(0) @binding(1) var<storage, read> attrs: array<Attr>;
 @group(0) @binding(2) var<storage, read> parts: array<Part>;
 @group(0) @binding(3) var<storage, read> rays_in: array<RayIn>;
 @group(0) @binding(4) var<storage, read_write> rays_out: array<RayOut>;
 // One SVO: a single binding each; the `_hi` halves are unused placeholders.
-@group(0) @binding(5) var<storage, read> nodes_hi: array<Node>;
+@group(0) @binding(5) var<storage, read> nodes_hi: array<u32>;
 @group(0) @binding(6) var<storage, read> attrs_hi: array<Attr>;
 
 @compute @workgroup_size(64, 1, 1)

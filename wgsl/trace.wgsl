@@ -9,7 +9,7 @@ override REUSE: bool = false;
 // Shadow rays (plan.shadows).
 override SHADOWS: bool = true;
 
-@group(0) @binding(0) var<storage, read> nodes: array<Node>;
+@group(0) @binding(0) var<storage, read> nodes: array<u32>;
 @group(0) @binding(1) var<storage, read> attrs: array<Attr>;
 @group(0) @binding(2) var<storage, read> parts: array<Part>;
 @group(0) @binding(3) var<storage, read> insts: array<Inst>;
@@ -19,7 +19,7 @@ override SHADOWS: bool = true;
 @group(0) @binding(7) var<storage, read_write> hits: array<Hit>;
 @group(0) @binding(8) var<storage, read> moved: array<MovedSphere>;
 @group(0) @binding(9) var<storage, read_write> radiance: array<vec4<f32>>;
-@group(0) @binding(10) var<storage, read> nodes_hi: array<Node>;
+@group(0) @binding(10) var<storage, read> nodes_hi: array<u32>;
 @group(0) @binding(11) var<storage, read> attrs_hi: array<Attr>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.

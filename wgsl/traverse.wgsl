@@ -2,14 +2,15 @@
 // UnitRay::from_unit in src/ray.rs. Same function names, same order of steps; comments
 // point at the differences (f32 only: no f64 rebasing or f64 hit t on the GPU).
 //
-// Needs: layout.wgsl, and the bindings `nodes`, `nodes_hi` (array<Node>) and `attrs`,
-// `attrs_hi` (array<Attr>): a pool larger than one binding continues in its `_hi` half.
+// Needs: layout.wgsl, and the bindings `nodes`, `nodes_hi` (array<u32>: every part's links
+// and child masks, voxray::gpu::layout::part_words) and `attrs`, `attrs_hi` (array<Attr>):
+// a pool larger than one binding continues in its `_hi` half.
 
 // First pool index held by the `_hi` bindings (u32::MAX: everything in the first binding).
 override NODE_SPLIT: u32 = 4294967295u;
 override ATTR_SPLIT: u32 = 4294967295u;
 
-fn pool_node(i: u32) -> Node {
+fn pool_word(i: u32) -> u32 {
     if i < NODE_SPLIT {
         return nodes[i];
     }
@@ -138,15 +139,6 @@ fn to_world(r: UnitRay, t: f32) -> f32 {
     return r.t_offset + t * r.t_scale;
 }
 
-struct Frame_ {
-    slot: u32,
-    child: u32,
-    coord: vec3<u32>,
-    t0: vec3<f32>,
-    t1: vec3<f32>,
-    tm: vec3<f32>,
-}
-
 struct Traced {
     hit: bool,
     t: f32,
@@ -172,47 +164,62 @@ fn argmax3(v: vec3<f32>) -> u32 {
     return 2u;
 }
 
-// traverse::midpoints (Revelles §3.3 for parallel axes)
-fn midpoints(r: UnitRay, t0: vec3<f32>, t1: vec3<f32>, level: u32, coord: vec3<u32>) -> vec3<f32> {
-    var tm: vec3<f32>;
+// traverse::Planes::at: t at the planes k * size of each axis (exact positions), as
+// (p - o) * inv. Parallel axes have inv 0 here; callers replace their values.
+fn planes_at(r: UnitRay, k: vec3<u32>, size: f32) -> vec3<f32> {
+    return (vec3<f32>(k) * size - r.origin) * r.inv_dir;
+}
+
+struct CellT {
+    t0: vec3<f32>,
+    t1: vec3<f32>,
+}
+
+// traverse::cell_t (Revelles §3.1): parallel axes are open on both sides.
+fn cell_t(r: UnitRay, c: vec3<u32>, size: f32) -> CellT {
+    var out = CellT(planes_at(r, c, size), planes_at(r, c + vec3<u32>(1u), size));
     for (var i = 0u; i < 3u; i++) {
         if (r.parallel & (1u << i)) != 0u {
-            let mid = f32(2u * coord[i] + 1u) / f32(1u << (level + 1u));
-            tm[i] = select(BIG, -BIG, r.origin[i] >= mid);
-        } else {
-            tm[i] = 0.5 * (t0[i] + t1[i]);
+            out.t0[i] = -BIG;
+            out.t1[i] = BIG;
         }
     }
-    return tm;
+    return out;
 }
 
-// traverse::first_node (Revelles §3.2)
-fn first_node(tm: vec3<f32>, t_entry: f32) -> u32 {
-    return u32(tm.x < t_entry) | (u32(tm.y < t_entry) << 1u) | (u32(tm.z < t_entry) << 2u);
-}
-
-fn node_at(part: Part, slot: u32) -> Node {
-    return pool_node(part.node_base + slot);
-}
-
-// Svo::child_slot (with far pointers)
-fn child_slot(part: Part, slot: u32, octant: u32) -> u32 {
-    let n = node_at(part, slot);
-    let ptr = n.desc >> 17u;
-    var group = slot + ptr;
-    if ((n.desc >> 16u) & 1u) == 1u {
-        group = group + node_at(part, group).desc;
+// traverse::first_node (Revelles §3.2; §3.3 on parallel axes: the origin's side of the
+// midplane of the cell c of size 2 * half).
+fn first_node(r: UnitRay, c: vec3<u32>, half: f32, t_entry: f32) -> u32 {
+    let tm = planes_at(r, 2u * c + vec3<u32>(1u), half);
+    var first = 0u;
+    for (var i = 0u; i < 3u; i++) {
+        var before = tm[i] < t_entry;
+        if (r.parallel & (1u << i)) != 0u {
+            before = r.origin[i] >= f32(2u * c[i] + 1u) * half;
+        }
+        first |= u32(before) << i;
     }
-    let valid = (n.desc >> 8u) & 0xFFu;
-    let inner = valid & ~(n.desc & 0xFFu);
-    return group + countOneBits(inner & ((1u << octant) - 1u));
+    return first;
 }
 
-// Svo::child_attr
-fn child_attr(part: Part, slot: u32, octant: u32) -> Attr {
-    let n = node_at(part, slot);
-    let valid = (n.desc >> 8u) & 0xFFu;
-    return pool_attr(part.attr_base + n.attr_base + countOneBits(valid & ((1u << octant) - 1u)));
+// Svo::masks[node]: four masks to a word.
+fn node_mask(part: Part, node: u32) -> u32 {
+    return (pool_word(part.mask_base + (node >> 2u)) >> ((node & 3u) * 8u)) & 0xFFu;
+}
+
+// svo::rank
+fn rank(mask: u32, octant: u32) -> u32 {
+    return countOneBits(mask & ((1u << octant) - 1u));
+}
+
+// Svo::child_node: the link plus the child's rank.
+fn child_node(part: Part, node: u32, mask: u32, octant: u32) -> u32 {
+    return pool_word(part.node_base + node) + rank(mask, octant);
+}
+
+// Svo::child_attr: the same sum, into the attribute pool.
+fn child_attr(part: Part, node: u32, mask: u32, octant: u32) -> Attr {
+    return pool_attr(part.attr_base + child_node(part, node, mask, octant));
 }
 
 fn step_bound(depth: u32) -> u32 {
@@ -267,34 +274,29 @@ fn trace_unit(part: Part, r: UnitRay, t_min_w: f32, t_max_w: f32, max_level_in: 
         return miss;
     }
     let max_level = min(max_level_in, part.depth);
-    var t0: vec3<f32>;
-    var t1: vec3<f32>;
     for (var i = 0u; i < 3u; i++) {
-        if (r.parallel & (1u << i)) != 0u {
-            if !(r.origin[i] >= 0.0 && r.origin[i] < 1.0) {
-                return miss;
-            }
-            t0[i] = -BIG;
-            t1[i] = BIG;
-        } else {
-            t0[i] = -r.origin[i] * r.inv_dir[i];
-            t1[i] = (1.0 - r.origin[i]) * r.inv_dir[i];
+        if (r.parallel & (1u << i)) != 0u && !(r.origin[i] >= 0.0 && r.origin[i] < 1.0) {
+            return miss;
         }
     }
-    let t_enter = max3(t0);
-    let t_exit = min3(t1);
+    let root = cell_t(r, vec3<u32>(0u), 1.0);
+    let t_enter = max3(root.t0);
+    let t_exit = min3(root.t1);
     if t_enter > t_exit || t_exit < t_min || t_enter > t_max {
         return miss;
     }
     if max_level == 0u {
-        var h = finish(r, t_enter, t_min, 0u, vec3<u32>(0u), pool_attr(part.attr_base), t0);
+        var h = finish(r, t_enter, t_min, 0u, vec3<u32>(0u), pool_attr(part.attr_base), root.t0);
         h.steps = 1u;
         return h;
     }
-    var stack: array<Frame_, 20>;
-    let tm0 = midpoints(r, t0, t1, 0u, vec3<u32>(0u));
-    stack[0] = Frame_(0u, first_node(tm0, max(t_enter, t_min)), vec3<u32>(0u), t0, t1, tm0);
-    var sp = 1u;
+    // Frames of the levels above the current node: its number and the next child to visit.
+    var stack_node: array<u32, 20>;
+    var stack_child: array<u32, 20>;
+    var level = 0u;
+    var node = 0u;
+    var coord = vec3<u32>(0u);
+    var child = first_node(r, coord, 0.5, max(t_enter, t_min));
     let bound = step_bound(part.depth);
     var steps = 0u;
     loop {
@@ -303,57 +305,47 @@ fn trace_unit(part: Part, r: UnitRay, t_min_w: f32, t_max_w: f32, max_level_in: 
             miss.steps = steps;
             return miss;
         }
-        let level = sp - 1u;
-        let f = stack[sp - 1u];
-        if f.child >= 8u {
-            sp -= 1u;
-            if sp == 0u {
-                miss.steps = steps;
-                return miss;
-            }
-            continue;
-        }
-        let c = f.child;
-        var ct0: vec3<f32>;
-        var ct1: vec3<f32>;
-        for (var i = 0u; i < 3u; i++) {
-            if (c & (1u << i)) != 0u {
-                ct0[i] = f.tm[i];
-                ct1[i] = f.t1[i];
-            } else {
-                ct0[i] = f.t0[i];
-                ct1[i] = f.tm[i];
-            }
-        }
+        let size = 1.0 / f32(2u << level);
+        let c = 2u * coord + vec3<u32>(child & 1u, (child >> 1u) & 1u, (child >> 2u) & 1u);
+        let ct = cell_t(r, c, size);
         // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
-        let exit_bit = 1u << argmin3(ct1);
-        stack[sp - 1u].child = select(c | exit_bit, 8u, (c & exit_bit) != 0u);
-
-        let te = max3(ct0);
-        let tx = min3(ct1);
+        let exit_bit = 1u << argmin3(ct.t1);
+        let next = select(child | exit_bit, 8u, (child & exit_bit) != 0u);
+        let te = max3(ct.t0);
+        let tx = min3(ct.t1);
         if te > t_max {
             miss.steps = steps;
             return miss;
         }
-        if tx < t_min {
+        let octant = child ^ r.mirror;
+        let mask = node_mask(part, node);
+        if tx >= t_min && (mask & (1u << octant)) != 0u {
+            let child_level = level + 1u;
+            if child_level >= max_level {
+                var h = finish(r, te, t_min, child_level, c, child_attr(part, node, mask, octant), ct.t0);
+                h.steps = steps;
+                return h;
+            }
+            stack_node[level] = node;
+            stack_child[level] = next;
+            node = child_node(part, node, mask, octant);
+            coord = c;
+            level = child_level;
+            child = first_node(r, coord, size * 0.5, max(te, t_min));
             continue;
         }
-        let octant = c ^ r.mirror;
-        let node = node_at(part, f.slot);
-        if (((node.desc >> 8u) & 0xFFu) & (1u << octant)) == 0u {
-            continue;
+        child = next;
+        while child >= 8u {
+            if level == 0u {
+                miss.steps = steps;
+                return miss;
+            }
+            steps += 1u;
+            level -= 1u;
+            node = stack_node[level];
+            child = stack_child[level];
+            coord = coord >> vec3<u32>(1u);
         }
-        let child_level = level + 1u;
-        let coord = vec3<u32>(2u * f.coord.x + (c & 1u), 2u * f.coord.y + ((c >> 1u) & 1u), 2u * f.coord.z + ((c >> 2u) & 1u));
-        if ((node.desc & 0xFFu) & (1u << octant)) != 0u || child_level >= max_level {
-            var h = finish(r, te, t_min, child_level, coord, child_attr(part, f.slot, octant), ct0);
-            h.steps = steps;
-            return h;
-        }
-        let slot = child_slot(part, f.slot, octant);
-        let tm = midpoints(r, ct0, ct1, child_level, coord);
-        stack[sp] = Frame_(slot, first_node(tm, max(te, t_min)), coord, ct0, ct1, tm);
-        sp += 1u;
     }
     return miss;
 }

@@ -192,9 +192,31 @@ fn paper(rs: &[&Record], path: &Path) -> Res<()> {
 }
 
 fn peers(rs: &[&Record], path: &Path) -> Res<()> {
-    let labels: Vec<String> = rs.iter().map(|r| r.name.clone()).collect();
-    let series = vec![("Mrays/s".to_string(), rs.iter().map(|r| Some(r.mrays_per_s)).collect())];
-    bars(path, "Primary rays per second on the same car, camera and threads", "Mrays/s", &labels, &series)
+    // One bar group per (view, caster), one bar per thread count.
+    let label = |r: &Record| match r.setting.split_once(": ") {
+        Some((view, _)) => format!("{view}: {}", r.name),
+        None => r.name.clone(),
+    };
+    let mut labels: Vec<String> = Vec::new();
+    for r in rs {
+        if !labels.contains(&label(r)) {
+            labels.push(label(r));
+        }
+    }
+    let mut threads: Vec<u64> = rs.iter().map(|r| r.x as u64).collect();
+    threads.sort_unstable();
+    threads.dedup();
+    let series: Vec<(String, Vec<Option<f64>>)> = threads
+        .iter()
+        .map(|&t| {
+            let values = labels
+                .iter()
+                .map(|l| rs.iter().find(|r| &label(r) == l && r.x as u64 == t).map(|r| r.mrays_per_s))
+                .collect();
+            (format!("{t} thread{}", if t == 1 { "" } else { "s" }), values)
+        })
+        .collect();
+    bars(path, "Primary rays per second: same model, camera and threads", "Mrays/s", &labels, &series)
 }
 
 /// Lines through (x, y) points, one series per key, optionally log-log.

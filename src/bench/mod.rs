@@ -67,8 +67,15 @@ pub struct Record {
     pub gpu_trace_ms: Option<f64>,
     /// Median GPU time of the shade pass (ms).
     pub gpu_shade_ms: Option<f64>,
-    /// Bytes of the SVOs in the scene (node and attribute arrays).
+    /// Bytes of the SVOs in the scene (geometry and attributes).
     pub svo_bytes: u64,
+    /// Bytes of the SVOs' geometry: what traversal reads (child masks, links above the
+    /// deepest level).
+    pub geometry_bytes: u64,
+    /// Bytes of the SVOs' attributes: read only for hits.
+    pub attribute_bytes: u64,
+    /// Voxels of the SVOs in the scene (each part once).
+    pub voxels: u64,
     /// Bytes of GPU buffers the renderer used (GPU backend only).
     pub gpu_bytes: Option<u64>,
     /// Bytes of the GI world volume's cells (gi-volume scenario).
@@ -163,15 +170,9 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
     }
     let (median_ms, p95_ms, min_ms) = summarize(&times);
     let pixels = (clip.camera.width * clip.camera.height) as f64 * frames as f64;
-    let svo_bytes = clip
-        .scene
-        .parts
-        .iter()
-        .map(|p| {
-            let st = p.stats();
-            st.geometry_bytes + st.attribute_bytes
-        })
-        .sum();
+    let stats: Vec<_> = clip.scene.parts.iter().map(|p| p.stats()).collect();
+    let geometry_bytes = stats.iter().map(|s| s.geometry_bytes).sum::<u64>();
+    let attribute_bytes = stats.iter().map(|s| s.attribute_bytes).sum::<u64>();
     let record = Record {
         width: clip.camera.width,
         height: clip.camera.height,
@@ -189,7 +190,10 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
         backend_kind: backend.kind_name().to_string(),
         gpu_trace_ms: (!trace_ms.is_empty()).then(|| summarize(&trace_ms).0),
         gpu_shade_ms: (!shade_ms.is_empty()).then(|| summarize(&shade_ms).0),
-        svo_bytes,
+        svo_bytes: geometry_bytes + attribute_bytes,
+        geometry_bytes,
+        attribute_bytes,
+        voxels: stats.iter().map(|s| s.voxels).sum(),
         gpu_bytes: backend.gpu_bytes(),
         plan,
         ..Record::default()

@@ -1,13 +1,17 @@
-//! Other ray casters a user might pick, on the same car, camera and thread pool: Intel Embree
-//! (triangle BVH, through the `embree` crate and the system library), parry3d's `TriMesh`
-//! (triangle BVH) and parry3d's `Voxels` built from the SVO's own leaf voxels. Each traces the
-//! nearest hit of every primary ray of a frame; voxray renders the same frame from the merged
-//! static SVO, and also answers the same nearest-hit queries through the same loop as the
-//! peers (the like-for-like figure). The hit fraction of each is recorded so a reader can see they trace the same
-//! thing.
+//! Other ray casters a user might pick, on the same model, camera and threads: Intel Embree
+//! (triangle BVH, through the `embree` crate and the system library; one ray at a time, and
+//! as coherent streams of 8×8 tiles), parry3d's `TriMesh` (triangle BVH) and parry3d's
+//! `Voxels` built from the SVO's own leaf voxels. Each traces the nearest hit of every primary
+//! ray of a frame. voxray answers the same queries through its primary-ray API
+//! ([`crate::render::primary`]: 8×8 tiles with beams) on the SVO of the same triangles, and
+//! renders whole frames of the default view too. Every caster runs on one thread and on all
+//! threads, on several views; the hit fraction of each is recorded so a reader can see they
+//! trace the same thing.
 
 use super::{summarize, Record};
 use crate::backend::Backend;
+use crate::render::primary::{nearest_hits, Primary};
+use crate::render::visibility::{FrameInstances, Search};
 use crate::render::{Features, HitBuffer};
 use crate::scene::Camera;
 use crate::svo::Svo;
@@ -16,14 +20,26 @@ use rayon::prelude::*;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// What the peers trace.
-pub struct PeerScene<'a> {
-    /// The car's triangles (positions), in the same space as `svo`.
+/// One view the peers are measured on.
+pub struct PeerView<'a> {
+    /// Short name (`default`, `close-up`, …), the first part of each record's setting.
+    pub name: String,
+    /// The triangles (positions), in the same space as `svo`.
     pub triangles: &'a [[Vec3; 3]],
-    /// The car merged into one SVO, placed at the identity.
+    /// The same geometry as one SVO, placed at the identity.
     pub svo: Arc<Svo>,
     /// The camera.
-    pub camera: &'a Camera,
+    pub camera: Camera,
+    /// Also time voxray's whole frame (trace and shade) on this view.
+    pub whole_frame: bool,
+}
+
+/// What the peers are measured on.
+pub struct PeerScene<'a> {
+    /// The views.
+    pub views: Vec<PeerView<'a>>,
+    /// Thread counts to run every caster with.
+    pub threads: Vec<usize>,
     /// Untimed frames.
     pub warmup: usize,
     /// Timed frames.
@@ -35,111 +51,164 @@ pub struct PeerScene<'a> {
 }
 
 /// Traces one frame with `hit` (true on a hit) over every pixel in parallel rows; returns
-/// seconds and the number of hits.
-fn frame(camera: &Camera, hit: &(dyn Fn(DVec3, DVec3) -> bool + Sync)) -> (f64, u64) {
+/// the number of hits.
+fn frame(camera: &Camera, hit: &(dyn Fn(DVec3, DVec3) -> bool + Sync)) -> u64 {
     let b = camera.basis();
-    let start = Instant::now();
-    let hits: u64 = (0..camera.height)
+    (0..camera.height)
         .into_par_iter()
         .map(|y| (0..camera.width).filter(|&x| hit(camera.eye, camera.ray_dir(&b, x, y))).count() as u64)
-        .sum();
-    (start.elapsed().as_secs_f64(), hits)
+        .sum()
 }
 
-fn timed(name: &str, what: &str, scene: &PeerScene<'_>, hit: &(dyn Fn(DVec3, DVec3) -> bool + Sync)) -> Record {
+/// How one caster answers a frame: the number of pixels that hit.
+type FrameFn<'f> = dyn Fn() -> u64 + Sync + 'f;
+
+struct Timing<'a> {
+    view: &'a PeerView<'a>,
+    threads: usize,
+    warmup: usize,
+    frames: usize,
+}
+
+fn timed(t: &Timing<'_>, name: &str, kind: &str, what: &str, run: &FrameFn<'_>) -> Result<Record, crate::Error> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(t.threads)
+        .build()
+        .map_err(|e| crate::Error::Io { path: "thread pool".into(), source: std::io::Error::other(e.to_string()) })?;
     let mut times = Vec::new();
     let mut hits = 0;
-    for f in 0..scene.warmup + scene.frames.max(1) {
-        let (secs, h) = frame(scene.camera, hit);
-        if f >= scene.warmup {
-            times.push(secs * 1e3);
+    for f in 0..t.warmup + t.frames.max(1) {
+        let start = Instant::now();
+        let h = pool.install(run);
+        if f >= t.warmup {
+            times.push(start.elapsed().as_secs_f64() * 1e3);
             hits = h;
         }
     }
     let (median_ms, p95_ms, min_ms) = summarize(&times);
-    let pixels = (scene.camera.width * scene.camera.height) as f64;
-    Record {
+    let camera = &t.view.camera;
+    let pixels = (camera.width * camera.height) as f64;
+    Ok(Record {
         group: "peers".into(),
         name: name.into(),
-        setting: format!("{what}; hits {:.1}% of pixels", 100.0 * hits as f64 / pixels),
-        backend_kind: name.into(),
-        backend: format!("CPU, {} threads", rayon::current_num_threads()),
-        width: scene.camera.width,
-        height: scene.camera.height,
-        warmup: scene.warmup,
-        frames: scene.frames.max(1),
+        setting: format!("{}: {what}; hits {:.1}% of pixels", t.view.name, 100.0 * hits as f64 / pixels),
+        x: t.threads as f64,
+        backend_kind: kind.into(),
+        backend: format!("CPU, {} threads", t.threads),
+        width: camera.width,
+        height: camera.height,
+        warmup: t.warmup,
+        frames: t.frames.max(1),
         instances: 1,
         median_ms,
         p95_ms,
         min_ms,
         mrays_per_s: pixels / (median_ms.max(1e-9) * 1e-3) / 1e6,
-        machine: scene.machine.clone(),
-        command: scene.command.clone(),
         ..Record::default()
-    }
+    })
 }
 
-/// Runs voxray and every peer on `scene`.
-pub fn run(scene: &PeerScene<'_>) -> Result<Vec<Record>, crate::Error> {
+/// Runs voxray and every peer on every view and thread count.
+pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
     let mut out = Vec::new();
+    for view in &scene.views {
+        let voxray_scene = super::matrix::static_scene(view.svo.clone())?;
+        let svo = &view.svo;
+        let voxels = format!("{} voxels (depth {})", svo.voxel_count, svo.depth);
+        let tris = format!("{} triangles, BVH", view.triangles.len());
+        let peers = Peers::new(view)?;
+        for &threads in &scene.threads {
+            let t = Timing { view, threads, warmup: scene.warmup, frames: scene.frames };
+            progress(&format!("peers: {}, {threads} threads", view.name));
+            if view.whole_frame {
+                out.push(whole_frame(&t, &voxray_scene, &voxels)?);
+            }
+            // voxray's primary-ray API: 8×8 tiles, beams, nearest hit only (no shading).
+            let prepared = crate::render::instances::prepare(&voxray_scene, view.camera.eye, false);
+            let fi = FrameInstances { parts: &voxray_scene.parts, prepared: &prepared, bvh: None, starts: None };
+            let primary = Primary {
+                instances: fi,
+                camera: &view.camera,
+                search: Search::Cull,
+                opts: Default::default(),
+                beams: true,
+            };
+            let run = || nearest_hits(&primary).iter().filter(|h| h.is_some()).count() as u64;
+            let what = format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams");
+            out.push(timed(&t, "voxray (trace only)", "voxray-trace", &what, &run)?);
+            peers.time(&t, &tris, &mut out)?;
+        }
+    }
+    for r in &mut out {
+        r.machine = scene.machine.clone();
+        r.command = scene.command.clone();
+    }
+    Ok(out)
+}
 
-    // voxray: the whole frame (trace + shade), primary rays only, on the merged static SVO.
-    let mut voxray_scene = super::matrix::static_scene(scene.svo.clone())?;
-    let mut backend = Backend::Cpu(HitBuffer::new());
+/// voxray's whole frame (trace + shade into the frame buffer), primary rays only.
+fn whole_frame(t: &Timing<'_>, scene: &crate::scene::Scene, voxels: &str) -> Result<Record, crate::Error> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(t.threads)
+        .build()
+        .map_err(|e| crate::Error::Io { path: "thread pool".into(), source: std::io::Error::other(e.to_string()) })?;
+    let mut scene = scene.clone();
     let clip = super::Clip {
-        scene: &mut voxray_scene,
+        scene: &mut scene,
         cars: &[],
-        camera: scene.camera,
+        camera: &t.view.camera,
         lights: &crate::scene::Lights::default(),
         features: Features { hit_buffer: false, shadows: false, ..Features::default() },
         lod: u32::MAX,
-        warmup: scene.warmup,
-        frames: scene.frames,
+        warmup: t.warmup,
+        frames: t.frames,
         fps: 30.0,
     };
-    let backend_name = format!("CPU, {} threads", rayon::current_num_threads());
-    let (mut r, f) = super::run_clip(&mut backend, &backend_name, clip)?;
+    let backend_name = format!("CPU, {} threads", t.threads);
+    // The backend lives inside the pool (a GPU backend could not cross threads).
+    let (mut r, f) = pool.install(|| super::run_clip(&mut Backend::Cpu(HitBuffer::new()), &backend_name, clip))?;
     let hits = f.instance.iter().filter(|&&i| i >= 0).count();
-    let pixels = (scene.camera.width * scene.camera.height) as f64;
+    let pixels = (t.view.camera.width * t.view.camera.height) as f64;
     r.group = "peers".into();
-    r.name = "voxray".into();
+    r.name = "voxray (whole frame)".into();
     r.backend_kind = "voxray".into();
+    r.x = t.threads as f64;
     r.setting = format!(
-        "SVO, {} voxels (depth {}), whole frame; hits {:.1}% of pixels",
-        scene.svo.voxel_count,
-        scene.svo.depth,
+        "{}: SVO, {voxels}, traced and shaded; hits {:.1}% of pixels",
+        t.view.name,
         100.0 * hits as f64 / pixels
     );
     // Primary rays only (no reuse, no shadows): rays per second of the median frame.
     r.mrays_per_s = pixels / (r.median_ms.max(1e-9) * 1e-3) / 1e6;
-    r.machine = scene.machine.clone();
-    r.command = scene.command.clone();
-    out.push(r);
+    Ok(r)
+}
 
-    // voxray again, on the peers' own terms: per pixel only the nearest-hit query (sphere
-    // culling, camera-relative ray into the SVO), no plan, no shading.
-    {
-        use crate::render::instances::prepare;
-        use crate::render::visibility::{nearest, FrameInstances, Search};
-        let prepared = prepare(&voxray_scene, scene.camera.eye, false);
-        let fi = FrameInstances { parts: &voxray_scene.parts, prepared: &prepared, bvh: None };
-        let opts = crate::traverse::TraceOptions::default();
-        let hit = |_o: DVec3, d: DVec3| nearest(&fi, DVec3::ZERO, d, Search::Cull, &opts).is_some();
-        let mut r = timed("voxray (trace only)", "the same SVO, nearest-hit query only", scene, &hit);
-        r.backend_kind = "voxray-trace".into();
-        out.push(r);
-    }
+/// The peers' acceleration structures for one view, built once.
+struct Peers {
+    embree: EmbreeScene,
+    trimesh: parry3d::shape::TriMesh,
+    voxels: parry3d::shape::Voxels,
+    voxel_count: usize,
+    grid_min: DVec3,
+}
 
-    // Embree: one triangle geometry, BVH built by the library.
-    {
+/// Embree's device and committed scene. The committed scene borrows the scene, which
+/// borrows the device, so both are leaked for the life of the process: a benchmark builds a
+/// handful of them.
+struct EmbreeScene {
+    committed: embree::CommittedScene<'static>,
+}
+
+impl EmbreeScene {
+    fn new(triangles: &[[Vec3; 3]]) -> Self {
         use cgmath::{Vector3, Vector4};
-        let device = embree::Device::new();
-        let n = scene.triangles.len();
-        let mut mesh = embree::TriangleMesh::unanimated(&device, n, 3 * n);
+        let device: &'static embree::Device = Box::leak(Box::new(embree::Device::new()));
+        let n = triangles.len();
+        let mut mesh = embree::TriangleMesh::unanimated(device, n, 3 * n);
         {
             let mut v = mesh.vertex_buffer.map();
             let mut idx = mesh.index_buffer.map();
-            for (i, t) in scene.triangles.iter().enumerate() {
+            for (i, t) in triangles.iter().enumerate() {
                 for k in 0..3 {
                     v[3 * i + k] = Vector4::new(t[k].x, t[k].y, t[k].z, 0.0);
                 }
@@ -148,65 +217,105 @@ pub fn run(scene: &PeerScene<'_>) -> Result<Vec<Record>, crate::Error> {
         }
         let mut geom = embree::Geometry::Triangle(mesh);
         geom.commit();
-        let mut es = embree::Scene::new(&device);
-        es.attach_geometry(geom);
-        let committed = es.commit();
-        let hit = |o: DVec3, d: DVec3| {
-            let mut ctx = embree::IntersectContext::coherent();
-            let mut rh = embree::RayHit::new(embree::Ray::new(
-                Vector3::new(o.x as f32, o.y as f32, o.z as f32),
-                Vector3::new(d.x as f32, d.y as f32, d.z as f32),
-            ));
-            committed.intersect(&mut ctx, &mut rh);
-            rh.hit.hit()
-        };
-        out.push(timed("Embree 3", &format!("{n} triangles, BVH"), scene, &hit));
+        let scene: &'static mut embree::Scene<'static> = Box::leak(Box::new(embree::Scene::new(device)));
+        scene.attach_geometry(geom);
+        let scene: &'static embree::Scene<'static> = scene;
+        EmbreeScene { committed: scene.commit() }
     }
+}
 
-    // parry3d TriMesh.
-    {
-        use parry3d::math::Vector;
-        use parry3d::query::{Ray, RayCast};
+fn embree_ray(o: DVec3, d: DVec3) -> embree::RayHit {
+    use cgmath::Vector3;
+    embree::RayHit::new(embree::Ray::new(
+        Vector3::new(o.x as f32, o.y as f32, o.z as f32),
+        Vector3::new(d.x as f32, d.y as f32, d.z as f32),
+    ))
+}
+
+impl Peers {
+    fn new(view: &PeerView<'_>) -> Result<Self, crate::Error> {
+        use parry3d::math::{IVector, Vector};
         let verts: Vec<Vector> =
-            scene.triangles.iter().flat_map(|t| t.iter().map(|p| Vector::new(p.x, p.y, p.z))).collect();
-        let idx: Vec<[u32; 3]> = (0..scene.triangles.len() as u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
-        let tm = parry3d::shape::TriMesh::new(verts, idx).map_err(|e| crate::Error::Io {
+            view.triangles.iter().flat_map(|t| t.iter().map(|p| Vector::new(p.x, p.y, p.z))).collect();
+        let idx: Vec<[u32; 3]> = (0..view.triangles.len() as u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
+        let trimesh = parry3d::shape::TriMesh::new(verts, idx).map_err(|e| crate::Error::Io {
             path: "parry3d TriMesh".into(),
             source: std::io::Error::other(format!("{e:?}")),
         })?;
-        let hit = |o: DVec3, d: DVec3| {
+        let coords: Vec<IVector> = view
+            .svo
+            .at_level(view.svo.depth)
+            .iter()
+            .map(|(c, _)| IVector::new(c[0] as i32, c[1] as i32, c[2] as i32))
+            .collect();
+        let size = view.svo.bounds.voxel_size(view.svo.depth);
+        let voxels = parry3d::shape::Voxels::new(Vector::splat(size), &coords);
+        Ok(Peers {
+            embree: EmbreeScene::new(view.triangles),
+            trimesh,
+            voxels,
+            voxel_count: coords.len(),
+            grid_min: view.svo.bounds.min.as_dvec3(),
+        })
+    }
+
+    fn time(&self, t: &Timing<'_>, tris: &str, out: &mut Vec<Record>) -> Result<(), crate::Error> {
+        use parry3d::math::Vector;
+        use parry3d::query::{Ray, RayCast};
+        let camera = &t.view.camera;
+        let committed = &self.embree.committed;
+
+        let one = |o: DVec3, d: DVec3| {
+            let mut ctx = embree::IntersectContext::coherent();
+            let mut rh = embree_ray(o, d);
+            committed.intersect(&mut ctx, &mut rh);
+            rh.hit.hit()
+        };
+        out.push(timed(t, "Embree 3", "embree", &format!("{tris}, one ray at a time"), &|| frame(camera, &one))?);
+
+        // Embree's coherent stream API over the same 8×8 tiles voxray uses.
+        let stream = || {
+            let b = camera.basis();
+            let tiles_x = camera.width.div_ceil(8);
+            let tiles = tiles_x * camera.height.div_ceil(8);
+            (0..tiles)
+                .into_par_iter()
+                .map(|k| {
+                    let (x0, y0) = ((k % tiles_x) * 8, (k / tiles_x) * 8);
+                    let mut rays = Vec::with_capacity(64);
+                    for y in y0..(y0 + 8).min(camera.height) {
+                        for x in x0..(x0 + 8).min(camera.width) {
+                            rays.push(embree_ray(camera.eye, camera.ray_dir(&b, x, y)));
+                        }
+                    }
+                    let mut ctx = embree::IntersectContext::coherent();
+                    committed.intersect_stream_aos(&mut ctx, &mut rays);
+                    rays.iter().filter(|r| r.hit.hit()).count() as u64
+                })
+                .sum()
+        };
+        out.push(timed(t, "Embree 3 (stream)", "embree-stream", &format!("{tris}, coherent 8×8 streams"), &stream)?);
+
+        let tri = |o: DVec3, d: DVec3| {
             let ray = Ray::new(
                 Vector::new(o.x as f32, o.y as f32, o.z as f32),
                 Vector::new(d.x as f32, d.y as f32, d.z as f32),
             );
-            tm.cast_local_ray(&ray, f32::MAX, true).is_some()
+            self.trimesh.cast_local_ray(&ray, f32::MAX, true).is_some()
         };
-        out.push(timed("parry3d TriMesh", &format!("{} triangles, BVH", scene.triangles.len()), scene, &hit));
-    }
+        out.push(timed(t, "parry3d TriMesh", "parry-trimesh", tris, &|| frame(camera, &tri))?);
 
-    // parry3d Voxels on the SVO's own voxels.
-    {
-        use parry3d::math::{IVector, Vector};
-        use parry3d::query::{Ray, RayCast};
-        let coords: Vec<IVector> = scene
-            .svo
-            .at_level(scene.svo.depth)
-            .iter()
-            .map(|(c, _)| IVector::new(c[0] as i32, c[1] as i32, c[2] as i32))
-            .collect();
-        let size = scene.svo.bounds.voxel_size(scene.svo.depth);
-        let vox = parry3d::shape::Voxels::new(Vector::splat(size), &coords);
-        let min = scene.svo.bounds.min.as_dvec3();
-        let hit = |o: DVec3, d: DVec3| {
+        let vox = |o: DVec3, d: DVec3| {
             // The grid's own frame: voxel k covers [k·size, (k+1)·size) from the cube corner.
-            let l = o - min;
+            let l = o - self.grid_min;
             let ray = Ray::new(
                 Vector::new(l.x as f32, l.y as f32, l.z as f32),
                 Vector::new(d.x as f32, d.y as f32, d.z as f32),
             );
-            vox.cast_local_ray(&ray, f32::MAX, true).is_some()
+            self.voxels.cast_local_ray(&ray, f32::MAX, true).is_some()
         };
-        out.push(timed("parry3d Voxels", &format!("the same {} voxels, chunks + BVH", coords.len()), scene, &hit));
+        let what = format!("the same {} voxels, chunks + BVH", self.voxel_count);
+        out.push(timed(t, "parry3d Voxels", "parry-voxels", &what, &|| frame(camera, &vox))?);
+        Ok(())
     }
-    Ok(out)
 }

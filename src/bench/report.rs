@@ -13,6 +13,15 @@ fn opt(v: Option<f64>) -> String {
     v.map_or(String::new(), |x| format!("{x}"))
 }
 
+/// Bytes per voxel, or a dash for records that predate the figure.
+fn per_voxel(bytes: u64, voxels: u64) -> String {
+    if voxels == 0 {
+        "–".into()
+    } else {
+        format!("{:.2}", bytes as f64 / voxels as f64)
+    }
+}
+
 fn quote(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
@@ -23,7 +32,7 @@ fn quote(s: &str) -> String {
 
 /// The CSV header of [`to_csv`].
 pub const CSV_HEADER: &str = "group,name,setting,x,backend_kind,backend,width,height,warmup,frames,instances,\
-median_ms,p95_ms,min_ms,mrays_per_s,reused_fraction,instances_per_ray,culled_per_ray,gpu_trace_ms,gpu_shade_ms,svo_bytes,gpu_bytes,\
+median_ms,p95_ms,min_ms,mrays_per_s,reused_fraction,instances_per_ray,culled_per_ray,gpu_trace_ms,gpu_shade_ms,svo_bytes,geometry_bytes,attribute_bytes,voxels,gpu_bytes,\
 rmse,coverage_mismatch,depth_rel,machine,command";
 
 /// One line per record, with a header.
@@ -54,6 +63,9 @@ pub fn to_csv(records: &[Record]) -> String {
             opt(r.gpu_trace_ms),
             opt(r.gpu_shade_ms),
             r.svo_bytes.to_string(),
+            r.geometry_bytes.to_string(),
+            r.attribute_bytes.to_string(),
+            r.voxels.to_string(),
             r.gpu_bytes.map_or(String::new(), |b| b.to_string()),
             opt(e.map(|e| e.rmse)),
             opt(e.map(|e| e.mismatch)),
@@ -118,11 +130,11 @@ one static SVO, (b) its 8 parts as animated instances with every optimization of
 bounding-sphere culling, depth-sorted early-out and the hit buffer, (d) the default plan (BVH when \
 it pays, hit buffer) plus shadow rays. Frame time covers posing, transform update, plan and render.\n\n";
         md += &provenance(&rs);
-        md += "\n| scenario | backend | instances | median ms | p95 ms | min ms | ratio to a | reused | instances traversed / ray | spheres culled / ray | Mrays/s traced | GPU trace ms | GPU shade ms | SVO MiB | GPU MiB |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        md += "\n| scenario | backend | instances | median ms | p95 ms | min ms | ratio to a | reused | instances traversed / ray | spheres culled / ray | Mrays/s traced | GPU trace ms | GPU shade ms | SVO MiB | geometry B/voxel | attributes B/voxel | GPU MiB |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
         for r in &rs {
             let base = rs.iter().find(|b| b.setting == "a" && b.backend_kind == r.backend_kind);
             md += &format!(
-                "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {} | {:.1}% | {:.2} | {:.2} | {:.2} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {} | {:.1}% | {:.2} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} |\n",
                 r.name,
                 r.backend_kind,
                 r.instances,
@@ -137,6 +149,8 @@ it pays, hit buffer) plus shadow rays. Frame time covers posing, transform updat
                 ms(r.gpu_trace_ms),
                 ms(r.gpu_shade_ms),
                 mib(r.svo_bytes),
+                per_voxel(r.geometry_bytes, r.voxels),
+                per_voxel(r.attribute_bytes, r.voxels),
                 r.gpu_bytes.map_or("–".into(), mib),
             );
         }
@@ -214,27 +228,66 @@ hit-distance error where both hit the same instance. No hit buffer, shadows on.\
     }
     let rs = of("peers");
     if !rs.is_empty() {
-        md += "### Peers: the same car, camera and threads\n\n";
-        md += "Primary rays of one frame (nearest hit) on the car merged into one static object: the \
-triangle mesh for Embree and parry3d `TriMesh`, the SVO's own leaf voxels for parry3d `Voxels`. \
-`voxray` is a whole rendered frame (plan, trace and shade into the frame buffer); `voxray (trace \
-only)` answers the same nearest-hit queries through the same per-pixel loop as the peers, and the \
-ratio column divides its rays per second by each row's. Ratio > 1: voxray is faster.\n\n";
+        md += "### Peers: the same model, camera and threads\n\n";
+        md += "Primary rays of one frame (nearest hit) on three views: the car merged into one static \
+object, seen whole and close up, and its body alone voxelized at depth 11. Embree and parry3d \
+`TriMesh` trace the triangle mesh, parry3d `Voxels` the SVO's own leaf voxels. `voxray (trace \
+only)` answers the same nearest-hit queries through its primary-ray API (8×8 tiles, each started \
+at its beam), `voxray (whole frame)` also shades them into the frame buffer. Embree runs one ray \
+at a time and, as `Embree 3 (stream)`, on coherent streams of the same 8×8 tiles. Every caster \
+runs on one thread and on all threads; the ratio columns divide voxray's trace-only rays per \
+second by each row's at the same thread count. Ratio > 1: voxray is faster.\n\n";
         md += &provenance(&rs);
-        // Like for like: voxray's nearest-hit queries through the peers' loop when measured.
-        let ours =
-            rs.iter().find(|r| r.backend_kind == "voxray-trace").or(rs.iter().find(|r| r.backend_kind == "voxray"));
-        md += "\n| ray caster | what it traces | median ms | Mrays/s | voxray ÷ it |\n|---|---|---|---|---|\n";
+        let view_of = |r: &Record| r.setting.split_once(": ").map_or(String::new(), |(v, _)| v.to_string());
+        let mut views: Vec<String> = Vec::new();
         for r in &rs {
-            md += &format!(
-                "| {} | {} | {:.1} | {:.2} | {} |\n",
-                r.name,
-                r.setting,
-                r.median_ms,
-                r.mrays_per_s,
-                ours.map_or("–".into(), |o| format!("{:.2}", o.mrays_per_s / r.mrays_per_s.max(1e-12)))
-            );
+            if !views.contains(&view_of(r)) {
+                views.push(view_of(r));
+            }
         }
+        let mut threads: Vec<u64> = rs.iter().map(|r| r.x as u64).collect();
+        threads.sort_unstable();
+        threads.dedup();
+        for view in &views {
+            let vr: Vec<&&Record> = rs.iter().filter(|r| &view_of(r) == view).collect();
+            md += &format!(
+                "\n#### {}\n\n| ray caster | what it traces |",
+                if view.is_empty() { "default" } else { view }
+            );
+            for t in &threads {
+                md += &format!(" Mrays/s, {t} thread{} |", if *t == 1 { "" } else { "s" });
+            }
+            for t in &threads {
+                md += &format!(" voxray ÷ it, {t} thread{} |", if *t == 1 { "" } else { "s" });
+            }
+            md += &format!("\n|---|---|{}\n", "---|".repeat(2 * threads.len()));
+            let mut names: Vec<&str> = Vec::new();
+            for r in &vr {
+                if !names.contains(&r.name.as_str()) {
+                    names.push(&r.name);
+                }
+            }
+            let at = |name: &str, t: u64| vr.iter().find(|r| r.name == name && r.x as u64 == t);
+            for name in names {
+                let what = vr
+                    .iter()
+                    .find(|r| r.name == name)
+                    .map_or(String::new(), |r| r.setting.split_once(": ").map_or(r.setting.clone(), |(_, w)| w.into()));
+                md += &format!("| {name} | {what} |");
+                for &t in &threads {
+                    md += &at(name, t).map_or(" – |".into(), |r| format!(" {:.2} |", r.mrays_per_s));
+                }
+                for &t in &threads {
+                    let ours = at("voxray (trace only)", t);
+                    md += &match (ours, at(name, t)) {
+                        (Some(o), Some(r)) => format!(" {:.2} |", o.mrays_per_s / r.mrays_per_s.max(1e-12)),
+                        _ => " – |".into(),
+                    };
+                }
+                md += "\n";
+            }
+        }
+        md += "\n";
         chart(&mut md, "peers");
         md += "\n";
     }
@@ -395,6 +448,7 @@ mod tests {
         let csv = to_csv(&[r]);
         let line = csv.lines().nth(1).unwrap();
         assert!(line.contains("\"a, b\"") && line.contains("\"x \"\"y\"\"\""), "{line}");
-        assert_eq!(csv.lines().next().unwrap().split(',').count(), 27);
+        assert_eq!(csv.lines().next().unwrap().split(',').count(), 30);
+        assert_eq!(line.split(',').count(), 31, "one field per column (the quoted one holds a comma)");
     }
 }

@@ -213,6 +213,10 @@ struct Switches {
     /// No shadow rays.
     #[arg(long)]
     no_shadows: bool,
+    /// No beams (primary rays start at the eye instead of where their tile's cone first
+    /// meets each instance; the image is the same).
+    #[arg(long)]
+    no_beams: bool,
 }
 
 impl Switches {
@@ -223,6 +227,7 @@ impl Switches {
             bvh: !self.no_bvh,
             hit_buffer: !self.no_hit_buffer,
             shadows: !self.no_shadows,
+            beams: !self.no_beams,
         }
     }
 }
@@ -920,22 +925,57 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     }
     #[cfg(feature = "peers")]
     if peers {
-        pb.set_message("peers: voxray, Embree, parry3d TriMesh, parry3d Voxels");
-        let triangles: Vec<[glam::Vec3; 3]> =
+        pb.set_message("peers: building the views");
+        let car_triangles: Vec<[glam::Vec3; 3]> =
             mesh.parts.iter().flat_map(|p| p.triangles.iter().map(|t| t.positions)).collect();
         let scene = matrix::static_scene(car.merged.clone())?;
         let (lo, hi) = scene.bounds();
         let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
+        // Close up: the same direction, near enough that the car covers most pixels.
+        let close = Camera { eye: camera.target + (camera.eye - camera.target) * 0.4, ..camera };
+        // The body alone, voxelized 2^11 along its longest side.
+        let body_index = mesh.parts.iter().position(|p| p.name == "body").unwrap_or(0);
+        let mut body_mesh = mesh.clone();
+        body_mesh.parts = vec![mesh.parts[body_index].clone()];
+        let body_source = SourceArgs { depth: 11, voxel_size: None, ..a.source.clone() };
+        let body = build_parts(&body_mesh, &body_source)?.remove(0);
+        let body_triangles: Vec<[glam::Vec3; 3]> = body_mesh.parts[0].triangles.iter().map(|t| t.positions).collect();
+        let (blo, bhi) = matrix::static_scene(body.clone())?.bounds();
+        let body_camera = Camera::framing(blo.as_vec3(), bhi.as_vec3(), a.width, a.height);
+        let views = vec![
+            voxray::bench::peers::PeerView {
+                name: "default".into(),
+                triangles: &car_triangles,
+                svo: car.merged.clone(),
+                camera,
+                whole_frame: true,
+            },
+            voxray::bench::peers::PeerView {
+                name: "close-up".into(),
+                triangles: &car_triangles,
+                svo: car.merged.clone(),
+                camera: close,
+                whole_frame: false,
+            },
+            voxray::bench::peers::PeerView {
+                name: format!("body at depth {}", body.depth),
+                triangles: &body_triangles,
+                svo: body,
+                camera: body_camera,
+                whole_frame: false,
+            },
+        ];
+        let mut threads = vec![1, rayon::current_num_threads()];
+        threads.dedup();
         let input = voxray::bench::peers::PeerScene {
-            triangles: &triangles,
-            svo: car.merged.clone(),
-            camera: &camera,
+            views,
+            threads,
             warmup: a.warmup,
             frames: a.frames as usize,
             command: command.clone(),
             machine: cfg.machine.clone(),
         };
-        records.extend(voxray::bench::peers::run(&input)?);
+        records.extend(voxray::bench::peers::run(&input, &mut |w| pb.set_message(w.to_string()))?);
         pb.inc(4);
     }
     if gi_scaling {
@@ -1125,12 +1165,19 @@ fn voxelize_cmd(a: VoxelizeArgs) -> Result<(), Error> {
 fn info_cmd(file: &Path) -> Result<(), Error> {
     let svo = voxray::svo::io::load(file)?;
     let s = svo.stats();
-    println!("{}: valid", file.display());
+    match voxray::svo::io::file_version(file) {
+        Some(v) if v < voxray::svo::io::VERSION => println!(
+            "{}: valid, format version {v}, converted on load to version {} (`voxray voxelize` writes the current version)",
+            file.display(),
+            voxray::svo::io::VERSION
+        ),
+        _ => println!("{}: valid", file.display()),
+    }
     println!("  bounds: min {:?}, size {}", svo.bounds.min, svo.bounds.size);
     println!("  depth {}, voxel size {}", s.depth, svo.bounds.voxel_size(s.depth));
-    println!("  voxels {}, nodes {}, far pointers {}, attributes {}", s.voxels, s.nodes, s.far_slots, s.attributes);
+    println!("  voxels {}, nodes {}, attributes {}", s.voxels, s.nodes, s.attributes);
     println!(
-        "  geometry {} B ({:.2} B/voxel), attributes {} B ({:.2} B/voxel)",
+        "  geometry (what traversal reads) {} B ({:.2} B/voxel), attributes (read for hits) {} B ({:.2} B/voxel)",
         s.geometry_bytes,
         s.geometry_bytes_per_voxel(),
         s.attribute_bytes,

@@ -86,7 +86,7 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<
     let eye = spec.min + DVec3::splat(spec.cell * spec.res as f64 * 0.5);
     let prepared = prepare(scene, eye, true);
     let (bvh, search) = Bvh::when_worthwhile(&prepared);
-    let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref() };
+    let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let mut rgba = vec![Vec4::ZERO; cells.cell_count()];
     let mut shadow_rays = 0u64;
     for (i, out) in rgba.iter_mut().enumerate() {

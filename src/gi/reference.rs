@@ -147,7 +147,7 @@ impl<'a> PathTracer<'a> {
     }
 
     fn instances(&self) -> FrameInstances<'_> {
-        FrameInstances { parts: &self.scene.parts, prepared: &self.prepared, bvh: self.bvh.as_ref() }
+        FrameInstances { parts: &self.scene.parts, prepared: &self.prepared, bvh: self.bvh.as_ref(), starts: None }
     }
 
     /// Light leaving a surface towards the viewer (looking along `d`) that does not depend on

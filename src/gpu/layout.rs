@@ -8,14 +8,23 @@ use bytemuck::{Pod, Zeroable};
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuPart {
-    /// First node slot of the part in the node pool.
+    /// Word of the part's first node link in the node pool ([`part_words`]).
     pub node_base: u32,
+    /// Word of the part's first four child masks in the node pool.
+    pub mask_base: u32,
     /// First attribute of the part in the attribute pool.
     pub attr_base: u32,
     /// Tree depth.
     pub depth: u32,
-    /// Padding.
-    pub pad: u32,
+}
+
+/// One part's words in the node pool: its links, then its child masks four to a word (node
+/// `n`'s mask in byte `n % 4`, little-endian). Returns the words and the offset of the masks.
+pub fn part_words(svo: &crate::svo::Svo) -> (Vec<u32>, u32) {
+    let mut words = svo.links.clone();
+    let masks = words.len() as u32;
+    words.extend(svo.masks.chunks(4).map(|c| c.iter().rev().fold(0u32, |w, &m| (w << 8) | m as u32)));
+    (words, masks)
 }
 
 /// One instance for this frame, camera-relative. WGSL: `Inst`.

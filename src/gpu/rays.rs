@@ -12,7 +12,8 @@ pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<Gp
     if rays.is_empty() {
         return Ok(Vec::new());
     }
-    ctx.check_binding("the node pool", (svo.nodes.len() * 8) as u64)?;
+    let (words, mask_base) = super::layout::part_words(svo);
+    ctx.check_binding("the node pool", (words.len() * 4) as u64)?;
     ctx.check_binding("the attribute pool", (svo.attrs.len() * 8) as u64)?;
     ctx.check_binding("the ray list", std::mem::size_of_val(rays) as u64)?;
     let device = &ctx.device;
@@ -31,12 +32,12 @@ pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<Gp
     let buf = |label, contents: &[u8], usage| {
         device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     };
-    let part = [GpuPart { node_base: 0, attr_base: 0, depth: svo.depth, pad: 0 }];
-    let nodes = buf("nodes", bytemuck::cast_slice(&svo.nodes), wgpu::BufferUsages::STORAGE);
+    let part = [GpuPart { node_base: 0, mask_base, attr_base: 0, depth: svo.depth }];
+    let nodes = buf("nodes", bytemuck::cast_slice(&words), wgpu::BufferUsages::STORAGE);
     let attrs = buf("attrs", bytemuck::cast_slice(&svo.attrs), wgpu::BufferUsages::STORAGE);
     let parts = buf("parts", bytemuck::cast_slice(&part), wgpu::BufferUsages::STORAGE);
     let input = buf("rays", bytemuck::cast_slice(rays), wgpu::BufferUsages::STORAGE);
-    let nodes_hi = buf("nodes (unused)", bytemuck::bytes_of(&crate::svo::Node::default()), wgpu::BufferUsages::STORAGE);
+    let nodes_hi = buf("nodes (unused)", bytemuck::bytes_of(&0u32), wgpu::BufferUsages::STORAGE);
     let attrs_hi = buf("attrs (unused)", bytemuck::bytes_of(&crate::svo::Attr::default()), wgpu::BufferUsages::STORAGE);
     let size = std::mem::size_of_val(rays) as u64 / std::mem::size_of::<GpuRay>() as u64
         * std::mem::size_of::<GpuRayHit>() as u64;

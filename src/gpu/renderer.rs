@@ -12,7 +12,7 @@ use crate::render::instances::{prepare, Prepared, ToUnit};
 use crate::render::visibility::Search;
 use crate::render::{Frame, FramePlan, RenderOptions};
 use crate::scene::{Camera, Lights, Scene};
-use crate::svo::{Attr, Node, Svo};
+use crate::svo::{Attr, Svo};
 use glam::{DMat3, Vec3};
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -331,16 +331,18 @@ impl GpuRenderer {
         if self.pools.as_ref().is_some_and(|p| p.parts == ids) {
             return Ok(());
         }
-        let (mut nodes, mut attrs, mut infos): (Vec<Node>, Vec<Attr>, Vec<GpuPart>) =
+        let (mut nodes, mut attrs, mut infos): (Vec<u32>, Vec<Attr>, Vec<GpuPart>) =
             (Vec::new(), Vec::new(), Vec::new());
         for p in parts {
+            let (words, masks) = super::layout::part_words(p);
+            let base = nodes.len() as u32;
             infos.push(GpuPart {
-                node_base: nodes.len() as u32,
+                node_base: base,
+                mask_base: base + masks,
                 attr_base: attrs.len() as u32,
                 depth: p.depth,
-                pad: 0,
             });
-            nodes.extend_from_slice(&p.nodes);
+            nodes.extend_from_slice(&words);
             attrs.extend_from_slice(&p.attrs);
         }
         let (n0, n1, node_split) = split_pool("the node pool", &nodes, self.max_binding)?;

@@ -7,7 +7,8 @@ use super::bvh::Bvh;
 use super::hitbuffer::{HitBuffer, HitRecord};
 use super::instances::{prepare, Prepared};
 use super::plan::FramePlan;
-use super::visibility::{nearest_work, occluded, FrameInstances, InstanceHit, Work};
+use super::primary::{trace_tiles, Primary};
+use super::visibility::{occluded, FrameInstances, InstanceHit};
 use crate::scene::{Camera, Lights, Scene};
 use crate::traverse::TraceOptions;
 use glam::{DVec3, Vec3};
@@ -131,38 +132,37 @@ pub fn render(
     let basis = camera.basis();
     let prepared = prepare(scene, camera.eye, plan.transform);
     let bvh = plan.bvh.then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
-    let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref() };
+    let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
     let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
     let done = AtomicU32::new(0);
     let reused = AtomicU64::new(0);
-    let (traced, culled) = (AtomicU64::new(0), AtomicU64::new(0));
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
 
-    // Pass 1: primary visibility.
+    // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
+    // pixels are taken from the hit buffer first, so a tile that reuses all traces nothing.
     let mut records = vec![HitRecord::MISS; w * h];
-    for_rows(&mut records, w, |y, row| {
-        let mut work = Work::default();
-        for (x, rec) in row.iter_mut().enumerate() {
-            let d = camera.ray_dir(&basis, x as u32, y as u32);
-            if let (Some(r), Some(prev)) = (&reuse, previous) {
-                let old = prev.records[y * w + x];
-                if r.valid(&old, d, x as u32, y as u32) {
-                    *rec = old;
-                    reused.fetch_add(1, Ordering::Relaxed);
-                    continue;
-                }
+    let primary = Primary { instances: fi, camera, search, opts: trace_opts, beams: plan.beams };
+    let pending = |x: u32, y: u32, rec: &mut HitRecord| {
+        if let (Some(r), Some(prev)) = (&reuse, previous) {
+            let old = prev.records[y as usize * w + x as usize];
+            if r.valid(&old, camera.ray_dir(&basis, x, y), x, y) {
+                *rec = old;
+                reused.fetch_add(1, Ordering::Relaxed);
+                return false;
             }
-            *rec = match nearest_work(&fi, DVec3::ZERO, d, search, &trace_opts, &mut work) {
-                Some(hit) => record(scene, &prepared, &hit, d),
-                None => HitRecord::MISS,
-            };
         }
-        traced.fetch_add(work.traced as u64, Ordering::Relaxed);
-        culled.fetch_add(work.culled as u64, Ordering::Relaxed);
-        tick();
+        true
+    };
+    let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
+        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| record(scene, &prepared, &hit, d));
+    };
+    let work = trace_tiles(&primary, &mut records, pending, store, |rows| {
+        for _ in 0..rows {
+            tick();
+        }
     });
 
     // Pass 2: shading.
@@ -182,8 +182,8 @@ pub fn render(
         primary_rays: n as u64,
         reused: 0,
         shadow_rays: 0,
-        instances_traced: traced.into_inner(),
-        spheres_culled: culled.into_inner(),
+        instances_traced: work.traced,
+        spheres_culled: work.culled,
     };
     for_rows(&mut f.radiance, w, |y, row| {
         for (x, out) in row.iter_mut().enumerate() {

@@ -1,6 +1,7 @@
 //! Rendering: per-frame instance preparation, the instance BVH, visibility searches, the
 //! hit buffer, the frame plan, the CPU renderer and the image/AOV writers.
 
+pub mod beam;
 pub mod brdf;
 pub mod bvh;
 pub mod cpu;
@@ -8,6 +9,7 @@ pub mod hitbuffer;
 pub mod instances;
 pub mod output;
 pub mod plan;
+pub mod primary;
 pub mod visibility;
 
 pub use cpu::{render, Frame, RenderOptions};

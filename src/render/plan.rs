@@ -24,17 +24,26 @@ pub struct Features {
     pub hit_buffer: bool,
     /// Shadow rays.
     pub shadows: bool,
+    /// Beams: primary rays start where their tile's cone first meets each instance.
+    #[cfg_attr(feature = "json", serde(default = "yes"))]
+    pub beams: bool,
+}
+
+#[cfg(feature = "json")]
+fn yes() -> bool {
+    true
 }
 
 impl Default for Features {
     fn default() -> Self {
-        Features { cull: true, sort: true, bvh: true, hit_buffer: true, shadows: true }
+        Features { cull: true, sort: true, bvh: true, hit_buffer: true, shadows: true, beams: true }
     }
 }
 
 impl Features {
     /// Everything off: the plain oracle path.
-    pub const NONE: Features = Features { cull: false, sort: false, bvh: false, hit_buffer: false, shadows: false };
+    pub const NONE: Features =
+        Features { cull: false, sort: false, bvh: false, hit_buffer: false, shadows: false, beams: false };
 
     /// The same switches with shadow rays on (the oracle path of a lit image).
     pub fn with_shadows(self) -> Features {
@@ -60,6 +69,9 @@ pub struct FramePlan {
     pub hit_buffer: bool,
     /// Shadow rays.
     pub shadows: bool,
+    /// Beams for primary rays ([`super::beam`]).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub beams: bool,
     /// Why each choice was made, one line each.
     pub reasons: Vec<String>,
 }
@@ -121,7 +133,26 @@ impl FramePlan {
             (true, false) => "shadows: off (no sun)".into(),
             _ => "shadows: on".into(),
         });
-        FramePlan { instances: n, transform, cull, sort, bvh, hit_buffer, shadows, reasons }
+        let beams = features.beams && n <= super::beam::MAX_INSTANCES;
+        reasons.push(if !features.beams {
+            "beams: off (switched off)".into()
+        } else if beams {
+            format!(
+                "beams: on (primary rays start where their {0}×{0} tile's cone meets each instance)",
+                super::beam::TILE
+            )
+        } else {
+            format!("beams: off ({n} instances > {})", super::beam::MAX_INSTANCES)
+        });
+        FramePlan { instances: n, transform, cull, sort, bvh, hit_buffer, shadows, beams, reasons }
+    }
+
+    /// Turns beams off for a renderer that has none, saying why.
+    pub fn without_beams(&mut self, why: &str) {
+        self.beams = false;
+        if let Some(r) = self.reasons.iter_mut().find(|r| r.starts_with("beams:")) {
+            *r = format!("beams: off ({why})");
+        }
     }
 
     /// The instance search this plan implies.

@@ -32,6 +32,7 @@ pub enum Search {
 }
 
 /// The instances of one frame.
+#[derive(Clone, Copy)]
 pub struct FrameInstances<'a> {
     /// Part octrees.
     pub parts: &'a [Arc<Svo>],
@@ -39,6 +40,9 @@ pub struct FrameInstances<'a> {
     pub prepared: &'a [Prepared],
     /// The BVH, when the plan uses one.
     pub bvh: Option<&'a Bvh>,
+    /// Per instance, where this ray's beam lets it start ([`super::beam::starts`]), when the
+    /// caller traces a tile of primary rays with beams.
+    pub starts: Option<&'a [f32]>,
 }
 
 /// The nearest hit of a ray among the instances.
@@ -52,9 +56,30 @@ pub struct InstanceHit {
 
 #[inline]
 fn trace_one(fi: &FrameInstances, i: usize, o: DVec3, d: DVec3, opts: &TraceOptions) -> Option<Hit> {
+    if let Some(starts) = fi.starts {
+        // Beam start (see `super::beam`): no hit before it; none at all at infinity.
+        let start = starts[i];
+        if start == f32::INFINITY {
+            return None;
+        }
+        if start > opts.t_min {
+            return trace_unit_at(fi, i, o, d, &TraceOptions { t_min: start, ..*opts });
+        }
+    }
+    trace_unit_at(fi, i, o, d, opts)
+}
+
+#[inline]
+fn trace_unit_at(fi: &FrameInstances, i: usize, o: DVec3, d: DVec3, opts: &TraceOptions) -> Option<Hit> {
     let p = &fi.prepared[i];
     let ur = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d))?;
     trace_unit(&fi.parts[p.part], &ur, opts).hit
+}
+
+/// Whether the ray's tile beam rules instance `i` out (see [`FrameInstances::starts`]).
+#[inline]
+fn beam_misses(fi: &FrameInstances, i: usize) -> bool {
+    fi.starts.is_some_and(|s| s[i] == f32::INFINITY)
 }
 
 #[inline]
@@ -72,9 +97,9 @@ fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Work {
     /// Instances whose octree the ray was traversed through.
-    pub traced: u32,
+    pub traced: u64,
     /// Instances whose bounding sphere the ray missed (not traversed).
-    pub culled: u32,
+    pub culled: u64,
 }
 
 /// The nearest instance hit along `o + t·d` (camera-relative origin, unit direction).
@@ -104,7 +129,7 @@ pub fn nearest_work(
         }
         Search::Cull => {
             for (i, p) in fi.prepared.iter().enumerate() {
-                if sphere_interval(p.centre, p.radius, o, d).is_some() {
+                if !beam_misses(fi, i) && sphere_interval(p.centre, p.radius, o, d).is_some() {
                     work.traced += 1;
                     if let Some(h) = trace_one(fi, i, o, d, opts) {
                         keep(&mut best, i, h);
@@ -119,9 +144,10 @@ pub fn nearest_work(
                 .prepared
                 .iter()
                 .enumerate()
+                .filter(|&(i, _)| !beam_misses(fi, i))
                 .filter_map(|(i, p)| sphere_interval(p.centre, p.radius, o, d).map(|(t0, _)| (t0, i)))
                 .collect();
-            work.culled += (fi.prepared.len() - cands.len()) as u32;
+            work.culled += (fi.prepared.len() - cands.len()) as u64;
             cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             for (entry, i) in cands {
                 let t_max = bound(&best);
@@ -154,7 +180,8 @@ pub fn nearest_work(
                     for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
                         let i = i as usize;
                         let p = &fi.prepared[i];
-                        let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, d) else {
+                        let sphere = if beam_misses(fi, i) { None } else { sphere_interval(p.centre, p.radius, o, d) };
+                        let Some((t0, _)) = sphere else {
                             work.culled += 1;
                             continue;
                         };

@@ -1,8 +1,8 @@
 //! Bottom-up SVO construction from sparse voxels: levels are formed by grouping Morton codes,
-//! attributes are averaged into every interior node, and the node array is laid out depth first
-//! with far pointers where a child group lies beyond the 15-bit pointer range.
+//! attributes are averaged into every interior node, and the levels are laid out one after
+//! the other, which is already the node order of [`Svo`].
 
-use super::format::{Attr, Cube, Node, Svo, MAX_DEPTH, MAX_NEAR_POINTER};
+use super::format::{Attr, Cube, Svo, MAX_DEPTH};
 use crate::voxelize::VoxelGrid;
 use glam::Vec3;
 
@@ -25,6 +25,9 @@ pub enum BuildError {
         /// Grid depth.
         depth: u32,
     },
+    /// More nodes and voxels than 32-bit links can number.
+    #[error("{0} nodes and voxels exceed the format's 2^32 − 1 limit; use a coarser voxel size")]
+    TooLarge(u64),
     /// Bounds not finite or size not positive.
     #[error("invalid bounds: min {min:?}, size {size}")]
     Bounds {
@@ -148,148 +151,41 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
     }
     debug_assert_eq!(levels[0].len(), 1);
 
-    let layout = Layout::plan(&levels, depth);
-    let mut out = Emitter {
-        levels: &levels,
-        layout: &layout,
-        depth,
-        nodes: vec![Node::default()],
-        attrs: vec![levels[0][0].attr()],
-    };
-    out.emit(0, 0, 0, None);
+    // Node numbers: level by level, each level in Morton order (as grouped above).
+    let mut level_start = Vec::with_capacity(depth as usize + 1);
+    let mut count = 0u64;
+    for level in &levels[..depth as usize] {
+        level_start.push(count as u32);
+        count += level.len() as u64;
+    }
+    let total = count + levels[depth as usize].len() as u64;
+    if total > u32::MAX as u64 {
+        return Err(BuildError::TooLarge(total));
+    }
+    level_start.push(count as u32);
+    let nodes = count as usize;
+    let mut masks = Vec::with_capacity(nodes);
+    let mut links = Vec::with_capacity(nodes);
+    let mut attrs = Vec::with_capacity(total as usize);
+    for (l, level) in levels.iter().enumerate() {
+        // The children of level l are numbered from the start of level l + 1; voxels, the
+        // children of the deepest level, from the end of the nodes in the attribute array.
+        let next = if l + 1 < depth as usize { level_start[l + 1] } else { nodes as u32 };
+        for node in level {
+            if l < depth as usize {
+                masks.push(node.valid);
+                links.push(next + node.first_child);
+            }
+            attrs.push(node.attr());
+        }
+    }
     Ok(Svo {
         bounds: Cube { min: grid.bounds.min, size: grid.bounds.size },
         depth,
-        nodes: out.nodes,
-        attrs: out.attrs,
+        masks,
+        links,
+        level_start,
+        attrs,
         voxel_count: grid.voxels.len() as u64,
     })
-}
-
-/// Sizes of every subtree and which child pointers need far slots, computed bottom-up so
-/// that the depth-first emission can reserve far slots next to each child group.
-struct Layout {
-    /// Per level and node: slots taken by all descendants' descriptors and far slots.
-    subtree: Vec<Vec<u64>>,
-    /// Per level and node: bit k set when inner child k needs a far pointer.
-    far_flags: Vec<Vec<u8>>,
-    /// Per level and node: number of far slots after its child group.
-    far_count: Vec<Vec<u8>>,
-}
-
-impl Layout {
-    fn plan(levels: &[Vec<LevelNode>], depth: u32) -> Self {
-        let d = depth as usize;
-        let mut subtree = vec![Vec::new(); d];
-        let mut far_flags = vec![Vec::new(); d];
-        let mut far_count = vec![Vec::new(); d];
-        for l in (0..d).rev() {
-            let n = levels[l].len();
-            subtree[l] = vec![0u64; n];
-            far_flags[l] = vec![0u8; n];
-            far_count[l] = vec![0u8; n];
-            if l + 1 == d {
-                continue; // children are leaves: no group of descriptors
-            }
-            for (i, node) in levels[l].iter().enumerate() {
-                let m = node.valid.count_ones() as usize;
-                let first = node.first_child as usize;
-                let kids = &subtree[l + 1][first..first + m];
-                let (flags, f) = far_pointers(kids);
-                far_flags[l][i] = flags;
-                far_count[l][i] = f as u8;
-                subtree[l][i] = m as u64 + f as u64 + kids.iter().sum::<u64>();
-            }
-        }
-        Layout { subtree, far_flags, far_count }
-    }
-}
-
-/// Given the subtree sizes of a group's children (laid out as: the group, then its far
-/// slots, then each child's subtree in order), decides which children need a far pointer.
-/// Iterates to the fixed point because far slots push the subtrees further away.
-fn far_pointers(kid_subtrees: &[u64]) -> (u8, u32) {
-    let m = kid_subtrees.len() as u64;
-    let mut f = 0u64;
-    loop {
-        let (mut flags, mut count, mut acc) = (0u8, 0u64, 0u64);
-        for (k, &g) in kid_subtrees.iter().enumerate() {
-            let offset = (m - k as u64) + f + acc;
-            if g > 0 && offset > MAX_NEAR_POINTER as u64 {
-                flags |= 1 << k;
-                count += 1;
-            }
-            acc += g;
-        }
-        if count == f {
-            return (flags, f as u32);
-        }
-        f = count;
-    }
-}
-
-struct Emitter<'a> {
-    levels: &'a [Vec<LevelNode>],
-    layout: &'a Layout,
-    depth: u32,
-    nodes: Vec<Node>,
-    attrs: Vec<Attr>,
-}
-
-impl Emitter<'_> {
-    /// Writes the descriptor of node (`level`, `idx`) into `slot` and emits its subtree.
-    /// `far_slot` is the far-pointer slot its parent reserved for it, if any.
-    fn emit(&mut self, level: usize, idx: usize, slot: usize, far_slot: Option<usize>) {
-        let node = self.levels[level][idx];
-        let m = node.valid.count_ones() as usize;
-        let first = node.first_child as usize;
-        let attr_base = self.attrs.len() as u32;
-        for c in &self.levels[level + 1][first..first + m] {
-            self.attrs.push(c.attr());
-        }
-        if level + 1 == self.depth as usize {
-            self.nodes[slot] = Node::new(0, false, node.valid, node.valid, attr_base);
-            return;
-        }
-        let group = self.nodes.len();
-        let f = self.layout.far_count[level][idx] as usize;
-        self.nodes.resize(group + m + f, Node::default());
-        self.nodes[slot] = match far_slot {
-            Some(fs) => {
-                self.nodes[fs].desc = (group - fs) as u32;
-                Node::new((fs - slot) as u32, true, node.valid, 0, attr_base)
-            }
-            None => {
-                assert!(group - slot <= MAX_NEAR_POINTER as usize, "layout plan violated");
-                Node::new((group - slot) as u32, false, node.valid, 0, attr_base)
-            }
-        };
-        let flags = self.layout.far_flags[level][idx];
-        let mut next_far = group + m;
-        for k in 0..m {
-            let fs = if flags & (1 << k) != 0 {
-                next_far += 1;
-                Some(next_far - 1)
-            } else {
-                None
-            };
-            self.emit(level + 1, first + k, group + k, fs);
-        }
-        debug_assert_eq!(self.nodes.len() as u64, group as u64 + self.layout.subtree[level][idx], "subtree size plan");
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn far_pointer_fixed_point() {
-        assert_eq!(far_pointers(&[1, 2, 3]), (0, 0));
-        // The second child's group lies behind a 40 000-slot sibling subtree.
-        let (flags, f) = far_pointers(&[40_000, 5, 0]);
-        assert_eq!((flags, f), (0b10, 1));
-        let (flags, f) = far_pointers(&[40_000, 40_000, 5]);
-        assert_eq!((flags, f), (0b110, 2));
-    }
 }

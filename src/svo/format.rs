@@ -1,57 +1,14 @@
-//! The in-memory SVO layout: Laine–Karras child descriptors, far pointers and per-node
-//! attributes. See `docs/svo-format.md` for the byte-level description.
+//! The in-memory SVO layout: a geometry stream of 8-bit child masks, level by level, with
+//! one 32-bit link per node, and a separate attribute array that traversal never reads. See
+//! `docs/svo-format.md` for the byte-level description.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 
 /// Deepest tree the format and the traversal support. Laine & Karras bound the depth by the
-/// f32 mantissa (23 bits); we keep three bits of head room so that child midpoints of the
-/// parametric traversal stay exactly representable in the unit cube.
+/// f32 mantissa (23 bits); we keep three bits of head room so that the plane positions of
+/// the parametric traversal (k / 2^level) stay exactly representable in the unit cube.
 pub const MAX_DEPTH: u32 = 20;
-
-/// Largest child pointer that fits the descriptor's 15-bit field; larger offsets go through a
-/// far pointer slot (Laine & Karras 2010, §3.1).
-pub const MAX_NEAR_POINTER: u32 = 0x7FFF;
-
-/// One 64-bit slot of the node array.
-///
-/// For a node: `desc` is the 32-bit child descriptor and `attr_base` the index in the attribute
-/// array of its first valid child's attributes. For a far-pointer slot: `desc` holds the offset
-/// from this slot to the child group and `attr_base` is zero.
-///
-/// Must be kept in sync with `struct Node` in `wgsl/layout.wgsl` (the GPU path).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
-pub struct Node {
-    /// Child descriptor: `ptr:15 | far:1 | valid:8 | leaf:8` from the high bits down.
-    pub desc: u32,
-    /// Index of the attributes of this node's first valid child.
-    pub attr_base: u32,
-}
-
-impl Node {
-    /// Packs a child descriptor. `ptr` must be at most [`MAX_NEAR_POINTER`].
-    pub fn new(ptr: u32, far: bool, valid: u8, leaf: u8, attr_base: u32) -> Self {
-        debug_assert!(ptr <= MAX_NEAR_POINTER);
-        Node { desc: (ptr << 17) | ((far as u32) << 16) | ((valid as u32) << 8) | leaf as u32, attr_base }
-    }
-    /// Relative child pointer (to the child group, or to the far slot when [`Node::far`]).
-    pub fn ptr(self) -> u32 {
-        self.desc >> 17
-    }
-    /// Whether [`Node::ptr`] points at a far-pointer slot.
-    pub fn far(self) -> bool {
-        (self.desc >> 16) & 1 == 1
-    }
-    /// Bit `i` set: octant `i` holds geometry.
-    pub fn valid(self) -> u8 {
-        (self.desc >> 8) as u8
-    }
-    /// Bit `i` set: octant `i` is a leaf (has no descriptor of its own).
-    pub fn leaf(self) -> u8 {
-        self.desc as u8
-    }
-}
 
 /// Per-node attributes: albedo (sRGB-encoded RGBA8), an octahedral-encoded unit normal and
 /// the specular lobe ([`crate::render::brdf`]).
@@ -218,16 +175,33 @@ impl Cube {
 }
 
 /// A built sparse voxel octree for one part.
+///
+/// Every internal node (levels 0 … depth − 1) has an 8-bit mask of the octants that hold
+/// geometry. Nodes are numbered level by level, the root first, each level in Morton order,
+/// so the children of a node are consecutive and in octant order, and a child's number is
+/// its parent's link plus the number of valid octants before it. Voxels (level `depth`) are
+/// bits of the masks of the deepest nodes, not nodes of their own.
+///
+/// Geometry is `masks` plus the links of nodes above the deepest level; the attributes
+/// (`attrs`, and the links of the deepest nodes, which point into `attrs`) are read only for
+/// the node a ray hits.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Svo {
     /// The cube the octree covers, in object coordinates.
     pub bounds: Cube,
     /// Number of levels below the root; leaves (voxels) sit at this level.
     pub depth: u32,
-    /// Node slots; `nodes[0]` is the root's descriptor.
-    pub nodes: Vec<Node>,
-    /// Attributes; `attrs[0]` belongs to the root, the rest are reached through
-    /// [`Node::attr_base`].
+    /// Child mask of every internal node, by node number (bit `i`: octant `i` holds
+    /// geometry; never zero).
+    pub masks: Vec<u8>,
+    /// Per internal node: the number of its first child node (levels below depth − 1), or
+    /// the index in `attrs` of its first voxel's attributes (level depth − 1).
+    pub links: Vec<u32>,
+    /// Number of the first node of each level 0 … depth − 1, then the node count
+    /// (`depth + 1` entries).
+    pub level_start: Vec<u32>,
+    /// Attributes: one per internal node, at the node's number (the root's is `attrs[0]`),
+    /// then one per voxel, reached through the deepest nodes' links.
     pub attrs: Vec<Attr>,
     /// Number of leaf voxels.
     pub voxel_count: u64,
@@ -240,15 +214,13 @@ pub struct SvoStats {
     pub depth: u32,
     /// Leaf voxels.
     pub voxels: u64,
-    /// Node descriptors (internal nodes).
+    /// Internal nodes.
     pub nodes: u64,
-    /// Far-pointer slots.
-    pub far_slots: u64,
     /// Attribute records (every node and voxel, root included).
     pub attributes: u64,
-    /// Bytes of the node array (descriptors, attribute bases, far slots).
+    /// Bytes traversal reads: the child masks and the links of nodes above the deepest level.
     pub geometry_bytes: u64,
-    /// Bytes of the attribute array.
+    /// Bytes read only for a hit: the attribute records and the deepest nodes' links.
     pub attribute_bytes: u64,
 }
 
@@ -263,34 +235,36 @@ impl SvoStats {
     }
 }
 
+/// Valid octants of `mask` below `octant`: a child's rank among its siblings.
+#[inline]
+pub fn rank(mask: u8, octant: u32) -> u32 {
+    (mask as u32 & ((1u32 << octant) - 1)).count_ones()
+}
+
 impl Svo {
-    /// Resolves the slot index of the child group of the node at `slot`, following a far
-    /// pointer when the descriptor says so. The caller guarantees a valid tree.
-    #[inline]
-    pub fn child_group(&self, slot: usize) -> usize {
-        let n = self.nodes[slot];
-        let p = slot + n.ptr() as usize;
-        if n.far() {
-            p + self.nodes[p].desc as usize
-        } else {
-            p
-        }
+    /// Number of internal nodes.
+    pub fn node_count(&self) -> usize {
+        self.masks.len()
     }
 
-    /// Slot of the descriptor of (non-leaf, valid) child `octant` of the node at `slot`.
-    #[inline]
-    pub fn child_slot(&self, slot: usize, octant: u32) -> usize {
-        let n = self.nodes[slot];
-        let inner = n.valid() & !n.leaf();
-        self.child_group(slot) + (inner as u32 & ((1u32 << octant) - 1)).count_ones() as usize
+    /// Number of the first node at the deepest internal level (depth − 1).
+    pub fn deepest_start(&self) -> u32 {
+        self.level_start[self.depth as usize - 1]
     }
 
-    /// Attributes of valid child `octant` of the node at `slot`.
+    /// Number of (valid, internal) child `octant` of internal node `node`, which must lie
+    /// above the deepest level.
     #[inline]
-    pub fn child_attr(&self, slot: usize, octant: u32) -> Attr {
-        let n = self.nodes[slot];
-        let i = n.attr_base as usize + (n.valid() as u32 & ((1u32 << octant) - 1)).count_ones() as usize;
-        self.attrs[i]
+    pub fn child_node(&self, node: usize, octant: u32) -> usize {
+        (self.links[node] + rank(self.masks[node], octant)) as usize
+    }
+
+    /// Attributes of valid child `octant` of internal node `node`. The same sum serves both
+    /// kinds of child: a node's attributes sit at its number, and a deepest node's link
+    /// points at its voxels' attributes.
+    #[inline]
+    pub fn child_attr(&self, node: usize, octant: u32) -> Attr {
+        self.attrs[(self.links[node] + rank(self.masks[node], octant)) as usize]
     }
 
     /// Every node at `level` (clamped to the depth; leaves at the depth) with its integer
@@ -301,56 +275,37 @@ impl Svo {
             return vec![([0; 3], self.attrs[0])];
         }
         let mut out = Vec::new();
-        // (slot, level of the node, its coordinates on that level's grid)
+        // (node, level of the node, its coordinates on that level's grid)
         let mut stack = vec![(0usize, 0u32, [0u32; 3])];
-        while let Some((slot, l, o)) = stack.pop() {
-            let n = self.nodes[slot];
+        while let Some((node, l, o)) = stack.pop() {
+            let mask = self.masks[node];
             for oct in 0..8u32 {
-                if n.valid() & (1 << oct) == 0 {
+                if mask & (1 << oct) == 0 {
                     continue;
                 }
                 let c = [2 * o[0] + (oct & 1), 2 * o[1] + ((oct >> 1) & 1), 2 * o[2] + (oct >> 2)];
                 if l + 1 == level {
-                    out.push((c, self.child_attr(slot, oct)));
-                } else if n.leaf() & (1 << oct) == 0 {
-                    stack.push((self.child_slot(slot, oct), l + 1, c));
+                    out.push((c, self.child_attr(node, oct)));
+                } else {
+                    stack.push((self.child_node(node, oct), l + 1, c));
                 }
             }
         }
         out
     }
 
-    /// Counts nodes, far slots and bytes.
+    /// Counts nodes and bytes.
     pub fn stats(&self) -> SvoStats {
-        let far = self.count_far_slots();
+        let nodes = self.masks.len() as u64;
+        let deepest = nodes - self.deepest_start() as u64;
         SvoStats {
             depth: self.depth,
             voxels: self.voxel_count,
-            nodes: self.nodes.len() as u64 - far,
-            far_slots: far,
+            nodes,
             attributes: self.attrs.len() as u64,
-            geometry_bytes: (self.nodes.len() * std::mem::size_of::<Node>()) as u64,
-            attribute_bytes: (self.attrs.len() * std::mem::size_of::<Attr>()) as u64,
+            geometry_bytes: nodes + 4 * (nodes - deepest),
+            attribute_bytes: (self.attrs.len() * std::mem::size_of::<Attr>()) as u64 + 4 * deepest,
         }
-    }
-
-    fn count_far_slots(&self) -> u64 {
-        let mut far = 0;
-        let mut stack = vec![0usize];
-        while let Some(slot) = stack.pop() {
-            let n = self.nodes[slot];
-            if n.far() {
-                far += 1;
-            }
-            let inner = n.valid() & !n.leaf();
-            if inner != 0 {
-                let g = self.child_group(slot);
-                for k in 0..inner.count_ones() as usize {
-                    stack.push(g + k);
-                }
-            }
-        }
-        far
     }
 }
 
@@ -397,12 +352,6 @@ mod tests {
         assert_eq!(morton_encode(1, 0, 0), 1);
         assert_eq!(morton_encode(0, 1, 0), 2);
         assert_eq!(morton_encode(0, 0, 1), 4);
-    }
-
-    #[test]
-    fn descriptor_fields() {
-        let n = Node::new(0x7FFF, true, 0xA5, 0x81, 7);
-        assert_eq!((n.ptr(), n.far(), n.valid(), n.leaf()), (0x7FFF, true, 0xA5, 0x81));
     }
 
     #[test]

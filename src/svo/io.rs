@@ -1,18 +1,21 @@
-//! The `.svo` file format: a fixed header, the node and attribute arrays, and a CRC-32 over
-//! everything before it. Loading checks the checksum and then every pointer and mask, so a
-//! corrupted or hostile file gives a typed error instead of a panic or an endless loop.
-//! The byte layout is documented in `docs/svo-format.md`.
+//! The `.svo` file format: a fixed header, the child masks, the attribute array, and a CRC-32
+//! over everything before it. Links are not stored: loading derives them from the masks, so
+//! no stored pointer can be wrong, and checks that the masks describe exactly the stored
+//! node, voxel and attribute counts. A corrupted or hostile file gives a typed error instead
+//! of a panic or an endless loop. Versions 1 and 2 (Laine–Karras descriptors with far
+//! pointers) are converted on load. The byte layout is documented in `docs/svo-format.md`.
 
-use super::format::{Attr, Cube, Node, Svo, MAX_DEPTH};
+use super::format::{Attr, Cube, Svo, MAX_DEPTH};
 use glam::Vec3;
 use std::io::{Read, Write};
 use std::path::Path;
 
 /// File magic: the first eight bytes of every `.svo` file.
 pub const MAGIC: [u8; 8] = *b"VOXRSVO\0";
-/// Current format version. Version 1 (snorm16 normals, no specular lobe) is still read: its
-/// normals are re-encoded on load.
-pub const VERSION: u32 = 2;
+/// Current format version (3: masks level by level, links derived on load). Versions 1
+/// (descriptors, snorm16 normals, no specular lobe) and 2 (descriptors) are still read and
+/// converted.
+pub const VERSION: u32 = 3;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 56;
 
@@ -52,10 +55,10 @@ pub enum SvoFileError {
     /// A header field is out of range.
     #[error("invalid header: {0}")]
     Header(String),
-    /// A node descriptor, pointer or mask is inconsistent.
-    #[error("invalid node at slot {slot}: {reason}")]
+    /// A node's mask (or, in a version 1 or 2 file, its descriptor) is inconsistent.
+    #[error("invalid node {slot}: {reason}")]
     Node {
-        /// Slot index in the node array.
+        /// Node number (version 3) or slot in the descriptor array (versions 1 and 2).
         slot: usize,
         /// What is wrong.
         reason: String,
@@ -64,7 +67,8 @@ pub enum SvoFileError {
 
 /// Serializes an SVO to bytes.
 pub fn to_bytes(svo: &Svo) -> Vec<u8> {
-    let mut b = Vec::with_capacity(HEADER_LEN + 8 * (svo.nodes.len() + svo.attrs.len()) + 4);
+    let masks = svo.masks.len().next_multiple_of(4);
+    let mut b = Vec::with_capacity(HEADER_LEN + masks + 8 * svo.attrs.len() + 4);
     b.extend_from_slice(&MAGIC);
     b.extend_from_slice(&VERSION.to_le_bytes());
     b.extend_from_slice(&svo.depth.to_le_bytes());
@@ -72,13 +76,11 @@ pub fn to_bytes(svo: &Svo) -> Vec<u8> {
         b.extend_from_slice(&v.to_le_bytes());
     }
     b.extend_from_slice(&svo.voxel_count.to_le_bytes());
-    b.extend_from_slice(&(svo.nodes.len() as u64).to_le_bytes());
+    b.extend_from_slice(&(svo.masks.len() as u64).to_le_bytes());
     b.extend_from_slice(&(svo.attrs.len() as u64).to_le_bytes());
     debug_assert_eq!(b.len(), HEADER_LEN);
-    for n in &svo.nodes {
-        b.extend_from_slice(&n.desc.to_le_bytes());
-        b.extend_from_slice(&n.attr_base.to_le_bytes());
-    }
+    b.extend_from_slice(&svo.masks);
+    b.resize(HEADER_LEN + masks, 0);
     for a in &svo.attrs {
         b.extend_from_slice(&a.albedo.to_le_bytes());
         b.extend_from_slice(&a.normal.to_le_bytes());
@@ -108,6 +110,13 @@ pub fn load(path: &Path) -> Result<Svo, SvoFileError> {
     from_bytes(&bytes)
 }
 
+/// The format version in a file's header, if it is an `.svo` file at all.
+pub fn file_version(path: &Path) -> Option<u32> {
+    let mut head = [0u8; 12];
+    std::fs::File::open(path).ok()?.read_exact(&mut head).ok()?;
+    (head[..8] == MAGIC).then(|| u32_at(&head, 8))
+}
+
 fn u32_at(b: &[u8], o: usize) -> u32 {
     u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]])
 }
@@ -118,7 +127,7 @@ fn f32_at(b: &[u8], o: usize) -> f32 {
     f32::from_bits(u32_at(b, o))
 }
 
-/// Parses and validates an SVO from bytes.
+/// Parses and validates an SVO from bytes (any supported version).
 pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     if b.len() < 8 || b[..8] != MAGIC {
         return Err(SvoFileError::BadMagic);
@@ -127,15 +136,17 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
         return Err(SvoFileError::Length { expected: (HEADER_LEN + 4) as u64, actual: b.len() as u64 });
     }
     let version = u32_at(b, 8);
-    if version != VERSION && version != 1 {
+    if !(1..=VERSION).contains(&version) {
         return Err(SvoFileError::Version(version));
     }
     let node_count = u64_at(b, 40);
     let attr_count = u64_at(b, 48);
     // Checked arithmetic: hostile counts must not overflow or trigger a huge allocation.
-    let expected = node_count
-        .checked_add(attr_count)
-        .and_then(|n| n.checked_mul(8))
+    let node_bytes =
+        if version == VERSION { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
+    let expected = node_bytes
+        .zip(attr_count.checked_mul(8))
+        .and_then(|(n, a)| n.checked_add(a))
         .and_then(|n| n.checked_add(HEADER_LEN as u64 + 4));
     if expected != Some(b.len() as u64) {
         return Err(SvoFileError::Length { expected: expected.unwrap_or(u64::MAX), actual: b.len() as u64 });
@@ -159,109 +170,190 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     if node_count == 0 || attr_count == 0 {
         return Err(SvoFileError::Header("no root node".into()));
     }
-    let mut o = HEADER_LEN;
-    let mut nodes = Vec::with_capacity(node_count as usize);
-    for _ in 0..node_count {
-        nodes.push(Node { desc: u32_at(b, o), attr_base: u32_at(b, o + 4) });
-        o += 8;
+    let bounds = Cube { min, size };
+    let attrs_at = HEADER_LEN + node_bytes.unwrap_or(0) as usize;
+    let attrs: Vec<Attr> = (0..attr_count as usize)
+        .map(|k| {
+            let (albedo, normal) = (u32_at(b, attrs_at + 8 * k), u32_at(b, attrs_at + 8 * k + 4));
+            if version == 1 {
+                Attr::from_version1(albedo, normal)
+            } else {
+                Attr { albedo, normal }
+            }
+        })
+        .collect();
+    if version < 3 {
+        let nodes = (0..node_count as usize)
+            .map(|k| legacy::Node(u32_at(b, HEADER_LEN + 8 * k), u32_at(b, HEADER_LEN + 8 * k + 4)));
+        return legacy::convert(bounds, depth, &nodes.collect::<Vec<_>>(), &attrs, voxel_count);
     }
-    let mut attrs = Vec::with_capacity(attr_count as usize);
-    for _ in 0..attr_count {
-        let (albedo, normal) = (u32_at(b, o), u32_at(b, o + 4));
-        attrs.push(if version == 1 { Attr::from_version1(albedo, normal) } else { Attr { albedo, normal } });
-        o += 8;
+    let masks = b[HEADER_LEN..HEADER_LEN + node_count as usize].to_vec();
+    if b[HEADER_LEN + node_count as usize..attrs_at].iter().any(|&p| p != 0) {
+        return Err(SvoFileError::Header("padding after the masks is not zero".into()));
     }
-    let svo = Svo { bounds: Cube { min, size }, depth, nodes, attrs, voxel_count };
-    validate(&svo)?;
-    Ok(svo)
+    from_masks(bounds, depth, masks, attrs, voxel_count)
 }
 
-/// Checks every descriptor reachable from the root: pointers in range and pointing forward
-/// (so no cycles), far slots in range, leaf ⊆ valid, leaves only where the depth allows,
-/// attribute ranges in bounds, every slot used exactly once, and the voxel count.
-pub fn validate(svo: &Svo) -> Result<(), SvoFileError> {
-    let n = svo.nodes.len();
+/// Assembles an SVO from its masks (node order) and attributes, deriving the links and level
+/// starts, and checks that the masks describe exactly the given node, voxel and attribute
+/// counts, so no link can point outside the arrays.
+pub fn from_masks(
+    bounds: Cube,
+    depth: u32,
+    masks: Vec<u8>,
+    attrs: Vec<Attr>,
+    voxel_count: u64,
+) -> Result<Svo, SvoFileError> {
     let bad = |slot: usize, reason: String| SvoFileError::Node { slot, reason };
-    let mut used = vec![false; n];
-    let mut voxels = 0u64;
-    let mut attrs_used = 1u64; // the root's
-                               // (slot, level) pairs; pointers only go forward, so each slot is pushed at most once if
-                               // the `used` check passes, which bounds the loop by the node count.
-    let mut stack = vec![(0usize, 0u32)];
-    used[0] = true;
-    while let Some((slot, level)) = stack.pop() {
-        let node = svo.nodes[slot];
-        let (valid, leaf) = (node.valid(), node.leaf());
-        if valid == 0 {
-            return Err(bad(slot, "empty valid mask".into()));
-        }
-        if leaf & !valid != 0 {
-            return Err(bad(slot, format!("leaf mask {leaf:#04x} not within valid mask {valid:#04x}")));
-        }
-        let child_level = level + 1;
-        if child_level == svo.depth && leaf != valid {
-            return Err(bad(slot, format!("children at the deepest level {child_level} must all be leaves")));
-        }
-        let count = valid.count_ones() as u64;
-        if node.attr_base as u64 + count > svo.attrs.len() as u64 || node.attr_base == 0 {
-            return Err(bad(
-                slot,
-                format!("attribute range {}+{count} outside 1..{}", node.attr_base, svo.attrs.len()),
-            ));
-        }
-        attrs_used += count;
-        for oct in 0..8 {
-            if leaf & (1 << oct) != 0 {
-                voxels += 1u64 << (3 * (svo.depth - child_level));
-            }
-        }
-        let inner = valid & !leaf;
-        if inner == 0 {
-            continue;
-        }
-        let p = slot as u64 + node.ptr() as u64;
-        if node.ptr() == 0 || p >= n as u64 {
-            return Err(bad(slot, format!("child pointer {} out of range", node.ptr())));
-        }
-        let group = if node.far() {
-            let fs = p as usize;
-            if used[fs] {
-                return Err(bad(slot, format!("far slot {fs} shared or overlapping")));
-            }
-            used[fs] = true;
-            let g = fs as u64 + svo.nodes[fs].desc as u64;
-            if svo.nodes[fs].desc == 0 || g >= n as u64 {
-                return Err(bad(slot, format!("far pointer at slot {fs} out of range")));
-            }
-            g as usize
-        } else {
-            p as usize
-        };
-        let m = inner.count_ones() as usize;
-        if group + m > n {
-            return Err(bad(slot, format!("child group {group}+{m} exceeds {n} slots")));
-        }
-        for k in 0..m {
-            if used[group + k] {
-                return Err(bad(slot, format!("child slot {} shared or overlapping", group + k)));
-            }
-            used[group + k] = true;
-            stack.push((group + k, child_level));
-        }
+    let n = masks.len() as u64;
+    if n + voxel_count > u32::MAX as u64 {
+        return Err(SvoFileError::Header(format!("{n} nodes and {voxel_count} voxels exceed 2^32 − 1")));
     }
-    if let Some(slot) = used.iter().position(|u| !u) {
-        return Err(bad(slot, "slot not reachable from the root".into()));
+    let mut links = Vec::with_capacity(masks.len());
+    let mut level_start = vec![0u32];
+    // Level l holds nodes level_start[l] .. level_start[l + 1]; each node's children follow
+    // the children of the nodes before it, numbered from the end of the level (nodes) or
+    // from the end of all nodes (voxels, in the attribute array).
+    let (mut begin, mut end) = (0u64, 1u64);
+    for l in 0..depth {
+        if end > n {
+            return Err(SvoFileError::Header(format!(
+                "the masks of level {} need {end} nodes, the header says {n}",
+                l.saturating_sub(1)
+            )));
+        }
+        let mut next = if l + 1 < depth { end } else { n };
+        let first_next = next;
+        for (k, &m) in masks[begin as usize..end as usize].iter().enumerate() {
+            if m == 0 {
+                return Err(bad(begin as usize + k, "empty child mask".into()));
+            }
+            links.push(next as u32);
+            next += m.count_ones() as u64;
+        }
+        level_start.push(end as u32);
+        if l + 1 == depth {
+            if end != n {
+                return Err(SvoFileError::Header(format!("{n} nodes stored but the masks describe {end}")));
+            }
+            let voxels = next - first_next;
+            if voxels != voxel_count {
+                return Err(SvoFileError::Header(format!("header says {voxel_count} voxels, tree holds {voxels}")));
+            }
+        }
+        (begin, end) = (end, end + (next - first_next));
     }
-    if attrs_used != svo.attrs.len() as u64 {
+    if attrs.len() as u64 != n + voxel_count {
         return Err(SvoFileError::Header(format!(
-            "{} attributes stored but the tree uses {attrs_used}",
-            svo.attrs.len()
+            "{} attributes stored but the tree uses {}",
+            attrs.len(),
+            n + voxel_count
         )));
     }
-    if voxels != svo.voxel_count {
-        return Err(SvoFileError::Header(format!("header says {} voxels, tree holds {voxels}", svo.voxel_count)));
+    Ok(Svo { bounds, depth, masks, links, level_start, attrs, voxel_count })
+}
+
+/// Checks an in-memory SVO: its links and level starts must be the ones its masks imply
+/// (see [`from_masks`]).
+pub fn validate(svo: &Svo) -> Result<(), SvoFileError> {
+    let derived = from_masks(svo.bounds, svo.depth, svo.masks.clone(), svo.attrs.clone(), svo.voxel_count)?;
+    if derived.links != svo.links || derived.level_start != svo.level_start {
+        let slot = derived.links.iter().zip(&svo.links).position(|(a, b)| a != b).unwrap_or(0);
+        return Err(SvoFileError::Node { slot, reason: "link differs from the one its masks imply".into() });
     }
     Ok(())
+}
+
+/// Versions 1 and 2: Laine–Karras child descriptors (`ptr:15 | far:1 | valid:8 | leaf:8`)
+/// with an attribute base per node, laid out depth first with far-pointer slots.
+mod legacy {
+    use super::{from_masks, Attr, Cube, Svo, SvoFileError};
+
+    /// One 64-bit slot: the descriptor and the attribute base of the first valid child.
+    #[derive(Clone, Copy)]
+    pub struct Node(pub u32, pub u32);
+
+    /// Converts a descriptor tree into masks level by level (a breadth-first walk visits
+    /// every level's nodes in Morton order, which is the new node order) and its attributes
+    /// into the new order, checking every pointer on the way.
+    pub fn convert(bounds: Cube, depth: u32, nodes: &[Node], attrs: &[Attr], voxels: u64) -> Result<Svo, SvoFileError> {
+        let bad = |slot: usize, reason: String| SvoFileError::Node { slot, reason };
+        let len = nodes.len();
+        let mut used = vec![false; len];
+        used[0] = true;
+        let mut masks = Vec::with_capacity(len);
+        let mut out = Vec::with_capacity(attrs.len());
+        out.push(attrs[0]);
+        let mut level = vec![0usize];
+        for l in 0..depth {
+            let mut next = Vec::new();
+            for &slot in &level {
+                let Node(desc, attr_base) = nodes[slot];
+                let (valid, leaf) = ((desc >> 8) as u8, desc as u8);
+                if valid == 0 {
+                    return Err(bad(slot, "empty valid mask".into()));
+                }
+                let deepest = l + 1 == depth;
+                if deepest && leaf != valid {
+                    return Err(bad(slot, "children at the deepest level must all be leaves".into()));
+                }
+                if !deepest && leaf != 0 {
+                    return Err(bad(
+                        slot,
+                        format!("leaf above the deepest level {depth} (not supported since version 3)"),
+                    ));
+                }
+                let count = valid.count_ones() as usize;
+                let a = attr_base as usize;
+                if a == 0 || a + count > attrs.len() {
+                    return Err(bad(slot, format!("attribute range {a}+{count} outside 1..{}", attrs.len())));
+                }
+                masks.push(valid);
+                out.extend_from_slice(&attrs[a..a + count]);
+                if deepest {
+                    continue;
+                }
+                let ptr = (desc >> 17) as usize;
+                let mut group = slot + ptr;
+                if ptr == 0 || group >= len {
+                    return Err(bad(slot, format!("child pointer {ptr} out of range")));
+                }
+                if (desc >> 16) & 1 == 1 {
+                    if used[group] {
+                        return Err(bad(slot, format!("far slot {group} shared or overlapping")));
+                    }
+                    used[group] = true;
+                    let far = nodes[group].0 as usize;
+                    if far == 0 || group + far >= len {
+                        return Err(bad(slot, format!("far pointer at slot {group} out of range")));
+                    }
+                    group += far;
+                }
+                if group + count > len {
+                    return Err(bad(slot, format!("child group {group}+{count} exceeds {len} slots")));
+                }
+                for k in group..group + count {
+                    if used[k] {
+                        return Err(bad(slot, format!("child slot {k} shared or overlapping")));
+                    }
+                    used[k] = true;
+                    next.push(k);
+                }
+            }
+            level = next;
+        }
+        if let Some(slot) = used.iter().position(|u| !u) {
+            return Err(bad(slot, "slot not reachable from the root".into()));
+        }
+        if out.len() != attrs.len() {
+            return Err(SvoFileError::Header(format!(
+                "{} attributes stored but the tree uses {}",
+                attrs.len(),
+                out.len()
+            )));
+        }
+        from_masks(bounds, depth, masks, out, voxels)
+    }
 }
 
 /// CRC-32 (IEEE 802.3, reflected, the zlib polynomial).

@@ -5,5 +5,5 @@ pub mod format;
 pub mod io;
 
 pub use build::{build, BuildError};
-pub use format::{Attr, Cube, Node, Svo, SvoStats, MAX_DEPTH};
+pub use format::{Attr, Cube, Svo, SvoStats, MAX_DEPTH};
 pub use io::SvoFileError;

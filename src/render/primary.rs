@@ -1,0 +1,103 @@
+//! Primary rays of a frame, traced tile by tile: each [`TILE`]×[`TILE`] tile first gets its
+//! beam starts ([`super::beam`]), then its rays run the nearest-hit search from there. The CPU
+//! renderer's trace pass and library users who only want the hits share this loop.
+
+use super::beam::{self, TileRays, TILE};
+use super::visibility::{nearest_work, FrameInstances, InstanceHit, Search, Work};
+use crate::scene::camera::Camera;
+use crate::traverse::TraceOptions;
+use glam::DVec3;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// What the primary rays of one frame search.
+#[derive(Clone, Copy)]
+pub struct Primary<'a> {
+    /// The frame's instances (without beam starts: each tile adds its own).
+    pub instances: FrameInstances<'a>,
+    /// The camera (rays through pixel centres, from the camera-relative origin).
+    pub camera: &'a Camera,
+    /// The search among instances.
+    pub search: Search,
+    /// Level limit and t range of every ray.
+    pub opts: TraceOptions,
+    /// Start rays at their tile's beam (the same hits, fewer steps).
+    pub beams: bool,
+}
+
+/// Traces every pixel of `out` (row-major, `camera.width` wide) whose `pending(x, y, item)`
+/// says so, and hands it to `store(item, hit)` (the hit with its ray's unit direction); `rows_done(n)` hears of each band
+/// of rows as it finishes. Returns what the searches cost.
+pub fn trace_tiles<T: Send>(
+    p: &Primary,
+    out: &mut [T],
+    pending: impl Fn(u32, u32, &mut T) -> bool + Sync + Send,
+    store: impl Fn(&mut T, Option<(InstanceHit, DVec3)>) + Sync + Send,
+    rows_done: impl Fn(usize) + Sync + Send,
+) -> Work {
+    let w = p.camera.width as usize;
+    let basis = p.camera.basis();
+    let (traced, culled) = (AtomicU64::new(0), AtomicU64::new(0));
+    let band = |y0: usize, rows: &mut [T]| {
+        let mut work = Work::default();
+        let mut starts = Vec::new();
+        let tile_h = rows.len() / w;
+        for x0 in (0..w).step_by(TILE as usize) {
+            let x1 = (x0 + TILE as usize).min(w);
+            let mut todo = 0u64;
+            for ty in 0..tile_h {
+                for x in x0..x1 {
+                    if pending(x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
+                        todo |= 1 << (ty * TILE as usize + x - x0);
+                    }
+                }
+            }
+            if todo == 0 {
+                continue;
+            }
+            let fi = if p.beams {
+                let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
+                beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
+                if starts.iter().all(|&s| s == f32::INFINITY) {
+                    // The tile's cone meets no instance's voxels: every pending ray misses.
+                    work.culled += (todo.count_ones() as usize * starts.len()) as u64;
+                    while todo != 0 {
+                        let k = todo.trailing_zeros() as usize;
+                        todo &= todo - 1;
+                        store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
+                    }
+                    continue;
+                }
+                FrameInstances { starts: Some(&starts), ..p.instances }
+            } else {
+                p.instances
+            };
+            while todo != 0 {
+                let k = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let (ty, x) = (k / TILE as usize, x0 + k % TILE as usize);
+                let d = p.camera.ray_dir(&basis, x as u32, (y0 + ty) as u32);
+                let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
+                store(&mut rows[ty * w + x], hit.map(|h| (h, d)));
+            }
+        }
+        traced.fetch_add(work.traced, Ordering::Relaxed);
+        culled.fetch_add(work.culled, Ordering::Relaxed);
+        rows_done(tile_h);
+    };
+    let rows = w * TILE as usize;
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        out.par_chunks_mut(rows).enumerate().for_each(|(i, r)| band(i * TILE as usize, r));
+    }
+    #[cfg(not(feature = "parallel"))]
+    out.chunks_mut(rows).enumerate().for_each(|(i, r)| band(i * TILE as usize, r));
+    Work { traced: traced.into_inner(), culled: culled.into_inner() }
+}
+
+/// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
+pub fn nearest_hits(p: &Primary) -> Vec<Option<InstanceHit>> {
+    let mut out = vec![None; (p.camera.width * p.camera.height) as usize];
+    trace_tiles(p, &mut out, |_, _, _| true, |o, hit| *o = hit.map(|h| h.0), |_| {});
+    out
+}

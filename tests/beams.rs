@@ -1,0 +1,117 @@
+//! Beams (`render::beam`): primary rays started at their tile's conservative start t find
+//! exactly the hits they find from the eye, over rotated, anisotropically scaled, tiny and
+//! huge instances, cameras inside and grazing the parts, narrow and wide fields of view,
+//! images whose sides are not multiples of the tile, and levels of detail.
+
+use glam::{DQuat, DVec3};
+use std::sync::{Arc, OnceLock};
+use voxray::pipeline::build_parts;
+use voxray::render::{render, Features, Frame, FramePlan, RenderOptions};
+use voxray::scene::{Camera, Instance, Lights, Scene, Transform};
+use voxray::svo::Svo;
+use voxray::voxelize::Resolution;
+
+fn car_parts() -> Vec<Arc<Svo>> {
+    static PARTS: OnceLock<Vec<Arc<Svo>>> = OnceLock::new();
+    PARTS.get_or_init(|| build_parts(&voxray::model::car::mesh(), Resolution::Depth(7)).unwrap()).clone()
+}
+
+/// Every car part three times: in place, rotated and stretched (5 × 0.3 × 1), and shrunk or
+/// blown up, spread along x.
+fn scene() -> Scene {
+    let parts = car_parts();
+    let mut s = Scene::new(parts.clone());
+    for part in 0..parts.len() {
+        s.add(Instance { part, parent: None, local: Transform::IDENTITY }).unwrap();
+        let q = DQuat::from_euler(glam::EulerRot::XYZ, 0.3 + part as f64, 1.1, -0.4 * part as f64);
+        let stretched = Transform::new(DVec3::new(6.0, 0.5, 0.0), q, DVec3::new(5.0, 0.3, 1.0)).unwrap();
+        s.add(Instance { part, parent: None, local: stretched }).unwrap();
+        let k = if part % 2 == 0 { 0.01 } else { 40.0 };
+        let scaled =
+            Transform::new(DVec3::new(-8.0 - 30.0 * (part % 2) as f64, 0.0, -3.0), q.inverse(), DVec3::splat(k));
+        s.add(Instance { part, parent: None, local: scaled.unwrap() }).unwrap();
+    }
+    s.update().unwrap();
+    s
+}
+
+fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
+    let lights = Lights::default();
+    let features = Features { beams, hit_buffer: false, ..Features::default() };
+    let plan = FramePlan::new(s, cam, &lights, &features, None);
+    assert_eq!(plan.beams, beams, "{}", plan.explain());
+    render(s, cam, &lights, &plan, &RenderOptions { max_level }, None, &|_, _| {})
+}
+
+#[test]
+fn beams_find_exactly_the_hits_rays_from_the_eye_find() {
+    let s = scene();
+    let cam = |eye: DVec3, target: DVec3, vfov_deg: f64, width: u32, height: u32| Camera {
+        eye,
+        target,
+        up: DVec3::Y,
+        vfov_deg,
+        width,
+        height,
+    };
+    let cameras = [
+        ("overview", cam(DVec3::new(3.0, 6.0, 22.0), DVec3::new(0.0, 0.5, 0.0), 50.0, 96, 64)),
+        ("close, odd size", cam(DVec3::new(1.2, 1.0, 2.4), DVec3::new(0.0, 0.6, 0.0), 60.0, 67, 41)),
+        ("inside the body", cam(DVec3::new(0.1, 0.7, 0.2), DVec3::new(2.0, 0.5, 1.0), 90.0, 48, 40)),
+        ("grazing the stretched parts", cam(DVec3::new(14.0, 0.52, 0.3), DVec3::new(0.0, 0.5, 0.0), 30.0, 80, 24)),
+        ("narrow", cam(DVec3::new(-2.0, 3.0, 15.0), DVec3::new(0.0, 0.6, 0.0), 1.5, 40, 40)),
+        ("wide", cam(DVec3::new(0.0, 2.0, 6.0), DVec3::new(0.0, 0.5, 0.0), 150.0, 64, 48)),
+        ("the blown-up part", cam(DVec3::new(-30.0, 30.0, 60.0), DVec3::new(-38.0, 0.0, -3.0), 40.0, 64, 48)),
+    ];
+    let mut skipped = 0;
+    for (name, c) in &cameras {
+        for max_level in [u32::MAX, 3] {
+            let with = frame(&s, c, true, max_level);
+            let without = frame(&s, c, false, max_level);
+            for k in 0..with.t.len() {
+                assert_eq!(with.t[k].to_bits(), without.t[k].to_bits(), "{name}, level {max_level}, pixel {k}: t");
+                assert_eq!(with.instance[k], without.instance[k], "{name}, level {max_level}, pixel {k}: instance");
+                assert_eq!(
+                    with.normal[k].to_array().map(f32::to_bits),
+                    without.normal[k].to_array().map(f32::to_bits),
+                    "{name}, level {max_level}, pixel {k}: normal"
+                );
+            }
+            assert_eq!(with.radiance, without.radiance, "{name}, level {max_level}: image");
+            assert!(with.instances_traced <= without.instances_traced, "{name}: beams traced more");
+            skipped += without.instances_traced - with.instances_traced;
+        }
+    }
+    // The beams must actually rule instances out (else this test proves nothing).
+    assert!(skipped > 10_000, "beams skipped only {skipped} instance traversals");
+}
+
+/// Sixty small instances seen from afar, each a few pixels wide at a random place in its
+/// tile: a cone even slightly narrower than the tile's rays, or a start slightly late, loses
+/// some of them.
+#[test]
+fn beams_keep_the_specks_at_tile_corners() {
+    let parts = car_parts();
+    let mut s = Scene::new(parts.clone());
+    let mut rng = voxray::rng::Rng::new(17);
+    for k in 0..60 {
+        let part = k % parts.len();
+        let at = DVec3::new(rng.range(-6.0, 6.0) as f64, rng.range(-4.0, 4.0) as f64, rng.range(-3.0, 3.0) as f64);
+        let q = DQuat::from_rotation_y(rng.range(0.0, 6.0) as f64);
+        let t = Transform::new(at, q, DVec3::splat(rng.range(0.2, 0.6) as f64)).unwrap();
+        s.add(Instance { part, parent: None, local: t }).unwrap();
+    }
+    s.update().unwrap();
+    let mut hits = 0;
+    for (k, eye) in
+        [DVec3::new(0.0, 2.0, 30.0), DVec3::new(25.0, 10.0, 12.0), DVec3::new(-3.0, -20.0, 18.0)].iter().enumerate()
+    {
+        let c =
+            Camera { eye: *eye, target: DVec3::ZERO, up: DVec3::Y, vfov_deg: 35.0, width: 120 + k as u32, height: 90 };
+        let (with, without) = (frame(&s, &c, true, u32::MAX), frame(&s, &c, false, u32::MAX));
+        assert_eq!(with.instance, without.instance, "camera {k}: instances");
+        assert_eq!(with.t, without.t, "camera {k}: t");
+        hits += with.instance.iter().filter(|&&i| i >= 0).count();
+    }
+    assert!(hits > 500, "the specks should show ({hits} pixels)");
+}
