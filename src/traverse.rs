@@ -12,12 +12,10 @@
 //! hits it. A ray on a midplane of a parallel axis belongs to the upper child (half-open cells,
 //! the same rule as `floor` in the DDA oracle).
 //!
-//! Revelles keeps the three t-values of every node on the stack and halves them on the way
-//! down. Here a node is its integer coordinates, and the t of a plane is computed when needed
-//! from the plane's exact position, `t(p) = (p − o)·(1/d)` with `p = k / 2^level`: a stack
-//! frame is then two words (node, next child), the coordinates of a parent are the child's
-//! shifted right, and the same plane always gets the same t whichever node asks, so
-//! neighbouring nodes agree on their shared faces exactly as in the halving scheme.
+//! Revelles keeps the three t-vectors of every level on the stack and halves them on the way
+//! down. A child repeats two of its parent's three values per axis, so a frame here keeps
+//! only the third (see `trace_impl`) and a pop rebuilds the parent's vectors from the child's
+//! with selects, bit for bit. The three lanes of a vector live in one SSE register.
 
 use crate::ray::{Ray, UnitRay};
 use crate::svo::{Attr, Svo, MAX_DEPTH};
@@ -176,6 +174,12 @@ impl Cell {
     }
 }
 
+/// 2^−level, the edge of a cell at `level` (≤ 21) in the unit cube, from its exponent bits.
+#[inline(always)]
+fn cell_size(level: u32) -> f32 {
+    f32::from_bits((127 - level) << 23)
+}
+
 /// First child entered (Revelles §3.2): bit i set when the i-midplane comes before the
 /// entry (on a parallel axis: when the origin lies on or above it, §3.3).
 #[inline(always)]
@@ -184,12 +188,11 @@ fn first_node(tm: Vec3A, t_entry: f32) -> u32 {
 }
 
 /// Revelles Table 2: the bit of the axis whose exit plane comes first, ties to the lowest
-/// axis; with it the child's exit t.
+/// axis.
 #[inline(always)]
-fn exit_plane(t1: Vec3A) -> (u32, f32) {
-    let tx = t1.min_element();
-    let at = t1.cmpeq(Vec3A::splat(tx)).bitmask();
-    (at & at.wrapping_neg(), tx)
+fn exit_plane(t1: Vec3A) -> u32 {
+    let at = t1.cmpeq(Vec3A::splat(t1.min_element())).bitmask();
+    at & at.wrapping_neg()
 }
 
 /// Axis of the largest value, ties to the lowest axis.
@@ -240,10 +243,13 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
         return Traced { hit: finish(ray, t_enter, t_min, 0, [0; 3], svo.attrs[0], t0), steps: 1, aborted: false };
     }
 
-    // Frames of the levels above the current node: its number and the next child to visit.
-    // The current node's t-values live in `cell`; a pop recomputes them from the coordinates.
+    // Frames of the levels above the current node: its number, which of its children is
+    // being visited, and per axis the one t-value of it that this child's t-values do not
+    // repeat (its exit plane where the child is the lower half, its entry plane where the
+    // upper): from those a pop rebuilds the node's t-values exactly, without arithmetic.
     let mut stack_node = [0u32; STACK];
     let mut stack_child = [0u8; STACK];
+    let mut stack_keep = [Vec3A::ZERO; STACK];
     let (mut level, mut node, mut coord) = (0u32, 0usize, [0u32; 3]);
     let mut child = first_node(cell.tm, max(t_enter, t_min));
     let bound = step_bound(svo.depth);
@@ -254,16 +260,13 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
             return Traced { hit: None, steps, aborted: true };
         }
         let (ct0, ct1) = cell.child(child);
-        // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
-        let (exit_bit, tx) = exit_plane(ct1);
-        let next = if child & exit_bit != 0 { 8 } else { child | exit_bit };
         let te = ct0.max_element();
         if te > t_max {
             return miss(steps); // children come front to back: nothing later can be closer
         }
         let octant = child ^ ray.mirror;
         let mask = svo.masks[node];
-        if tx >= t_min && mask as u32 & (1 << octant) != 0 {
+        if mask as u32 & (1 << octant) != 0 && ct1.min_element() >= t_min {
             let child_level = level + 1;
             let c = [0, 1, 2].map(|i| 2 * coord[i] + ((child >> i) & 1));
             if child_level >= max_level {
@@ -275,32 +278,47 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
                 };
             }
             stack_node[level as usize] = node as u32;
-            stack_child[level as usize] = next as u8;
+            stack_child[level as usize] = child as u8;
+            stack_keep[level as usize] = Vec3A::select(UPPER[child as usize], cell.t0, cell.t1);
             node = svo.child_node(node, octant);
             coord = c;
             level = child_level;
-            let half = 0.5 / (1u32 << level) as f32;
-            cell = Cell { t0: ct0, tm: planes.at::<PAR>(c.map(|v| 2 * v + 1), half), t1: ct1 };
-            child = first_node(cell.tm, max(te, t_min));
+            // Revelles §3.1: the midplanes halfway in t.
+            let mut tm = (ct0 + ct1) * 0.5;
+            if PAR && ray.parallel != 0 {
+                // §3.3: ±∞ by the origin's side (the halfway value of −∞ and ∞ is NaN).
+                let side = planes.at::<true>(c.map(|v| 2 * v + 1), cell_size(level + 1));
+                let p = ray.parallel;
+                tm = Vec3A::select(BVec3A::new(p & 1 != 0, p & 2 != 0, p & 4 != 0), side, tm);
+            }
+            cell = Cell { t0: ct0, tm, t1: ct1 };
+            child = first_node(tm, max(te, t_min));
             continue;
         }
-        child = next;
-        if child >= 8 {
-            loop {
-                if level == 0 {
-                    return miss(steps);
-                }
-                steps += 1;
-                level -= 1;
-                child = stack_child[level as usize] as u32;
-                coord = coord.map(|v| v >> 1);
-                if child < 8 {
-                    break;
-                }
+        // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
+        let mut exit_bit = exit_plane(ct1);
+        while child & exit_bit != 0 {
+            if level == 0 {
+                return miss(steps);
             }
+            steps += 1;
+            level -= 1;
+            // The parent's t-values from this node's and the kept ones.
+            let k = stack_child[level as usize] as u32;
+            let (upper, keep) = (UPPER[k as usize], stack_keep[level as usize]);
+            let t1 = cell.t1;
+            cell = Cell {
+                t0: Vec3A::select(upper, keep, cell.t0),
+                tm: Vec3A::select(upper, cell.t0, cell.t1),
+                t1: Vec3A::select(upper, cell.t1, keep),
+            };
             node = stack_node[level as usize] as usize;
-            cell = Cell::new::<PAR>(&planes, coord, 1.0 / (1u32 << level) as f32);
+            coord = coord.map(|v| v >> 1);
+            // Where this node (child k of the parent) is left decides the parent's next child.
+            child = k;
+            exit_bit = exit_plane(t1);
         }
+        child |= exit_bit;
     }
 }
 

@@ -152,12 +152,6 @@ struct Traced {
 fn max3(v: vec3<f32>) -> f32 { return max(v.x, max(v.y, v.z)); }
 fn min3(v: vec3<f32>) -> f32 { return min(v.x, min(v.y, v.z)); }
 
-fn argmin3(v: vec3<f32>) -> u32 {
-    if v.x <= v.y && v.x <= v.z { return 0u; }
-    if v.y <= v.z { return 1u; }
-    return 2u;
-}
-
 fn argmax3(v: vec3<f32>) -> u32 {
     if v.x >= v.y && v.x >= v.z { return 0u; }
     if v.y >= v.z { return 1u; }
@@ -165,19 +159,33 @@ fn argmax3(v: vec3<f32>) -> u32 {
 }
 
 // traverse::Planes::at: t at the planes k * size of each axis (exact positions), as
-// (p - o) * inv. Parallel axes have inv 0 here; callers replace their values.
+// (p - o) * inv; on a parallel axis -BIG below the origin and BIG on or above it (§3.3).
 fn planes_at(r: UnitRay, k: vec3<u32>, size: f32) -> vec3<f32> {
-    return (vec3<f32>(k) * size - r.origin) * r.inv_dir;
+    let p = vec3<f32>(k) * size;
+    var t = (p - r.origin) * r.inv_dir;
+    for (var i = 0u; i < 3u; i++) {
+        if (r.parallel & (1u << i)) != 0u {
+            t[i] = select(BIG, -BIG, r.origin[i] >= p[i]);
+        }
+    }
+    return t;
 }
 
-struct CellT {
+// traverse::Cell: entry planes, midplanes and exit planes of a node (Revelles §3.1).
+struct Cell {
     t0: vec3<f32>,
+    tm: vec3<f32>,
     t1: vec3<f32>,
 }
 
-// traverse::cell_t (Revelles §3.1): parallel axes are open on both sides.
-fn cell_t(r: UnitRay, c: vec3<u32>, size: f32) -> CellT {
-    var out = CellT(planes_at(r, c, size), planes_at(r, c + vec3<u32>(1u), size));
+// traverse::cell_size: 2^-level.
+fn cell_size(level: u32) -> f32 {
+    return bitcast<f32>((127u - level) << 23u);
+}
+
+// traverse::Cell::new: parallel axes are open on both sides.
+fn cell_new(r: UnitRay, c: vec3<u32>, size: f32) -> Cell {
+    var out = Cell(planes_at(r, c, size), planes_at(r, 2u * c + vec3<u32>(1u), 0.5 * size), planes_at(r, c + vec3<u32>(1u), size));
     for (var i = 0u; i < 3u; i++) {
         if (r.parallel & (1u << i)) != 0u {
             out.t0[i] = -BIG;
@@ -187,19 +195,22 @@ fn cell_t(r: UnitRay, c: vec3<u32>, size: f32) -> CellT {
     return out;
 }
 
-// traverse::first_node (Revelles §3.2; §3.3 on parallel axes: the origin's side of the
-// midplane of the cell c of size 2 * half).
-fn first_node(r: UnitRay, c: vec3<u32>, half: f32, t_entry: f32) -> u32 {
-    let tm = planes_at(r, 2u * c + vec3<u32>(1u), half);
-    var first = 0u;
-    for (var i = 0u; i < 3u; i++) {
-        var before = tm[i] < t_entry;
-        if (r.parallel & (1u << i)) != 0u {
-            before = r.origin[i] >= f32(2u * c[i] + 1u) * half;
-        }
-        first |= u32(before) << i;
-    }
-    return first;
+// traverse::UPPER: lane i set when child k is the upper half on axis i.
+fn upper(k: u32) -> vec3<bool> {
+    return vec3<bool>((k & 1u) != 0u, (k & 2u) != 0u, (k & 4u) != 0u);
+}
+
+// traverse::first_node (Revelles §3.2; on parallel axes tm is already -BIG or BIG).
+fn first_node(tm: vec3<f32>, t_entry: f32) -> u32 {
+    return u32(tm.x < t_entry) | (u32(tm.y < t_entry) << 1u) | (u32(tm.z < t_entry) << 2u);
+}
+
+// traverse::exit_plane (Revelles Table 2): the bit of the smallest exit t, ties to the lowest axis.
+fn exit_plane(t1: vec3<f32>) -> u32 {
+    let m = min3(t1);
+    if t1.x == m { return 1u; }
+    if t1.y == m { return 2u; }
+    return 4u;
 }
 
 // Svo::masks[node]: four masks to a word.
@@ -279,24 +290,26 @@ fn trace_unit(part: Part, r: UnitRay, t_min_w: f32, t_max_w: f32, max_level_in: 
             return miss;
         }
     }
-    let root = cell_t(r, vec3<u32>(0u), 1.0);
-    let t_enter = max3(root.t0);
-    let t_exit = min3(root.t1);
+    var cell = cell_new(r, vec3<u32>(0u), 1.0);
+    let t_enter = max3(cell.t0);
+    let t_exit = min3(cell.t1);
     if t_enter > t_exit || t_exit < t_min || t_enter > t_max {
         return miss;
     }
     if max_level == 0u {
-        var h = finish(r, t_enter, t_min, 0u, vec3<u32>(0u), pool_attr(part.attr_base), root.t0);
+        var h = finish(r, t_enter, t_min, 0u, vec3<u32>(0u), pool_attr(part.attr_base), cell.t0);
         h.steps = 1u;
         return h;
     }
-    // Frames of the levels above the current node: its number and the next child to visit.
+    // Frames of the levels above the current node: its number, which of its children is
+    // being visited, and per axis the one t-value of it that the child's do not repeat.
     var stack_node: array<u32, 20>;
     var stack_child: array<u32, 20>;
+    var stack_keep: array<vec3<f32>, 20>;
     var level = 0u;
     var node = 0u;
     var coord = vec3<u32>(0u);
-    var child = first_node(r, coord, 0.5, max(t_enter, t_min));
+    var child = first_node(cell.tm, max(t_enter, t_min));
     let bound = step_bound(part.depth);
     var steps = 0u;
     loop {
@@ -305,47 +318,65 @@ fn trace_unit(part: Part, r: UnitRay, t_min_w: f32, t_max_w: f32, max_level_in: 
             miss.steps = steps;
             return miss;
         }
-        let size = 1.0 / f32(2u << level);
-        let c = 2u * coord + vec3<u32>(child & 1u, (child >> 1u) & 1u, (child >> 2u) & 1u);
-        let ct = cell_t(r, c, size);
-        // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
-        let exit_bit = 1u << argmin3(ct.t1);
-        let next = select(child | exit_bit, 8u, (child & exit_bit) != 0u);
-        let te = max3(ct.t0);
-        let tx = min3(ct.t1);
+        let up = upper(child);
+        let ct0 = select(cell.t0, cell.tm, up);
+        let ct1 = select(cell.tm, cell.t1, up);
+        let te = max3(ct0);
         if te > t_max {
             miss.steps = steps;
             return miss;
         }
         let octant = child ^ r.mirror;
         let mask = node_mask(part, node);
-        if tx >= t_min && (mask & (1u << octant)) != 0u {
+        if (mask & (1u << octant)) != 0u && min3(ct1) >= t_min {
             let child_level = level + 1u;
+            let c = 2u * coord + vec3<u32>(child & 1u, (child >> 1u) & 1u, (child >> 2u) & 1u);
             if child_level >= max_level {
-                var h = finish(r, te, t_min, child_level, c, child_attr(part, node, mask, octant), ct.t0);
+                var h = finish(r, te, t_min, child_level, c, child_attr(part, node, mask, octant), ct0);
                 h.steps = steps;
                 return h;
             }
             stack_node[level] = node;
-            stack_child[level] = next;
+            stack_child[level] = child;
+            stack_keep[level] = select(cell.t1, cell.t0, up);
             node = child_node(part, node, mask, octant);
             coord = c;
             level = child_level;
-            child = first_node(r, coord, size * 0.5, max(te, t_min));
+            // Revelles §3.1: the midplanes halfway in t; §3.3 on parallel axes.
+            var tm = (ct0 + ct1) * 0.5;
+            if r.parallel != 0u {
+                let side = planes_at(r, 2u * c + vec3<u32>(1u), cell_size(level + 1u));
+                for (var i = 0u; i < 3u; i++) {
+                    if (r.parallel & (1u << i)) != 0u {
+                        tm[i] = side[i];
+                    }
+                }
+            }
+            cell = Cell(ct0, tm, ct1);
+            child = first_node(tm, max(te, t_min));
             continue;
         }
-        child = next;
-        while child >= 8u {
+        // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
+        var exit_bit = exit_plane(ct1);
+        while (child & exit_bit) != 0u {
             if level == 0u {
                 miss.steps = steps;
                 return miss;
             }
             steps += 1u;
             level -= 1u;
+            // The parent's t-values from this node's and the kept ones.
+            let k = stack_child[level];
+            let kup = upper(k);
+            let keep = stack_keep[level];
+            let t1 = cell.t1;
+            cell = Cell(select(cell.t0, keep, kup), select(cell.t1, cell.t0, kup), select(keep, cell.t1, kup));
             node = stack_node[level];
-            child = stack_child[level];
             coord = coord >> vec3<u32>(1u);
+            child = k;
+            exit_bit = exit_plane(t1);
         }
+        child |= exit_bit;
     }
     return miss;
 }

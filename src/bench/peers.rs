@@ -10,7 +10,7 @@
 
 use super::{summarize, Record};
 use crate::backend::Backend;
-use crate::render::primary::{nearest_hits, Primary};
+use crate::render::primary::{trace_tiles, Primary};
 use crate::render::visibility::{FrameInstances, Search};
 use crate::render::{Features, HitBuffer};
 use crate::scene::Camera;
@@ -61,7 +61,7 @@ fn frame(camera: &Camera, hit: &(dyn Fn(DVec3, DVec3) -> bool + Sync)) -> u64 {
 }
 
 /// How one caster answers a frame: the number of pixels that hit.
-type FrameFn<'f> = dyn Fn() -> u64 + Sync + 'f;
+type FrameFn<'f> = dyn FnMut() -> u64 + Send + 'f;
 
 struct Timing<'a> {
     view: &'a PeerView<'a>,
@@ -70,7 +70,7 @@ struct Timing<'a> {
     frames: usize,
 }
 
-fn timed(t: &Timing<'_>, name: &str, kind: &str, what: &str, run: &FrameFn<'_>) -> Result<Record, crate::Error> {
+fn timed(t: &Timing<'_>, name: &str, kind: &str, what: &str, run: &mut FrameFn<'_>) -> Result<Record, crate::Error> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(t.threads)
         .build()
@@ -79,7 +79,7 @@ fn timed(t: &Timing<'_>, name: &str, kind: &str, what: &str, run: &FrameFn<'_>) 
     let mut hits = 0;
     for f in 0..t.warmup + t.frames.max(1) {
         let start = Instant::now();
-        let h = pool.install(run);
+        let h = pool.install(&mut *run);
         if f >= t.warmup {
             times.push(start.elapsed().as_secs_f64() * 1e3);
             hits = h;
@@ -123,19 +123,31 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
             if view.whole_frame {
                 out.push(whole_frame(&t, &voxray_scene, &voxels)?);
             }
-            // voxray's primary-ray API: 8×8 tiles, beams, nearest hit only (no shading).
+            // voxray's primary-ray API: 8×8 tiles, beams, nearest hit only (no shading), the
+            // hit t of every pixel into a buffer made once, as Embree fills its rays' tfar.
             let prepared = crate::render::instances::prepare(&voxray_scene, view.camera.eye, false);
             let fi = FrameInstances { parts: &voxray_scene.parts, prepared: &prepared, bvh: None, starts: None };
+            // One instance: the plan's search is the plain one (nothing to cull or sort).
             let primary = Primary {
                 instances: fi,
                 camera: &view.camera,
-                search: Search::Cull,
+                search: Search::Plain,
                 opts: Default::default(),
                 beams: true,
             };
-            let run = || nearest_hits(&primary).iter().filter(|h| h.is_some()).count() as u64;
+            let mut t_hit = vec![f32::INFINITY; (view.camera.width * view.camera.height) as usize];
+            let mut run = || {
+                trace_tiles(
+                    &primary,
+                    &mut t_hit,
+                    |_, _, _| true,
+                    |t, hit| *t = hit.map_or(f32::INFINITY, |h| h.0.hit.t),
+                    |_| {},
+                );
+                t_hit.iter().filter(|t| t.is_finite()).count() as u64
+            };
             let what = format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams");
-            out.push(timed(&t, "voxray (trace only)", "voxray-trace", &what, &run)?);
+            out.push(timed(&t, "voxray (trace only)", "voxray-trace", &what, &mut run)?);
             peers.time(&t, &tris, &mut out)?;
         }
     }
@@ -271,10 +283,10 @@ impl Peers {
             committed.intersect(&mut ctx, &mut rh);
             rh.hit.hit()
         };
-        out.push(timed(t, "Embree 3", "embree", &format!("{tris}, one ray at a time"), &|| frame(camera, &one))?);
+        out.push(timed(t, "Embree 3", "embree", &format!("{tris}, one ray at a time"), &mut || frame(camera, &one))?);
 
         // Embree's coherent stream API over the same 8×8 tiles voxray uses.
-        let stream = || {
+        let mut stream = || {
             let b = camera.basis();
             let tiles_x = camera.width.div_ceil(8);
             let tiles = tiles_x * camera.height.div_ceil(8);
@@ -294,7 +306,13 @@ impl Peers {
                 })
                 .sum()
         };
-        out.push(timed(t, "Embree 3 (stream)", "embree-stream", &format!("{tris}, coherent 8×8 streams"), &stream)?);
+        out.push(timed(
+            t,
+            "Embree 3 (stream)",
+            "embree-stream",
+            &format!("{tris}, coherent 8×8 streams"),
+            &mut stream,
+        )?);
 
         let tri = |o: DVec3, d: DVec3| {
             let ray = Ray::new(
@@ -303,7 +321,7 @@ impl Peers {
             );
             self.trimesh.cast_local_ray(&ray, f32::MAX, true).is_some()
         };
-        out.push(timed(t, "parry3d TriMesh", "parry-trimesh", tris, &|| frame(camera, &tri))?);
+        out.push(timed(t, "parry3d TriMesh", "parry-trimesh", tris, &mut || frame(camera, &tri))?);
 
         let vox = |o: DVec3, d: DVec3| {
             // The grid's own frame: voxel k covers [k·size, (k+1)·size) from the cube corner.
@@ -315,7 +333,7 @@ impl Peers {
             self.voxels.cast_local_ray(&ray, f32::MAX, true).is_some()
         };
         let what = format!("the same {} voxels, chunks + BVH", self.voxel_count);
-        out.push(timed(t, "parry3d Voxels", "parry-voxels", &what, &|| frame(camera, &vox))?);
+        out.push(timed(t, "parry3d Voxels", "parry-voxels", &what, &mut || frame(camera, &vox))?);
         Ok(())
     }
 }

@@ -85,24 +85,27 @@ impl Cone {
     }
 
     /// Whether the cone meets the ball (exact for the infinite single cone: the apex moved
-    /// back so that the cone grows by the radius, then the region behind the apex).
+    /// back so that the cone grows by the radius, then the region behind the apex). Compared
+    /// squared, without roots: `a·d < |d| cos` with cos > 0 is `a·d < 0 or (a·d)² < |d|² cos²`.
     fn meets_ball(&self, centre: DVec3, radius: f64) -> bool {
         let back = self.apex - self.axis * (radius / self.sin);
         let d = centre - back;
-        if self.axis.dot(d) < d.length() * self.cos {
+        let ad = self.axis.dot(d);
+        if ad < 0.0 || ad * ad < d.length_squared() * self.cos * self.cos {
             return false;
         }
         let e = centre - self.apex;
-        if -self.axis.dot(e) >= e.length() * self.sin {
-            return e.length() <= radius;
+        let ae = -self.axis.dot(e);
+        if ae >= 0.0 && ae * ae >= e.length_squared() * self.sin * self.sin {
+            return e.length_squared() <= radius * radius;
         }
         true
     }
 }
 
-/// Euclidean distance from `p` to the axis-aligned box `lo..hi` (0 inside).
-fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
-    (lo - p).max(p - hi).max(DVec3::ZERO).length()
+/// Squared Euclidean distance from `p` to the axis-aligned box `lo..hi` (0 inside).
+fn box_distance2(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    (lo - p).max(p - hi).max(DVec3::ZERO).length_squared()
 }
 
 /// Per instance, the t at which the tile's rays may start (`f32::INFINITY`: none of them
@@ -149,24 +152,33 @@ fn instance_start(svo: &Svo, p: &Prepared, tile: &TileRays, world: &Cone, max_le
 
 /// The smallest distance from the cone's apex to a grown node that the cone meets, over the
 /// nodes at `leaf_level` (voxels, or the level-of-detail limit) and the nodes small against
-/// the cone where the descent stops; `None` when the cone meets no voxel.
+/// the cone where the descent stops; `None` when the cone meets no voxel. Distances are kept
+/// squared until the end.
 fn nearest_node(svo: &Svo, cone: &Cone, leaf_level: u32) -> Option<f64> {
     let grow = DVec3::splat(GROW);
-    let meets = |lo: DVec3, size: f64| -> Option<f64> {
+    // A node is small against the cone when size ≤ STOP_RATIO · 2 tan · distance.
+    let small = (STOP_RATIO * 2.0 * cone.tan).powi(2);
+    // The squared distance to the grown cube at `lo` if the cone meets it and it could beat
+    // `best`.
+    let meets = |lo: DVec3, size: f64, best: f64| -> Option<f64> {
         let (glo, ghi) = (lo - grow, lo + DVec3::splat(size) + grow);
+        let d2 = box_distance2(cone.apex, glo, ghi);
+        if d2 >= best {
+            return None;
+        }
         let centre = (glo + ghi) * 0.5;
-        cone.meets_ball(centre, (ghi - glo).length() * 0.5).then(|| box_distance(cone.apex, glo, ghi))
+        cone.meets_ball(centre, (ghi - glo).length() * 0.5).then_some(d2)
     };
-    let root = meets(DVec3::ZERO, 1.0)?;
+    let root = meets(DVec3::ZERO, 1.0, f64::INFINITY)?;
     if leaf_level == 0 {
-        return Some(root);
+        return Some(root.sqrt());
     }
     let mut best = f64::INFINITY;
     // Depth first, nearest child first; at most 8 entries per level are pending.
     let mut stack: Vec<(u32, u32, [u32; 3], f64)> = Vec::with_capacity(8 * svo.depth as usize + 1);
     stack.push((0, 0, [0; 3], root));
-    while let Some((node, level, coord, dist)) = stack.pop() {
-        if dist >= best {
+    while let Some((node, level, coord, dist2)) = stack.pop() {
+        if dist2 >= best {
             continue;
         }
         let mask = svo.masks[node as usize];
@@ -180,24 +192,21 @@ fn nearest_node(svo: &Svo, cone: &Cone, leaf_level: u32) -> Option<f64> {
             }
             let c = [0, 1, 2].map(|i| 2 * coord[i] + ((oct >> i) & 1));
             let lo = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * size;
-            let Some(d) = meets(lo, size) else { continue };
-            if d >= best {
-                continue;
-            }
+            let Some(d2) = meets(lo, size, best) else { continue };
             // A voxel, or a node no wider than the cone there: its distance bounds every
             // voxel inside it.
-            if child_level >= leaf_level || size <= STOP_RATIO * 2.0 * cone.tan * d {
-                best = d;
+            if child_level >= leaf_level || size * size <= small * d2 {
+                best = d2;
                 continue;
             }
-            kids[n] = (d, oct, c);
+            kids[n] = (d2, oct, c);
             n += 1;
         }
         // Farthest pushed first, so the nearest is taken next.
-        kids[..n].sort_by(|a, b| b.0.total_cmp(&a.0));
-        for &(d, oct, c) in &kids[..n] {
-            stack.push((svo.child_node(node as usize, oct) as u32, child_level, c, d));
+        kids[..n].sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+        for &(d2, oct, c) in &kids[..n] {
+            stack.push((svo.child_node(node as usize, oct) as u32, child_level, c, d2));
         }
     }
-    best.is_finite().then_some(best)
+    best.is_finite().then(|| best.sqrt())
 }
