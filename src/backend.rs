@@ -31,7 +31,7 @@ impl std::str::FromStr for BackendKind {
 /// A renderer with its state between frames.
 pub enum Backend {
     /// CPU, with its hit buffer.
-    Cpu(HitBuffer),
+    Cpu(Box<HitBuffer>),
     /// GPU.
     #[cfg(feature = "gpu")]
     Gpu(Box<crate::gpu::GpuRenderer>),
@@ -41,11 +41,11 @@ impl Backend {
     /// Opens a backend; returns it and a line describing it (or why the GPU was not used).
     pub fn open(kind: BackendKind) -> Result<(Backend, String), crate::Error> {
         match kind {
-            BackendKind::Cpu => Ok((Backend::Cpu(HitBuffer::new()), "CPU".into())),
+            BackendKind::Cpu => Ok((Backend::Cpu(Box::default()), "CPU".into())),
             #[cfg(feature = "gpu")]
             BackendKind::Gpu | BackendKind::Auto => match crate::gpu::GpuContext::headless() {
                 Ok(ctx) if kind == BackendKind::Auto && ctx.info.device_type == wgpu::DeviceType::Cpu => Ok((
-                    Backend::Cpu(HitBuffer::new()),
+                    Backend::Cpu(Box::default()),
                     format!(
                         "CPU (the only GPU adapter is the software {}; use --backend gpu to run the GPU path on it)",
                         ctx.info.name
@@ -55,7 +55,7 @@ impl Backend {
                     let d = format!("GPU: {}", ctx.describe());
                     Ok((Backend::Gpu(Box::new(crate::gpu::GpuRenderer::new(std::sync::Arc::new(ctx)))), d))
                 }
-                Err(e) if kind == BackendKind::Auto => Ok((Backend::Cpu(HitBuffer::new()), format!("CPU ({e})"))),
+                Err(e) if kind == BackendKind::Auto => Ok((Backend::Cpu(Box::default()), format!("CPU ({e})"))),
                 Err(e) => Err(e.into()),
             },
             #[cfg(not(feature = "gpu"))]
@@ -64,7 +64,7 @@ impl Backend {
                 source: std::io::Error::other("this build has no GPU support (feature `gpu`)"),
             }),
             #[cfg(not(feature = "gpu"))]
-            BackendKind::Auto => Ok((Backend::Cpu(HitBuffer::new()), "CPU (built without the `gpu` feature)".into())),
+            BackendKind::Auto => Ok((Backend::Cpu(Box::default()), "CPU (built without the `gpu` feature)".into())),
         }
     }
 
@@ -80,8 +80,8 @@ impl Backend {
             BackendKind::Auto if !software => {
                 (Backend::Gpu(Box::new(crate::gpu::GpuRenderer::new(ctx.clone()))), format!("GPU: {}", ctx.describe()))
             }
-            BackendKind::Auto => (Backend::Cpu(HitBuffer::new()), format!("CPU (software adapter {})", ctx.info.name)),
-            BackendKind::Cpu => (Backend::Cpu(HitBuffer::new()), "CPU".into()),
+            BackendKind::Auto => (Backend::Cpu(Box::default()), format!("CPU (software adapter {})", ctx.info.name)),
+            BackendKind::Cpu => (Backend::Cpu(Box::default()), "CPU".into()),
         }
     }
 

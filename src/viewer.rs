@@ -12,8 +12,8 @@
 
 use crate::backend::{Backend, BackendKind};
 use crate::gpu::{GpuContext, GpuError};
-use crate::render::{output, Features, Frame, FramePlan, HitBuffer, RenderOptions};
-use crate::scene::car::{pose, Car};
+use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
+use crate::scene::car::{pose_all, Car};
 use crate::scene::{stage_cars, Camera, Lights, Scene, Staged};
 use crate::svo::Svo;
 use glam::{DQuat, DVec3};
@@ -335,7 +335,7 @@ impl App {
              panel (install a Vulkan driver, e.g. Debian's mesa-vulkan-drivers, for the panel)"
         );
         self.report.backend = "CPU (no GPU adapter; software window, no panel)".into();
-        self.backend = Some(Backend::Cpu(HitBuffer::new()));
+        self.backend = Some(Backend::Cpu(Box::default()));
         (self.ui.backend, self.ui.backend_wanted) = (BackendKind::Cpu, BackendKind::Cpu);
         self.ui.show = false;
         self.soft = Some(Soft { window, surface });
@@ -366,9 +366,7 @@ impl App {
             c.travel = self.ui.travel;
         }
         let other = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
-        for c in &self.cars {
-            pose(&mut self.scene, c, self.time).map_err(other)?;
-        }
+        pose_all(&mut self.scene, &self.cars, self.time).map_err(other)?;
         self.scene.update().map_err(other)?;
         let (w, h, panel) = match (&self.gfx, &self.soft) {
             (Some(g), _) => (g.config.width, g.config.height, self.panel_pixels(g)),

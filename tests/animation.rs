@@ -420,3 +420,44 @@ fn changing_the_level_of_detail_invalidates_the_hit_buffer() {
     let third = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {});
     assert_eq!(third.reused, third.primary_rays);
 }
+
+/// The instance BVH is refitted from frame to frame while the cars drive, with the answers
+/// of the plain path, also after every instance jumps somewhere else.
+#[test]
+fn the_refitted_bvh_gives_the_plain_answers() {
+    let (mut scene, cars) = cars_scene(5);
+    let lights = Lights::default();
+    let features = Features { hit_buffer: false, ..Features::default() };
+    let mut hits = HitBuffer::new();
+    for f in 0..6 {
+        for c in &cars {
+            pose(&mut scene, c, f as f64 / 30.0).unwrap();
+        }
+        scene.update().unwrap();
+        let plan = FramePlan::new(&scene, &camera(), &lights, &features, None);
+        assert!(plan.bvh);
+        let fast = render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+        let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
+        let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+        assert_same_hits(&[fast], &[slow]);
+    }
+    assert_eq!(hits.bvh_builds, 1, "driving cars refit the first tree");
+    assert_eq!(hits.bvh.as_ref().map(|b| b.refits), Some(5));
+
+    // Scatter every instance, wheels and doors too, far from the others: leaves that held
+    // one car's parts now span the scatter.
+    let mut rng = Rng::new(8);
+    for i in 0..scene.instances().len() {
+        let mut t = scene.instances()[i].local;
+        t.translation = DVec3::new(rng.range(-300.0, 300.0) as f64, 0.0, rng.range(-300.0, 300.0) as f64);
+        scene.set_local(i, t).unwrap();
+    }
+    scene.update().unwrap();
+    let plan = FramePlan::new(&scene, &camera(), &lights, &features, None);
+    let fast = render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+    let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
+    let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+    assert_same_hits(&[fast], &[slow]);
+    // Refitted or rebuilt (src/render/bvh.rs tests the rule), the answers are the plain ones.
+    assert!(hits.bvh_builds <= 2);
+}

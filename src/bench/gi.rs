@@ -9,7 +9,7 @@ use super::{summarize, Record};
 use crate::gi::{apply, Filter, GiCaches, GiSettings, PathTracer, ReferenceSettings, Volume, VolumeSpec, VoxelCache};
 use crate::mesh::{Mesh, Part};
 use crate::render::{render, Features, Frame, FramePlan, RenderOptions};
-use crate::scene::car::pose;
+use crate::scene::car::pose_all;
 use crate::scene::{stage_cars, Instance, Scene, Transform};
 use crate::svo::{Cube, Svo};
 use crate::voxelize::voxelize_in;
@@ -122,9 +122,7 @@ type ScalingScene = (crate::scene::Staged, Vec<VoxelCache>, Vec<(usize, glam::DA
 
 fn scaling_scene(parts: &[Arc<Svo>], n: usize) -> Result<ScalingScene, crate::Error> {
     let mut st = stage_cars(parts, n, true, false)?;
-    for car in &st.cars {
-        pose(&mut st.scene, car, 1.7)?;
-    }
+    pose_all(&mut st.scene, &st.cars, 1.7)?;
     st.scene.update()?;
     // Caches at a fixed voxel size, 1/64 of the first part (the body), at every count — the
     // volume's cells grow with the area the cars cover and would otherwise shrink the caches

@@ -17,7 +17,7 @@ pub mod peers;
 
 use crate::backend::Backend;
 use crate::render::{Features, Frame, FramePlan, RenderOptions};
-use crate::scene::car::{pose, Car};
+use crate::scene::car::{pose_all, Car};
 use crate::scene::{Camera, Lights, Scene};
 use std::time::Instant;
 
@@ -137,9 +137,7 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
         // Warm-up frames replay the first timed frame's time, so the first timed frame is the
         // same picture whatever the warm-up (the depth sweep compares it with a reference).
         let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
-        for car in clip.cars {
-            pose(clip.scene, car, t)?;
-        }
+        pose_all(clip.scene, clip.cars, t)?;
         clip.scene.update()?;
         let p = backend.plan(clip.scene, clip.camera, clip.lights, &clip.features, f == 0);
         let frame = backend.render(

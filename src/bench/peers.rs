@@ -12,7 +12,7 @@ use super::{summarize, Record};
 use crate::backend::Backend;
 use crate::render::primary::{trace_tiles, Primary};
 use crate::render::visibility::{FrameInstances, Search};
-use crate::render::{Features, HitBuffer};
+use crate::render::Features;
 use crate::scene::Camera;
 use crate::svo::Svo;
 use glam::{DVec3, Vec3};
@@ -178,7 +178,7 @@ fn whole_frame(t: &Timing<'_>, scene: &crate::scene::Scene, voxels: &str) -> Res
     };
     let backend_name = format!("CPU, {} threads", t.threads);
     // The backend lives inside the pool (a GPU backend could not cross threads).
-    let (mut r, f) = pool.install(|| super::run_clip(&mut Backend::Cpu(HitBuffer::new()), &backend_name, clip))?;
+    let (mut r, f) = pool.install(|| super::run_clip(&mut Backend::Cpu(Box::default()), &backend_name, clip))?;
     let hits = f.instance.iter().filter(|&&i| i >= 0).count();
     let pixels = (t.view.camera.width * t.view.camera.height) as f64;
     r.group = "peers".into();

@@ -13,7 +13,7 @@ use voxray::mesh::Mesh;
 use voxray::mesh::Part;
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::{output, Features, Frame, FramePlan, RenderOptions};
-use voxray::scene::car::pose;
+use voxray::scene::car::pose_all;
 use voxray::scene::{add_ground, stage_cars, Camera, Instance, Lights, Scene, Staged, Transform};
 use voxray::svo::Svo;
 use voxray::voxelize::{Resolution, VoxelizeOptions};
@@ -573,9 +573,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let mut camera = camera_json.unwrap_or_else(|| {
         if a.frames == 1 {
             // One frame: frame the car(s) as posed, seen from the front left of the first car.
-            for car in &st.cars {
-                let _ = pose(&mut st.scene, car, a.time);
-            }
+            let _ = pose_all(&mut st.scene, &st.cars, a.time);
             let _ = st.scene.update();
             let heading = st
                 .cars
@@ -623,9 +621,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     for f in 0..a.frames {
         let start = Instant::now();
         let t = a.time + f as f64 / a.fps;
-        for car in &st.cars {
-            pose(&mut st.scene, car, t)?;
-        }
+        pose_all(&mut st.scene, &st.cars, t)?;
         st.scene.update()?;
         let cam = orbit(&camera, a.orbit * (t - a.time));
         let plan = backend.plan(&st.scene, &cam, &lights, &features, f == 0);

@@ -6,7 +6,6 @@
 
 use super::context::{GpuContext, GpuError};
 use super::layout::*;
-use crate::render::bvh::Bvh;
 use crate::render::hitbuffer::{HitBuffer, HitRecord};
 use crate::render::instances::{prepare, Prepared, ToUnit};
 use crate::render::visibility::Search;
@@ -398,7 +397,7 @@ impl GpuRenderer {
         let moved: Vec<GpuSphere> = reuse.as_ref().map_or(Vec::new(), |r| {
             r.moved_spheres.iter().map(|&(c, rad, rect)| GpuSphere { sphere: f4(c, rad), rect }).collect()
         });
-        let bvh = plan.bvh.then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+        let bvh = plan.bvh.then(|| self.state.take_bvh(&prepared));
         let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), |b| {
             b.nodes
                 .iter()
@@ -664,6 +663,7 @@ impl GpuRenderer {
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records, opts.max_level);
+        self.state.bvh = bvh;
         self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
         Ok(f)
     }

@@ -1,6 +1,8 @@
-//! A bounding volume hierarchy over instance bounding spheres (their boxes), rebuilt every
-//! frame in O(n log n) by median splits, so rays skip whole groups of instances and the cost
-//! per ray grows with log n rather than n.
+//! A bounding volume hierarchy over instance bounding spheres (their boxes), built in
+//! O(n log n) by median splits, so rays skip whole groups of instances and the cost per ray
+//! grows with log n rather than n. Frame to frame it is refitted in O(n) (same tree, boxes
+//! recomputed bottom-up) and built again only when refitting has made it
+//! [`REBUILD_RATIO`] times costlier than when it was built.
 
 use glam::DVec3;
 
@@ -20,11 +22,18 @@ pub struct Node {
 /// The hierarchy.
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
-    /// Nodes; node 0 is the root.
+    /// Nodes; node 0 is the root, and every node's children come after it.
     pub nodes: Vec<Node>,
     /// Instance indices, grouped by leaf.
     pub items: Vec<u32>,
+    /// [`Bvh::cost`] when the tree was built.
+    pub built_cost: f64,
+    /// Frames this tree has been refitted for since it was built.
+    pub refits: u32,
 }
+
+/// Build again once a refitted tree costs this many times what it cost when built.
+pub const REBUILD_RATIO: f64 = 1.5;
 
 impl Bvh {
     /// The BVH over prepared instances when there are enough of them to pay for it (the
@@ -43,11 +52,63 @@ impl Bvh {
 /// Instances per leaf at most.
 const LEAF: usize = 4;
 
+/// Surface area of a box (0 for an empty or inverted one).
+fn area(lo: DVec3, hi: DVec3) -> f64 {
+    let e = (hi - lo).max(DVec3::ZERO);
+    2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+}
+
 impl Bvh {
+    /// The surface-area cost of the tree: the sum of its nodes' box areas over the root's,
+    /// which is how many nodes a ray crossing the root box visits on average (the surface
+    /// area heuristic without the leaf term). A tree whose boxes have grown apart costs more.
+    pub fn cost(&self) -> f64 {
+        let Some(root) = self.nodes.first() else { return 0.0 };
+        let total: f64 = self.nodes.iter().map(|n| area(n.lo, n.hi)).sum();
+        total / area(root.lo, root.hi).max(f64::MIN_POSITIVE)
+    }
+
+    /// Recomputes every box from `spheres` (same tree), children before parents.
+    pub fn refit(&mut self, spheres: &[(DVec3, f64)]) {
+        for n in (0..self.nodes.len()).rev() {
+            let node = self.nodes[n];
+            let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+            if node.count > 0 {
+                for &i in &self.items[node.first as usize..(node.first + node.count) as usize] {
+                    let (c, r) = spheres[i as usize];
+                    lo = lo.min(c - r);
+                    hi = hi.max(c + r);
+                }
+            } else {
+                for child in [node.first, node.first + 1] {
+                    lo = lo.min(self.nodes[child as usize].lo);
+                    hi = hi.max(self.nodes[child as usize].hi);
+                }
+            }
+            self.nodes[n].lo = lo;
+            self.nodes[n].hi = hi;
+        }
+        self.refits += 1;
+    }
+
+    /// `previous` refitted to `spheres` when it covers as many and stays within
+    /// [`REBUILD_RATIO`] of its cost when built; otherwise a new tree.
+    pub fn refit_or_build(previous: Option<Bvh>, spheres: &[(DVec3, f64)]) -> Bvh {
+        if let Some(mut bvh) = previous.filter(|b| b.items.len() == spheres.len() && !b.nodes.is_empty()) {
+            bvh.refit(spheres);
+            if bvh.cost() <= REBUILD_RATIO * bvh.built_cost {
+                return bvh;
+            }
+        }
+        Bvh::build(spheres)
+    }
     /// Builds over spheres (centre, radius).
     pub fn build(spheres: &[(DVec3, f64)]) -> Bvh {
-        let mut bvh =
-            Bvh { nodes: Vec::with_capacity(2 * spheres.len() / LEAF + 1), items: (0..spheres.len() as u32).collect() };
+        let mut bvh = Bvh {
+            nodes: Vec::with_capacity(2 * spheres.len() / LEAF + 1),
+            items: (0..spheres.len() as u32).collect(),
+            ..Bvh::default()
+        };
         if spheres.is_empty() {
             return bvh;
         }
@@ -92,6 +153,7 @@ impl Bvh {
             stack.push((left, start, mid));
             stack.push((left + 1, mid, end));
         }
+        bvh.built_cost = bvh.cost();
         bvh
     }
 }
@@ -113,4 +175,44 @@ pub fn box_entry(lo: DVec3, hi: DVec3, o: DVec3, inv_d: DVec3, t_max: f64) -> Op
         }
     }
     (t0 <= t1).then_some(t0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Clusters of four spheres along x. `mix` deals the clusters' members out so that
+    /// every cluster of the new layout holds one member of four old ones.
+    fn clusters(n: usize, mix: bool) -> Vec<(DVec3, f64)> {
+        (0..n)
+            .map(|i| {
+                let cluster = if mix { (i % 4) * (n / 16) + i / 16 } else { i / 4 };
+                (DVec3::new(cluster as f64 * 10.0 + (i % 4) as f64 * 0.1, 0.0, 0.0), 0.5)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn refitting_keeps_the_tree_until_it_degrades() {
+        let spheres = clusters(256, false);
+        let built = Bvh::build(&spheres);
+        assert!(built.built_cost > 0.0 && built.refits == 0);
+        // Everything shifted: the same tree fits as well as before.
+        let shifted: Vec<_> = spheres.iter().map(|&(c, r)| (c + DVec3::new(3.0, -2.0, 1.0), r)).collect();
+        let kept = Bvh::refit_or_build(Some(built.clone()), &shifted);
+        assert_eq!((kept.refits, kept.built_cost), (1, built.built_cost));
+        for (n, m) in kept.nodes.iter().zip(&Bvh::build(&shifted).nodes) {
+            assert!((n.lo - m.lo).length() < 1e-9 && (n.hi - m.hi).length() < 1e-9);
+        }
+        // Members dealt out to other clusters: refitted leaves span the scene, so a new tree.
+        let mixed = clusters(256, true);
+        let mut refitted = built.clone();
+        refitted.refit(&mixed);
+        assert!(refitted.cost() > REBUILD_RATIO * built.built_cost, "{} vs {}", refitted.cost(), built.built_cost);
+        let rebuilt = Bvh::refit_or_build(Some(built), &mixed);
+        assert_eq!(rebuilt.refits, 0);
+        assert!(rebuilt.cost() < refitted.cost());
+        // Another count of spheres always builds.
+        assert_eq!(Bvh::refit_or_build(Some(rebuilt), &spheres[..100]).refits, 0);
+    }
 }

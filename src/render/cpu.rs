@@ -131,7 +131,11 @@ pub fn render(
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
     let prepared = prepare(scene, camera.eye, plan.transform);
-    let bvh = plan.bvh.then(|| Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()));
+    let mut hits = hits;
+    let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
+        Some(h) => h.take_bvh(&prepared),
+        None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
+    });
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
@@ -220,7 +224,13 @@ pub fn render(
     f.shadow_rays = shadow_rays.into_inner();
     if let Some(b) = hits {
         b.reused = f.reused;
-        b.store(camera, scene, &prepared, records, opts.max_level);
+        if plan.keep_hits {
+            b.store(camera, scene, &prepared, records, opts.max_level);
+        } else {
+            // Nothing to keep: a later frame with the buffer switched on starts afresh.
+            b.camera = None;
+        }
+        b.bvh = bvh;
     }
     f
 }

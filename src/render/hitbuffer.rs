@@ -61,6 +61,11 @@ pub struct HitBuffer {
     /// The level of detail the stored frame was traced at (a hit at another level is not
     /// this frame's hit).
     pub max_level: u32,
+    /// The instance BVH of the stored frame, refitted by the next one
+    /// ([`super::bvh::Bvh::refit_or_build`]).
+    pub bvh: Option<super::bvh::Bvh>,
+    /// Instance BVHs built from scratch for frames rendered with this buffer.
+    pub bvh_builds: u64,
 }
 
 /// What the current frame may reuse.
@@ -122,6 +127,17 @@ impl HitBuffer {
         Self::default()
     }
 
+    /// This frame's instance BVH: the stored frame's refitted, or a new one (counted in
+    /// [`HitBuffer::bvh_builds`]). Store it back with `self.bvh = Some(..)` after the frame.
+    pub fn take_bvh(&mut self, prepared: &[Prepared]) -> super::bvh::Bvh {
+        let spheres: Vec<(DVec3, f64)> = prepared.iter().map(|p| (p.centre, p.radius)).collect();
+        let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), &spheres);
+        if bvh.refits == 0 {
+            self.bvh_builds += 1;
+        }
+        bvh
+    }
+
     /// Whether the stored frame was seen by exactly this camera.
     pub fn same_camera(&self, camera: &Camera) -> bool {
         self.camera.as_ref() == Some(camera) && self.records.len() == (camera.width * camera.height) as usize
@@ -158,9 +174,14 @@ impl HitBuffer {
     ) {
         self.camera = Some(*camera);
         self.max_level = max_level;
-        self.worlds = scene.worlds().to_vec();
-        self.parts = scene.instances().iter().map(|i| i.part).collect();
-        self.spheres = prepared.iter().map(|p| (p.centre, p.radius)).collect();
+        // Refilled in place: with tens of thousands of instances, fresh vectors every frame
+        // cost more in page faults than the copies themselves.
+        self.worlds.clear();
+        self.worlds.extend_from_slice(scene.worlds());
+        self.parts.clear();
+        self.parts.extend(scene.instances().iter().map(|i| i.part));
+        self.spheres.clear();
+        self.spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
         self.records = records;
     }
 }

@@ -66,11 +66,9 @@ pub struct Prepared {
 /// Prepares every instance for a camera at `eye`. `transform == false` (a frame plan that
 /// found only identity transforms) maps rays with the cube offset and scale alone.
 pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
-    scene
-        .instances()
-        .iter()
-        .enumerate()
-        .map(|(i, inst)| {
+    let one = |i: usize| {
+        let inst = &scene.instances()[i];
+        {
             let cube = scene.parts[inst.part].bounds;
             let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
             let w = scene.world(i);
@@ -101,8 +99,15 @@ pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
                 radius: radius * (1.0 + SPHERE_PAD) + f64::MIN_POSITIVE,
                 max_stretch,
             }
-        })
-        .collect()
+        }
+    };
+    // Thousands of instances (a crowd of cars): every one is independent.
+    #[cfg(feature = "parallel")]
+    if scene.instances().len() >= 1024 {
+        use rayon::prelude::*;
+        return (0..scene.instances().len()).into_par_iter().map(one).collect();
+    }
+    (0..scene.instances().len()).map(one).collect()
 }
 
 /// The interval of t over which the ray `o + t·d` (d unit length) is inside the sphere, or

@@ -67,6 +67,9 @@ pub struct FramePlan {
     pub bvh: bool,
     /// Reuse last frame's hits.
     pub hit_buffer: bool,
+    /// Keep this frame's hits for the next one (the hit buffer is switched on).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub keep_hits: bool,
     /// Shadow rays.
     pub shadows: bool,
     /// Beams for primary rays ([`super::beam`]).
@@ -144,7 +147,18 @@ impl FramePlan {
         } else {
             format!("beams: off ({n} instances > {})", super::beam::MAX_INSTANCES)
         });
-        FramePlan { instances: n, transform, cull, sort, bvh, hit_buffer, shadows, beams, reasons }
+        FramePlan {
+            instances: n,
+            transform,
+            cull,
+            sort,
+            bvh,
+            hit_buffer,
+            keep_hits: features.hit_buffer,
+            shadows,
+            beams,
+            reasons,
+        }
     }
 
     /// Turns beams off for a renderer that has none, saying why.

@@ -93,6 +93,31 @@ fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
     }
 }
 
+/// A fixed-size stack for walking the instance BVH (no allocation per ray).
+struct Stack<T: Copy + Default> {
+    items: [T; 64],
+    len: usize,
+}
+
+impl<T: Copy + Default> Stack<T> {
+    fn new() -> Self {
+        Stack { items: [T::default(); 64], len: 0 }
+    }
+    #[inline]
+    fn push(&mut self, v: T) {
+        // Depth ≤ 32 (median splits) keeps this far from full; the check keeps it safe.
+        if self.len < self.items.len() {
+            self.items[self.len] = v;
+            self.len += 1;
+        }
+    }
+    #[inline]
+    fn pop(&mut self) -> Option<T> {
+        self.len = self.len.checked_sub(1)?;
+        Some(self.items[self.len])
+    }
+}
+
 /// What a nearest-hit search cost: the statistics the demo shows per ray.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Work {
@@ -166,7 +191,9 @@ pub fn nearest_work(
                 return None;
             }
             let inv = d.recip();
-            let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+            // Median splits halve the items per level, so the tree is at most 32 deep and at
+            // most one sibling per level waits: no allocation per ray.
+            let mut stack = Stack::<(u32, f64)>::new();
             if let Some(t) = box_entry(bvh.nodes[0].lo, bvh.nodes[0].hi, o, inv, f64::INFINITY) {
                 stack.push((0, t));
             }
@@ -227,7 +254,8 @@ pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search) -> bool
         (Search::Plain, _) => (0..fi.prepared.len()).any(|i| trace_one(fi, i, o, d, &opts).is_some()),
         (Search::Bvh, Some(bvh)) if !bvh.nodes.is_empty() => {
             let inv = d.recip();
-            let mut stack = vec![0u32];
+            let mut stack = Stack::<u32>::new();
+            stack.push(0);
             while let Some(n) = stack.pop() {
                 let node = bvh.nodes[n as usize];
                 if box_entry(node.lo, node.hi, o, inv, f64::INFINITY).is_none() {

@@ -19,7 +19,7 @@ pub struct Instance {
 }
 
 /// Why a scene edit was refused.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum SceneError {
     /// No such part.
     #[error("part {0} does not exist")]
@@ -40,6 +40,73 @@ pub struct Scene {
     instances: Vec<Instance>,
     world: Vec<DAffine3>,
     dirty: Vec<bool>,
+    /// Where the instance list splits into independent runs: no instance at or after a split
+    /// has a parent before it (a car and its seven children form one run). Runs update in
+    /// parallel; empty until the next update after an instance is added.
+    splits: Vec<usize>,
+    /// Buffers kept between frames so that updating tens of thousands of instances does not
+    /// allocate (and fault in fresh pages) every frame.
+    scratch: Scratch,
+}
+
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    /// Validated local transforms waiting to be applied.
+    locals: Vec<Result<(usize, Transform), SceneError>>,
+    /// New world transforms, valid where `changed`.
+    next: Vec<DAffine3>,
+    changed: Vec<bool>,
+}
+
+/// Instances below this count update and pose on one thread (threads cost more than they
+/// save).
+const PARALLEL_MIN: usize = 2048;
+
+/// The starts of the independent runs of `instances`: a run starts where no later instance
+/// has a parent before it.
+fn independent_runs(instances: &[Instance]) -> Vec<usize> {
+    let mut starts = Vec::new();
+    let mut lowest_parent = usize::MAX; // over the instances after the current one
+    for i in (0..instances.len()).rev() {
+        if lowest_parent > i {
+            starts.push(i + 1);
+        }
+        if let Some(p) = instances[i].parent {
+            lowest_parent = lowest_parent.min(p);
+        }
+    }
+    starts.push(0);
+    starts.reverse();
+    starts.dedup();
+    starts.retain(|&s| s < instances.len());
+    starts
+}
+
+/// Chunk boundaries (starting with 0, ending with `n`) made of whole runs, about 64 chunks.
+fn chunk_runs(starts: &[usize], n: usize) -> Vec<usize> {
+    let target = (n / 64).max(PARALLEL_MIN / 4);
+    let mut out = vec![0];
+    for &s in starts {
+        if s - out[out.len() - 1] >= target {
+            out.push(s);
+        }
+    }
+    out.push(n);
+    out.dedup();
+    out
+}
+
+/// `out` cleared and refilled with `f(0..count)` flattened, in parallel for long lists when
+/// enabled; its capacity is kept from call to call.
+fn fill<R: Send, I: IntoIterator<Item = R>>(out: &mut Vec<R>, count: usize, f: impl Fn(usize) -> I + Sync + Send) {
+    out.clear();
+    #[cfg(feature = "parallel")]
+    if count >= PARALLEL_MIN / 8 {
+        use rayon::prelude::*;
+        out.par_extend((0..count).into_par_iter().flat_map_iter(f));
+        return;
+    }
+    out.extend((0..count).flat_map(f));
 }
 
 impl Scene {
@@ -59,10 +126,52 @@ impl Scene {
             }
         }
         Transform::new(inst.local.translation, inst.local.rotation, inst.local.scale)?;
+        self.splits.clear();
         self.instances.push(inst);
         self.world.push(DAffine3::IDENTITY);
         self.dirty.push(true);
         Ok(self.instances.len() - 1)
+    }
+
+    /// Sets many local transforms at once ([`Scene::set_local`] for each), validating them
+    /// in parallel; on an error nothing is changed.
+    pub fn set_locals(&mut self, items: &[(usize, Transform)]) -> Result<(), SceneError> {
+        self.set_locals_from(items.len(), |k| [items[k]])
+    }
+
+    /// [`Scene::set_locals`] for the transforms `make(0..count)` yields, `N` at a time (a
+    /// car's eight parts from one pose computation): they are computed and validated in
+    /// parallel and applied only if all are valid.
+    pub fn set_locals_from<const N: usize>(
+        &mut self,
+        count: usize,
+        make: impl Fn(usize) -> [(usize, Transform); N] + Sync + Send,
+    ) -> Result<(), SceneError> {
+        let n = self.instances.len();
+        let mut locals = std::mem::take(&mut self.scratch.locals);
+        fill(&mut locals, count, |k| {
+            make(k).map(|(i, t)| {
+                if i >= n {
+                    return Err(SceneError::Instance(i));
+                }
+                Ok((i, Transform::new(t.translation, t.rotation, t.scale)?))
+            })
+        });
+        let result = match locals.iter().find_map(|r| r.as_ref().err()) {
+            Some(e) => Err::<(), SceneError>(e.clone()),
+            None => {
+                for &(i, t) in locals.iter().flatten() {
+                    let inst = &mut self.instances[i];
+                    if inst.local != t {
+                        inst.local = t;
+                        self.dirty[i] = true;
+                    }
+                }
+                Ok(())
+            }
+        };
+        self.scratch.locals = locals;
+        result
     }
 
     /// Replaces an instance's local transform (validated) and marks it dirty.
@@ -76,29 +185,72 @@ impl Scene {
         Ok(())
     }
 
-    /// Recomputes world transforms of dirty instances and their descendants. Refuses (and
-    /// leaves the old transforms in place) if a composed transform is near-singular.
+    /// Recomputes world transforms of dirty instances and their descendants, in index order
+    /// (parents before children) within each independent run of instances, the runs in
+    /// parallel. Refuses (and leaves the old transforms in place) if a composed transform is
+    /// near-singular.
     pub fn update(&mut self) -> Result<(), SceneError> {
-        let mut world = self.world.clone();
-        let mut changed = vec![false; self.instances.len()];
-        for (i, inst) in self.instances.iter().enumerate() {
-            let parent_changed = inst.parent.is_some_and(|p| changed[p]);
-            if !(self.dirty[i] || parent_changed) {
-                continue;
-            }
-            let local = inst.local.to_affine();
-            let w = match inst.parent {
-                Some(p) => world[p] * local,
-                None => local,
-            };
-            if !is_well_conditioned(&w) {
-                return Err(TransformError::Singular(i).into());
-            }
-            changed[i] = true;
-            world[i] = w;
+        let n = self.instances.len();
+        if self.splits.is_empty() {
+            self.splits = independent_runs(&self.instances);
         }
-        self.world = world;
+        let mut sc = std::mem::take(&mut self.scratch);
+        sc.changed.clear();
+        sc.changed.resize(n, false);
+        sc.next.resize(n, DAffine3::IDENTITY);
+        let (instances, dirty, world) = (&self.instances, &self.dirty, &self.world);
+        // One run: composes into its own slices of `next` and `changed`; parents are in it.
+        let run = |start: usize, next: &mut [DAffine3], changed: &mut [bool]| -> Result<(), usize> {
+            for k in 0..next.len() {
+                let i = start + k;
+                let inst = &instances[i];
+                let parent_changed = inst.parent.is_some_and(|p| changed[p - start]);
+                if !(dirty[i] || parent_changed) {
+                    continue;
+                }
+                let local = inst.local.to_affine();
+                let w = match inst.parent {
+                    Some(p) if changed[p - start] => next[p - start] * local,
+                    Some(p) => world[p] * local,
+                    None => local,
+                };
+                if !is_well_conditioned(&w) {
+                    return Err(i);
+                }
+                next[k] = w;
+                changed[k] = true;
+            }
+            Ok(())
+        };
+        // Cut the runs into chunks of whole runs, a few per thread.
+        let chunks = chunk_runs(&self.splits, n);
+        let mut pieces = Vec::with_capacity(chunks.len());
+        let (mut next, mut changed) = (&mut sc.next[..], &mut sc.changed[..]);
+        for w in chunks.windows(2) {
+            let (a, b) = next.split_at_mut(w[1] - w[0]);
+            let (c, d) = changed.split_at_mut(w[1] - w[0]);
+            pieces.push((w[0], a, c));
+            (next, changed) = (b, d);
+        }
+        #[cfg(feature = "parallel")]
+        let result: Result<(), usize> = {
+            use rayon::prelude::*;
+            pieces.into_par_iter().try_for_each(|(start, next, changed)| run(start, next, changed))
+        };
+        #[cfg(not(feature = "parallel"))]
+        let result: Result<(), usize> =
+            pieces.into_iter().try_for_each(|(start, next, changed)| run(start, next, changed));
+        if let Err(bad) = result {
+            self.scratch = sc;
+            return Err(TransformError::Singular(bad).into());
+        }
+        for ((w, &new), &changed) in self.world.iter_mut().zip(&sc.next).zip(&sc.changed) {
+            if changed {
+                *w = new;
+            }
+        }
         self.dirty.iter_mut().for_each(|d| *d = false);
+        self.scratch = sc;
         Ok(())
     }
 
@@ -141,5 +293,94 @@ impl Scene {
             }
         }
         (lo, hi)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::svo::Cube;
+    use glam::DQuat;
+
+    fn one_voxel() -> Arc<Svo> {
+        let grid = crate::voxelize::VoxelGrid::from_coords(
+            1,
+            Cube { min: glam::Vec3::ZERO, size: 1.0 },
+            [[0, 0, 0]],
+            glam::Vec3::ONE,
+        );
+        Arc::new(crate::svo::build(&grid).unwrap())
+    }
+
+    fn t(k: usize) -> Transform {
+        let q = DQuat::from_euler(glam::EulerRot::XYZ, 0.1 * k as f64, 0.2, -0.3 * (k % 7) as f64);
+        Transform::new(DVec3::new(k as f64 * 0.5, 1.0, -((k % 5) as f64)), q, DVec3::new(1.0, 1.5, 0.75)).unwrap()
+    }
+
+    /// Roots with chains and fans of children, some parents far back, more instances than
+    /// the parallel threshold.
+    fn hierarchy(n: usize) -> Scene {
+        let mut s = Scene::new(vec![one_voxel()]);
+        for i in 0..n {
+            let parent = match i % 10 {
+                0 => None,
+                1..=6 => Some(i - 1),
+                7 => Some(i - 7),
+                _ => Some(i - 3),
+            };
+            s.add(Instance { part: 0, parent, local: t(i) }).unwrap();
+        }
+        s
+    }
+
+    /// The parallel update of independent runs equals composing parent before child one at
+    /// a time, for the first update and after a few locals change.
+    #[test]
+    fn parallel_update_matches_a_serial_composition() {
+        let n = 3 * PARALLEL_MIN + 17;
+        let mut s = hierarchy(n);
+        assert!(s.update().is_ok());
+        let serial = |s: &Scene| {
+            let mut w = vec![DAffine3::IDENTITY; n];
+            for (i, inst) in s.instances().iter().enumerate() {
+                w[i] = inst.parent.map_or(DAffine3::IDENTITY, |p| w[p]) * inst.local.to_affine();
+            }
+            w
+        };
+        assert_eq!(s.worlds(), &serial(&s)[..]);
+        for i in [5usize, 900, 2 * PARALLEL_MIN + 3] {
+            s.set_local(i, t(i + 1)).unwrap();
+        }
+        s.update().unwrap();
+        assert_eq!(s.worlds(), &serial(&s)[..]);
+        assert!(s.splits.len() > 100, "runs found: {}", s.splits.len());
+    }
+
+    /// A near-singular composition deep in a run is refused and leaves every world
+    /// transform as it was.
+    #[test]
+    fn a_refused_update_changes_nothing() {
+        let mut s = hierarchy(2 * PARALLEL_MIN);
+        s.update().unwrap();
+        let before = s.worlds().to_vec();
+        let tiny = Transform::new(DVec3::ZERO, DQuat::IDENTITY, DVec3::splat(2e-4)).unwrap();
+        // Two nested tiny scales: each is allowed, together they are near-singular.
+        s.set_locals(&[(PARALLEL_MIN + 1, t(3)), (PARALLEL_MIN + 4, tiny), (PARALLEL_MIN + 5, tiny)]).unwrap();
+        assert!(matches!(s.update(), Err(SceneError::Transform(TransformError::Singular(_)))));
+        assert_eq!(s.worlds(), &before[..]);
+        // A bad local in a batch: nothing of the batch is applied.
+        let bad = Transform { scale: DVec3::ZERO, ..t(1) };
+        assert!(s.set_locals(&[(0, t(9)), (1, bad)]).is_err());
+        assert_eq!(s.instances()[0].local, t(0));
+    }
+
+    #[test]
+    fn independent_runs_start_where_no_later_parent_reaches_back() {
+        let inst = |parent| Instance { part: 0, parent, local: Transform::IDENTITY };
+        let list = [inst(None), inst(Some(0)), inst(None), inst(Some(2)), inst(Some(0)), inst(None), inst(Some(5))];
+        // Instance 4's parent 0 joins the runs starting at 0 and 2; 5 starts a new one.
+        assert_eq!(independent_runs(&list), vec![0, 5]);
+        assert_eq!(independent_runs(&list[..4]), vec![0, 2]);
+        assert_eq!(independent_runs(&[]), Vec::<usize>::new());
     }
 }

@@ -10,7 +10,7 @@ pub const MIN_SCALE: f64 = 1e-6;
 pub const MAX_SCALE: f64 = 1e6;
 
 /// Why a transform was refused.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum TransformError {
     /// A component is NaN or infinite.
     #[error("transform {0} is not finite")]
