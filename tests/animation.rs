@@ -90,6 +90,9 @@ fn all_optimizations_match_the_plain_path_static_camera() {
     let pixels = (fast.len() * fast[0].t.len()) as u64;
     assert!(reused > pixels / 4, "the static camera should reuse many pixels ({reused} of {pixels})");
     assert!(reused < pixels, "moving parts must force some pixels to be traced again");
+    // Kept colours: never more than the kept hits, often nearly all of them.
+    let kept: u64 = fast.iter().map(|f| f.shade_reused).sum();
+    assert!(kept > pixels / 4 && kept <= pixels, "{kept} of {pixels} colours kept");
     // The driving car really crosses in front of the parked one: some pixel shows a parked
     // instance (0..8) in one frame and a driving one (8..16) in another.
     let crossed = (0..fast[0].t.len()).any(|k| {
@@ -460,4 +463,33 @@ fn the_refitted_bvh_gives_the_plain_answers() {
     assert_same_hits(&[fast], &[slow]);
     // Refitted or rebuilt (src/render/bvh.rs tests the rule), the answers are the plain ones.
     assert!(hits.bvh_builds <= 2);
+}
+
+/// A driving car's shadow sweeps over the ground, which does not move: those ground pixels
+/// keep their hits but must not keep their colours. Kept colours equal recomputed ones.
+#[test]
+fn kept_colours_follow_moving_shadows() {
+    use voxray::scene::lights::Sun;
+    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
+    let lights = Lights {
+        sun: Some(Sun { to_sun: glam::Vec3::new(0.6, 0.5, 0.3).normalize(), irradiance: glam::Vec3::splat(3.0) }),
+        ..Lights::default()
+    };
+    let (lo, hi) = st.bounds;
+    let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
+    let mut hits = HitBuffer::new();
+    let mut kept_on_ground = 0;
+    for f in 0..8 {
+        voxray::scene::car::pose_all(&mut st.scene, &st.cars, f as f64 * 0.2).unwrap();
+        st.scene.update().unwrap();
+        let plan = FramePlan::new(&st.scene, &cam, &lights, &Features::default(), (f > 0).then_some(&hits));
+        let fast = render(&st.scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+        let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
+        let slow = render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+        assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+        let ground = st.scene.instances().len() as i32 - 1;
+        kept_on_ground +=
+            fast.instance.iter().filter(|&&i| i == ground).count() as u64 * (fast.shade_reused > 0) as u64;
+    }
+    assert!(kept_on_ground > 0);
 }

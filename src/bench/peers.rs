@@ -140,7 +140,8 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 trace_tiles(
                     &primary,
                     &mut t_hit,
-                    |_, _, _| true,
+                    |_| (),
+                    |_, _, _, _| true,
                     |t, hit| *t = hit.map_or(f32::INFINITY, |h| h.0.hit.t),
                     |_| {},
                 );

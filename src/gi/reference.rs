@@ -286,6 +286,7 @@ impl<'a> PathTracer<'a> {
             primary_rays: n as u64,
             reused: 0,
             shadow_rays: 0,
+            shade_reused: 0,
             instances_traced: 0,
             spheres_culled: 0,
         }

@@ -654,10 +654,15 @@ impl GpuRenderer {
             normal: records.iter().map(|r| r.normal).collect(),
             albedo: records.iter().map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO }).collect(),
             specular: records.iter().map(|r| if r.instance >= 0 { r.attr.specular() } else { 0.0 }).collect(),
-            shininess: records.iter().map(|r| crate::render::brdf::shininess_of_gloss(r.attr.gloss())).collect(),
+            shininess: records
+                .iter()
+                .map(|r| crate::render::brdf::shininess_of_gloss_bits(r.attr.gloss_bits()))
+                .collect(),
             primary_rays: n as u64,
             reused: hits.iter().filter(|g| g.reused != 0).count() as u64,
             shadow_rays,
+            // The GPU shades every pixel each frame (its colours are not kept).
+            shade_reused: 0,
             instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
         };

@@ -30,6 +30,13 @@ pub fn shininess_of_gloss(gloss: f32) -> f32 {
     (10.0 * gloss.clamp(0.0, 1.0)).exp2()
 }
 
+/// [`shininess_of_gloss`] of a stored 4-bit glossiness G (gloss G/15), from a table: it is
+/// asked for every pixel of every frame.
+pub fn shininess_of_gloss_bits(g: u32) -> f32 {
+    static TABLE: std::sync::OnceLock<[f32; 16]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|g| shininess_of_gloss(g as f32 / 15.0)))[g as usize & 15]
+}
+
 /// The normalized Phong lobe `(n + 2)/(2π) · max(0, cos α)ⁿ`.
 pub fn phong(shininess: f32, cos_alpha: f32) -> f32 {
     if cos_alpha <= 0.0 {

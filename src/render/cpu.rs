@@ -54,6 +54,8 @@ pub struct Frame {
     pub reused: u64,
     /// Shadow rays traced.
     pub shadow_rays: u64,
+    /// Pixels whose colour came from the hit buffer (nothing about them changed).
+    pub shade_reused: u64,
     /// Instance octrees traversed by the traced (not reused) primary rays.
     pub instances_traced: u64,
     /// Instances skipped because the traced primary rays missed their bounding spheres.
@@ -109,6 +111,54 @@ pub(crate) fn record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: D
     HitRecord { t: h.hit.t, instance: h.instance as i32, normal, face_normal, attr: h.hit.attr, voxel: voxel as f32 }
 }
 
+/// Fills a frame's per-pixel surface data from the hit records, rows in parallel.
+fn aovs(f: &mut Frame, records: &[HitRecord]) {
+    let w = f.width as usize;
+    let row = |y: usize,
+               t: &mut [f32],
+               instance: &mut [i32],
+               normal: &mut [Vec3],
+               albedo: &mut [Vec3],
+               specular: &mut [f32],
+               shininess: &mut [f32]| {
+        for (x, r) in records[y * w..(y + 1) * w].iter().enumerate() {
+            t[x] = r.t;
+            instance[x] = r.instance;
+            normal[x] = r.normal;
+            if r.instance >= 0 {
+                albedo[x] = r.attr.albedo_linear();
+                specular[x] = r.attr.specular();
+            }
+            shininess[x] = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
+        }
+    };
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        f.t.par_chunks_mut(w)
+            .zip(f.instance.par_chunks_mut(w))
+            .zip(f.normal.par_chunks_mut(w))
+            .zip(f.albedo.par_chunks_mut(w))
+            .zip(f.specular.par_chunks_mut(w))
+            .zip(f.shininess.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (((((t, i), n), a), s), sh))| row(y, t, i, n, a, s, sh));
+    }
+    #[cfg(not(feature = "parallel"))]
+    for y in 0..f.height as usize {
+        let r = y * w..(y + 1) * w;
+        row(
+            y,
+            &mut f.t[r.clone()],
+            &mut f.instance[r.clone()],
+            &mut f.normal[r.clone()],
+            &mut f.albedo[r.clone()],
+            &mut f.specular[r.clone()],
+            &mut f.shininess[r],
+        );
+    }
+}
+
 /// Where a secondary ray from hit `r` at (camera-relative) `at` starts: one voxel along the
 /// normal and a little along the entered face, so the hit voxel does not occlude its own rays.
 pub(crate) fn leave(r: &HitRecord, at: DVec3) -> DVec3 {
@@ -132,6 +182,7 @@ pub fn render(
     let basis = camera.basis();
     let prepared = prepare(scene, camera.eye, plan.transform);
     let mut hits = hits;
+    let spare = hits.as_deref_mut().map(|h| std::mem::take(&mut h.spare)).unwrap_or_default();
     let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
         Some(h) => h.take_bvh(&prepared),
         None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
@@ -142,19 +193,23 @@ pub fn render(
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
     let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
     let done = AtomicU32::new(0);
-    let reused = AtomicU64::new(0);
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
 
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are taken from the hit buffer first, so a tile that reuses all traces nothing.
-    let mut records = vec![HitRecord::MISS; w * h];
+    // Every pixel is written below (kept or traced); the buffer is last but one frame's,
+    // kept by the hit buffer, so no fresh pages are faulted in every frame.
+    let mut records = spare;
+    records.clear();
+    records.resize(w * h, HitRecord::MISS);
     let primary = Primary { instances: fi, camera, search, opts: trace_opts, beams: plan.beams };
-    let pending = |x: u32, y: u32, rec: &mut HitRecord| {
+    // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).
+    let tile_spheres = |rect: [u32; 4]| reuse.as_ref().map(|r| r.spheres_in(rect)).unwrap_or_default();
+    let pending = |spheres: &Vec<u32>, x: u32, y: u32, rec: &mut HitRecord| {
         if let (Some(r), Some(prev)) = (&reuse, previous) {
             let old = prev.records[y as usize * w + x as usize];
-            if r.valid(&old, camera.ray_dir(&basis, x, y), x, y) {
+            if r.valid(&old, spheres, || camera.ray_dir(&basis, x, y), x, y) {
                 *rec = old;
-                reused.fetch_add(1, Ordering::Relaxed);
                 return false;
             }
         }
@@ -163,35 +218,54 @@ pub fn render(
     let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| record(scene, &prepared, &hit, d));
     };
-    let work = trace_tiles(&primary, &mut records, pending, store, |rows| {
+    let (work, rays) = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
         for _ in 0..rows {
             tick();
         }
     });
 
-    // Pass 2: shading.
+    // Pass 2: shading. A pixel keeps last frame's colour when its hit record is the same,
+    // the lights and shadow switch are the same, and (with shadows) its shadow ray crosses no
+    // moved instance's sphere, old or new: then every input of the colour is the same.
     let sky = lights.sky();
     let shadow_rays = AtomicU64::new(0);
+    let shade_reused = AtomicU64::new(0);
     let n = w * h;
+    let shade_from = reuse.as_ref().zip(previous).filter(|(_, prev)| {
+        prev.lights.as_ref() == Some(lights) && prev.shadows == plan.shadows && prev.radiance.len() == n
+    });
     let mut f = Frame {
         width: camera.width,
         height: camera.height,
         radiance: vec![sky; n],
-        t: records.iter().map(|r| r.t).collect(),
-        instance: records.iter().map(|r| r.instance).collect(),
-        normal: records.iter().map(|r| r.normal).collect(),
-        albedo: records.iter().map(|r| if r.instance >= 0 { r.attr.albedo_linear() } else { Vec3::ZERO }).collect(),
-        specular: records.iter().map(|r| if r.instance >= 0 { r.attr.specular() } else { 0.0 }).collect(),
-        shininess: records.iter().map(|r| brdf::shininess_of_gloss(r.attr.gloss())).collect(),
+        t: vec![0.0; n],
+        instance: vec![0; n],
+        normal: vec![Vec3::ZERO; n],
+        albedo: vec![Vec3::ZERO; n],
+        specular: vec![0.0; n],
+        shininess: vec![0.0; n],
         primary_rays: n as u64,
         reused: 0,
         shadow_rays: 0,
+        shade_reused: 0,
         instances_traced: work.traced,
         spheres_culled: work.culled,
     };
+    aovs(&mut f, &records);
     for_rows(&mut f.radiance, w, |y, row| {
+        let mut kept = 0;
         for (x, out) in row.iter_mut().enumerate() {
-            let r = &records[y * w + x];
+            let k = y * w + x;
+            let r = &records[k];
+            if let Some((reuse, prev)) = shade_from {
+                if prev.records[k] == *r
+                    && (!plan.shadows || reuse.shadow_valid(r, lights, camera, &basis, x as u32, y as u32))
+                {
+                    *out = prev.radiance[k];
+                    kept += 1;
+                    continue;
+                }
+            }
             if r.instance < 0 {
                 continue;
             }
@@ -201,7 +275,7 @@ pub fn render(
             let mut radiance = (albedo + Vec3::splat(ks)) * sky;
             if let Some(sun) = lights.sun {
                 let d = camera.ray_dir(&basis, x as u32, y as u32);
-                let shininess = brdf::shininess_of_gloss(r.attr.gloss());
+                let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
                 let response = brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun);
                 if r.normal.dot(sun.to_sun) > 0.0 {
                     let visible = !plan.shadows || {
@@ -218,14 +292,17 @@ pub fn render(
             }
             *out = radiance;
         }
+        shade_reused.fetch_add(kept, Ordering::Relaxed);
         tick();
     });
-    f.reused = reused.into_inner();
+    f.reused = n as u64 - rays;
     f.shadow_rays = shadow_rays.into_inner();
+    f.shade_reused = shade_reused.into_inner();
     if let Some(b) = hits {
         b.reused = f.reused;
         if plan.keep_hits {
             b.store(camera, scene, &prepared, records, opts.max_level);
+            b.keep_shading(lights, plan.shadows, &f.radiance);
         } else {
             // Nothing to keep: a later frame with the buffer switched on starts afresh.
             b.camera = None;

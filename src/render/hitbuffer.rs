@@ -10,7 +10,7 @@
 //! with the buffer gives the same image as rendering without it.
 
 use super::instances::{sphere_interval, Prepared};
-use crate::scene::{Camera, Scene};
+use crate::scene::{Camera, Lights, Scene};
 use crate::svo::Attr;
 use glam::{DAffine3, DVec3, Vec3};
 
@@ -66,6 +66,14 @@ pub struct HitBuffer {
     pub bvh: Option<super::bvh::Bvh>,
     /// Instance BVHs built from scratch for frames rendered with this buffer.
     pub bvh_builds: u64,
+    /// Each pixel's colour in the stored frame (direct light; GI is added by the caller).
+    pub radiance: Vec<Vec3>,
+    /// The lights the stored colours were computed under.
+    pub lights: Option<Lights>,
+    /// Whether the stored colours traced shadow rays.
+    pub shadows: bool,
+    /// The records of the frame before the stored one, as room for the next frame's.
+    pub spare: Vec<HitRecord>,
 }
 
 /// What the current frame may reuse.
@@ -163,6 +171,14 @@ impl HitBuffer {
         Some(Reuse { moved, moved_spheres })
     }
 
+    /// Keeps a frame's colours and what they were lit by, for [`Reuse::shading_valid`].
+    pub fn keep_shading(&mut self, lights: &Lights, shadows: bool, radiance: &[Vec3]) {
+        self.lights = Some(*lights);
+        self.shadows = shadows;
+        self.radiance.clear();
+        self.radiance.extend_from_slice(radiance);
+    }
+
     /// Stores a frame's records and conditions.
     pub fn store(
         &mut self,
@@ -182,25 +198,62 @@ impl HitBuffer {
         self.parts.extend(scene.instances().iter().map(|i| i.part));
         self.spheres.clear();
         self.spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
-        self.records = records;
+        self.spare = std::mem::replace(&mut self.records, records);
     }
 }
 
 impl Reuse {
-    /// Whether the stored record of pixel (x, y), whose ray from the eye has direction `d`,
-    /// still holds.
+    /// The moved spheres whose pixel rectangles meet pixels `x0..x1` × `y0..y1`.
+    pub fn spheres_in(&self, [x0, y0, x1, y1]: [u32; 4]) -> Vec<u32> {
+        (0..self.moved_spheres.len() as u32)
+            .filter(|&k| {
+                let [a, b, c, d] = self.moved_spheres[k as usize].2;
+                a < x1 && c >= x0 && b < y1 && d >= y0
+            })
+            .collect()
+    }
+
+    /// Whether the stored record of pixel (x, y) still holds. `spheres` lists the moved
+    /// spheres that may reach the pixel ([`Reuse::spheres_in`] of its tile); `dir` gives the
+    /// unit direction of its ray from the eye, asked for only when one of their rectangles
+    /// holds the pixel.
     #[inline]
-    pub fn valid(&self, r: &HitRecord, d: DVec3, x: u32, y: u32) -> bool {
+    pub fn valid(&self, r: &HitRecord, spheres: &[u32], dir: impl Fn() -> DVec3, x: u32, y: u32) -> bool {
         if r.instance >= 0 && self.moved[r.instance as usize] {
             return false;
         }
         let t_hit = r.t as f64;
-        !self.moved_spheres.iter().any(|&(c, rad, [x0, y0, x1, y1])| {
-            x >= x0
-                && x <= x1
-                && y >= y0
-                && y <= y1
-                && sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit)
+        let mut d = None;
+        !spheres.iter().any(|&k| {
+            let (c, rad, [x0, y0, x1, y1]) = self.moved_spheres[k as usize];
+            x >= x0 && x <= x1 && y >= y0 && y <= y1 && {
+                let d = *d.get_or_insert_with(&dir);
+                sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit)
+            }
         })
+    }
+
+    /// Whether the shadow ray of record `r` (the same record as the stored frame's, under the
+    /// same lights) still finds what it found: from where [`super::cpu`] starts it towards
+    /// the sun it crosses no moved instance's old or new sphere, so every instance that could
+    /// block it is where it was.
+    #[inline]
+    pub fn shadow_valid(
+        &self,
+        r: &HitRecord,
+        lights: &Lights,
+        camera: &Camera,
+        basis: &crate::scene::camera::Basis,
+        x: u32,
+        y: u32,
+    ) -> bool {
+        let Some(sun) = lights.sun.filter(|s| r.instance >= 0 && r.normal.dot(s.to_sun) > 0.0) else {
+            // No shadow ray: the colour depends on the record and the lights alone.
+            return true;
+        };
+        let d = camera.ray_dir(basis, x, y);
+        let from = super::cpu::leave(r, d * r.t as f64);
+        let to_sun = sun.to_sun.as_dvec3();
+        !self.moved_spheres.iter().any(|&(c, rad, _)| sphere_interval(c, rad, from, to_sun).is_some())
     }
 }

@@ -24,29 +24,34 @@ pub struct Primary<'a> {
     pub beams: bool,
 }
 
-/// Traces every pixel of `out` (row-major, `camera.width` wide) whose `pending(x, y, item)`
-/// says so, and hands it to `store(item, hit)` (the hit with its ray's unit direction); `rows_done(n)` hears of each band
-/// of rows as it finishes. Returns what the searches cost.
-pub fn trace_tiles<T: Send>(
+/// Traces every pixel of `out` (row-major, `camera.width` wide) whose
+/// `pending(&tile, x, y, item)` says so, and hands it to `store(item, hit)` (the hit with its
+/// ray's unit direction); `tile` is what `tile_setup([x0, y0, x1, y1])` made once for the
+/// tile holding the pixel (pixels x0..x1 × y0..y1). `rows_done(n)` hears of each band of rows
+/// as it finishes. Returns what the searches cost and how many rays were traced.
+pub fn trace_tiles<T: Send, S>(
     p: &Primary,
     out: &mut [T],
-    pending: impl Fn(u32, u32, &mut T) -> bool + Sync + Send,
+    tile_setup: impl Fn([u32; 4]) -> S + Sync + Send,
+    pending: impl Fn(&S, u32, u32, &mut T) -> bool + Sync + Send,
     store: impl Fn(&mut T, Option<(InstanceHit, DVec3)>) + Sync + Send,
     rows_done: impl Fn(usize) + Sync + Send,
-) -> Work {
+) -> (Work, u64) {
     let w = p.camera.width as usize;
     let basis = p.camera.basis();
-    let (traced, culled) = (AtomicU64::new(0), AtomicU64::new(0));
+    let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let band = |y0: usize, rows: &mut [T]| {
         let mut work = Work::default();
+        let mut band_rays = 0u64;
         let mut starts = Vec::new();
         let tile_h = rows.len() / w;
         for x0 in (0..w).step_by(TILE as usize) {
             let x1 = (x0 + TILE as usize).min(w);
+            let setup = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]);
             let mut todo = 0u64;
             for ty in 0..tile_h {
                 for x in x0..x1 {
-                    if pending(x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
+                    if pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
                         todo |= 1 << (ty * TILE as usize + x - x0);
                     }
                 }
@@ -54,6 +59,7 @@ pub fn trace_tiles<T: Send>(
             if todo == 0 {
                 continue;
             }
+            band_rays += todo.count_ones() as u64;
             let fi = if p.beams {
                 let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
                 beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
@@ -82,6 +88,7 @@ pub fn trace_tiles<T: Send>(
         }
         traced.fetch_add(work.traced, Ordering::Relaxed);
         culled.fetch_add(work.culled, Ordering::Relaxed);
+        rays.fetch_add(band_rays, Ordering::Relaxed);
         rows_done(tile_h);
     };
     let rows = w * TILE as usize;
@@ -92,12 +99,12 @@ pub fn trace_tiles<T: Send>(
     }
     #[cfg(not(feature = "parallel"))]
     out.chunks_mut(rows).enumerate().for_each(|(i, r)| band(i * TILE as usize, r));
-    Work { traced: traced.into_inner(), culled: culled.into_inner() }
+    (Work { traced: traced.into_inner(), culled: culled.into_inner() }, rays.into_inner())
 }
 
 /// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
 pub fn nearest_hits(p: &Primary) -> Vec<Option<InstanceHit>> {
     let mut out = vec![None; (p.camera.width * p.camera.height) as usize];
-    trace_tiles(p, &mut out, |_, _, _| true, |o, hit| *o = hit.map(|h| h.0), |_| {});
+    trace_tiles(p, &mut out, |_| (), |_, _, _, _| true, |o, hit| *o = hit.map(|h| h.0), |_| {});
     out
 }

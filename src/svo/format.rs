@@ -67,7 +67,11 @@ impl Attr {
     }
     /// Glossiness in [0, 1] (`crate::render::brdf`: Phong exponent `2^(10 g)`).
     pub fn gloss(self) -> f32 {
-        (self.normal >> 28) as f32 / 15.0
+        self.gloss_bits() as f32 / 15.0
+    }
+    /// The stored 4-bit glossiness G (glossiness G/15).
+    pub fn gloss_bits(self) -> u32 {
+        self.normal >> 28
     }
     /// Emitted radiance (linear RGB).
     pub fn emission(self) -> Vec3 {
