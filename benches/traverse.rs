@@ -1,12 +1,20 @@
-//! Primary rays on the default car at 1280×768 (depth-9 voxel size), every part tested by
-//! every ray, one thread and all threads, reported by criterion as rays per second
-//! (elements/s).
+//! Primary rays on the default car at 1280×768 (depth-9 voxel size), one thread and all
+//! threads, reported by criterion as rays per second (elements/s):
+//!
+//! - `car_1280x768_primary`: whole frames with every part tested by every ray (no culling,
+//!   no beams), as the SVO-core measurement was made; `voxray bench` measures the optimized
+//!   paths;
+//! - `car_1280x768_trace_only`: the car merged into one SVO, nearest hits only through
+//!   `render::primary` (8×8 tiles), with and without beams.
 //!
 //! `cargo bench --bench traverse`
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::sync::Arc;
 use voxray::pipeline::{build_part, shared_resolution};
+use voxray::render::instances::prepare;
+use voxray::render::primary::{trace_tiles, Primary};
+use voxray::render::visibility::{FrameInstances, Search};
 use voxray::render::{render, Features, FramePlan, RenderOptions};
 use voxray::scene::{lights::Ambient, Camera, Instance, Lights, Scene, Transform};
 use voxray::voxelize::{Resolution, VoxelizeOptions};
@@ -33,21 +41,63 @@ fn car_primary_rays(c: &mut Criterion) {
     let camera = Camera::framing(lo, hi, 1280, 768);
     // Primary rays only: no sun (so no shadow rays), ambient shading.
     let lights = Lights { sun: None, ambient: Some(Ambient { radiance: glam::Vec3::ONE }), use_mtl_emitters: false };
-    // Every part tested by every ray (no culling), as the SVO-core measurement was made;
-    // `voxray bench` measures the optimized paths.
     let plan = FramePlan::new(&scene, &camera, &lights, &Features { shadows: false, ..Features::NONE }, None);
 
+    // The car merged into one part, as the peers scenario traces it.
+    let mut merged_mesh = mesh.clone();
+    let all: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
+    merged_mesh.parts.truncate(1);
+    merged_mesh.parts[0].triangles = all;
+    let merged_opts = VoxelizeOptions {
+        resolution: shared_resolution(&merged_mesh, Resolution::Depth(9)).expect("res"),
+        solid: false,
+    };
+    let merged = Arc::new(build_part(&merged_mesh, 0, &merged_opts, None, &|_, _| {}).expect("build").svo);
+    let mut single = Scene::new(vec![merged]);
+    single.add(Instance { part: 0, parent: None, local: Transform::IDENTITY }).expect("instance");
+    single.update().expect("update");
+    let prepared = prepare(&single, camera.eye, false);
+
+    let all_threads = rayon::current_num_threads();
     let mut g = c.benchmark_group("car_1280x768_primary");
     g.throughput(Throughput::Elements(1280 * 768));
     g.sample_size(10);
-    let all = rayon::current_num_threads();
-    for threads in [1, all] {
+    for threads in [1, all_threads] {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
         g.bench_function(format!("{threads}_threads"), |b| {
             b.iter(|| {
                 pool.install(|| render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}))
             })
         });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("car_1280x768_trace_only");
+    g.throughput(Throughput::Elements(1280 * 768));
+    g.sample_size(10);
+    let mut t_hit = vec![f32::INFINITY; 1280 * 768];
+    for beams in [true, false] {
+        for threads in [1, all_threads] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+            let fi = FrameInstances { parts: &single.parts, prepared: &prepared, bvh: None, starts: None };
+            let primary =
+                Primary { instances: fi, camera: &camera, search: Search::Plain, opts: Default::default(), beams };
+            let name = format!("{}_{threads}_threads", if beams { "beams" } else { "no_beams" });
+            g.bench_function(name, |b| {
+                b.iter(|| {
+                    pool.install(|| {
+                        trace_tiles(
+                            &primary,
+                            &mut t_hit,
+                            |_| (),
+                            |_, _, _, _| true,
+                            |t, h| *t = h.map_or(f32::INFINITY, |h| h.0.hit.t),
+                            |_| {},
+                        )
+                    })
+                })
+            });
+        }
     }
     g.finish();
 }
