@@ -64,14 +64,19 @@ type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 /// Draws into an RGB buffer and writes it as PNG (plotters' own encoder is left out; the
 /// image crate is already here).
 fn png(path: &Path, draw: impl FnOnce(&Area<'_>) -> Res<()>) -> Res<()> {
-    let mut buf = vec![255u8; (SIZE.0 * SIZE.1 * 3) as usize];
+    png_sized(path, SIZE, draw)
+}
+
+/// [`png`] at another size.
+fn png_sized(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area<'_>) -> Res<()>) -> Res<()> {
+    let mut buf = vec![255u8; (size.0 * size.1 * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
         root.fill(&WHITE)?;
         draw(&root)?;
         root.present()?;
     }
-    let img = image::RgbImage::from_raw(SIZE.0, SIZE.1, buf).ok_or("chart buffer size")?;
+    let img = image::RgbImage::from_raw(size.0, size.1, buf).ok_or("chart buffer size")?;
     img.save(path)?;
     Ok(())
 }
@@ -192,31 +197,53 @@ fn paper(rs: &[&Record], path: &Path) -> Res<()> {
 }
 
 fn peers(rs: &[&Record], path: &Path) -> Res<()> {
-    // One bar group per (view, caster), one bar per thread count.
-    let label = |r: &Record| match r.setting.split_once(": ") {
-        Some((view, _)) => format!("{view}: {}", r.name),
-        None => r.name.clone(),
-    };
-    let mut labels: Vec<String> = Vec::new();
+    // One panel per view; one bar group per caster, one bar per thread count.
+    let view_of = |r: &Record| r.setting.split_once(": ").map_or(String::new(), |(v, _)| v.to_string());
+    let mut views: Vec<String> = Vec::new();
     for r in rs {
-        if !labels.contains(&label(r)) {
-            labels.push(label(r));
+        if !views.contains(&view_of(r)) {
+            views.push(view_of(r));
         }
     }
     let mut threads: Vec<u64> = rs.iter().map(|r| r.x as u64).collect();
     threads.sort_unstable();
     threads.dedup();
-    let series: Vec<(String, Vec<Option<f64>>)> = threads
-        .iter()
-        .map(|&t| {
-            let values = labels
+    let panels = views.len().max(1);
+    png_sized(path, (SIZE.0, 400 * panels as u32), |root| {
+        for (view, area) in views.iter().zip(root.split_evenly((panels, 1))) {
+            let vr: Vec<&&Record> = rs.iter().filter(|r| &view_of(r) == view).collect();
+            let mut labels: Vec<String> = Vec::new();
+            for r in &vr {
+                if !labels.contains(&r.name) {
+                    labels.push(r.name.clone());
+                }
+            }
+            let series: Vec<(String, Vec<Option<f64>>)> = threads
                 .iter()
-                .map(|l| rs.iter().find(|r| &label(r) == l && r.x as u64 == t).map(|r| r.mrays_per_s))
+                .map(|&t| {
+                    let values = labels
+                        .iter()
+                        .map(|l| vr.iter().find(|r| &r.name == l && r.x as u64 == t).map(|r| r.mrays_per_s))
+                        .collect();
+                    (format!("{t} thread{}", if t == 1 { "" } else { "s" }), values)
+                })
                 .collect();
-            (format!("{t} thread{}", if t == 1 { "" } else { "s" }), values)
-        })
-        .collect();
-    bars(path, "Primary rays per second: same model, camera and threads", "Mrays/s", &labels, &series)
+            let short: Vec<String> = labels
+                .iter()
+                .map(|l| {
+                    l.replace(" (whole frame)", " frame")
+                        .replace(" (trace only)", " trace")
+                        .replace("parry3d ", "parry ")
+                })
+                .collect();
+            let title = format!(
+                "Primary rays per second, {}: same geometry, camera and threads",
+                if view.is_empty() { "default" } else { view }
+            );
+            bars_on(&area, &title, "Mrays/s", &short, &series)?;
+        }
+        Ok(())
+    })
 }
 
 /// Lines through (x, y) points, one series per key, optionally log-log.

@@ -80,9 +80,11 @@ pub fn to_csv(records: &[Record]) -> String {
 }
 
 /// `old` with every record of a (group, backend kind) pair that `new` measured replaced by
-/// `new`'s records: a GPU run or a peers run updates its own rows and keeps the others.
+/// `new`'s records: a GPU run updates its own rows and keeps the CPU's. A peers run replaces
+/// the whole peers group (its rows are the peers, whose set and views may change).
 pub fn merge(old: Vec<Record>, new: &[Record]) -> Vec<Record> {
-    let measured = |r: &Record| new.iter().any(|n| n.group == r.group && n.backend_kind == r.backend_kind);
+    let measured =
+        |r: &Record| new.iter().any(|n| n.group == r.group && (n.backend_kind == r.backend_kind || r.group == "peers"));
     let mut out: Vec<Record> = old.into_iter().filter(|r| !measured(r)).collect();
     out.extend_from_slice(new);
     let order = |g: &str| ["paper", "instances", "resolution", "depth", "peers"].iter().position(|&x| x == g);
@@ -430,6 +432,11 @@ mod tests {
         let merged = merge(old, &[rec("paper", "gpu", "new gpu")]);
         let names: Vec<_> = merged.iter().map(|r| r.name.as_str()).collect();
         assert_eq!(names, ["old cpu", "new gpu", "d"]);
+        // A peers run replaces every peers row, also peers it no longer runs.
+        let old = vec![rec("peers", "Embree 3", "old embree"), rec("paper", "cpu", "p")];
+        let merged = merge(old, &[rec("peers", "embree", "new embree")]);
+        let names: Vec<_> = merged.iter().map(|r| r.name.as_str()).collect();
+        assert_eq!(names, ["p", "new embree"]);
     }
 
     #[test]

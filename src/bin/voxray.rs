@@ -287,6 +287,9 @@ struct BenchArgs {
     /// Do not touch the Markdown file.
     #[arg(long)]
     no_docs: bool,
+    /// Measure nothing: redraw the tables and charts from the records in --out-dir.
+    #[arg(long)]
+    report_only: bool,
     /// GI scaling scenario: moving car counts.
     #[arg(long, value_delimiter = ',', default_value = "1,16,64,256")]
     gi_cars: Vec<usize>,
@@ -821,7 +824,10 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
 
 fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     use voxray::bench::matrix::{self, CarModel, MatrixConfig, Scenario};
-    use voxray::bench::{machine, report, Record};
+    use voxray::bench::{machine, Record};
+    if a.report_only {
+        return write_records(&a, Vec::new());
+    }
     if !a.source.obj.is_empty() {
         return Err(usage("bench uses the default car"));
     }
@@ -1060,6 +1066,13 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     }
     pb.finish_and_clear();
 
+    write_records(&a, records)
+}
+
+/// Merges `records` with the earlier ones in `--out-dir`, then writes the JSON, the CSV, the
+/// charts and the Markdown sections.
+fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) -> Result<(), Error> {
+    use voxray::bench::{report, Record};
     // Merge with earlier records, then JSON, CSV, charts and the Markdown section.
     let json_path = a.out_dir.join("bench.json");
     let old: Vec<Record> = if a.fresh {

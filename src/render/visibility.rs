@@ -105,7 +105,9 @@ impl<T: Copy + Default> Stack<T> {
     }
     #[inline]
     fn push(&mut self, v: T) {
-        // Depth ≤ 32 (median splits) keeps this far from full; the check keeps it safe.
+        // Median splits bound the tree's depth by 32 and a walk holds at most one waiting
+        // sibling per level, so this is never full; the check keeps memory safe regardless.
+        debug_assert!(self.len < self.items.len(), "BVH deeper than median splits allow");
         if self.len < self.items.len() {
             self.items[self.len] = v;
             self.len += 1;

@@ -1,0 +1,70 @@
+//! Nearest hits of the primary rays of the default car, merged into one SVO, on the peers'
+//! default view and close-up, through `render::primary` (8×8 tiles), with and without beams.
+//! Prints the best of a few frames. A quick probe for traversal work; `voxray bench
+//! --scenarios peers` is the full comparison.
+//!
+//! `cargo run --release --example primary_rays [-- DEPTH [WIDTH HEIGHT]]` (default 9, 1280×768);
+//! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement.
+
+use std::sync::Arc;
+use std::time::Instant;
+use voxray::pipeline::{build_part, shared_resolution};
+use voxray::render::instances::prepare;
+use voxray::render::primary::{trace_tiles, Primary};
+use voxray::render::visibility::{FrameInstances, Search};
+use voxray::scene::{Camera, Instance, Scene, Transform};
+use voxray::voxelize::{Resolution, VoxelizeOptions};
+
+fn main() -> Result<(), voxray::Error> {
+    let arg = |k: usize, default: u32| std::env::args().nth(k).and_then(|s| s.parse().ok()).unwrap_or(default);
+    let (depth, width, height) = (arg(1, 9), arg(2, 1280).clamp(8, 8192), arg(3, 768).clamp(8, 8192));
+    let reps: usize = std::env::var("REPS").ok().and_then(|s| s.parse().ok()).unwrap_or(7).max(1);
+    let mut mesh = voxray::model::embedded::load_default_car()?;
+    let all: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
+    mesh.parts.truncate(1);
+    mesh.parts[0].triangles = all;
+    let opts = VoxelizeOptions { resolution: shared_resolution(&mesh, Resolution::Depth(depth))?, solid: false };
+    let svo = Arc::new(build_part(&mesh, 0, &opts, None, &|_, _| {})?.svo);
+    let st = svo.stats();
+    println!(
+        "{} voxels at depth {depth}: geometry {:.3} B/voxel, attributes {:.2} B/voxel",
+        st.voxels,
+        st.geometry_bytes_per_voxel(),
+        st.attribute_bytes_per_voxel()
+    );
+    let mut scene = Scene::new(vec![svo]);
+    scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY })?;
+    scene.update()?;
+    let (lo, hi) = scene.bounds();
+    let default = Camera::framing(lo.as_vec3(), hi.as_vec3(), width, height);
+    let close = Camera { eye: default.target + (default.eye - default.target) * 0.4, ..default };
+    for (name, camera) in [("default", default), ("close-up", close)] {
+        let prepared = prepare(&scene, camera.eye, false);
+        let instances = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
+        for beams in [true, false] {
+            let primary =
+                Primary { instances, camera: &camera, search: Search::Plain, opts: Default::default(), beams };
+            let mut t_hit = vec![f32::INFINITY; (camera.width * camera.height) as usize];
+            let mut best = f64::INFINITY;
+            for _ in 0..reps {
+                let start = Instant::now();
+                let store = |t: &mut f32, h: Option<(voxray::render::visibility::InstanceHit, glam::DVec3)>| {
+                    *t = h.map_or(f32::INFINITY, |h| h.0.hit.t)
+                };
+                trace_tiles(&primary, &mut t_hit, |_| (), |_, _, _, _| true, store, |_| {});
+                best = best.min(start.elapsed().as_secs_f64());
+            }
+            let n = (camera.width * camera.height) as f64;
+            let hits = t_hit.iter().filter(|t| t.is_finite()).count() as f64;
+            println!(
+                "{name:9} beams {:3}: {:7.1} ms, {:6.2} Mrays/s on {} threads, hits {:.1}%",
+                if beams { "on" } else { "off" },
+                best * 1e3,
+                n / best / 1e6,
+                rayon::current_num_threads(),
+                100.0 * hits / n
+            );
+        }
+    }
+    Ok(())
+}
