@@ -30,6 +30,25 @@ fn reseal(b: &mut [u8]) {
     b[n..].copy_from_slice(&c.to_le_bytes());
 }
 
+/// Flips `tries` random bits within `region` of a file (one at a time, the checksum resealed)
+/// and counts the typed structural errors; a flip that loads must give a valid tree, and
+/// any other error kind fails.
+fn corruptions_caught(bytes: &[u8], region: std::ops::Range<usize>, tries: usize, seed: u64) -> usize {
+    let mut rng = Rng::new(seed);
+    let mut caught = 0;
+    for _ in 0..tries {
+        let mut b = bytes.to_vec();
+        b[region.start + rng.below(region.len() as u64) as usize] ^= 1 << rng.below(8);
+        reseal(&mut b);
+        match from_bytes(&b) {
+            Err(SvoFileError::Node { .. }) | Err(SvoFileError::Header(_)) => caught += 1,
+            Err(e) => panic!("unexpected error kind {e}"),
+            Ok(t) => validate(&t).unwrap(),
+        }
+    }
+    caught
+}
+
 #[test]
 fn round_trip_is_identical() {
     let (s, _) = random_svo(6, 3000, 1);
@@ -89,19 +108,7 @@ fn hostile_headers_and_structures_are_refused() {
     // Every corruption of a child mask that keeps the checksum valid must be caught by the
     // structural checks (the masks no longer describe the stored counts) or leave a tree that
     // still validates.
-    let mut rng = Rng::new(9);
-    let mut caught = 0;
-    for _ in 0..2000 {
-        let mut b = bytes.clone();
-        let off = HEADER_LEN + rng.below(s.masks.len() as u64) as usize;
-        b[off] ^= 1 << rng.below(8);
-        reseal(&mut b);
-        match from_bytes(&b) {
-            Err(SvoFileError::Node { .. }) | Err(SvoFileError::Header(_)) => caught += 1,
-            Err(e) => panic!("unexpected error kind {e}"),
-            Ok(t) => validate(&t).unwrap(),
-        }
-    }
+    let caught = corruptions_caught(&bytes, HEADER_LEN..HEADER_LEN + s.masks.len(), 2000, 9);
     assert!(caught > 1000, "only {caught} of 2000 structural corruptions detected");
 }
 
@@ -216,19 +223,7 @@ fn version_1_and_2_files_are_converted() {
     }
 
     // A corrupted descriptor is refused with a typed error (or still converts to a valid tree).
-    let mut rng = Rng::new(11);
-    let nodes = u64::from_le_bytes(v2[40..48].try_into().unwrap());
-    let mut caught = 0;
-    for _ in 0..1000 {
-        let mut b = v2.clone();
-        let off = HEADER_LEN + rng.below(nodes * 8) as usize;
-        b[off] ^= 1 << rng.below(8);
-        reseal(&mut b);
-        match from_bytes(&b) {
-            Err(SvoFileError::Node { .. }) | Err(SvoFileError::Header(_)) => caught += 1,
-            Err(e) => panic!("unexpected error kind {e}"),
-            Ok(t) => validate(&t).unwrap(),
-        }
-    }
+    let nodes = u64::from_le_bytes(v2[40..48].try_into().unwrap()) as usize;
+    let caught = corruptions_caught(&v2, HEADER_LEN..HEADER_LEN + 8 * nodes, 1000, 11);
     assert!(caught > 500, "only {caught} of 1000 corrupted descriptors detected");
 }

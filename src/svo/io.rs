@@ -218,8 +218,7 @@ pub fn from_masks(
     for l in 0..depth {
         if end > n {
             return Err(SvoFileError::Header(format!(
-                "the masks of level {} need {end} nodes, the header says {n}",
-                l.saturating_sub(1)
+                "the masks above level {l} need at least {end} nodes, the header says {n}"
             )));
         }
         let mut next = if l + 1 < depth { end } else { n };
