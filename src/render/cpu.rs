@@ -2,6 +2,7 @@
 //! (or reuses it from the hit buffer), **shade** lights it with the sun (with a shadow ray),
 //! the sky and MTL emitters. Rays start at the camera in camera-relative f64 coordinates.
 
+use super::beam::TILE;
 use super::brdf;
 use super::bvh::Bvh;
 use super::hitbuffer::{HitBuffer, HitRecord};
@@ -182,7 +183,6 @@ pub fn render(
     let basis = camera.basis();
     let prepared = prepare(scene, camera.eye, plan.transform);
     let mut hits = hits;
-    let spare = hits.as_deref_mut().map(|h| std::mem::take(&mut h.spare)).unwrap_or_default();
     let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
         Some(h) => h.take_bvh(&prepared),
         None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
@@ -190,43 +190,47 @@ pub fn render(
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
+    let reuse =
+        hits.as_deref().filter(|_| plan.hit_buffer).and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
+    // Last frame's records are updated in place: a kept pixel is not touched at all, and no
+    // fresh pages are faulted in every frame. With reuse on, they are this camera's size.
+    let mut records = hits.as_deref_mut().map(|h| std::mem::take(&mut h.records)).unwrap_or_default();
+    if records.len() != w * h {
+        records.clear();
+        records.resize(w * h, HitRecord::MISS);
+    }
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
-    let reuse = previous.and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
     let done = AtomicU32::new(0);
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
 
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
-    // pixels are taken from the hit buffer first, so a tile that reuses all traces nothing.
-    // Every pixel is written below (kept or traced); the buffer is last but one frame's,
-    // kept by the hit buffer, so no fresh pages are faulted in every frame.
-    let mut records = spare;
-    records.clear();
-    records.resize(w * h, HitRecord::MISS);
+    // pixels are decided first, so a tile that reuses all traces nothing.
     let primary = Primary { instances: fi, camera, search, opts: trace_opts, beams: plan.beams };
     // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).
     let tile_spheres = |rect: [u32; 4]| reuse.as_ref().map(|r| r.spheres_in(rect)).unwrap_or_default();
-    let pending = |spheres: &Vec<u32>, x: u32, y: u32, rec: &mut HitRecord| {
-        if let (Some(r), Some(prev)) = (&reuse, previous) {
-            let old = prev.records[y as usize * w + x as usize];
-            if r.valid(&old, spheres, || camera.ray_dir(&basis, x, y), x, y) {
-                *rec = old;
-                return false;
-            }
-        }
-        true
+    let pending = |spheres: &Vec<u32>, x: u32, y: u32, rec: &mut HitRecord| match &reuse {
+        // `rec` still holds last frame's record of this pixel.
+        Some(r) => !r.valid(rec, spheres, || camera.ray_dir(&basis, x, y), x, y),
+        None => true,
     };
     let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| record(scene, &prepared, &hit, d));
     };
-    let (work, rays) = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
+    let (work, rays, traced) = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
         for _ in 0..rows {
             tick();
         }
     });
 
-    // Pass 2: shading. A pixel keeps last frame's colour when its hit record is the same,
-    // the lights and shadow switch are the same, and (with shadows) its shadow ray crosses no
-    // moved instance's sphere, old or new: then every input of the colour is the same.
+    // Pass 2: shading. A pixel keeps last frame's colour when it kept its hit record (it was
+    // not traced), the lights and shadow switch are the same, and (with shadows) its shadow
+    // ray crosses no moved instance's sphere, old or new: then every input of the colour is
+    // the same.
+    let tiles_x = w.div_ceil(TILE as usize);
+    let kept_hit = |x: usize, y: usize| {
+        let tile = traced[(y / TILE as usize) * tiles_x + x / TILE as usize];
+        tile & (1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize)) == 0
+    };
     let sky = lights.sky();
     let shadow_rays = AtomicU64::new(0);
     let shade_reused = AtomicU64::new(0);
@@ -258,7 +262,7 @@ pub fn render(
             let k = y * w + x;
             let r = &records[k];
             if let Some((reuse, prev)) = shade_from {
-                if prev.records[k] == *r
+                if kept_hit(x, y)
                     && (!plan.shadows || reuse.shadow_valid(r, lights, camera, &basis, x as u32, y as u32))
                 {
                     *out = prev.radiance[k];

@@ -72,8 +72,6 @@ pub struct HitBuffer {
     pub lights: Option<Lights>,
     /// Whether the stored colours traced shadow rays.
     pub shadows: bool,
-    /// The records of the frame before the stored one, as room for the next frame's.
-    pub spare: Vec<HitRecord>,
 }
 
 /// What the current frame may reuse.
@@ -198,7 +196,7 @@ impl HitBuffer {
         self.parts.extend(scene.instances().iter().map(|i| i.part));
         self.spheres.clear();
         self.spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
-        self.spare = std::mem::replace(&mut self.records, records);
+        self.records = records;
     }
 }
 

@@ -28,7 +28,9 @@ pub struct Primary<'a> {
 /// `pending(&tile, x, y, item)` says so, and hands it to `store(item, hit)` (the hit with its
 /// ray's unit direction); `tile` is what `tile_setup([x0, y0, x1, y1])` made once for the
 /// tile holding the pixel (pixels x0..x1 × y0..y1). `rows_done(n)` hears of each band of rows
-/// as it finishes. Returns what the searches cost and how many rays were traced.
+/// as it finishes. Returns what the searches cost, how many rays were traced and, per tile
+/// (row-major, `width.div_ceil(TILE)` tiles to a row), a mask of the pixels traced: bit
+/// `ty·TILE + tx` for the pixel at (tx, ty) in the tile.
 pub fn trace_tiles<T: Send, S>(
     p: &Primary,
     out: &mut [T],
@@ -36,11 +38,13 @@ pub fn trace_tiles<T: Send, S>(
     pending: impl Fn(&S, u32, u32, &mut T) -> bool + Sync + Send,
     store: impl Fn(&mut T, Option<(InstanceHit, DVec3)>) + Sync + Send,
     rows_done: impl Fn(usize) + Sync + Send,
-) -> (Work, u64) {
+) -> (Work, u64, Vec<u64>) {
     let w = p.camera.width as usize;
+    let tiles_x = w.div_ceil(TILE as usize);
+    let mut masks = vec![0u64; tiles_x * (p.camera.height as usize).div_ceil(TILE as usize)];
     let basis = p.camera.basis();
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
-    let band = |y0: usize, rows: &mut [T]| {
+    let band = |y0: usize, rows: &mut [T], masks: &mut [u64]| {
         let mut work = Work::default();
         let mut band_rays = 0u64;
         let mut starts = Vec::new();
@@ -59,6 +63,7 @@ pub fn trace_tiles<T: Send, S>(
             if todo == 0 {
                 continue;
             }
+            masks[x0 / TILE as usize] = todo;
             band_rays += todo.count_ones() as u64;
             let fi = if p.beams {
                 let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
@@ -95,11 +100,17 @@ pub fn trace_tiles<T: Send, S>(
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;
-        out.par_chunks_mut(rows).enumerate().for_each(|(i, r)| band(i * TILE as usize, r));
+        out.par_chunks_mut(rows)
+            .zip(masks.par_chunks_mut(tiles_x))
+            .enumerate()
+            .for_each(|(i, (r, m))| band(i * TILE as usize, r, m));
     }
     #[cfg(not(feature = "parallel"))]
-    out.chunks_mut(rows).enumerate().for_each(|(i, r)| band(i * TILE as usize, r));
-    (Work { traced: traced.into_inner(), culled: culled.into_inner() }, rays.into_inner())
+    out.chunks_mut(rows)
+        .zip(masks.chunks_mut(tiles_x))
+        .enumerate()
+        .for_each(|(i, (r, m))| band(i * TILE as usize, r, m));
+    (Work { traced: traced.into_inner(), culled: culled.into_inner() }, rays.into_inner(), masks)
 }
 
 /// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
