@@ -13,7 +13,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::sync::Arc;
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::instances::prepare;
-use voxray::render::primary::{trace_tiles, Primary};
+use voxray::render::primary::{trace_tiles, Primary, Todo};
 use voxray::render::visibility::{FrameInstances, Search};
 use voxray::render::{render, Features, FramePlan, RenderOptions};
 use voxray::scene::{lights::Ambient, Camera, Instance, Lights, Scene, Transform};
@@ -80,8 +80,14 @@ fn car_primary_rays(c: &mut Criterion) {
         for threads in [1, all_threads] {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
             let fi = FrameInstances { parts: &single.parts, prepared: &prepared, bvh: None, starts: None };
-            let primary =
-                Primary { instances: fi, camera: &camera, search: Search::Plain, opts: Default::default(), beams };
+            let primary = Primary {
+                instances: fi,
+                camera: &camera,
+                search: Search::Plain,
+                opts: Default::default(),
+                beams,
+                moved: &[],
+            };
             let name = format!("{}_{threads}_threads", if beams { "beams" } else { "no_beams" });
             g.bench_function(name, |b| {
                 b.iter(|| {
@@ -90,7 +96,7 @@ fn car_primary_rays(c: &mut Criterion) {
                             &primary,
                             &mut t_hit,
                             |_| (),
-                            |_, _, _, _| true,
+                            |_, _, _, _| Todo::All,
                             |t, h| *t = h.map_or(f32::INFINITY, |h| h.0.hit.t),
                             |_| {},
                         )

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::instances::prepare;
-use voxray::render::primary::{trace_tiles, Primary};
+use voxray::render::primary::{trace_tiles, Primary, Todo};
 use voxray::render::visibility::{FrameInstances, Search};
 use voxray::scene::{Camera, Instance, Scene, Transform};
 use voxray::voxelize::{Resolution, VoxelizeOptions};
@@ -42,8 +42,14 @@ fn main() -> Result<(), voxray::Error> {
         let prepared = prepare(&scene, camera.eye, false);
         let instances = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
         for beams in [true, false] {
-            let primary =
-                Primary { instances, camera: &camera, search: Search::Plain, opts: Default::default(), beams };
+            let primary = Primary {
+                instances,
+                camera: &camera,
+                search: Search::Plain,
+                opts: Default::default(),
+                beams,
+                moved: &[],
+            };
             let mut t_hit = vec![f32::INFINITY; (camera.width * camera.height) as usize];
             let mut best = f64::INFINITY;
             for _ in 0..reps {
@@ -51,7 +57,7 @@ fn main() -> Result<(), voxray::Error> {
                 let store = |t: &mut f32, h: Option<(voxray::render::visibility::InstanceHit, glam::DVec3)>| {
                     *t = h.map_or(f32::INFINITY, |h| h.0.hit.t)
                 };
-                trace_tiles(&primary, &mut t_hit, |_| (), |_, _, _, _| true, store, |_| {});
+                trace_tiles(&primary, &mut t_hit, |_| (), |_, _, _, _| Todo::All, store, |_| {});
                 best = best.min(start.elapsed().as_secs_f64());
             }
             let n = (camera.width * camera.height) as f64;

@@ -90,6 +90,9 @@ fn all_optimizations_match_the_plain_path_static_camera() {
     let pixels = (fast.len() * fast[0].t.len()) as u64;
     assert!(reused > pixels / 4, "the static camera should reuse many pixels ({reused} of {pixels})");
     assert!(reused < pixels, "moving parts must force some pixels to be traced again");
+    // Pixels behind a moved sphere whose hit is on a parked part search the moved parts only.
+    let moved_only: u64 = fast.iter().map(|f| f.moved_only).sum();
+    assert!(moved_only > 0 && moved_only < pixels - reused, "{moved_only} moved-only rays");
     // Kept colours: never more than the kept hits, often nearly all of them.
     let kept: u64 = fast.iter().map(|f| f.shade_reused).sum();
     assert!(kept > pixels / 4 && kept <= pixels, "{kept} of {pixels} colours kept");
@@ -492,4 +495,41 @@ fn kept_colours_follow_moving_shadows() {
             fast.instance.iter().filter(|&&i| i == ground).count() as u64 * (fast.shade_reused > 0) as u64;
     }
     assert!(kept_on_ground > 0);
+}
+
+#[test]
+fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
+    // Two instances of the body; one moves onto the other, so every pixel they cover has two
+    // hits at exactly the same t. The full search gives the lower index; the moved-only
+    // search of the hit buffer must too, whichever of the two is the one that moved.
+    let body = car_parts()[0].clone();
+    let lights = Lights::default();
+    let away = Transform { translation: DVec3::new(9.0, 0.0, 0.0), ..Transform::IDENTITY };
+    for mover in [0usize, 1] {
+        let mut scene = Scene::new(vec![body.clone()]);
+        for i in 0..2 {
+            let local = if i == mover { away } else { Transform::IDENTITY };
+            scene.add(Instance { part: 0, parent: None, local }).unwrap();
+        }
+        scene.update().unwrap();
+        let mut hits = HitBuffer::new();
+        let mut moved_only = 0;
+        for f in 0..3 {
+            if f == 2 {
+                scene.set_local(mover, Transform::IDENTITY).unwrap();
+                scene.update().unwrap();
+            }
+            let plan = FramePlan::new(&scene, &camera(), &lights, &Features::default(), (f > 0).then_some(&hits));
+            let fast =
+                render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+            let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
+            let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+            assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+            moved_only += fast.moved_only;
+            if f == 2 {
+                assert!(fast.instance.contains(&0) && !fast.instance.contains(&1), "mover {mover}: ties to instance 0");
+            }
+        }
+        assert!(moved_only > 0, "mover {mover}: the moved-only search never ran");
+    }
 }

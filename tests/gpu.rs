@@ -120,6 +120,8 @@ fn assert_close(cpu: &Frame, gpu: &Frame, what: &str) {
     for (what_n, c, g) in [
         ("instances traversed", cpu.instances_traced, gpu.instances_traced),
         ("spheres culled", cpu.spheres_culled, gpu.spheres_culled),
+        ("pixels kept", cpu.reused, gpu.reused),
+        ("moved-only rays", cpu.moved_only, gpu.moved_only),
     ] {
         let tol = 16 + c / 200;
         assert!(c.abs_diff(g) <= tol, "{what}: {what_n} CPU {c} vs GPU {g}");
@@ -169,6 +171,7 @@ fn compare_clip(cars: usize, frames: usize, orbit: f64, features: Features) {
         assert_close(&c, &g, &format!("{cars} driving cars, frame {f}, plan {:?}", plan_gpu.search()));
         if plan_gpu.hit_buffer && orbit == 0.0 {
             assert!(g.reused > 0, "frame {f}: the GPU hit buffer reused nothing");
+            assert!(g.moved_only > 0, "frame {f}: no GPU pixel searched the moved instances only");
         }
     }
 }

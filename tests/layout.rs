@@ -136,7 +136,11 @@ fn wgsl_structs_match_rust() {
         (
             "MovedSphere",
             size_of::<GpuSphere>(),
-            vec![("sphere", offset_of!(GpuSphere, sphere)), ("rect", offset_of!(GpuSphere, rect))],
+            vec![
+                ("sphere", offset_of!(GpuSphere, sphere)),
+                ("rect", offset_of!(GpuSphere, rect)),
+                ("instance", offset_of!(GpuSphere, instance)),
+            ],
         ),
         (
             "RayIn",

@@ -81,7 +81,8 @@ struct Hit {
     fz: f32,
     // Instances traversed (low 16 bits) and sphere-culled (high 16 bits) finding this hit.
     work: u32,
-    // 1 when this frame reused the record.
+    // How this frame found the record: 0 searched among all instances, 1 kept (no ray),
+    // 2 searched among the moved instances only (HitBuffer's Todo).
     reused: u32,
     // Normal word of the voxel's attributes (Attr::normal: the top byte is the specular lobe).
     material: u32,
@@ -92,6 +93,8 @@ struct Hit {
 struct MovedSphere {
     sphere: vec4<f32>,
     rect: vec4<u32>,
+    // The moved instance (spheres come in pairs, old then new, in ascending instance order).
+    instance: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuRay: one ray of a ray list, in a part's unit cube.

@@ -84,6 +84,15 @@ fn keep(best: ptr<function, Nearest>, i: u32, tr: Traced) {
     }
 }
 
+// The t_max for tracing an instance that must find any hit at or before t, the best so far
+// (twin of visibility.rs `widen`): the internal-unit conversion rounds, so four ulps more.
+fn widen(t: f32) -> f32 {
+    if t >= 0.0 && t < BIG {
+        return bitcast<f32>(bitcast<u32>(t) + 4u);
+    }
+    return t;
+}
+
 fn bound(best: Nearest) -> f32 {
     return select(BIG, best.tr.t, best.found);
 }
@@ -173,7 +182,7 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
                 break;
             }
             work_traced += 1u;
-            keep(&best, index[k], trace_one(index[k], o, d, t_max));
+            keep(&best, index[k], trace_one(index[k], o, d, widen(t_max)));
         }
     } else {
         var stack_node: array<u32, 64>;
@@ -207,7 +216,7 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
                         continue;
                     }
                     work_traced += 1u;
-                    keep(&best, i, trace_one(i, o, d, t_max));
+                    keep(&best, i, trace_one(i, o, d, widen(t_max)));
                 }
             } else {
                 let t_max = bound(best);
@@ -300,42 +309,69 @@ fn ray_dir(x: u32, y: u32) -> vec3<f32> {
     return normalize(frame.forward.xyz + sx * frame.right.xyz + sy * frame.up.xyz);
 }
 
-// HitBuffer::Reuse::valid
-fn reuse_valid(old: Hit, d: vec3<f32>, x: u32, y: u32) -> bool {
+// hitbuffer::MOVED_SEARCH_MAX: above this many moved instances, a pixel that a moved sphere
+// crosses searches every instance.
+const MOVED_SEARCH_MAX: u32 = 64u;
+
+// primary::Todo
+const TODO_KEEP: u32 = 0u;
+const TODO_ALL: u32 = 1u;
+const TODO_MOVED: u32 = 2u;
+
+// hitbuffer::Reuse::todo
+fn reuse_todo(old: Hit, d: vec3<f32>, x: u32, y: u32) -> u32 {
     if old.instance >= 0 && insts[u32(old.instance)].moved != 0u {
-        return false;
+        return TODO_ALL;
     }
     for (var k = 0u; k < frame.moved; k++) {
         let m = moved[k];
         if x >= m.rect.x && x <= m.rect.z && y >= m.rect.y && y <= m.rect.w {
             let s = sphere_interval(m.sphere.xyz, m.sphere.w, vec3<f32>(0.0), d);
             if s.x <= s.y && s.x <= old.t {
-                return false;
+                return select(TODO_ALL, TODO_MOVED, frame.moved <= 2u * MOVED_SEARCH_MAX);
             }
         }
     }
-    return true;
+    return TODO_KEEP;
 }
 
-@compute @workgroup_size(8, 8, 1)
-fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= frame.width || gid.y >= frame.height {
-        return;
-    }
-    let idx = gid.y * frame.width + gid.x;
-    let d = ray_dir(gid.x, gid.y);
-    if REUSE {
-        if reuse_valid(hits[idx], d, gid.x, gid.y) {
-            hits[idx].reused = 1u;
-            hits[idx].work = 0u;
-            return;
+// visibility::nearest_moved: the nearest hit among the moved instances that beats (t,
+// instance), the nearest among all the others.
+fn nearest_moved(o: vec3<f32>, d: vec3<f32>, t: f32, instance: i32) -> Nearest {
+    var best: Nearest;
+    best.found = false;
+    var best_t = t;
+    var best_i = select(0xFFFFFFFFu, u32(instance), instance >= 0);
+    // The spheres come in pairs (old, new) per moved instance.
+    for (var k = 0u; k < frame.moved; k += 2u) {
+        let i = moved[k].instance;
+        let s = inst_sphere(i, o, d);
+        if s.x > s.y {
+            work_culled += 1u;
+            continue;
+        }
+        if s.x > best_t {
+            continue;
+        }
+        work_traced += 1u;
+        let tr = trace_one(i, o, d, widen(best_t));
+        if tr.hit && (tr.t < best_t || (tr.t == best_t && i < best_i)) {
+            best_t = tr.t;
+            best_i = i;
+            best.found = true;
+            best.inst = i;
+            best.tr = tr;
         }
     }
+    return best;
+}
+
+// cpu::record: a hit record from the nearest hit found.
+fn hit_record(best: Nearest, d: vec3<f32>, how: u32) -> Hit {
     var h: Hit;
     h.t = BIG;
     h.instance = -1;
-    h.reused = 0u;
-    let best = nearest(vec3<f32>(0.0), d);
+    h.reused = how;
     h.work = min(work_traced, 0xFFFFu) | (min(work_culled, 0xFFFFu) << 16u);
     if best.found {
         let inst = insts[best.inst];
@@ -358,7 +394,36 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         h.nx = n.x; h.ny = n.y; h.nz = n.z;
         h.fx = f.x; h.fy = f.y; h.fz = f.z;
     }
-    hits[idx] = h;
+    return h;
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= frame.width || gid.y >= frame.height {
+        return;
+    }
+    let idx = gid.y * frame.width + gid.x;
+    let d = ray_dir(gid.x, gid.y);
+    if REUSE {
+        let old = hits[idx];
+        let todo = reuse_todo(old, d, gid.x, gid.y);
+        if todo == TODO_KEEP {
+            hits[idx].reused = 1u;
+            hits[idx].work = 0u;
+            return;
+        }
+        if todo == TODO_MOVED {
+            let best = nearest_moved(vec3<f32>(0.0), d, old.t, old.instance);
+            if best.found {
+                hits[idx] = hit_record(best, d, TODO_MOVED);
+            } else {
+                hits[idx].reused = TODO_MOVED;
+                hits[idx].work = min(work_traced, 0xFFFFu) | (min(work_culled, 0xFFFFu) << 16u);
+            }
+            return;
+        }
+    }
+    hits[idx] = hit_record(nearest(vec3<f32>(0.0), d), d, 0u);
 }
 
 // brdf::sun_response: the diffuse and Phong lobes lit by the sun, per unit irradiance.

@@ -10,7 +10,7 @@
 
 use super::{summarize, Record};
 use crate::backend::Backend;
-use crate::render::primary::{trace_tiles, Primary};
+use crate::render::primary::{trace_tiles, Primary, Todo};
 use crate::render::visibility::{FrameInstances, Search};
 use crate::render::Features;
 use crate::scene::Camera;
@@ -134,6 +134,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 search: Search::Plain,
                 opts: Default::default(),
                 beams: true,
+                moved: &[],
             };
             let mut t_hit = vec![f32::INFINITY; (view.camera.width * view.camera.height) as usize];
             let mut run = || {
@@ -141,7 +142,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                     &primary,
                     &mut t_hit,
                     |_| (),
-                    |_, _, _, _| true,
+                    |_, _, _, _| Todo::All,
                     |t, hit| *t = hit.map_or(f32::INFINITY, |h| h.0.hit.t),
                     |_| {},
                 );

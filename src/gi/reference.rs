@@ -287,6 +287,7 @@ impl<'a> PathTracer<'a> {
             reused: 0,
             shadow_rays: 0,
             shade_reused: 0,
+            moved_only: 0,
             instances_traced: 0,
             spheres_culled: 0,
         }

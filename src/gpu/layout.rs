@@ -140,6 +140,10 @@ pub struct GpuSphere {
     pub sphere: [f32; 4],
     /// x0, y0, x1, y1 (inclusive).
     pub rect: [u32; 4],
+    /// The moved instance (spheres come in pairs, old then new, in ascending instance order).
+    pub instance: u32,
+    /// Padding to WGSL's 16-byte struct alignment.
+    pub pad: [u32; 3],
 }
 
 /// One ray of a ray list, in a part's unit cube. WGSL: `RayIn`.

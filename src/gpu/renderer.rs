@@ -395,7 +395,16 @@ impl GpuRenderer {
             .map(|(i, p)| gpu_instance(scene, p, reuse.as_ref().is_some_and(|r| r.moved[i])))
             .collect();
         let moved: Vec<GpuSphere> = reuse.as_ref().map_or(Vec::new(), |r| {
-            r.moved_spheres.iter().map(|&(c, rad, rect)| GpuSphere { sphere: f4(c, rad), rect }).collect()
+            r.moved_spheres
+                .iter()
+                .enumerate()
+                .map(|(k, &(c, rad, rect))| GpuSphere {
+                    sphere: f4(c, rad),
+                    rect,
+                    instance: r.moved_instances[k / 2],
+                    pad: [0; 3],
+                })
+                .collect()
         });
         let bvh = plan.bvh.then(|| self.state.take_bvh(&prepared));
         let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), |b| {
@@ -659,10 +668,11 @@ impl GpuRenderer {
                 .map(|r| crate::render::brdf::shininess_of_gloss_bits(r.attr.gloss_bits()))
                 .collect(),
             primary_rays: n as u64,
-            reused: hits.iter().filter(|g| g.reused != 0).count() as u64,
+            reused: hits.iter().filter(|g| g.reused == 1).count() as u64,
             shadow_rays,
             // The GPU shades every pixel each frame (its colours are not kept).
             shade_reused: 0,
+            moved_only: hits.iter().filter(|g| g.reused == 2).count() as u64,
             instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
         };

@@ -8,7 +8,7 @@ use super::bvh::Bvh;
 use super::hitbuffer::{HitBuffer, HitRecord};
 use super::instances::{prepare, Prepared};
 use super::plan::FramePlan;
-use super::primary::{trace_tiles, Primary};
+use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
 use crate::scene::{Camera, Lights, Scene};
 use crate::traverse::TraceOptions;
@@ -57,6 +57,9 @@ pub struct Frame {
     pub shadow_rays: u64,
     /// Pixels whose colour came from the hit buffer (nothing about them changed).
     pub shade_reused: u64,
+    /// Primary rays searched among the moved instances only: their stored hit, on an
+    /// instance that did not move, bounds the search ([`super::visibility::nearest_moved`]).
+    pub moved_only: u64,
     /// Instance octrees traversed by the traced (not reused) primary rays.
     pub instances_traced: u64,
     /// Instances skipped because the traced primary rays missed their bounding spheres.
@@ -205,18 +208,19 @@ pub fn render(
 
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are decided first, so a tile that reuses all traces nothing.
-    let primary = Primary { instances: fi, camera, search, opts: trace_opts, beams: plan.beams };
+    let moved = reuse.as_ref().map_or(&[][..], |r| r.moved_search());
+    let primary = Primary { instances: fi, camera, search, opts: trace_opts, beams: plan.beams, moved };
     // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).
     let tile_spheres = |rect: [u32; 4]| reuse.as_ref().map(|r| r.spheres_in(rect)).unwrap_or_default();
     let pending = |spheres: &Vec<u32>, x: u32, y: u32, rec: &mut HitRecord| match &reuse {
         // `rec` still holds last frame's record of this pixel.
-        Some(r) => !r.valid(rec, spheres, || camera.ray_dir(&basis, x, y), x, y),
-        None => true,
+        Some(r) => r.todo(rec, spheres, || camera.ray_dir(&basis, x, y), x, y),
+        None => Todo::All,
     };
     let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| record(scene, &prepared, &hit, d));
     };
-    let (work, rays, traced) = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
+    let traced = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
         for _ in 0..rows {
             tick();
         }
@@ -228,7 +232,7 @@ pub fn render(
     // the same.
     let tiles_x = w.div_ceil(TILE as usize);
     let kept_hit = |x: usize, y: usize| {
-        let tile = traced[(y / TILE as usize) * tiles_x + x / TILE as usize];
+        let tile = traced.stored[(y / TILE as usize) * tiles_x + x / TILE as usize];
         tile & (1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize)) == 0
     };
     let sky = lights.sky();
@@ -252,8 +256,9 @@ pub fn render(
         reused: 0,
         shadow_rays: 0,
         shade_reused: 0,
-        instances_traced: work.traced,
-        spheres_culled: work.culled,
+        moved_only: traced.moved_only,
+        instances_traced: traced.work.traced,
+        spheres_culled: traced.work.culled,
     };
     aovs(&mut f, &records);
     for_rows(&mut f.radiance, w, |y, row| {
@@ -299,7 +304,7 @@ pub fn render(
         shade_reused.fetch_add(kept, Ordering::Relaxed);
         tick();
     });
-    f.reused = n as u64 - rays;
+    f.reused = n as u64 - traced.rays;
     f.shadow_rays = shadow_rays.into_inner();
     f.shade_reused = shade_reused.into_inner();
     if let Some(b) = hits {

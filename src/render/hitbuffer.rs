@@ -6,10 +6,15 @@
 //! - no moved instance's old or new bounding sphere crosses the ray before the hit (for a
 //!   miss: anywhere on the ray).
 //!
+//! When only the last condition fails, the stored hit is still the nearest among the
+//! instances that did not move, so the ray is searched among the moved instances alone
+//! ([`super::visibility::nearest_moved`]) and the nearer of the two wins.
+//!
 //! Only primary visibility is cached; shading and shadow rays run every frame, so rendering
 //! with the buffer gives the same image as rendering without it.
 
 use super::instances::{sphere_interval, Prepared};
+use super::primary::Todo;
 use crate::scene::{Camera, Lights, Scene};
 use crate::svo::Attr;
 use glam::{DAffine3, DVec3, Vec3};
@@ -81,7 +86,13 @@ pub struct Reuse {
     /// Old and new spheres of every moved instance, with the pixel rectangle
     /// `[x0, y0, x1, y1]` (inclusive) outside which no pixel's ray can meet the sphere.
     pub moved_spheres: Vec<(DVec3, f64, [u32; 4])>,
+    /// The moved instances, ascending (their spheres are `moved_spheres` 2k and 2k + 1).
+    pub moved_instances: Vec<u32>,
 }
+
+/// Above this many moved instances, a pixel that a moved sphere crosses is searched among
+/// every instance (through the culling or the BVH) rather than among the moved ones in turn.
+pub const MOVED_SEARCH_MAX: usize = 64;
 
 /// A conservative pixel rectangle of a sphere: the projection of the corners of its bounding
 /// box (a convex set in front of the camera projects inside their hull), one pixel wider on
@@ -158,15 +169,17 @@ impl HitBuffer {
         }
         let mut moved = vec![false; parts.len()];
         let mut moved_spheres = Vec::new();
+        let mut moved_instances = Vec::new();
         for (i, w) in scene.worlds().iter().enumerate() {
             if *w != self.worlds[i] {
                 moved[i] = true;
+                moved_instances.push(i as u32);
                 for (c, r) in [self.spheres[i], (prepared[i].centre, prepared[i].radius)] {
                     moved_spheres.push((c, r, screen_rect(camera, c, r)));
                 }
             }
         }
-        Some(Reuse { moved, moved_spheres })
+        Some(Reuse { moved, moved_spheres, moved_instances })
     }
 
     /// Keeps a frame's colours and what they were lit by, for [`Reuse::shading_valid`].
@@ -201,6 +214,16 @@ impl HitBuffer {
 }
 
 impl Reuse {
+    /// The moved instances that a [`Todo::Moved`] pixel searches: all of them, or none when
+    /// there are more than [`MOVED_SEARCH_MAX`] (such pixels then search every instance).
+    pub fn moved_search(&self) -> &[u32] {
+        if self.moved_instances.len() <= MOVED_SEARCH_MAX {
+            &self.moved_instances
+        } else {
+            &[]
+        }
+    }
+
     /// The moved spheres whose pixel rectangles meet pixels `x0..x1` × `y0..y1`.
     pub fn spheres_in(&self, [x0, y0, x1, y1]: [u32; 4]) -> Vec<u32> {
         (0..self.moved_spheres.len() as u32)
@@ -211,24 +234,29 @@ impl Reuse {
             .collect()
     }
 
-    /// Whether the stored record of pixel (x, y) still holds. `spheres` lists the moved
+    /// What pixel (x, y) with stored record `r` needs this frame. `spheres` lists the moved
     /// spheres that may reach the pixel ([`Reuse::spheres_in`] of its tile); `dir` gives the
     /// unit direction of its ray from the eye, asked for only when one of their rectangles
     /// holds the pixel.
     #[inline]
-    pub fn valid(&self, r: &HitRecord, spheres: &[u32], dir: impl Fn() -> DVec3, x: u32, y: u32) -> bool {
+    pub fn todo(&self, r: &HitRecord, spheres: &[u32], dir: impl Fn() -> DVec3, x: u32, y: u32) -> Todo {
         if r.instance >= 0 && self.moved[r.instance as usize] {
-            return false;
+            return Todo::All;
         }
         let t_hit = r.t as f64;
         let mut d = None;
-        !spheres.iter().any(|&k| {
+        let crossed = spheres.iter().any(|&k| {
             let (c, rad, [x0, y0, x1, y1]) = self.moved_spheres[k as usize];
             x >= x0 && x <= x1 && y >= y0 && y <= y1 && {
                 let d = *d.get_or_insert_with(&dir);
                 sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit)
             }
-        })
+        });
+        match (crossed, self.moved_search().is_empty()) {
+            (false, _) => Todo::Keep,
+            (true, true) => Todo::All,
+            (true, false) => Todo::Moved { t: r.t, instance: r.instance },
+        }
     }
 
     /// Whether the shadow ray of record `r` (the same record as the stored frame's, under the

@@ -3,7 +3,7 @@
 //! renderer's trace pass and library users who only want the hits share this loop.
 
 use super::beam::{self, TileRays, TILE};
-use super::visibility::{nearest_work, FrameInstances, InstanceHit, Search, Work};
+use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
 use glam::DVec3;
@@ -22,55 +22,102 @@ pub struct Primary<'a> {
     pub opts: TraceOptions,
     /// Start rays at their tile's beam (the same hits, fewer steps).
     pub beams: bool,
+    /// The instances that moved since the stored hits were traced (ascending), searched by
+    /// [`Todo::Moved`] pixels.
+    pub moved: &'a [u32],
 }
 
-/// Traces every pixel of `out` (row-major, `camera.width` wide) whose
-/// `pending(&tile, x, y, item)` says so, and hands it to `store(item, hit)` (the hit with its
-/// ray's unit direction); `tile` is what `tile_setup([x0, y0, x1, y1])` made once for the
-/// tile holding the pixel (pixels x0..x1 × y0..y1). `rows_done(n)` hears of each band of rows
-/// as it finishes. Returns what the searches cost, how many rays were traced and, per tile
-/// (row-major, `width.div_ceil(TILE)` tiles to a row), a mask of the pixels traced: bit
-/// `ty·TILE + tx` for the pixel at (tx, ty) in the tile.
+/// What [`trace_tiles`] did.
+#[derive(Clone, Debug, Default)]
+pub struct Traced {
+    /// What the searches cost.
+    pub work: Work,
+    /// Rays traced ([`Todo::All`] and [`Todo::Moved`] pixels).
+    pub rays: u64,
+    /// Of those, the rays searched among the moved instances only.
+    pub moved_only: u64,
+    /// Per tile (row-major, `width.div_ceil(TILE)` tiles to a row), a mask of the pixels
+    /// stored: bit `ty·TILE + tx` for the pixel at (tx, ty) in the tile.
+    pub stored: Vec<u64>,
+}
+
+/// What a pixel's primary ray needs this frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Todo {
+    /// Nothing: its stored hit still holds.
+    Keep,
+    /// A search among every instance.
+    All,
+    /// A search among the moved instances ([`Primary::moved`]) only, against the nearest hit
+    /// `(t, instance)` among all the others (+∞ and −1 for none): the stored hit, when it is
+    /// on an instance that did not move.
+    Moved {
+        /// Ray parameter of the nearest hit among the instances that did not move.
+        t: f32,
+        /// Its instance (−1 for none).
+        instance: i32,
+    },
+}
+
+/// Traces every pixel of `out` (row-major, `camera.width` wide) as `pending(&tile, x, y,
+/// item)` says ([`Todo`]), and hands a new hit to `store(item, hit)` (the hit with its ray's
+/// unit direction); `tile` is what `tile_setup([x0, y0, x1, y1])` made once for the tile
+/// holding the pixel (pixels x0..x1 × y0..y1). A [`Todo::Moved`] pixel is stored only when a
+/// moved instance beats its bound. `rows_done(n)` hears of each band of rows as it finishes.
+/// Returns what was traced and which pixels were stored ([`Traced`]).
 pub fn trace_tiles<T: Send, S>(
     p: &Primary,
     out: &mut [T],
     tile_setup: impl Fn([u32; 4]) -> S + Sync + Send,
-    pending: impl Fn(&S, u32, u32, &mut T) -> bool + Sync + Send,
+    pending: impl Fn(&S, u32, u32, &mut T) -> Todo + Sync + Send,
     store: impl Fn(&mut T, Option<(InstanceHit, DVec3)>) + Sync + Send,
     rows_done: impl Fn(usize) + Sync + Send,
-) -> (Work, u64, Vec<u64>) {
+) -> Traced {
     let w = p.camera.width as usize;
     let tiles_x = w.div_ceil(TILE as usize);
     let mut masks = vec![0u64; tiles_x * (p.camera.height as usize).div_ceil(TILE as usize)];
     let basis = p.camera.basis();
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
+    let moved_only = AtomicU64::new(0);
     let band = |y0: usize, rows: &mut [T], masks: &mut [u64]| {
         let mut work = Work::default();
         let mut band_rays = 0u64;
+        let mut band_moved = 0u64;
         let mut starts = Vec::new();
         let tile_h = rows.len() / w;
         for x0 in (0..w).step_by(TILE as usize) {
             let x1 = (x0 + TILE as usize).min(w);
             let setup = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]);
+            // Pixels to search among all instances, and among the moved ones with their bounds.
             let mut todo = 0u64;
+            let mut partial = 0u64;
+            let mut bounds = [(0.0f32, 0i32); (TILE * TILE) as usize];
             for ty in 0..tile_h {
                 for x in x0..x1 {
-                    if pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
-                        todo |= 1 << (ty * TILE as usize + x - x0);
+                    let k = ty * TILE as usize + x - x0;
+                    match pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
+                        Todo::Keep => {}
+                        Todo::All => todo |= 1 << k,
+                        Todo::Moved { t, instance } => {
+                            partial |= 1 << k;
+                            bounds[k] = (t, instance);
+                        }
                     }
                 }
             }
-            if todo == 0 {
+            if todo | partial == 0 {
                 continue;
             }
             masks[x0 / TILE as usize] = todo;
-            band_rays += todo.count_ones() as u64;
+            band_rays += (todo | partial).count_ones() as u64;
+            band_moved += partial.count_ones() as u64;
             let fi = if p.beams {
                 let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
                 beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
                 if starts.iter().all(|&s| s == f32::INFINITY) {
-                    // The tile's cone meets no instance's voxels: every pending ray misses.
-                    work.culled += (todo.count_ones() as usize * starts.len()) as u64;
+                    // The tile's cone meets no instance's voxels: every pending ray misses (and
+                    // no moved instance beats a bound).
+                    work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
                     while todo != 0 {
                         let k = todo.trailing_zeros() as usize;
                         todo &= todo - 1;
@@ -90,10 +137,22 @@ pub fn trace_tiles<T: Send, S>(
                 let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
                 store(&mut rows[ty * w + x], hit.map(|h| (h, d)));
             }
+            while partial != 0 {
+                let k = partial.trailing_zeros() as usize;
+                partial &= partial - 1;
+                let (ty, x) = (k / TILE as usize, x0 + k % TILE as usize);
+                let d = p.camera.ray_dir(&basis, x as u32, (y0 + ty) as u32);
+                let (t, instance) = bounds[k];
+                if let Some(hit) = nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work) {
+                    store(&mut rows[ty * w + x], Some((hit, d)));
+                    masks[x0 / TILE as usize] |= 1 << k;
+                }
+            }
         }
         traced.fetch_add(work.traced, Ordering::Relaxed);
         culled.fetch_add(work.culled, Ordering::Relaxed);
         rays.fetch_add(band_rays, Ordering::Relaxed);
+        moved_only.fetch_add(band_moved, Ordering::Relaxed);
         rows_done(tile_h);
     };
     let rows = w * TILE as usize;
@@ -110,12 +169,17 @@ pub fn trace_tiles<T: Send, S>(
         .zip(masks.chunks_mut(tiles_x))
         .enumerate()
         .for_each(|(i, (r, m))| band(i * TILE as usize, r, m));
-    (Work { traced: traced.into_inner(), culled: culled.into_inner() }, rays.into_inner(), masks)
+    Traced {
+        work: Work { traced: traced.into_inner(), culled: culled.into_inner() },
+        rays: rays.into_inner(),
+        moved_only: moved_only.into_inner(),
+        stored: masks,
+    }
 }
 
 /// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
 pub fn nearest_hits(p: &Primary) -> Vec<Option<InstanceHit>> {
     let mut out = vec![None; (p.camera.width * p.camera.height) as usize];
-    trace_tiles(p, &mut out, |_| (), |_, _, _, _| true, |o, hit| *o = hit.map(|h| h.0), |_| {});
+    trace_tiles(p, &mut out, |_| (), |_, _, _, _| Todo::All, |o, hit| *o = hit.map(|h| h.0), |_| {});
     out
 }

@@ -82,6 +82,19 @@ fn beam_misses(fi: &FrameInstances, i: usize) -> bool {
     fi.starts.is_some_and(|s| s[i] == f32::INFINITY)
 }
 
+/// The `t_max` for tracing an instance that must find any hit at or before `t`, the best so
+/// far: the trace compares in its ray's internal units, and the conversion rounds, so a hit
+/// at exactly `t` could fall an ulp outside. Four ulps more cannot miss it (the offset into
+/// internal units is never negative); [`keep`] then compares the t found with `t` exactly.
+#[inline]
+pub fn widen(t: f32) -> f32 {
+    if t.is_finite() && t >= 0.0 {
+        f32::from_bits(t.to_bits() + 4)
+    } else {
+        t
+    }
+}
+
 #[inline]
 fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
     let better = match best {
@@ -182,7 +195,7 @@ pub fn nearest_work(
                     break; // every later sphere starts beyond the nearest hit
                 }
                 work.traced += 1;
-                if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
+                if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
                     keep(&mut best, i, h);
                 }
             }
@@ -219,7 +232,7 @@ pub fn nearest_work(
                             continue;
                         }
                         work.traced += 1;
-                        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
+                        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
                             keep(&mut best, i, h);
                         }
                     }
@@ -243,6 +256,48 @@ pub fn nearest_work(
                         (None, None) => {}
                     }
                 }
+            }
+        }
+    }
+    best
+}
+
+/// The nearest hit along `o + t·d` among the instances `moved` that beats `(t, instance)`:
+/// the nearest hit among all the other instances (t = +∞ and instance −1 when they have
+/// none). Together they are the nearest hit among all instances, exactly as [`nearest`]
+/// finds it (equal t to the lower index), without tracing the others again. The hit
+/// buffer uses this for a pixel whose stored hit is on an instance that did not move while
+/// some moved instance's sphere crosses its ray: only the moved instances can have changed.
+#[allow(clippy::too_many_arguments)]
+pub fn nearest_moved(
+    fi: &FrameInstances,
+    o: DVec3,
+    d: DVec3,
+    moved: &[u32],
+    t: f32,
+    instance: i32,
+    opts: &TraceOptions,
+    work: &mut Work,
+) -> Option<InstanceHit> {
+    let (mut best_t, mut best_i) = (t, if instance < 0 { usize::MAX } else { instance as usize });
+    let mut best = None;
+    for &i in moved {
+        let i = i as usize;
+        let p = &fi.prepared[i];
+        let sphere = if beam_misses(fi, i) { None } else { sphere_interval(p.centre, p.radius, o, d) };
+        let Some((t0, _)) = sphere else {
+            work.culled += 1;
+            continue;
+        };
+        let t_max = best_t.min(opts.t_max);
+        if t0 > t_max as f64 {
+            continue;
+        }
+        work.traced += 1;
+        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
+            if h.t < best_t || (h.t == best_t && i < best_i) {
+                (best_t, best_i) = (h.t, i);
+                best = Some(InstanceHit { instance: i, hit: h });
             }
         }
     }
