@@ -117,6 +117,16 @@ impl Backend {
         }
     }
 
+    /// Hands back a frame the caller is done with, so that the next one reuses its memory
+    /// (the CPU renderer; the GPU renderer's frames are read back into their own buffers).
+    pub fn recycle(&mut self, frame: Frame) {
+        match self {
+            Backend::Cpu(h) => h.recycle(frame),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(_) => drop(frame),
+        }
+    }
+
     /// Sets the GI knobs for the following frames (None: GI off). Returns true when the
     /// backend runs GI itself (the GPU: transform, injection, levels and cones in WGSL, dense
     /// or sparse volume); false when the caller adds it to each frame with `gi::apply` (the CPU).

@@ -470,7 +470,10 @@ impl App {
             );
             self.report.screenshots.push(path);
         }
-        self.last_frame = Some(frame);
+        // The frame before last goes back to the renderer, whose next frame fills its memory.
+        if let (Some(old), Some(b)) = (self.last_frame.replace(frame), self.backend.as_mut()) {
+            b.recycle(old);
+        }
         if done {
             event_loop.exit();
         }

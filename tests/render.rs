@@ -218,3 +218,26 @@ fn an_eye_inside_a_voxel_is_reported() {
     let inside = frame(&parts, &cam, &lights, Features::default());
     assert!(inside.eye_inside_fraction() > 0.9, "{}", inside.eye_inside_fraction());
 }
+
+#[test]
+fn a_recycled_frame_renders_like_a_fresh_one() {
+    // The first frame sees the quad from above (hits nearly everywhere); its buffers are then
+    // reused for a view that mostly misses: every pixel must be overwritten, misses included.
+    let parts = build(vec![quad("a", 0.0, 1.0)], 0.05);
+    let s = scene(&parts);
+    let lights = Lights::default();
+    let near = Camera { eye: DVec3::new(0.0, 1.2, 0.0), ..top_down(48) };
+    let far = Camera { eye: DVec3::new(0.0, 30.0, 0.0), ..top_down(48) };
+    let mut hits = voxray::render::HitBuffer::new();
+    let render_with = |cam: &Camera, hits: &mut voxray::render::HitBuffer| {
+        let plan = FramePlan::new(&s, cam, &lights, &Features::default(), None);
+        render(&s, cam, &lights, &plan, &RenderOptions::default(), Some(hits), &|_, _| {})
+    };
+    let first = render_with(&near, &mut hits);
+    assert!(first.instance.iter().filter(|&&i| i >= 0).count() > first.instance.len() / 2);
+    hits.recycle(first);
+    let reused = render_with(&far, &mut hits);
+    let fresh = frame(&parts, &far, &lights, Features::default());
+    assert!(fresh.instance.iter().filter(|&&i| i < 0).count() > fresh.instance.len() / 2);
+    assert_eq!(reused, fresh);
+}

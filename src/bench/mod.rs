@@ -162,7 +162,11 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
             busy += secs;
             if first.is_none() {
                 first = Some(frame);
+            } else {
+                backend.recycle(frame);
             }
+        } else {
+            backend.recycle(frame);
         }
         plan = Some(p);
     }

@@ -701,6 +701,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         reused += frame.reused;
         last_plan = Some(plan);
         write_frame(&a, &frame, f, is_gif, &mut gif_frames)?;
+        backend.recycle(frame);
         if a.frames > 1 {
             pb.inc(1);
         }

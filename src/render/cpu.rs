@@ -67,6 +67,50 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// A `width × height` frame whose per-pixel buffers are `spare`'s when they have that
+    /// many pixels (the renderer overwrites every pixel), fresh otherwise; counters zero.
+    /// Reusing a frame spares the page faults of ~50 bytes a pixel of new memory each frame.
+    pub fn buffers(spare: Option<Frame>, width: u32, height: u32) -> Frame {
+        let n = width as usize * height as usize;
+        match spare {
+            Some(f)
+                if [f.radiance.len(), f.normal.len(), f.albedo.len()].iter().all(|&l| l == n)
+                    && [f.t.len(), f.instance.len(), f.specular.len(), f.shininess.len()].iter().all(|&l| l == n) =>
+            {
+                Frame {
+                    width,
+                    height,
+                    primary_rays: 0,
+                    reused: 0,
+                    shadow_rays: 0,
+                    shade_reused: 0,
+                    moved_only: 0,
+                    instances_traced: 0,
+                    spheres_culled: 0,
+                    ..f
+                }
+            }
+            _ => Frame {
+                width,
+                height,
+                radiance: vec![Vec3::ZERO; n],
+                t: vec![0.0; n],
+                instance: vec![0; n],
+                normal: vec![Vec3::ZERO; n],
+                albedo: vec![Vec3::ZERO; n],
+                specular: vec![0.0; n],
+                shininess: vec![0.0; n],
+                primary_rays: 0,
+                reused: 0,
+                shadow_rays: 0,
+                shade_reused: 0,
+                moved_only: 0,
+                instances_traced: 0,
+                spheres_culled: 0,
+            },
+        }
+    }
+
     /// Fraction of pixels whose primary hit is at t = 0: the eye sits inside a voxel, which
     /// every ray then hits at once (a uniform image). Worth a warning above about a half.
     pub fn eye_inside_fraction(&self) -> f32 {
@@ -129,10 +173,9 @@ fn aovs(f: &mut Frame, records: &[HitRecord]) {
             t[x] = r.t;
             instance[x] = r.instance;
             normal[x] = r.normal;
-            if r.instance >= 0 {
-                albedo[x] = r.attr.albedo_linear();
-                specular[x] = r.attr.specular();
-            }
+            // Every pixel is written: the buffers may be a recycled frame's.
+            (albedo[x], specular[x]) =
+                if r.instance >= 0 { (r.attr.albedo_linear(), r.attr.specular()) } else { (Vec3::ZERO, 0.0) };
             shininess[x] = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
         }
     };
@@ -202,6 +245,7 @@ pub fn render(
         records.clear();
         records.resize(w * h, HitRecord::MISS);
     }
+    let spare = hits.as_deref_mut().and_then(|b| b.spare.take());
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
     let done = AtomicU32::new(0);
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
@@ -243,15 +287,6 @@ pub fn render(
         prev.lights.as_ref() == Some(lights) && prev.shadows == plan.shadows && prev.radiance.len() == n
     });
     let mut f = Frame {
-        width: camera.width,
-        height: camera.height,
-        radiance: vec![sky; n],
-        t: vec![0.0; n],
-        instance: vec![0; n],
-        normal: vec![Vec3::ZERO; n],
-        albedo: vec![Vec3::ZERO; n],
-        specular: vec![0.0; n],
-        shininess: vec![0.0; n],
         primary_rays: n as u64,
         reused: 0,
         shadow_rays: 0,
@@ -259,6 +294,7 @@ pub fn render(
         moved_only: traced.moved_only,
         instances_traced: traced.work.traced,
         spheres_culled: traced.work.culled,
+        ..Frame::buffers(spare, camera.width, camera.height)
     };
     aovs(&mut f, &records);
     for_rows(&mut f.radiance, w, |y, row| {
@@ -276,6 +312,7 @@ pub fn render(
                 }
             }
             if r.instance < 0 {
+                *out = sky;
                 continue;
             }
             let albedo = r.attr.albedo_linear();

@@ -77,6 +77,8 @@ pub struct HitBuffer {
     pub lights: Option<Lights>,
     /// Whether the stored colours traced shadow rays.
     pub shadows: bool,
+    /// A frame handed back by [`HitBuffer::recycle`], whose buffers the next frame fills.
+    pub spare: Option<super::cpu::Frame>,
 }
 
 /// What the current frame may reuse.
@@ -153,6 +155,12 @@ impl HitBuffer {
             self.bvh_builds += 1;
         }
         bvh
+    }
+
+    /// Hands a frame the caller is done with back to the renderer: the next frame of the same
+    /// size is written into its buffers instead of fresh memory.
+    pub fn recycle(&mut self, frame: super::cpu::Frame) {
+        self.spare = Some(frame);
     }
 
     /// Whether the stored frame was seen by exactly this camera.
