@@ -232,3 +232,51 @@ fn pools_split_across_two_bindings_render_the_same() {
     let e = tiny.render(&scene_a, &cam, &lights, &plan, &RenderOptions::default()).unwrap_err();
     assert!(e.to_string().contains("pool needs"), "{e}");
 }
+
+#[test]
+fn a_new_part_where_a_dropped_one_lived_is_uploaded_and_traced() {
+    let Some(ctx) = context() else { return };
+    let lights = Lights::default();
+    let cam = Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 96,
+        height: 60,
+    };
+    let parts = car_parts();
+    let (body, door) = ((*parts[0]).clone(), (*parts[5]).clone());
+    drop(parts);
+    let alone = |svo: Arc<Svo>| {
+        let mut s = Scene::new(vec![svo]);
+        s.add(voxray::scene::Instance { part: 0, parent: None, local: voxray::scene::Transform::IDENTITY }).unwrap();
+        s.update().unwrap();
+        s
+    };
+    let mut gpu = GpuRenderer::new(ctx);
+    let first = Arc::new(body);
+    let address = Arc::as_ptr(&first);
+    {
+        let s = alone(first);
+        let plan = FramePlan::new(&s, &cam, &lights, &Features { beams: false, ..Features::default() }, None);
+        gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    }
+    // The body's scene and its only Arc are gone; a part of the same type allocated now could
+    // take its address (the allocator hands back the block just freed) unless the renderer's
+    // key holds it. Either way the new part must be the one traced.
+    // Allocate copies of the door until one lands where the body was (held ones pin other
+    // addresses); a renderer keyed by address would take that one for the body.
+    let mut held = Vec::new();
+    let mut second = Arc::new(door.clone());
+    while Arc::as_ptr(&second) != address && held.len() < 64 {
+        held.push(std::mem::replace(&mut second, Arc::new(door.clone())));
+    }
+    eprintln!("new part at the dropped part's address: {}", Arc::as_ptr(&second) == address);
+    let s = alone(second);
+    let plan = FramePlan::new(&s, &cam, &lights, &Features { beams: false, ..Features::default() }, None);
+    let g = gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    let c = render(&s, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    assert!(c.instance.iter().any(|&i| i >= 0), "the door should be in view");
+    assert_close(&c, &g, "a new part after a dropped one");
+}

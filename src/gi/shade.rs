@@ -14,6 +14,7 @@ use super::sparse::{SparseLevels, SparseVolume};
 use super::volume::{Filter, GiError, Layout, Volume, VolumeSpec};
 use crate::render::Frame;
 use crate::scene::{Camera, Lights, Scene};
+use crate::svo::PartId;
 use glam::DVec3;
 use std::collections::HashMap;
 use std::time::Instant;
@@ -22,9 +23,8 @@ use std::time::Instant;
 /// frame needs it (the level follows the volume's cell size, which follows the camera).
 #[derive(Default)]
 pub struct GiCaches {
-    // Keyed by the part's address; the Arc is held so that address cannot be reused by
-    // another part while its cache is here.
-    built: HashMap<(usize, u32), (std::sync::Arc<crate::svo::Svo>, VoxelCache)>,
+    // Keyed by the part's identity and cache level.
+    built: HashMap<(PartId, u32), VoxelCache>,
     // The last frame's volume and level chain, with what they were made from.
     last: Option<LastVolume>,
 }
@@ -253,7 +253,7 @@ pub struct VolumeKey {
     spec: VolumeSpec,
     layout: Layout,
     filter: Filter,
-    caches: Vec<(usize, u32)>,
+    caches: Vec<(PartId, u32)>,
     instances: Vec<(usize, glam::DAffine3)>,
 }
 
@@ -265,7 +265,7 @@ impl VolumeKey {
             spec,
             layout,
             filter,
-            caches: scene.parts.iter().zip(levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect(),
+            caches: scene.parts.iter().zip(levels_of).map(|(p, &l)| (PartId::of(p), l)).collect(),
             instances: scene.instances().iter().enumerate().map(|(i, inst)| (inst.part, scene.world(i))).collect(),
         }
     }
@@ -285,20 +285,24 @@ impl GiCaches {
 
     /// The cache of `svo` at `level` if it is built.
     pub fn built(&self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Option<&VoxelCache> {
-        self.built.get(&(std::sync::Arc::as_ptr(svo) as usize, level)).map(|e| &e.1)
+        self.built.get(&(PartId::of(svo), level))
     }
 
     /// The cache of `svo` at `level`, built on first use.
     pub fn get(&mut self, svo: &std::sync::Arc<crate::svo::Svo>, level: u32) -> Result<&VoxelCache, GiError> {
-        let key = (std::sync::Arc::as_ptr(svo) as usize, level);
+        let key = (PartId::of(svo), level);
+        if !self.built.contains_key(&key) {
+            // A new cache: first let go of the caches of parts that no longer exist.
+            self.built.retain(|(id, _), _| id.alive());
+        }
         let entry = match self.built.entry(key) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => {
                 let cache = VoxelCache::from_svo(svo, level).map_err(|e| GiError::Settings(e.to_string()))?;
-                e.insert((svo.clone(), cache))
+                e.insert(cache)
             }
         };
-        Ok(&entry.1)
+        Ok(entry)
     }
 }
 

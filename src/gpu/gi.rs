@@ -21,6 +21,7 @@ use crate::gi::{
     CacheVoxel, ConeSettings, Filter, GiCaches, GiError, GiReuse, GiSettings, Layout, Volume, VolumeKey, VolumeSpec,
 };
 use crate::scene::{Camera, Lights, Scene};
+use crate::svo::PartId;
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
 use wgpu::util::DeviceExt;
@@ -156,10 +157,10 @@ struct SparseTables {
 }
 
 struct Pool {
-    keys: Vec<(usize, u32)>,
+    keys: Vec<(PartId, u32)>,
     voxels: wgpu::Buffer,
     /// (first voxel, count) per key.
-    ranges: HashMap<(usize, u32), (u32, u32)>,
+    ranges: HashMap<(PartId, u32), (u32, u32)>,
 }
 
 /// One frame's GI work, ready to encode.
@@ -497,18 +498,19 @@ impl GpuGi {
     }
 
     /// Uploads the caches of `keys` if they are not the ones on the GPU.
-    fn upload_pool(&mut self, ctx: &GpuContext, scene: &Scene, keys: Vec<(usize, u32)>) -> Result<(), GpuError> {
+    fn upload_pool(&mut self, ctx: &GpuContext, scene: &Scene, keys: Vec<(PartId, u32)>) -> Result<(), GpuError> {
         if self.pool.as_ref().is_some_and(|p| p.keys == keys) {
             return Ok(());
         }
         let mut all: Vec<CacheVoxel> = Vec::new();
         let mut ranges = HashMap::new();
-        for (p, &(key_ptr, level)) in scene.parts.iter().zip(&keys) {
-            if ranges.contains_key(&(key_ptr, level)) {
+        for (p, (id, level)) in scene.parts.iter().zip(&keys) {
+            let key = (id.clone(), *level);
+            if ranges.contains_key(&key) {
                 continue;
             }
-            let cache = self.caches.get(p, level)?;
-            ranges.insert((key_ptr, level), (all.len() as u32, cache.voxels.len() as u32));
+            let cache = self.caches.get(p, *level)?;
+            ranges.insert(key, (all.len() as u32, cache.voxels.len() as u32));
             all.extend_from_slice(&cache.voxels);
         }
         if all.len() >= u32::MAX as usize {
@@ -819,15 +821,14 @@ impl GpuGi {
             reuse = GiReuse::Nothing; // the buffers are allocated afresh
         }
         self.last = None; // until this frame's passes are encoded
-        let keys: Vec<(usize, u32)> =
-            scene.parts.iter().zip(&levels_of).map(|(p, &l)| (std::sync::Arc::as_ptr(p) as usize, l)).collect();
+        let keys: Vec<(PartId, u32)> = scene.parts.iter().zip(&levels_of).map(|(p, &l)| (PartId::of(p), l)).collect();
         self.upload_pool(ctx, scene, keys.clone())?;
         let pool = self.pool.as_ref().ok_or_else(|| GpuError::Device("GI voxel pool missing".into()))?;
         let mut jobs = Vec::new();
         let mut threads = 0u64;
         for (i, inst) in scene.instances().iter().enumerate() {
-            let key = keys[inst.part];
-            let range = pool.ranges[&key];
+            let key = &keys[inst.part];
+            let range = pool.ranges[key];
             let cache = self.caches.get(&scene.parts[inst.part], key.1)?;
             let job = transform_job(&scene.world(i), cache, &spec, range, threads)?;
             if range.1 > 0 {

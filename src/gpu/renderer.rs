@@ -11,7 +11,7 @@ use crate::render::instances::{prepare, Prepared, ToUnit};
 use crate::render::visibility::Search;
 use crate::render::{Frame, FramePlan, RenderOptions};
 use crate::scene::{Camera, Lights, Scene};
-use crate::svo::{Attr, Svo};
+use crate::svo::{Attr, PartId, Svo};
 use glam::{DMat3, Vec3};
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -52,7 +52,8 @@ pub struct GpuTimes {
 }
 
 struct Pools {
-    parts: Vec<*const Svo>,
+    /// The parts uploaded, by identity (not address: see [`PartId`]).
+    parts: Vec<PartId>,
     nodes: wgpu::Buffer,
     nodes_hi: wgpu::Buffer,
     attrs: wgpu::Buffer,
@@ -326,10 +327,14 @@ impl GpuRenderer {
 
     /// Uploads the part pools if the scene's parts changed.
     fn upload_parts(&mut self, parts: &[Arc<Svo>]) -> Result<(), GpuError> {
-        let ids: Vec<*const Svo> = parts.iter().map(Arc::as_ptr).collect();
-        if self.pools.as_ref().is_some_and(|p| p.parts == ids) {
+        if self
+            .pools
+            .as_ref()
+            .is_some_and(|p| p.parts.len() == parts.len() && p.parts.iter().zip(parts).all(|(id, s)| id.is(s)))
+        {
             return Ok(());
         }
+        let ids: Vec<PartId> = parts.iter().map(PartId::of).collect();
         let (mut nodes, mut attrs, mut infos): (Vec<u32>, Vec<Attr>, Vec<GpuPart>) =
             (Vec::new(), Vec::new(), Vec::new());
         for p in parts {

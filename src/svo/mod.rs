@@ -3,7 +3,9 @@
 pub mod build;
 pub mod format;
 pub mod io;
+pub mod part_id;
 
 pub use build::{build, BuildError};
 pub use format::{Attr, Cube, Svo, SvoStats, MAX_DEPTH};
 pub use io::SvoFileError;
+pub use part_id::PartId;
