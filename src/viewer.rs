@@ -432,6 +432,10 @@ impl App {
         let done = self.opts.exit && self.opts.frames.is_some_and(|n| self.report.frames + 1 >= n);
         let shoot = self.want_screenshot || (done && self.opts.screenshot.is_some());
         let captured = self.present(&frame, shoot, ui_paint)?;
+        // Errors the window's device raised while presenting (outside the renderer's scopes).
+        if let Some(g) = self.gfx.as_ref() {
+            g.ctx.check().map_err(|e| ViewerError::Other(e.to_string()))?;
+        }
         let captured_kind = captured.is_some();
         self.report.frames += 1;
         if self.report.frames % 10 == 1 {

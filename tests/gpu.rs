@@ -7,7 +7,7 @@ use glam::{DQuat, DVec3};
 use std::sync::{Arc, OnceLock};
 use voxray::gpu::layout::GpuRay;
 use voxray::gpu::rays::trace_rays;
-use voxray::gpu::{GpuContext, GpuRenderer};
+use voxray::gpu::{GpuContext, GpuError, GpuRenderer};
 use voxray::pipeline::build_parts;
 use voxray::ray::UnitRay;
 use voxray::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
@@ -279,4 +279,51 @@ fn a_new_part_where_a_dropped_one_lived_is_uploaded_and_traced() {
     let c = render(&s, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     assert!(c.instance.iter().any(|&i| i >= 0), "the door should be in view");
     assert_close(&c, &g, "a new part after a dropped one");
+}
+
+#[test]
+fn device_errors_come_back_as_library_errors() {
+    if context().is_none() {
+        return;
+    }
+    // A device of its own: the error raised outside a scope below is device-wide, and the
+    // shared context's other tests must not see it.
+    let ctx = GpuContext::headless().unwrap();
+    // Mapped for reading and a storage buffer at once: WebGPU forbids it (validation).
+    let bad = || {
+        let _ = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("invalid on purpose"),
+            size: 16,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+    };
+    let e = ctx
+        .scoped(|| {
+            bad();
+            Ok(())
+        })
+        .unwrap_err();
+    assert!(matches!(e, GpuError::Validation(_)), "{e}");
+    assert!(e.to_string().contains("GPU validation error"), "{e}");
+    // Outside any scope wgpu's default would panic; the context keeps the error instead.
+    bad();
+    let e = ctx.check().unwrap_err();
+    assert!(matches!(e, GpuError::Validation(_)), "{e}");
+    ctx.check().unwrap(); // reported once
+                          // The device still renders afterwards.
+    let (scene, _) = scene(0);
+    let cam = Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 32,
+        height: 20,
+    };
+    let lights = Lights::default();
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let mut gpu = GpuRenderer::new(Arc::new(ctx));
+    let frame = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    assert!(frame.instance.iter().any(|&i| i >= 0));
 }

@@ -2,6 +2,8 @@
 //! writes nothing to 3D storage textures — with the adapter's real limits and timestamp
 //! queries where the adapter has them.
 
+use std::sync::{Arc, Mutex};
+
 /// Why the GPU path cannot run.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
@@ -27,6 +29,24 @@ pub enum GpuError {
     /// Invalid GI settings or inputs.
     #[error(transparent)]
     Gi(#[from] crate::gi::GiError),
+    /// The device rejected a command (a bug in voxray or the driver; the frame is not valid).
+    #[error("GPU validation error: {0}")]
+    Validation(String),
+    /// The device ran out of memory.
+    #[error("GPU out of memory: {0}; lower the resolution or --gi-res, or use --backend cpu")]
+    OutOfMemory(String),
+    /// The device was lost (driver reset, GPU removed); a new context is needed.
+    #[error("GPU device lost: {0}")]
+    Lost(String),
+}
+
+/// A wgpu error as the library's.
+fn library_error(e: wgpu::Error) -> GpuError {
+    match e {
+        wgpu::Error::OutOfMemory { .. } => GpuError::OutOfMemory(e.to_string()),
+        wgpu::Error::Validation { description, .. } => GpuError::Validation(description),
+        wgpu::Error::Internal { description, .. } => GpuError::Device(description),
+    }
 }
 
 /// What a user can do about a GI buffer too large for the device.
@@ -50,6 +70,16 @@ pub struct GpuContext {
     pub limits: wgpu::Limits,
     /// Whether timestamp queries are available.
     pub timestamps: bool,
+    /// The first error the device raised outside an error scope, and the loss of the device:
+    /// kept for [`GpuContext::check`] instead of wgpu's default of panicking.
+    faults: Arc<Mutex<Faults>>,
+}
+
+/// Errors the device reported outside [`GpuContext::scoped`].
+#[derive(Default)]
+struct Faults {
+    uncaptured: Option<GpuError>,
+    lost: Option<String>,
 }
 
 impl GpuContext {
@@ -100,7 +130,48 @@ impl GpuContext {
         }))
         .map_err(|e| GpuError::Device(e.to_string()))?;
         let info = adapter.get_info();
-        Ok((GpuContext { device, queue, info, limits, timestamps }, adapter))
+        let faults = Arc::new(Mutex::new(Faults::default()));
+        let sink = faults.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            let mut f = sink.lock().unwrap_or_else(|p| p.into_inner());
+            f.uncaptured.get_or_insert_with(|| library_error(e));
+        }));
+        let sink = faults.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            let mut f = sink.lock().unwrap_or_else(|p| p.into_inner());
+            f.lost.get_or_insert_with(|| format!("{reason:?}: {message}"));
+        });
+        Ok((GpuContext { device, queue, info, limits, timestamps, faults }, adapter))
+    }
+
+    /// The first error the device raised outside an error scope since the last check, or its
+    /// loss (which stays: a lost device does nothing more).
+    pub fn check(&self) -> Result<(), GpuError> {
+        let mut f = self.faults.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(reason) = &f.lost {
+            return Err(GpuError::Lost(reason.clone()));
+        }
+        match f.uncaptured.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Runs `work` with the device's validation and out-of-memory errors caught: the first
+    /// one it raised is returned as the library's error (before `work`'s own result), and so
+    /// is a lost device or an error raised earlier outside any scope.
+    pub fn scoped<T>(&self, work: impl FnOnce() -> Result<T, GpuError>) -> Result<T, GpuError> {
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let out = work();
+        // Scopes pop innermost first.
+        let oom = pollster::block_on(memory.pop());
+        let invalid = pollster::block_on(validation.pop());
+        self.check()?;
+        if let Some(e) = oom.or(invalid) {
+            return Err(library_error(e));
+        }
+        out
     }
 
     /// One line naming the adapter.

@@ -9,6 +9,10 @@ use wgpu::util::DeviceExt;
 
 /// Traces `rays` (in the SVO's unit cube) and returns one result per ray.
 pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<GpuRayHit>, GpuError> {
+    ctx.scoped(|| trace_rays_unscoped(ctx, svo, rays))
+}
+
+fn trace_rays_unscoped(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<GpuRayHit>, GpuError> {
     if rays.is_empty() {
         return Ok(Vec::new());
     }

@@ -376,8 +376,21 @@ impl GpuRenderer {
     }
 
     /// Renders one frame of `scene` as `plan` says (the same contract as `render::render`
-    /// with a hit buffer: the GPU keeps the records for the next frame).
+    /// with a hit buffer: the GPU keeps the records for the next frame). Errors the device
+    /// raises on the way (validation, out of memory, a lost device) are returned, not panics.
     pub fn render(
+        &mut self,
+        scene: &Scene,
+        camera: &Camera,
+        lights: &Lights,
+        plan: &FramePlan,
+        opts: &RenderOptions,
+    ) -> Result<Frame, GpuError> {
+        let ctx = self.ctx.clone();
+        ctx.scoped(|| self.render_frame(scene, camera, lights, plan, opts))
+    }
+
+    fn render_frame(
         &mut self,
         scene: &Scene,
         camera: &Camera,
