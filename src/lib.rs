@@ -51,6 +51,7 @@ pub mod ray;
 pub mod render;
 pub mod rng;
 pub mod scene;
+pub mod session;
 pub mod stability;
 pub mod svo;
 pub mod traverse;

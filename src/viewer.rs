@@ -15,6 +15,7 @@ use crate::gpu::{GpuContext, GpuError};
 use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
 use crate::scene::car::{pose_all, Car};
 use crate::scene::{stage_cars, Camera, Lights, Scene, Staged};
+use crate::session::Session;
 use crate::svo::Svo;
 use glam::{DQuat, DVec3};
 use std::collections::{HashSet, VecDeque};
@@ -131,7 +132,6 @@ struct Ui {
     per_ray: (f64, f64),
     gi_on: bool,
     gi: crate::gi::GiSettings,
-    gi_caches: crate::gi::GiCaches,
     gi_ms: Option<f64>,
     // GI ran in the backend (the GPU passes), not on the CPU after it.
     gi_on_gpu: bool,
@@ -166,20 +166,19 @@ struct App {
     orbit: Orbit,
     gfx: Option<Gfx>,
     soft: Option<Soft>,
-    backend: Option<Backend>,
+    /// The renderer with its hit buffer, GI caches and last frame.
+    session: Option<Session>,
     report: DemoReport,
     error: Option<ViewerError>,
     time: f64,
     playing: bool,
     last: Instant,
-    first_frame: bool,
     drag: Option<(f64, f64)>,
     pan: Option<(f64, f64)>,
     keys: HashSet<KeyCode>,
     cursor: (f64, f64),
     times: Vec<f64>,
     want_screenshot: bool,
-    last_frame: Option<Frame>,
     ui: Ui,
 }
 
@@ -305,8 +304,8 @@ impl App {
                 ctx.info.name
             );
         }
-        self.report.backend = name;
-        self.backend = Some(backend);
+        self.report.backend = name.clone();
+        self.session = Some(Session::new(backend, name));
         self.gfx = Some(Gfx {
             window,
             surface,
@@ -335,7 +334,7 @@ impl App {
              panel (install a Vulkan driver, e.g. Debian's mesa-vulkan-drivers, for the panel)"
         );
         self.report.backend = "CPU (no GPU adapter; software window, no panel)".into();
-        self.backend = Some(Backend::Cpu(Box::default()));
+        self.session = Some(Session::new(Backend::Cpu(Box::default()), self.report.backend.clone()));
         (self.ui.backend, self.ui.backend_wanted) = (BackendKind::Cpu, BackendKind::Cpu);
         self.ui.show = false;
         self.soft = Some(Soft { window, surface });
@@ -378,46 +377,45 @@ impl App {
         };
         let camera = self.camera(w.saturating_sub(panel).max(1), h);
         let start = Instant::now();
-        let backend = self.backend.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
+        let session = self.session.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
         let other = |e: crate::Error| ViewerError::Other(e.to_string());
         // GI knobs this device cannot run (a volume past its binding limit, texture levels on a
         // sparse volume) switch GI off with the reason in the panel instead of ending the demo.
-        let mut gi_in_backend = match backend.set_gi(self.ui.gi_on.then_some(self.ui.gi)) {
-            Ok(b) => b,
-            Err(e) => {
-                self.ui.gi_error = Some(e.to_string());
-                self.ui.gi_on = false;
-                backend.set_gi(None).map_err(other)?
-            }
-        };
-        let plan = backend.plan(&self.scene, &camera, &self.lights, &self.opts.features, self.first_frame);
-        self.first_frame = false;
+        if let Err(e) = session.set_gi(self.ui.gi_on.then_some(self.ui.gi)) {
+            self.ui.gi_error = Some(e.to_string());
+            self.ui.gi_on = false;
+            session.set_gi(None).map_err(other)?;
+        }
         let opts = RenderOptions { max_level: self.ui.lod };
-        let mut frame = match backend.render(&self.scene, &camera, &self.lights, &plan, &opts, &|_, _| {}) {
-            Ok(f) => f,
-            Err(e) if gi_in_backend => {
+        let features = self.opts.features;
+        let report = match session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}) {
+            Ok(r) => r,
+            Err(e) if session.gi().is_some() => {
                 self.ui.gi_error = Some(e.to_string());
                 self.ui.gi_on = false;
-                gi_in_backend = backend.set_gi(None).map_err(other)?;
-                backend.render(&self.scene, &camera, &self.lights, &plan, &opts, &|_, _| {}).map_err(other)?
+                session.set_gi(None).map_err(other)?;
+                session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}).map_err(other)?
             }
             Err(e) => return Err(other(e)),
         };
         if self.ui.gi_on {
             self.ui.gi_error = None;
         }
-        self.ui.gi_ms = backend.gi_pass_ms();
-        self.ui.gi_on_gpu = gi_in_backend;
+        let gi_in_backend = session.gi_in_backend();
+        self.ui.gi_on_gpu = gi_in_backend && session.gi().is_some();
+        self.ui.gi_ms = match &report.gi {
+            Some(g) => Some(g.caches_ms + g.transform_ms + g.inject_ms + g.levels_ms + g.cones_ms),
+            None => session.backend().gi_pass_ms(),
+        };
+        let gpu_ms = session.backend().pass_times();
+        let plan = report.plan;
+        // Out of the session while it is shown; handed back at the end for the next frame's
+        // memory.
+        let frame = session.take_frame().ok_or_else(|| ViewerError::Other("the renderer kept no frame".into()))?;
         self.ui.eye_inside = frame.eye_inside_fraction() > 0.5;
-        if self.ui.gi_on && !gi_in_backend {
-            let g = Instant::now();
-            crate::gi::apply(&mut frame, &self.scene, &camera, &self.lights, &self.ui.gi, &mut self.ui.gi_caches)
-                .map_err(|e| ViewerError::Other(e.to_string()))?;
-            self.ui.gi_ms = Some(g.elapsed().as_secs_f64() * 1e3);
-        }
         let secs = start.elapsed().as_secs_f64();
         self.times.push(secs * 1e3);
-        self.ui.gpu_ms = backend.pass_times();
+        self.ui.gpu_ms = gpu_ms;
         self.ui.frame_ms.push_back((secs * 1e3) as f32);
         if self.ui.frame_ms.len() > 180 {
             self.ui.frame_ms.pop_front();
@@ -474,9 +472,8 @@ impl App {
             );
             self.report.screenshots.push(path);
         }
-        // The frame before last goes back to the renderer, whose next frame fills its memory.
-        if let (Some(old), Some(b)) = (self.last_frame.replace(frame), self.backend.as_mut()) {
-            b.recycle(old);
+        if let Some(s) = self.session.as_mut() {
+            s.give_back(frame);
         }
         if done {
             event_loop.exit();
@@ -651,11 +648,10 @@ impl App {
             if let Some(g) = &self.gfx {
                 let (backend, name) = Backend::on_device(self.ui.backend_wanted, g.ctx.clone());
                 eprintln!("demo: now rendering on {name}");
-                self.backend = Some(backend);
+                // A new session: no previous frame to reuse, GI state of its own.
+                self.session = Some(Session::new(backend, name.clone()));
                 self.report.backend = name;
                 self.ui.backend = self.ui.backend_wanted;
-                // The new renderer has no previous frame to reuse.
-                self.first_frame = true;
             }
         }
         let n = self.ui.cars_wanted.max(1);
@@ -671,9 +667,11 @@ impl App {
                 self.orbit = self.home.clone();
                 self.scene = st.scene;
                 self.cars = st.cars;
-                // The old parts' GI caches (the ground is new) are not needed any more.
-                self.ui.gi_caches = crate::gi::GiCaches::new();
-                self.first_frame = true;
+                // Other instances: nothing to reuse (the old parts' GI caches go when the next
+                // new cache is built, as their parts are gone).
+                if let Some(s) = self.session.as_mut() {
+                    s.restart();
+                }
                 eprintln!("demo: {n} cars, {} instances", self.scene.instances().len());
             }
             self.ui.cars = n;
@@ -1067,20 +1065,18 @@ pub fn run(
         home,
         gfx: None,
         soft: None,
-        backend: None,
+        session: None,
         report: DemoReport::default(),
         error: None,
         time: 0.0,
         playing: true,
         last: Instant::now(),
-        first_frame: true,
         drag: None,
         pan: None,
         keys: HashSet::new(),
         cursor: (0.0, 0.0),
         times: Vec::new(),
         want_screenshot: false,
-        last_frame: None,
         ui: Ui {
             show: true,
             fly: false,
@@ -1100,7 +1096,6 @@ pub fn run(
             per_ray: (0.0, 0.0),
             gi_on: false,
             gi: crate::gi::GiSettings { res: 64, ..Default::default() },
-            gi_caches: crate::gi::GiCaches::new(),
             gi_ms: None,
             gi_on_gpu: false,
             gi_error: None,

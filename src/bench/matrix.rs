@@ -4,9 +4,9 @@
 //! against the full-depth reference, so error can be read against run time).
 
 use super::{metrics, run_clip, Clip, Record};
-use crate::backend::Backend;
 use crate::render::{Features, Frame};
 use crate::scene::{stage_cars, Camera, Instance, Lights, Scene, Transform};
+use crate::session::Session;
 use crate::svo::Svo;
 use std::sync::Arc;
 
@@ -109,12 +109,12 @@ pub fn static_scene(svo: Arc<Svo>) -> Result<Scene, crate::Error> {
     Ok(scene)
 }
 
-/// Runs the configured scenarios on `backend`; `progress` hears each measurement's name as
-/// it starts.
+/// Runs the configured scenarios on `session`'s backend; `progress` hears each measurement's
+/// name as it starts.
 pub fn run(
     cfg: &MatrixConfig,
     car: &CarModel,
-    backend: &mut Backend,
+    session: &mut Session,
     backend_name: &str,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<Record>, crate::Error> {
@@ -128,7 +128,7 @@ pub fn run(
                        progress: &mut dyn FnMut(&str)|
      -> Result<(Record, Frame), crate::Error> {
         progress(&name);
-        let (mut r, frame) = run_clip(backend, backend_name, clip)?;
+        let (mut r, frame) = run_clip(session, backend_name, clip)?;
         r.group = group.into();
         r.name = name;
         r.setting = setting;

@@ -15,10 +15,10 @@ pub mod chart;
 #[cfg(feature = "peers")]
 pub mod peers;
 
-use crate::backend::Backend;
 use crate::render::{Features, Frame, FramePlan, RenderOptions};
 use crate::scene::car::{pose_all, Car};
 use crate::scene::{Camera, Lights, Scene};
+use crate::session::Session;
 use std::time::Instant;
 
 /// One measured configuration: a scenario, one setting of it, one backend.
@@ -125,13 +125,15 @@ pub struct Clip<'a> {
 
 /// Renders a clip's warm-up and timed frames, timing each whole frame; returns the record
 /// (group, name and setting left for the caller) and the first timed frame.
-pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
+pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
     let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
     let (mut traced, mut culled) = (0u64, 0u64);
     let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
     let mut plan = None;
     let mut first: Option<Frame> = None;
     let frames = clip.frames.max(1);
+    // A clip starts afresh: nothing is reused from the session's frames before it.
+    session.restart();
     for f in 0..clip.warmup + frames {
         let start = Instant::now();
         // Warm-up frames replay the first timed frame's time, so the first timed frame is the
@@ -139,36 +141,35 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
         let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
         pose_all(clip.scene, clip.cars, t)?;
         clip.scene.update()?;
-        let p = backend.plan(clip.scene, clip.camera, clip.lights, &clip.features, f == 0);
-        let frame = backend.render(
+        let report = session.frame(
             clip.scene,
             clip.camera,
             clip.lights,
-            &p,
+            &clip.features,
             &RenderOptions { max_level: clip.lod },
             &|_, _| {},
         )?;
         let secs = start.elapsed().as_secs_f64();
         if f >= clip.warmup {
-            if let Some((tr, sh)) = backend.pass_times() {
+            if let Some((tr, sh)) = session.backend().pass_times() {
                 trace_ms.push(tr);
                 shade_ms.push(sh);
             }
             times.push(secs * 1e3);
+            let frame = session.last_frame().ok_or_else(|| crate::Error::Io {
+                path: "bench".into(),
+                source: std::io::Error::other("the session kept no frame"),
+            })?;
             rays += frame.primary_rays - frame.reused + frame.shadow_rays;
             reused += frame.reused;
             traced += frame.instances_traced;
             culled += frame.spheres_culled;
             busy += secs;
             if first.is_none() {
-                first = Some(frame);
-            } else {
-                backend.recycle(frame);
+                first = session.take_frame();
             }
-        } else {
-            backend.recycle(frame);
         }
-        plan = Some(p);
+        plan = Some(report.plan);
     }
     let (median_ms, p95_ms, min_ms) = summarize(&times);
     let pixels = (clip.camera.width * clip.camera.height) as f64 * frames as f64;
@@ -189,14 +190,14 @@ pub fn run_clip(backend: &mut Backend, backend_name: &str, clip: Clip<'_>) -> Re
         instances_per_ray: traced as f64 / (pixels - reused as f64).max(1.0),
         culled_per_ray: culled as f64 / (pixels - reused as f64).max(1.0),
         backend: backend_name.to_string(),
-        backend_kind: backend.kind_name().to_string(),
+        backend_kind: session.backend().kind_name().to_string(),
         gpu_trace_ms: (!trace_ms.is_empty()).then(|| summarize(&trace_ms).0),
         gpu_shade_ms: (!shade_ms.is_empty()).then(|| summarize(&shade_ms).0),
         svo_bytes: geometry_bytes + attribute_bytes,
         geometry_bytes,
         attribute_bytes,
         voxels: stats.iter().map(|s| s.voxels).sum(),
-        gpu_bytes: backend.gpu_bytes(),
+        gpu_bytes: session.backend().gpu_bytes(),
         plan,
         ..Record::default()
     };

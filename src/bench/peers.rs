@@ -14,6 +14,7 @@ use crate::render::primary::{trace_tiles, Primary, Todo};
 use crate::render::visibility::{FrameInstances, Search};
 use crate::render::Features;
 use crate::scene::Camera;
+use crate::session::Session;
 use crate::svo::Svo;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -180,7 +181,9 @@ fn whole_frame(t: &Timing<'_>, scene: &crate::scene::Scene, voxels: &str) -> Res
     };
     let backend_name = format!("CPU, {} threads", t.threads);
     // The backend lives inside the pool (a GPU backend could not cross threads).
-    let (mut r, f) = pool.install(|| super::run_clip(&mut Backend::Cpu(Box::default()), &backend_name, clip))?;
+    let (mut r, f) = pool.install(|| {
+        super::run_clip(&mut Session::new(Backend::Cpu(Box::default()), "CPU".into()), &backend_name, clip)
+    })?;
     let hits = f.instance.iter().filter(|&&i| i >= 0).count();
     let pixels = (t.view.camera.width * t.view.camera.height) as f64;
     r.group = "peers".into();

@@ -607,14 +607,13 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         volume: a.gi_volume,
         levels: a.gi_levels,
     });
-    let mut gi_caches = voxray::gi::GiCaches::new();
     if let Some(g) = &gi {
         // Check the knobs before any frame is rendered.
         g.validated().map_err(|e| usage(&e.to_string()))?;
     }
-    let (mut backend, backend_name) = Backend::open(a.backend)?;
-    eprintln!("backend: {backend_name}");
-    let gi_in_backend = backend.set_gi(gi)?;
+    let mut session = voxray::session::Session::open(a.backend)?;
+    eprintln!("backend: {}", session.description());
+    session.set_gi(gi)?;
     let mut gpu_times = Vec::new();
     let mut last_plan: Option<FramePlan> = None;
     let mut last_gi_reuse = None;
@@ -627,15 +626,16 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         pose_all(&mut st.scene, &st.cars, t)?;
         st.scene.update()?;
         let cam = orbit(&camera, a.orbit * (t - a.time));
-        let plan = backend.plan(&st.scene, &cam, &lights, &features, f == 0);
-        if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
-            pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
-        }
-        let mut frame = backend.render(&st.scene, &cam, &lights, &plan, &opts, &|d, _| {
+        let report = session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {
             if a.frames == 1 {
                 pb.set_position(d as u64)
             }
         })?;
+        let plan = report.plan;
+        if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
+            pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
+        }
+        let frame = session.last_frame().ok_or_else(|| usage("the renderer kept no frame"))?;
         if f == 0 && frame.eye_inside_fraction() > 0.5 {
             pb.suspend(|| {
                 eprintln!(
@@ -645,48 +645,47 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 )
             });
         }
-        let mut gi_reuse = backend.gi_reuse();
-        if let (Some(g), false) = (&gi, gi_in_backend) {
-            let s = voxray::gi::apply(&mut frame, &st.scene, &cam, &lights, g, &mut gi_caches)?;
-            gi_reuse = Some(s.reuse);
-            if f == 0 {
+        let backend = session.backend();
+        match (session.gi(), &report.gi, f) {
+            (Some(g), Some(s), 0) => pb.suspend(|| {
+                eprintln!(
+                    "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms",
+                    s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms
+                );
+                let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
+                eprintln!(
+                    "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB)",
+                    s.layout.unwrap_or(voxray::gi::Layout::Dense),
+                    mb(s.volume_bytes),
+                    g.res,
+                    mb(s.dense_bytes),
+                )
+            }),
+            (Some(g), None, 0) => {
+                let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
+                let volume = match backend.gi_volume() {
+                    Some((voxray::gi::Layout::Sparse, bricks, bytes)) => {
+                        format!(
+                            "sparse {}³ volume ({bricks} bricks, {:.1} MiB of GI buffers)",
+                            g.res,
+                            bytes as f64 / 1048576.0
+                        )
+                    }
+                    Some((_, _, bytes)) => {
+                        format!("dense {}³ volume ({:.1} MiB of GI buffers)", g.res, bytes as f64 / 1048576.0)
+                    }
+                    None => format!("{}³ volume", g.res),
+                };
                 pb.suspend(|| {
                     eprintln!(
-                        "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms",
-                        s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms
-                    );
-                    let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
-                    eprintln!(
-                        "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB)",
-                        s.layout.unwrap_or(voxray::gi::Layout::Dense),
-                        mb(s.volume_bytes),
-                        g.res,
-                        mb(s.dense_bytes),
+                        "GI on the GPU: {volume}; transform + inject + levels{} {ms} (cones are in the shade pass)",
+                        if g.bounces > 1 { format!(" + {} more bounces", g.bounces - 1) } else { String::new() }
                     )
                 });
             }
-        } else if let (Some(g), 0) = (&gi, f) {
-            let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
-            let volume = match backend.gi_volume() {
-                Some((voxray::gi::Layout::Sparse, bricks, bytes)) => {
-                    format!(
-                        "sparse {}³ volume ({bricks} bricks, {:.1} MiB of GI buffers)",
-                        g.res,
-                        bytes as f64 / 1048576.0
-                    )
-                }
-                Some((_, _, bytes)) => {
-                    format!("dense {}³ volume ({:.1} MiB of GI buffers)", g.res, bytes as f64 / 1048576.0)
-                }
-                None => format!("{}³ volume", g.res),
-            };
-            pb.suspend(|| {
-                eprintln!(
-                    "GI on the GPU: {volume}; transform + inject + levels{} {ms} (cones are in the shade pass)",
-                    if g.bounces > 1 { format!(" + {} more bounces", g.bounces - 1) } else { String::new() }
-                )
-            });
+            _ => {}
         }
+        let gi_reuse = report.gi_reuse;
         if a.explain && gi_reuse != last_gi_reuse {
             if let Some(r) = gi_reuse {
                 pb.suspend(|| eprintln!("frame {f}: {}", r.explain()));
@@ -700,8 +699,7 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         traced += frame.primary_rays - frame.reused + frame.shadow_rays;
         reused += frame.reused;
         last_plan = Some(plan);
-        write_frame(&a, &frame, f, is_gif, &mut gif_frames)?;
-        backend.recycle(frame);
+        write_frame(&a, frame, f, is_gif, &mut gif_frames)?;
         if a.frames > 1 {
             pb.inc(1);
         }
@@ -730,7 +728,11 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         "rays: {traced} traced ({:.1}% of pixels reused from the hit buffer) = {:.2} Mrays/s on {} ({}x{}, {} instances)",
         100.0 * reused as f64 / pixels as f64,
         traced as f64 / total / 1e6,
-        if matches!(backend, Backend::Cpu(_)) { format!("{} threads", rayon::current_num_threads()) } else { "the GPU".into() },
+        if matches!(session.backend(), Backend::Cpu(_)) {
+            format!("{} threads", rayon::current_num_threads())
+        } else {
+            "the GPU".into()
+        },
         camera.width,
         camera.height,
         st.scene.instances().len()
@@ -911,20 +913,21 @@ fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         "measurements",
     );
     for kind in kinds {
-        let (mut backend, name) = match Backend::open(kind) {
-            Ok(b) => b,
+        let mut session = match voxray::session::Session::open(kind) {
+            Ok(s) => s,
             Err(e) => {
                 pb.suspend(|| eprintln!("skipping backend {kind:?}: {e}"));
                 pb.inc(cfg.steps() as u64);
                 continue;
             }
         };
+        let name = session.description().to_string();
         pb.suspend(|| eprintln!("backend: {name}"));
         let mut progress = |what: &str| {
             pb.set_message(what.to_string());
             pb.inc(1);
         };
-        records.extend(matrix::run(&cfg, &car, &mut backend, &name, &mut progress)?);
+        records.extend(matrix::run(&cfg, &car, &mut session, &name, &mut progress)?);
     }
     #[cfg(feature = "peers")]
     if peers {

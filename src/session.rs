@@ -1,0 +1,141 @@
+//! One renderer session per caller: the backend (CPU or GPU) with its hit buffer, the GI
+//! settings and caches, and the last frame. The CLI's render loop, the demo and the harness
+//! drive their frames through [`Session::frame`], so the plan, the render and GI run in one
+//! place and in one order for all of them.
+
+use crate::backend::{Backend, BackendKind};
+use crate::gi::{GiCaches, GiReuse, GiSettings, GiStats};
+use crate::render::{Features, Frame, FramePlan, RenderOptions};
+use crate::scene::{Camera, Lights, Scene};
+
+/// What one frame did.
+#[derive(Clone, Debug)]
+pub struct FrameReport {
+    /// What ran, and why.
+    pub plan: FramePlan,
+    /// The CPU GI pass's timings and volume (None without GI, or when the backend ran GI).
+    pub gi: Option<GiStats>,
+    /// What GI kept from the frame before, on either backend (None without GI).
+    pub gi_reuse: Option<GiReuse>,
+}
+
+/// A backend and everything kept between its frames.
+pub struct Session {
+    backend: Backend,
+    description: String,
+    gi: Option<GiSettings>,
+    /// The backend runs GI itself (the GPU); otherwise [`crate::gi::apply`] adds it here.
+    gi_in_backend: bool,
+    gi_caches: GiCaches,
+    /// The next frame has no previous one to reuse.
+    first: bool,
+    frame: Option<Frame>,
+}
+
+impl Session {
+    /// A session on `backend`, described by `description` (a line for the user).
+    pub fn new(backend: Backend, description: String) -> Session {
+        Session {
+            backend,
+            description,
+            gi: None,
+            gi_in_backend: false,
+            gi_caches: GiCaches::new(),
+            first: true,
+            frame: None,
+        }
+    }
+
+    /// A session on the backend `kind` asks for ([`Backend::open`]).
+    pub fn open(kind: BackendKind) -> Result<Session, crate::Error> {
+        let (backend, description) = Backend::open(kind)?;
+        Ok(Session::new(backend, description))
+    }
+
+    /// What the backend is (the adapter, or why the CPU was chosen).
+    pub fn description(&self) -> &str {
+        &self.description
+    }
+
+    /// The backend, for what it measured (GPU pass times, buffer bytes, GI volume).
+    pub fn backend(&self) -> &Backend {
+        &self.backend
+    }
+
+    /// Sets the GI knobs for the following frames (None: GI off). Checked here; on an error
+    /// GI is off.
+    pub fn set_gi(&mut self, gi: Option<GiSettings>) -> Result<(), crate::Error> {
+        self.gi = None;
+        self.gi_in_backend = false;
+        if let Some(g) = &gi {
+            g.validated()?;
+        }
+        self.gi_in_backend = self.backend.set_gi(gi)?;
+        self.gi = gi;
+        Ok(())
+    }
+
+    /// The GI knobs in use (None: GI off).
+    pub fn gi(&self) -> Option<&GiSettings> {
+        self.gi.as_ref()
+    }
+
+    /// Whether the backend runs GI itself (the GPU) rather than the session on the CPU.
+    pub fn gi_in_backend(&self) -> bool {
+        self.gi_in_backend
+    }
+
+    /// Lets the next frame reuse nothing from the frames before (a new clip).
+    pub fn restart(&mut self) {
+        self.first = true;
+    }
+
+    /// Renders one frame: plans it from the previous one, renders it on the backend, and adds
+    /// GI when the backend does not run it. The image and surface AOVs are then
+    /// [`Session::last_frame`]'s. `progress(done, of)` hears of rows as they finish.
+    pub fn frame(
+        &mut self,
+        scene: &Scene,
+        camera: &Camera,
+        lights: &Lights,
+        features: &Features,
+        opts: &RenderOptions,
+        progress: &(dyn Fn(u32, u32) + Sync),
+    ) -> Result<FrameReport, crate::Error> {
+        let plan = self.backend.plan(scene, camera, lights, features, self.first);
+        // The last frame's memory is refilled instead of fresh pages faulted in.
+        if let Some(old) = self.frame.take() {
+            self.backend.recycle(old);
+        }
+        let mut frame = self.backend.render(scene, camera, lights, &plan, opts, progress)?;
+        self.first = false;
+        let (mut gi, mut gi_reuse) = (None, None);
+        if let Some(g) = &self.gi {
+            if self.gi_in_backend {
+                gi_reuse = self.backend.gi_reuse();
+            } else {
+                let stats = crate::gi::apply(&mut frame, scene, camera, lights, g, &mut self.gi_caches)?;
+                gi_reuse = Some(stats.reuse);
+                gi = Some(stats);
+            }
+        }
+        self.frame = Some(frame);
+        Ok(FrameReport { plan, gi, gi_reuse })
+    }
+
+    /// The last frame rendered: its image and surface AOVs.
+    pub fn last_frame(&self) -> Option<&Frame> {
+        self.frame.as_ref()
+    }
+
+    /// Takes the last frame out of the session (it is then not recycled).
+    pub fn take_frame(&mut self) -> Option<Frame> {
+        self.frame.take()
+    }
+
+    /// Hands back a frame taken with [`Session::take_frame`]: it is the last frame again, and
+    /// the next frame reuses its memory.
+    pub fn give_back(&mut self, frame: Frame) {
+        self.frame = Some(frame);
+    }
+}

@@ -1,0 +1,69 @@
+//! The renderer session against doing its steps by hand: plan, render on the backend, GI on
+//! the CPU afterwards.
+
+use glam::DVec3;
+use voxray::backend::Backend;
+use voxray::gi::{self, GiCaches, GiReuse, GiSettings};
+use voxray::pipeline::build_parts;
+use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+use voxray::scene::car::{add_car, pose};
+use voxray::scene::{Camera, Lights, Scene};
+use voxray::session::Session;
+use voxray::voxelize::Resolution;
+
+#[test]
+fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
+    let parts = build_parts(&voxray::model::car::mesh(), Resolution::Depth(5)).unwrap();
+    let mut scene = Scene::new(parts);
+    let car = add_car(&mut scene, 0, DVec3::ZERO, 0.0, false).unwrap();
+    pose(&mut scene, &car, 0.5).unwrap();
+    scene.update().unwrap();
+    let cam = Camera {
+        eye: DVec3::new(4.0, 3.0, 9.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 48,
+        height: 32,
+    };
+    let lights = Lights::default();
+    let features = Features::default();
+    let opts = RenderOptions::default();
+    let g = GiSettings { res: 32, ..GiSettings::default() };
+
+    let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
+    session.set_gi(Some(g)).unwrap();
+    let first = session.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
+    let a = session.last_frame().unwrap().clone();
+    let second = session.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
+    let b = session.last_frame().unwrap().clone();
+
+    // By hand, with the same state carried between the two frames.
+    let (mut hits, mut caches) = (HitBuffer::new(), GiCaches::new());
+    let mut by_hand = |first: bool| {
+        let plan = FramePlan::new(&scene, &cam, &lights, &features, (!first).then_some(&hits));
+        let mut f = render(&scene, &cam, &lights, &plan, &opts, Some(&mut hits), &|_, _| {});
+        let stats = gi::apply(&mut f, &scene, &cam, &lights, &g, &mut caches).unwrap();
+        (plan, f, stats)
+    };
+    let (plan_a, hand_a, stats_a) = by_hand(true);
+    let (plan_b, hand_b, stats_b) = by_hand(false);
+    assert_eq!((&first.plan, &second.plan), (&plan_a, &plan_b));
+    assert_eq!(a, hand_a, "first frame");
+    assert_eq!(b, hand_b, "second frame");
+    assert_eq!(first.gi.map(|s| s.reuse), Some(stats_a.reuse));
+    assert_eq!(second.gi_reuse, Some(stats_b.reuse));
+    // Nothing moved: the second frame reuses the hits and GI's level chain.
+    assert!(second.plan.hit_buffer && b.reused > 0);
+    assert_eq!(second.gi_reuse, Some(GiReuse::Levels));
+    assert!(a.radiance.iter().zip(&b.radiance).all(|(x, y)| x == y));
+
+    // GI off, and a restart: the next frame reuses nothing.
+    session.set_gi(None).unwrap();
+    session.restart();
+    let third = session.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
+    assert!(!third.plan.hit_buffer && third.gi.is_none() && third.gi_reuse.is_none());
+    let plain = FramePlan::new(&scene, &cam, &lights, &features, None);
+    let c = render(&scene, &cam, &lights, &plain, &opts, None, &|_, _| {});
+    assert_eq!(session.last_frame(), Some(&c));
+}
