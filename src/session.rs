@@ -5,6 +5,7 @@
 
 use crate::backend::{Backend, BackendKind};
 use crate::gi::{GiCaches, GiReuse, GiSettings, GiStats};
+use crate::render::plan::GiPlan;
 use crate::render::{Features, Frame, FramePlan, RenderOptions};
 use crate::scene::{Camera, Lights, Scene};
 
@@ -102,7 +103,7 @@ impl Session {
         opts: &RenderOptions,
         progress: &(dyn Fn(u32, u32) + Sync),
     ) -> Result<FrameReport, crate::Error> {
-        let plan = self.backend.plan(scene, camera, lights, features, self.first);
+        let mut plan = self.backend.plan(scene, camera, lights, features, self.first);
         // The last frame's memory is refilled instead of fresh pages faulted in.
         if let Some(old) = self.frame.take() {
             self.backend.recycle(old);
@@ -111,12 +112,17 @@ impl Session {
         self.first = false;
         let (mut gi, mut gi_reuse) = (None, None);
         if let Some(g) = &self.gi {
-            if self.gi_in_backend {
+            let layout = if self.gi_in_backend {
                 gi_reuse = self.backend.gi_reuse();
+                self.backend.gi_volume().map(|v| v.0)
             } else {
                 let stats = crate::gi::apply(&mut frame, scene, camera, lights, g, &mut self.gi_caches)?;
                 gi_reuse = Some(stats.reuse);
                 gi = Some(stats);
+                stats.layout
+            };
+            if let Some(reuse) = gi_reuse {
+                plan.with_gi(GiPlan { reuse, layout: layout.unwrap_or_default() });
             }
         }
         self.frame = Some(frame);

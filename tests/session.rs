@@ -5,6 +5,7 @@ use glam::DVec3;
 use voxray::backend::Backend;
 use voxray::gi::{self, GiCaches, GiReuse, GiSettings};
 use voxray::pipeline::build_parts;
+use voxray::render::plan::GiPlan;
 use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
 use voxray::scene::car::{add_car, pose};
 use voxray::scene::{Camera, Lights, Scene};
@@ -41,9 +42,10 @@ fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
     // By hand, with the same state carried between the two frames.
     let (mut hits, mut caches) = (HitBuffer::new(), GiCaches::new());
     let mut by_hand = |first: bool| {
-        let plan = FramePlan::new(&scene, &cam, &lights, &features, (!first).then_some(&hits));
+        let mut plan = FramePlan::new(&scene, &cam, &lights, &features, (!first).then_some(&hits));
         let mut f = render(&scene, &cam, &lights, &plan, &opts, Some(&mut hits), &|_, _| {});
         let stats = gi::apply(&mut f, &scene, &cam, &lights, &g, &mut caches).unwrap();
+        plan.with_gi(GiPlan { reuse: stats.reuse, layout: stats.layout.unwrap_or_default() });
         (plan, f, stats)
     };
     let (plan_a, hand_a, stats_a) = by_hand(true);
@@ -56,13 +58,15 @@ fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
     // Nothing moved: the second frame reuses the hits and GI's level chain.
     assert!(second.plan.hit_buffer && b.reused > 0);
     assert_eq!(second.gi_reuse, Some(GiReuse::Levels));
+    // One plan says it all, GI included (`--explain`).
+    assert!(second.plan.explain().contains("gi: volume and levels reused"), "{}", second.plan.explain());
     assert!(a.radiance.iter().zip(&b.radiance).all(|(x, y)| x == y));
 
     // GI off, and a restart: the next frame reuses nothing.
     session.set_gi(None).unwrap();
     session.restart();
     let third = session.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
-    assert!(!third.plan.hit_buffer && third.gi.is_none() && third.gi_reuse.is_none());
+    assert!(!third.plan.hit_buffer && third.gi.is_none() && third.gi_reuse.is_none() && third.plan.gi.is_none());
     let plain = FramePlan::new(&scene, &cam, &lights, &features, None);
     let c = render(&scene, &cam, &lights, &plain, &opts, None, &|_, _| {});
     assert_eq!(session.last_frame(), Some(&c));

@@ -616,7 +616,6 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     session.set_gi(gi)?;
     let mut gpu_times = Vec::new();
     let mut last_plan: Option<FramePlan> = None;
-    let mut last_gi_reuse = None;
     let mut gif_frames = Vec::new();
     let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
     let pb = if a.frames > 1 { bar(a.frames as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
@@ -685,13 +684,6 @@ fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             }
             _ => {}
         }
-        let gi_reuse = report.gi_reuse;
-        if a.explain && gi_reuse != last_gi_reuse {
-            if let Some(r) = gi_reuse {
-                pb.suspend(|| eprintln!("frame {f}: {}", r.explain()));
-            }
-        }
-        last_gi_reuse = gi_reuse;
         times.push(start.elapsed().as_secs_f64());
         if let Some(t) = backend.pass_times() {
             gpu_times.push(t);

@@ -216,6 +216,7 @@ impl std::str::FromStr for LevelStore {
 /// What a GI frame can keep from the frame before (DESIGN.md, "Leave out what a scene does not
 /// need").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
 pub enum GiReuse {
     /// Nothing: transformation, injection and levels run.
     #[default]

@@ -45,6 +45,7 @@ impl std::str::FromStr for Filter {
 
 /// How the world volume is stored.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
 pub enum Layout {
     /// Every cell (up to [`MAX_DENSE_RES`] per side).
     #[default]

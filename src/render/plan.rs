@@ -75,8 +75,23 @@ pub struct FramePlan {
     /// Beams for primary rays ([`super::beam`]).
     #[cfg_attr(feature = "json", serde(default))]
     pub beams: bool,
+    /// GI in this frame (None: off): what it kept from the frame before and the volume's
+    /// layout. Decided as GI runs; [`crate::session::Session::frame`] fills it in and adds
+    /// its reason line.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub gi: Option<GiPlan>,
     /// Why each choice was made, one line each.
     pub reasons: Vec<String>,
+}
+
+/// The GI part of a frame plan.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct GiPlan {
+    /// What was kept from the frame before.
+    pub reuse: crate::gi::GiReuse,
+    /// How the world volume is stored (dense or sparse).
+    pub layout: crate::gi::Layout,
 }
 
 impl FramePlan {
@@ -157,8 +172,18 @@ impl FramePlan {
             keep_hits: features.hit_buffer,
             shadows,
             beams,
+            gi: None,
             reasons,
         }
+    }
+
+    /// Records what GI did in this frame, with its reason line.
+    pub fn with_gi(&mut self, gi: GiPlan) {
+        self.gi = Some(gi);
+        self.reasons.retain(|r| !r.starts_with("gi:"));
+        let what = gi.reuse.explain().strip_prefix("GI: ").unwrap_or(gi.reuse.explain());
+        let layout = format!("{:?}", gi.layout).to_lowercase();
+        self.reasons.push(format!("gi: {what}; {layout} volume"));
     }
 
     /// Turns beams off for a renderer that has none, saying why.
