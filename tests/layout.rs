@@ -273,3 +273,30 @@ fn layout_rules_are_applied() {
     assert_eq!(wgsl_layout(&f(&[("a", "u32"), ("b", "vec3<f32>")])), (32, vec![("a".into(), 0), ("b".into(), 16)]));
     assert_eq!(wgsl_layout(&f(&[("a", "vec3<f32>"), ("b", "f32")])).0, 16);
 }
+
+#[test]
+fn shared_constants_come_from_rust_once() {
+    use voxray::gpu::prelude::{prelude, shared};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("wgsl");
+    let mut all = String::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let src = std::fs::read_to_string(&path).unwrap();
+        for (name, _, _) in shared() {
+            let defined = src.lines().any(|l| l.trim_start().starts_with(&format!("const {name}:")));
+            assert!(!defined, "{} defines {name} itself; it comes from src/gpu/prelude.rs", path.display());
+        }
+        all += &src;
+    }
+    let p = prelude();
+    for (name, ty, value) in shared() {
+        assert!(p.contains(&format!("const {name}: {ty} = {value};")), "{name} missing from the prelude");
+        assert!(all.contains(name), "no shader uses {name}");
+        if ty == "f32" {
+            // The literal reads back as exactly the Rust value's f32.
+            assert!(value.parse::<f32>().is_ok_and(|v| v.is_finite()), "{name} = {value}");
+        }
+    }
+    assert!(p.contains(&format!("const MAX_DEPTH: u32 = {}u;", voxray::svo::MAX_DEPTH)));
+    assert!(p.contains(&format!("const PARALLEL_RATIO: f32 = {:?};", voxray::ray::PARALLEL_RATIO)));
+}

@@ -5,10 +5,7 @@
 
 // 1/65536 of a voxel's weight for occupancy, albedo and normal; emission (up to 16x the
 // albedo) at 1/4096; the outside counter at 1/256.
-const FIX: f32 = 65536.0;
-const EMIT_FIX: f32 = 4096.0;
-const OUT_FIX: f32 = 256.0;
-const STRIDE: u32 = 10u;
+// FIX, EMIT_FIX, OUT_FIX and STRIDE (words per cell) come from the prelude (src/gpu/prelude.rs).
 
 fn fixed(v: f32, scale: f32) -> u32 {
     return bitcast<u32>(i32(round(v * scale)));

@@ -17,8 +17,7 @@
 // The top cell of each brick.
 @group(0) @binding(6) var<storage, read_write> brick_top: array<u32>;
 
-const GI_BRICK: u32 = 8u;
-const GI_EMPTY: u32 = 4294967295u;
+// GI_BRICK and GI_EMPTY come from the prelude (src/gpu/prelude.rs).
 
 fn top_index(c: vec3<u32>) -> u32 {
     let tr = splat.res / GI_BRICK;

@@ -19,7 +19,7 @@ override GI_TEXTURE: bool = false;
 // otherwise.
 @group(1) @binding(3) var<storage, read_write> gi_direct: array<vec4<f32>>;
 @group(1) @binding(4) var<storage, read_write> gi_next: array<vec4<f32>>;
-// Sparse: the brick of each top cell (GI_NO_BRICK for none) and the top cell of each brick.
+// Sparse: the brick of each top cell (GI_EMPTY for none) and the top cell of each brick.
 // One-element placeholders when dense.
 @group(1) @binding(5) var<storage, read> gi_top: array<u32>;
 @group(1) @binding(6) var<storage, read> gi_brick_top: array<u32>;
@@ -28,14 +28,13 @@ override GI_TEXTURE: bool = false;
 @group(1) @binding(7) var gi_tex: texture_3d<f32>;
 @group(1) @binding(8) var gi_sampler: sampler;
 
-const GI_NO_BRICK: u32 = 4294967295u;
-// Brick levels stored per brick (8³, 4³, 2³), as gi::sparse.
-const GI_BRICK_LEVELS: u32 = 3u;
+// GI_EMPTY (a top cell without a brick) and GI_BRICK_LEVELS (8³, 4³, 2³) come from the
+// prelude (src/gpu/prelude.rs).
 
-// The stored cell of this thread of a cell pass, or GI_NO_BRICK past the last.
+// The stored cell of this thread of a cell pass, or GI_EMPTY past the last.
 fn gi_thread_cell(gid: vec3<u32>) -> u32 {
     let i = gid.x + gid.y * gi.row_threads;
-    return select(GI_NO_BRICK, i, i < gi.cells);
+    return select(GI_EMPTY, i, i < gi.cells);
 }
 
 // Grid coordinates of stored cell i.
@@ -57,8 +56,7 @@ fn gi_put_injected(i: u32, v: vec4<f32>) {
     }
 }
 
-// gi::cone::CLEARANCE.
-const GI_CLEARANCE: f32 = 1.5;
+// GI_CLEARANCE (gi::cone::CLEARANCE) comes from the prelude.
 
 // One cell of the accumulation volume, decoded: occupancy, mean albedo, summed normal.
 struct GiCell {
@@ -84,7 +82,7 @@ fn gi_cell(i: u32) -> GiCell {
 @compute @workgroup_size(64, 1, 1)
 fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gi_thread_cell(gid);
-    if i == GI_NO_BRICK {
+    if i == GI_EMPTY {
         return;
     }
     let base = i * STRIDE;
@@ -128,15 +126,15 @@ fn gi_per_level(a: vec4<u32>, b: vec4<u32>, c: vec4<u32>, l: u32) -> u32 {
     return c[l - 8u];
 }
 
-// Index in gi_levels of cell c (inside) of level l, or GI_NO_BRICK where a sparse volume
+// Index in gi_levels of cell c (inside) of level l, or GI_EMPTY where a sparse volume
 // stores nothing.
 fn gi_level_index(l: u32, c: vec3<u32>, r: u32, off: u32) -> u32 {
     if GI_SPARSE && l < GI_BRICK_LEVELS {
         let side = 8u >> l;
         let t = c / side;
         let b = gi_top[t.x + gi.top_res * (t.y + gi.top_res * t.z)];
-        if b == GI_NO_BRICK {
-            return GI_NO_BRICK;
+        if b == GI_EMPTY {
+            return GI_EMPTY;
         }
         let k = c % side;
         return off + b * side * side * side + k.x + side * (k.y + side * k.z);
@@ -161,7 +159,7 @@ fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
             continue;
         }
         let idx = gi_level_index(l, vec3<u32>(c), u32(r), off);
-        if idx == GI_NO_BRICK {
+        if idx == GI_EMPTY {
             continue;
         }
         let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
@@ -277,7 +275,7 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(64, 1, 1)
 fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gi_thread_cell(gid);
-    if i == GI_NO_BRICK {
+    if i == GI_EMPTY {
         return;
     }
     let cell = gi_cell(i);
@@ -294,7 +292,7 @@ fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(64, 1, 1)
 fn bounce_commit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gi_thread_cell(gid);
-    if i == GI_NO_BRICK {
+    if i == GI_EMPTY {
         return;
     }
     gi_levels[i] = gi_next[i];

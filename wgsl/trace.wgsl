@@ -309,9 +309,8 @@ fn ray_dir(x: u32, y: u32) -> vec3<f32> {
     return normalize(frame.forward.xyz + sx * frame.right.xyz + sy * frame.up.xyz);
 }
 
-// hitbuffer::MOVED_SEARCH_MAX: above this many moved instances, a pixel that a moved sphere
-// crosses searches every instance.
-const MOVED_SEARCH_MAX: u32 = 64u;
+// MOVED_SEARCH_MAX (hitbuffer::MOVED_SEARCH_MAX, from the prelude): above this many moved
+// instances, a pixel that a moved sphere crosses searches every instance.
 
 // primary::Todo
 const TODO_KEEP: u32 = 0u;

@@ -24,12 +24,10 @@ fn pool_attr(i: u32) -> Attr {
     return attrs_hi[i - ATTR_SPLIT];
 }
 
-const MAX_DEPTH: u32 = 20u;
-// Direction components below this fraction of the largest are parallel (Revelles §3.3).
-const PARALLEL_RATIO: f32 = 9.094947e-13; // 2^-40
+// MAX_DEPTH, PARALLEL_RATIO (direction components below this fraction of the largest are
+// parallel, Revelles §3.3) and MAX_UNIT_ORIGIN come from the prelude (src/gpu/prelude.rs).
 // Stands in for ±infinity (WGSL has no infinity literal); only compared, never summed.
 const BIG: f32 = 3.0e38;
-const MAX_UNIT_ORIGIN: f32 = 1099511627776.0; // 2^40
 
 struct UnitRay {
     origin: vec3<f32>,

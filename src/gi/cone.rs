@@ -100,7 +100,7 @@ pub fn sample<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64) -> Vec4 {
 /// Cells of clearance a sample needs from the surface a cone starts on: voxelization puts a
 /// surface's occupancy up to half a cell off it and split filtering spreads it one cell more,
 /// and a trilinear sample reaches one cell further.
-const CLEARANCE: f64 = 1.5;
+pub(crate) const CLEARANCE: f64 = 1.5;
 
 /// Marches one cone from surface point `origin` with unit normal `normal` along unit `dir`,
 /// full aperture `aperture` (radians); returns the gathered radiance and the accumulated

@@ -23,11 +23,11 @@ pub const BRICK: u32 = 8;
 /// Finest cells per brick.
 const BRICK_CELLS: usize = (BRICK * BRICK * BRICK) as usize;
 /// Levels stored per brick (8³, 4³, 2³); the brick's 1³ level is a cell of the top table.
-const BRICK_LEVELS: usize = 3;
+pub(crate) const BRICK_LEVELS: usize = 3;
 /// Largest sparse volume per side.
 pub const MAX_SPARSE_RES: u32 = 1024;
 /// A top cell without a brick.
-const EMPTY: u32 = u32::MAX;
+pub(crate) const EMPTY: u32 = u32::MAX;
 
 /// Bytes per stored cell of either layout: occupancy and three RGB sums (f32).
 pub const CELL_BYTES: u64 = 40;

@@ -19,6 +19,7 @@ use wgpu::util::DeviceExt;
 /// The re-voxelization shader.
 pub fn revoxelize_source() -> String {
     [
+        &super::prelude::prelude(),
         include_str!("../../wgsl/layout.wgsl"),
         include_str!("../../wgsl/gi_fixed.wgsl"),
         include_str!("../../wgsl/gi_splat.wgsl"),

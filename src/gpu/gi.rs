@@ -34,7 +34,7 @@ pub const EMIT_FIX: f64 = 4096.0;
 /// Fixed-point scale of the weight that fell outside the volume.
 pub const OUT_FIX: f64 = 256.0;
 /// Words per cell in the accumulation buffer.
-const STRIDE: usize = 10;
+pub(crate) const STRIDE: usize = 10;
 /// Levels the shaders can address (a 512³ volume has 10, a sparse 1024³ one 11).
 const MAX_LEVELS: usize = 12;
 /// Finest cells per brick.
@@ -56,6 +56,7 @@ pub fn sparse_transform_source() -> String {
 
 fn transform_source_for(cells: &str) -> String {
     [
+        &super::prelude::prelude(),
         include_str!("../../wgsl/layout.wgsl"),
         include_str!("../../wgsl/attr.wgsl"),
         include_str!("../../wgsl/gi_fixed.wgsl"),
@@ -76,7 +77,8 @@ fn flat_groups(threads: u32) -> ((u32, u32), u32) {
 
 /// The level-chain shader.
 pub fn levels_source() -> String {
-    [include_str!("../../wgsl/layout.wgsl"), include_str!("../../wgsl/gi_levels.wgsl")].join("\n")
+    [&super::prelude::prelude(), include_str!("../../wgsl/layout.wgsl"), include_str!("../../wgsl/gi_levels.wgsl")]
+        .join("\n")
 }
 
 /// The GI volume of the last frame, read back from the GPU (for tests and tools: the render

@@ -5,6 +5,7 @@ pub mod baseline;
 pub mod context;
 pub mod gi;
 pub mod layout;
+pub mod prelude;
 pub mod rays;
 pub mod renderer;
 

@@ -20,6 +20,7 @@ use wgpu::util::DeviceExt;
 /// The WGSL sources, concatenated (WGSL has no includes).
 pub fn trace_source() -> String {
     [
+        &super::prelude::prelude(),
         include_str!("../../wgsl/layout.wgsl"),
         include_str!("../../wgsl/attr.wgsl"),
         include_str!("../../wgsl/traverse.wgsl"),
@@ -33,6 +34,7 @@ pub fn trace_source() -> String {
 /// The ray-list shader.
 pub fn rays_source() -> String {
     [
+        &super::prelude::prelude(),
         include_str!("../../wgsl/layout.wgsl"),
         include_str!("../../wgsl/traverse.wgsl"),
         include_str!("../../wgsl/rays.wgsl"),
