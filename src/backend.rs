@@ -187,6 +187,15 @@ impl Backend {
         }
     }
 
+    /// Buffers created and bytes read back by the last frame (None on the CPU).
+    pub fn gpu_traffic(&self) -> Option<(u64, u64)> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Some(g.frame_traffic),
+        }
+    }
+
     /// GPU pass times of the last frame (trace, shade) in milliseconds, when measured.
     pub fn pass_times(&self) -> Option<(f64, f64)> {
         match self {

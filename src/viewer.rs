@@ -69,6 +69,26 @@ pub struct DemoReport {
     pub median_ms: f64,
     /// Screenshots written.
     pub screenshots: Vec<PathBuf>,
+    /// With the GPU renderer: per frame after the first few, leaving out frames that wrote a
+    /// screenshot, the buffers it created and the bytes it read back.
+    pub gpu_traffic: Vec<(u64, u64)>,
+}
+
+/// Frames at the start of a run that set up buffers and are left out of
+/// [`DemoReport::gpu_traffic`].
+pub const TRAFFIC_WARMUP: u64 = 3;
+
+impl DemoReport {
+    /// `gpu steady state: read back B B/frame, created N buffers/frame` (averages over
+    /// [`DemoReport::gpu_traffic`]), or None without GPU frames.
+    pub fn gpu_steady_state(&self) -> Option<String> {
+        let n = self.gpu_traffic.len() as f64;
+        (n > 0.0).then(|| {
+            let created = self.gpu_traffic.iter().map(|t| t.0).sum::<u64>() as f64 / n;
+            let read = self.gpu_traffic.iter().map(|t| t.1).sum::<u64>() as f64 / n;
+            format!("gpu steady state: read back {read:.0} B/frame, created {created:.2} buffers/frame")
+        })
+    }
 }
 
 /// Why the demo could not run.
@@ -408,6 +428,7 @@ impl App {
             None => session.backend().gi_pass_ms(),
         };
         let gpu_ms = session.backend().pass_times();
+        let gpu_traffic = session.backend().gpu_traffic();
         let plan = report.plan;
         // Out of the session while it is shown; handed back at the end for the next frame's
         // memory.
@@ -435,6 +456,9 @@ impl App {
             g.ctx.check().map_err(|e| ViewerError::Other(e.to_string()))?;
         }
         let captured_kind = captured.is_some();
+        if let Some(t) = gpu_traffic.filter(|_| !shoot && self.report.frames >= TRAFFIC_WARMUP) {
+            self.report.gpu_traffic.push(t);
+        }
         self.report.frames += 1;
         if self.report.frames % 10 == 1 {
             if let Some(window) = self.window() {

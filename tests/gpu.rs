@@ -327,3 +327,44 @@ fn device_errors_come_back_as_library_errors() {
     let frame = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
     assert!(frame.instance.iter().any(|&i| i >= 0));
 }
+
+#[test]
+fn steady_gpu_frames_create_no_buffers() {
+    if context().is_none() {
+        return;
+    }
+    // A device of its own: the counts are per device, and other tests share the common one.
+    let ctx = Arc::new(GpuContext::headless().unwrap());
+    let (mut scene, cars) = scene(1);
+    let lights = Lights::default();
+    let cam = Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 64,
+        height: 40,
+    };
+    let mut gpu = GpuRenderer::new(ctx.clone());
+    let pixels = (cam.width * cam.height) as u64;
+    for f in 0..6 {
+        for c in &cars {
+            pose(&mut scene, c, f as f64 / 30.0).unwrap();
+        }
+        scene.update().unwrap();
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&gpu.state));
+        gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        let (created, read_back) = gpu.frame_traffic;
+        if f == 0 {
+            assert!(created > 0, "the first frame makes its buffers");
+        }
+        // Frame 1 may grow the moved-sphere list once (none moved in frame 0).
+        if f >= 2 {
+            assert_eq!(created, 0, "frame {f} created buffers");
+        }
+        // Still read back every frame: the hit records and the image (and the timestamps).
+        let expected = pixels * (std::mem::size_of::<voxray::gpu::layout::GpuHit>() as u64 + 16);
+        let timestamps = if ctx.timestamps { 48 } else { 0 };
+        assert_eq!(read_back, expected + timestamps, "frame {f}");
+    }
+}

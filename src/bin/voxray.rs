@@ -814,6 +814,9 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
     };
     let report = run(opts, st.scene, st.cars, Lights::default(), camera).map_err(demo_err)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
+    if let Some(line) = report.gpu_steady_state() {
+        println!("{line}");
+    }
     Ok(())
 }
 

@@ -14,7 +14,6 @@ use crate::mesh::Mesh;
 use glam::{DAffine3, DVec3};
 use std::sync::Arc;
 use std::time::Instant;
-use wgpu::util::DeviceExt;
 
 /// The re-voxelization shader.
 pub fn revoxelize_source() -> String {
@@ -201,12 +200,12 @@ impl GpuVolumePasses {
         }
         let items: Vec<u8> = if items.is_empty() { vec![0; 64] } else { items.to_vec() };
         let init = |label, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+            ctx.buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
         };
         let items_buf = init("gi items", &items, wgpu::BufferUsages::STORAGE);
         let jobs_buf = init("gi jobs", bytemuck::cast_slice(&jobs), wgpu::BufferUsages::STORAGE);
         let splat_buf = init("gi splat", bytemuck::bytes_of(&splat), wgpu::BufferUsages::UNIFORM);
-        let accum = device.create_buffer(&wgpu::BufferDescriptor {
+        let accum = ctx.buffer(&wgpu::BufferDescriptor {
             label: Some("gi accumulation"),
             size: accum_size,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
@@ -233,13 +232,13 @@ impl GpuVolumePasses {
                 ty: wgpu::QueryType::Timestamp,
                 count: 2,
             });
-            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+            let resolve = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps"),
                 size: 16,
                 usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             });
-            let rb = device.create_buffer(&wgpu::BufferDescriptor {
+            let rb = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps readback"),
                 size: 16,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
@@ -287,7 +286,7 @@ impl GpuVolumePasses {
                 None => wall,
             });
         }
-        let rb = device.create_buffer(&wgpu::BufferDescriptor {
+        let rb = ctx.buffer(&wgpu::BufferDescriptor {
             label: Some("gi volume readback"),
             size: accum_size,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,

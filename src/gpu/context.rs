@@ -2,6 +2,7 @@
 //! writes nothing to 3D storage textures — with the adapter's real limits and timestamp
 //! queries where the adapter has them.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Why the GPU path cannot run.
@@ -73,6 +74,10 @@ pub struct GpuContext {
     /// The first error the device raised outside an error scope, and the loss of the device:
     /// kept for [`GpuContext::check`] instead of wgpu's default of panicking.
     faults: Arc<Mutex<Faults>>,
+    /// Buffers created on this device so far ([`GpuContext::buffer`], [`GpuContext::buffer_init`]).
+    buffers_created: AtomicU64,
+    /// Bytes copied back to the host so far ([`crate::gpu::renderer::read`]).
+    bytes_read_back: AtomicU64,
 }
 
 /// Errors the device reported outside [`GpuContext::scoped`].
@@ -141,7 +146,8 @@ impl GpuContext {
             let mut f = sink.lock().unwrap_or_else(|p| p.into_inner());
             f.lost.get_or_insert_with(|| format!("{reason:?}: {message}"));
         });
-        Ok((GpuContext { device, queue, info, limits, timestamps, faults }, adapter))
+        let (buffers_created, bytes_read_back) = (AtomicU64::new(0), AtomicU64::new(0));
+        Ok((GpuContext { device, queue, info, limits, timestamps, faults, buffers_created, bytes_read_back }, adapter))
     }
 
     /// The first error the device raised outside an error scope since the last check, or its
@@ -172,6 +178,30 @@ impl GpuContext {
             return Err(library_error(e));
         }
         out
+    }
+
+    /// A new buffer, counted in [`GpuContext::traffic`].
+    pub fn buffer(&self, desc: &wgpu::BufferDescriptor<'_>) -> wgpu::Buffer {
+        self.buffers_created.fetch_add(1, Ordering::Relaxed);
+        self.device.create_buffer(desc)
+    }
+
+    /// A new buffer with contents, counted in [`GpuContext::traffic`].
+    pub fn buffer_init(&self, desc: &wgpu::util::BufferInitDescriptor<'_>) -> wgpu::Buffer {
+        use wgpu::util::DeviceExt;
+        self.buffers_created.fetch_add(1, Ordering::Relaxed);
+        self.device.create_buffer_init(desc)
+    }
+
+    /// Counts bytes copied back to the host.
+    pub(crate) fn note_read_back(&self, bytes: u64) {
+        self.bytes_read_back.fetch_add(bytes, Ordering::Relaxed);
+    }
+
+    /// Buffers created and bytes read back on this device so far: the difference over a
+    /// frame is what the frame cost in allocations and host round trips.
+    pub fn traffic(&self) -> (u64, u64) {
+        (self.buffers_created.load(Ordering::Relaxed), self.bytes_read_back.load(Ordering::Relaxed))
     }
 
     /// One line naming the adapter.

@@ -24,7 +24,6 @@ use crate::scene::{Camera, Lights, Scene};
 use crate::svo::PartId;
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
-use wgpu::util::DeviceExt;
 
 /// Fixed-point scale of occupancy, weighted albedo and weighted normal sums (per unit weight);
 /// the WGSL side is `wgsl/gi_fixed.wgsl`.
@@ -338,13 +337,13 @@ fn stored_cells(layout: Layout, res: u32, capacity: u32) -> u64 {
 
 /// The bind group of one step down the level chain (`brick_top` for a brick step).
 fn level_step_bind(
-    device: &wgpu::Device,
+    ctx: &GpuContext,
     pipe: &wgpu::ComputePipeline,
     levels: &wgpu::Buffer,
     step: &GpuGiLevelStep,
     brick_top: Option<&wgpu::Buffer>,
 ) -> wgpu::BindGroup {
-    let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+    let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some("gi level step"),
         contents: bytemuck::bytes_of(step),
         usage: wgpu::BufferUsages::UNIFORM,
@@ -356,7 +355,7 @@ fn level_step_bind(
     if let Some(b) = brick_top {
         entries.push(wgpu::BindGroupEntry { binding: 2, resource: b.as_entire_binding() });
     }
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("gi level step"),
         layout: &pipe.get_bind_group_layout(0),
         entries: &entries,
@@ -373,7 +372,8 @@ fn gi_layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroup
 }
 
 impl GpuGi {
-    pub(crate) fn new(device: &wgpu::Device) -> GpuGi {
+    pub(crate) fn new(ctx: &GpuContext) -> GpuGi {
+        let device = &ctx.device;
         let make_with = |label: &str, src: String, entries: &[&str], layout: Option<&wgpu::PipelineLayout>| {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(label),
@@ -465,7 +465,7 @@ impl GpuGi {
         });
         let placeholder_tex = level_texture(device, 1, 1).create_view(&Default::default());
         let placeholder_of = |label| {
-            device.create_buffer(&wgpu::BufferDescriptor {
+            ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
                 size: 16,
                 usage: wgpu::BufferUsages::STORAGE,
@@ -526,7 +526,7 @@ impl GpuGi {
             all.push(CacheVoxel::default());
         }
         ctx.check_binding("the GI voxel pool", std::mem::size_of_val(all.as_slice()) as u64)?;
-        let voxels = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let voxels = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("gi voxels"),
             contents: bytemuck::cast_slice(&all),
             usage: wgpu::BufferUsages::STORAGE,
@@ -579,14 +579,13 @@ impl GpuGi {
             return Err(GiError::Resolution(res).into());
         }
         ctx.check_binding("the GI level chain", total * 16)?;
-        let device = &ctx.device;
-        let accum = device.create_buffer(&wgpu::BufferDescriptor {
+        let accum = ctx.buffer(&wgpu::BufferDescriptor {
             label: Some("gi accumulation"),
             size: accum_size,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let levels = device.create_buffer(&wgpu::BufferDescriptor {
+        let levels = ctx.buffer(&wgpu::BufferDescriptor {
             label: Some("gi levels"),
             size: total * 16,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
@@ -601,7 +600,7 @@ impl GpuGi {
                     dst_res: resolutions[l],
                     ..Default::default()
                 };
-                level_step_bind(device, &self.levels_pipe, &levels, &step, None)
+                level_step_bind(ctx, &self.levels_pipe, &levels, &step, None)
             })
             .collect();
         let texture = match texture {
@@ -649,7 +648,7 @@ impl GpuGi {
                     dst_res: size >> l,
                     ..Default::default()
                 };
-                let ubuf = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
                     label: Some("gi level copy"),
                     contents: bytemuck::bytes_of(&step),
                     usage: wgpu::BufferUsages::UNIFORM,
@@ -689,7 +688,7 @@ impl GpuGi {
         let top_cells = ((res / BRICK) as u64).pow(3).max(1);
         ctx.check_binding("the GI top table", top_cells * 4)?;
         let make = |label, size, usage| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
                 size,
                 usage: wgpu::BufferUsages::STORAGE | usage,
@@ -721,7 +720,7 @@ impl GpuGi {
         let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
         let device = &ctx.device;
         let mark = GpuGiSplat { mark: 1, ..splat };
-        let bind = self.sparse_bind(device, voxels, jobs, &self.placeholder, &mark, tables);
+        let bind = self.sparse_bind(ctx, voxels, jobs, &self.placeholder, &mark, tables);
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
         enc.clear_buffer(&tables.top, 0, None);
         enc.clear_buffer(&tables.counters, 0, None);
@@ -737,7 +736,7 @@ impl GpuGi {
             pass.set_pipeline(&self.sparse_alloc_pipe);
             pass.dispatch_workgroups(g, g, g);
         }
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+        let readback = ctx.buffer(&wgpu::BufferDescriptor {
             label: Some("gi brick count"),
             size: 4,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
@@ -752,19 +751,19 @@ impl GpuGi {
     /// The bind group of the sparse passes.
     fn sparse_bind(
         &self,
-        device: &wgpu::Device,
+        ctx: &GpuContext,
         voxels: &wgpu::Buffer,
         jobs: &wgpu::Buffer,
         accum: &wgpu::Buffer,
         splat: &GpuGiSplat,
         tables: &SparseTables,
     ) -> wgpu::BindGroup {
-        let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("gi sparse splat"),
             contents: bytemuck::bytes_of(splat),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        device.create_bind_group(&wgpu::BindGroupDescriptor {
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("gi sparse volume"),
             layout: &self.sparse_layout,
             entries: &[
@@ -787,7 +786,7 @@ impl GpuGi {
         let size = stored_cells(vol.layout, vol.res, vol.capacity) * 16;
         ctx.check_binding("the GI bounce volume", size)?;
         let make = |label| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
                 size,
                 usage: wgpu::BufferUsages::STORAGE,
@@ -846,7 +845,7 @@ impl GpuGi {
         }
         ctx.check_binding("the GI jobs", std::mem::size_of_val(jobs.as_slice()) as u64)?;
         let init = |label, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+            ctx.buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
         };
         let jobs_buf = init("gi jobs", bytemuck::cast_slice(&jobs), wgpu::BufferUsages::STORAGE);
         let voxels = pool.voxels.clone();
@@ -933,7 +932,7 @@ impl GpuGi {
         let splat_buf = init("gi splat", bytemuck::bytes_of(&splat), wgpu::BufferUsages::UNIFORM);
         let frame_buf = init("gi frame", bytemuck::bytes_of(&gframe), wgpu::BufferUsages::UNIFORM);
         let splat_bind = match tables {
-            Some(t) => self.sparse_bind(device, &pool.voxels, &jobs_buf, &vol.accum, &splat, t),
+            Some(t) => self.sparse_bind(ctx, &pool.voxels, &jobs_buf, &vol.accum, &splat, t),
             None => device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("gi splat"),
                 layout: &self.splat_pipe.get_bind_group_layout(0),
@@ -960,7 +959,7 @@ impl GpuGi {
                         row_threads,
                         ..Default::default()
                     };
-                    (level_step_bind(device, &self.brick_levels_pipe, &vol.levels, &step, Some(&t.brick_top)), groups)
+                    (level_step_bind(ctx, &self.brick_levels_pipe, &vol.levels, &step, Some(&t.brick_top)), groups)
                 })
                 .collect(),
             None => Vec::new(),
@@ -1101,7 +1100,7 @@ impl GpuGi {
     pub(crate) fn copy_capture(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder) -> Option<Vec<wgpu::Buffer>> {
         let vol = self.volume.as_ref()?;
         let copy = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer| {
-            let dst = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            let dst = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("gi readback"),
                 size: src.size(),
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,

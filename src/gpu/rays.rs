@@ -5,7 +5,6 @@ use super::context::{GpuContext, GpuError};
 use super::layout::{GpuPart, GpuRay, GpuRayHit};
 use super::renderer::{rays_source, read};
 use crate::svo::Svo;
-use wgpu::util::DeviceExt;
 
 /// Traces `rays` (in the SVO's unit cube) and returns one result per ray.
 pub fn trace_rays(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<Vec<GpuRayHit>, GpuError> {
@@ -34,7 +33,7 @@ fn trace_rays_unscoped(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<V
         cache: None,
     });
     let buf = |label, contents: &[u8], usage| {
-        device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+        ctx.buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     };
     let part = [GpuPart { node_base: 0, mask_base, attr_base: 0, depth: svo.depth }];
     let nodes = buf("nodes", bytemuck::cast_slice(&words), wgpu::BufferUsages::STORAGE);
@@ -45,13 +44,13 @@ fn trace_rays_unscoped(ctx: &GpuContext, svo: &Svo, rays: &[GpuRay]) -> Result<V
     let attrs_hi = buf("attrs (unused)", bytemuck::bytes_of(&crate::svo::Attr::default()), wgpu::BufferUsages::STORAGE);
     let size = std::mem::size_of_val(rays) as u64 / std::mem::size_of::<GpuRay>() as u64
         * std::mem::size_of::<GpuRayHit>() as u64;
-    let output = device.create_buffer(&wgpu::BufferDescriptor {
+    let output = ctx.buffer(&wgpu::BufferDescriptor {
         label: Some("hits"),
         size,
         usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         mapped_at_creation: false,
     });
-    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+    let staging = ctx.buffer(&wgpu::BufferDescriptor {
         label: Some("readback"),
         size,
         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,

@@ -15,7 +15,6 @@ use crate::svo::{Attr, PartId, Svo};
 use glam::{DMat3, Vec3};
 use std::collections::HashMap;
 use std::sync::Arc;
-use wgpu::util::DeviceExt;
 
 /// The WGSL sources, concatenated (WGSL has no includes).
 pub fn trace_source() -> String {
@@ -84,6 +83,44 @@ fn split_pool<T: bytemuck::Pod + Default>(
     Ok((v[..per].to_vec(), v[per..].to_vec(), per as u32))
 }
 
+/// Buffers of the trace and shade passes kept from frame to frame: rewritten in place each
+/// frame and replaced only when a frame needs a larger one (or, for the image-sized ones,
+/// another size), so a steady animation creates no buffers.
+#[derive(Default)]
+struct FrameBuffers {
+    insts: Option<wgpu::Buffer>,
+    frame: Option<wgpu::Buffer>,
+    bvh: Option<wgpu::Buffer>,
+    items: Option<wgpu::Buffer>,
+    moved: Option<wgpu::Buffer>,
+    radiance: Option<wgpu::Buffer>,
+    hits_read: Option<wgpu::Buffer>,
+    radiance_read: Option<wgpu::Buffer>,
+    /// Timestamp queries, where to resolve them and where to read them.
+    queries: Option<(wgpu::QuerySet, wgpu::Buffer, wgpu::Buffer)>,
+    /// The trace/shade bind group; None when a buffer it names was replaced.
+    bind: Option<wgpu::BindGroup>,
+}
+
+/// Makes `slot` a buffer of at least `size` bytes (exactly `size` when `exact`), creating one
+/// only when the one there does not fit; returns whether it did.
+fn ensure(
+    ctx: &GpuContext,
+    slot: &mut Option<wgpu::Buffer>,
+    label: &'static str,
+    size: u64,
+    exact: bool,
+    usage: wgpu::BufferUsages,
+) -> bool {
+    let fits = slot.as_ref().is_some_and(|b| if exact { b.size() == size } else { b.size() >= size });
+    if fits {
+        return false;
+    }
+    let size = if exact { size } else { size.next_power_of_two().max(256) };
+    *slot = Some(ctx.buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false }));
+    true
+}
+
 /// Renders frames on the GPU.
 pub struct GpuRenderer {
     /// The device.
@@ -109,6 +146,10 @@ pub struct GpuRenderer {
     gi_pipelines: HashMap<(u32, bool, bool, bool), super::gi::GiPipelines>,
     /// What GI did in the last frame (None without GI).
     pub gi_stats: Option<super::gi::GpuGiStats>,
+    /// Buffers of the trace and shade passes kept between frames.
+    kept: FrameBuffers,
+    /// Buffers created and bytes read back by the last frame (GI included).
+    pub frame_traffic: (u64, u64),
     /// Read the GI volume back after each frame into [`GpuRenderer::gi_captured`] (slow; for
     /// tests and tools).
     pub gi_capture: bool,
@@ -200,6 +241,8 @@ impl GpuRenderer {
             gi_pipeline_layout: None,
             gi_pipelines: HashMap::new(),
             gi_stats: None,
+            kept: FrameBuffers::default(),
+            frame_traffic: (0, 0),
             gi_capture: false,
             gi_captured: None,
         }
@@ -261,7 +304,7 @@ impl GpuRenderer {
             }
         }
         if settings.is_some() && self.gi.is_none() {
-            let gi = super::gi::GpuGi::new(&self.ctx.device);
+            let gi = super::gi::GpuGi::new(&self.ctx);
             self.gi_pipeline_layout = Some(self.ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
                 label: Some("trace + gi"),
                 bind_group_layouts: &[Some(&self.layout), Some(&gi.group1_layout)],
@@ -353,9 +396,9 @@ impl GpuRenderer {
         }
         let (n0, n1, node_split) = split_pool("the node pool", &nodes, self.max_binding)?;
         let (a0, a1, attr_split) = split_pool("the attribute pool", &attrs, self.max_binding)?;
-        let device = &self.ctx.device;
+        let ctx = self.ctx.clone();
         let buf = |label, contents: &[u8]| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
                 contents,
                 usage: wgpu::BufferUsages::STORAGE,
@@ -371,7 +414,8 @@ impl GpuRenderer {
             node_split,
             attr_split,
         });
-        // The split points are compiled into the pipelines.
+        // The split points are compiled into the pipelines; the bind group names the pools.
+        self.kept.bind = None;
         self.pipelines.clear();
         self.gi_pipelines.clear();
         Ok(())
@@ -400,6 +444,7 @@ impl GpuRenderer {
         plan: &FramePlan,
         opts: &RenderOptions,
     ) -> Result<Frame, GpuError> {
+        let traffic = self.ctx.traffic();
         self.upload_parts(&scene.parts)?;
         let (w, h) = (camera.width, camera.height);
         let n = (w * h) as usize;
@@ -459,13 +504,14 @@ impl GpuRenderer {
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
         if !self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
-            let buf = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            let buf = self.ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("hits"),
                 size: (n * std::mem::size_of::<GpuHit>()) as u64,
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             });
             self.hits = Some((buf, w, h));
+            self.kept.bind = None;
         }
         let search = match plan.search() {
             Search::Plain => 0,
@@ -494,7 +540,8 @@ impl GpuRenderer {
         let gi_pipes = gi_work.as_ref().map(|w| {
             &self.gi_pipelines[&(search, plan.shadows, w.stats.layout == crate::gi::Layout::Sparse, w.texture)]
         });
-        let device = &self.ctx.device;
+        let ctx = self.ctx.clone();
+        let device = &ctx.device;
         // Bindings must not be empty: pad with one zeroed element.
         fn nonempty<T: bytemuck::Pod + Default>(v: &[T]) -> Vec<T> {
             if v.is_empty() {
@@ -503,47 +550,67 @@ impl GpuRenderer {
                 v.to_vec()
             }
         }
-        let storage_buf = |label, contents: &[u8], extra| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage: wgpu::BufferUsages::STORAGE | extra,
-            })
-        };
-        let inst_buf = storage_buf("instances", bytemuck::cast_slice(&nonempty(&insts)), wgpu::BufferUsages::empty());
-        let frame_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("frame"),
-            contents: bytemuck::bytes_of(&frame),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        let bvh_buf = storage_buf("bvh", bytemuck::cast_slice(&nonempty(&bvh_nodes)), wgpu::BufferUsages::empty());
-        let item_buf = storage_buf("bvh items", bytemuck::cast_slice(&nonempty(&items)), wgpu::BufferUsages::empty());
-        let moved_buf = storage_buf("moved", bytemuck::cast_slice(&nonempty(&moved)), wgpu::BufferUsages::empty());
-        let radiance_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("radiance"),
-            size: (n * 16) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
+        let kept = &mut self.kept;
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 5] = [
+            (&mut kept.insts, "instances", bytemuck::cast_slice(&nonempty(&insts)).to_vec(), storage),
+            (
+                &mut kept.frame,
+                "frame",
+                bytemuck::bytes_of(&frame).to_vec(),
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            ),
+            (&mut kept.bvh, "bvh", bytemuck::cast_slice(&nonempty(&bvh_nodes)).to_vec(), storage),
+            (&mut kept.items, "bvh items", bytemuck::cast_slice(&nonempty(&items)).to_vec(), storage),
+            (&mut kept.moved, "moved", bytemuck::cast_slice(&nonempty(&moved)).to_vec(), storage),
+        ];
+        let mut replaced = false;
+        for (slot, label, bytes, usage) in inputs {
+            replaced |= ensure(&ctx, slot, label, bytes.len() as u64, false, usage);
+            if let Some(buf) = slot.as_ref() {
+                ctx.queue.write_buffer(buf, 0, &bytes);
+            }
+        }
+        let image_bytes = (n * 16) as u64;
+        let hit_bytes = (n * std::mem::size_of::<GpuHit>()) as u64;
+        let copy_src = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+        let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+        replaced |= ensure(&ctx, &mut kept.radiance, "radiance", image_bytes, true, copy_src);
+        ensure(&ctx, &mut kept.hits_read, "hits readback", hit_bytes, true, mappable);
+        ensure(&ctx, &mut kept.radiance_read, "radiance readback", image_bytes, true, mappable);
+        if replaced {
+            kept.bind = None;
+        }
+        let missing = || GpuError::Device("frame buffers missing".into());
+        let (inst_buf, frame_buf, bvh_buf, item_buf, moved_buf, radiance_buf) = (
+            kept.insts.as_ref().ok_or_else(missing)?,
+            kept.frame.as_ref().ok_or_else(missing)?,
+            kept.bvh.as_ref().ok_or_else(missing)?,
+            kept.items.as_ref().ok_or_else(missing)?,
+            kept.moved.as_ref().ok_or_else(missing)?,
+            kept.radiance.as_ref().ok_or_else(missing)?,
+        );
         let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
         let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("trace"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: pools.nodes.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: pools.attrs.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: pools.infos.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: inst_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: frame_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: bvh_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: item_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 7, resource: hits_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 8, resource: moved_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 9, resource: radiance_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 10, resource: pools.nodes_hi.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 11, resource: pools.attrs_hi.as_entire_binding() },
-            ],
+        let bind = kept.bind.get_or_insert_with(|| {
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("trace"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: pools.nodes.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: pools.attrs.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: pools.infos.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: inst_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: frame_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: bvh_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 6, resource: item_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 7, resource: hits_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 8, resource: moved_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 9, resource: radiance_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 10, resource: pools.nodes_hi.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 11, resource: pools.attrs_hi.as_entire_binding() },
+                ],
+            })
         });
         let buffer_bytes: u64 = [
             &pools.nodes,
@@ -551,33 +618,40 @@ impl GpuRenderer {
             &pools.infos,
             &pools.nodes_hi,
             &pools.attrs_hi,
-            &inst_buf,
-            &frame_buf,
-            &bvh_buf,
-            &item_buf,
+            inst_buf,
+            frame_buf,
+            bvh_buf,
+            item_buf,
             hits_buf,
-            &moved_buf,
-            &radiance_buf,
+            moved_buf,
+            radiance_buf,
         ]
         .iter()
         .map(|b| b.size())
         .sum();
-        let queries = self.ctx.timestamps.then(|| {
+        if ctx.timestamps && kept.queries.is_none() {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("passes"),
                 ty: wgpu::QueryType::Timestamp,
                 count: 6,
             });
-            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+            let resolve = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps"),
                 size: 48,
                 usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             });
-            (set, resolve)
-        });
+            let read_back = ctx.buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps readback"),
+                size: 48,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            kept.queries = Some((set, resolve, read_back));
+        }
+        let queries = kept.queries.as_ref();
         let ts = |k: u32| {
-            queries.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+            queries.map(|(set, _, _)| wgpu::ComputePassTimestampWrites {
                 query_set: set,
                 beginning_of_pass_write_index: Some(2 * k),
                 end_of_pass_write_index: Some(2 * k + 1),
@@ -589,11 +663,11 @@ impl GpuRenderer {
             let mut pass =
                 enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: ts(0) });
             pass.set_pipeline(trace_pipe);
-            pass.set_bind_group(0, &bind, &[]);
+            pass.set_bind_group(0, &*bind, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, 1);
         }
         if let (Some(work), Some(pipes), Some(gi)) = (&gi_work, gi_pipes, &self.gi) {
-            gi.encode(work, &mut enc, pipes, &bind, ts(2))?;
+            gi.encode(work, &mut enc, pipes, bind, ts(2))?;
         }
         {
             let mut pass =
@@ -601,12 +675,12 @@ impl GpuRenderer {
             match (&gi_work, gi_pipes) {
                 (Some(work), Some(pipes)) => {
                     pass.set_pipeline(&pipes.shade);
-                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_bind_group(0, &*bind, &[]);
                     pass.set_bind_group(1, &work.group1, &[]);
                 }
                 _ => {
                     pass.set_pipeline(shade_pipe);
-                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_bind_group(0, &*bind, &[]);
                 }
             }
             pass.dispatch_workgroups(groups.0, groups.1, 1);
@@ -615,30 +689,23 @@ impl GpuRenderer {
             (Some(gi), Some(_)) if self.gi_capture => gi.copy_capture(&self.ctx, &mut enc),
             _ => None,
         };
-        let readback = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer, size: u64| {
-            let dst = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback"),
-                size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            enc.copy_buffer_to_buffer(src, 0, &dst, 0, size);
-            dst
-        };
-        let hits_rb = readback(&mut enc, hits_buf, (n * std::mem::size_of::<GpuHit>()) as u64);
-        let rad_rb = readback(&mut enc, &radiance_buf, (n * 16) as u64);
+        let (hits_rb, rad_rb) =
+            (kept.hits_read.as_ref().ok_or_else(missing)?, kept.radiance_read.as_ref().ok_or_else(missing)?);
+        enc.copy_buffer_to_buffer(hits_buf, 0, hits_rb, 0, hit_bytes);
+        enc.copy_buffer_to_buffer(radiance_buf, 0, rad_rb, 0, image_bytes);
         // Only the passes that ran wrote their timestamps.
         let n_ts = if gi_work.is_some() { 6 } else { 4 };
-        let ts_rb = queries.as_ref().map(|(set, resolve)| {
+        let ts_rb = queries.map(|(set, resolve, read_back)| {
             enc.resolve_query_set(set, 0..n_ts, resolve, 0);
-            readback(&mut enc, resolve, 8 * n_ts as u64)
+            enc.copy_buffer_to_buffer(resolve, 0, read_back, 0, 8 * n_ts as u64);
+            read_back
         });
         self.ctx.queue.submit([enc.finish()]);
-        let hits: Vec<GpuHit> = read(&self.ctx, &hits_rb)?;
-        let rad: Vec<[f32; 4]> = read(&self.ctx, &rad_rb)?;
+        let hits: Vec<GpuHit> = read(&self.ctx, hits_rb)?;
+        let rad: Vec<[f32; 4]> = read(&self.ctx, rad_rb)?;
         self.times = match ts_rb {
             Some(b) => {
-                let ts: Vec<u64> = read(&self.ctx, &b)?;
+                let ts: Vec<u64> = read(&self.ctx, b)?;
                 let period = self.ctx.queue.get_timestamp_period() as f64 * 1e-6;
                 Some(GpuTimes {
                     trace_ms: ts[1].saturating_sub(ts[0]) as f64 * period,
@@ -700,6 +767,8 @@ impl GpuRenderer {
         self.state.store(camera, scene, &prepared, records, opts.max_level);
         self.state.bvh = bvh;
         self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
+        let now = self.ctx.traffic();
+        self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
         Ok(f)
     }
 }
@@ -737,6 +806,7 @@ pub fn read<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer) -> Result<Ve
     ctx.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
     rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
     let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+    ctx.note_read_back(data.len() as u64);
     let out = bytemuck::cast_slice(&data).to_vec();
     drop(data);
     buf.unmap();
