@@ -78,6 +78,13 @@ pub struct Record {
     pub voxels: u64,
     /// Bytes of GPU buffers the renderer used (GPU backend only).
     pub gpu_bytes: Option<u64>,
+    /// Median host time per frame outside the GPU passes (ms): wall time minus the
+    /// timestamped trace, GI and shade passes (GPU backend with timestamps only).
+    pub gpu_host_ms: Option<f64>,
+    /// Buffers created per timed frame, on average (GPU backend only).
+    pub gpu_buffers_per_frame: Option<f64>,
+    /// Bytes read back to the host per timed frame, on average (GPU backend only).
+    pub gpu_read_back_per_frame: Option<f64>,
     /// Bytes of the GI world volume's cells (gi-volume scenario).
     pub volume_bytes: Option<u64>,
     /// Image error against the reference of this scenario (depth sweep), see [`metrics`].
@@ -129,6 +136,7 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
     let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
     let (mut traced, mut culled) = (0u64, 0u64);
     let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
+    let (mut host_ms, mut traffic) = (Vec::new(), Vec::new());
     let mut plan = None;
     let mut first: Option<Frame> = None;
     let frames = clip.frames.max(1);
@@ -154,6 +162,11 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
             if let Some((tr, sh)) = session.backend().pass_times() {
                 trace_ms.push(tr);
                 shade_ms.push(sh);
+                let gi = session.backend().gi_pass_ms().unwrap_or(0.0);
+                host_ms.push(secs * 1e3 - tr - sh - gi);
+            }
+            if let Some(t) = session.backend().gpu_traffic() {
+                traffic.push(t);
             }
             times.push(secs * 1e3);
             let frame = session.last_frame().ok_or_else(|| crate::Error::Io {
@@ -198,6 +211,11 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
         attribute_bytes,
         voxels: stats.iter().map(|s| s.voxels).sum(),
         gpu_bytes: session.backend().gpu_bytes(),
+        gpu_host_ms: (!host_ms.is_empty()).then(|| summarize(&host_ms).0),
+        gpu_buffers_per_frame: (!traffic.is_empty())
+            .then(|| traffic.iter().map(|t| t.0).sum::<u64>() as f64 / traffic.len() as f64),
+        gpu_read_back_per_frame: (!traffic.is_empty())
+            .then(|| traffic.iter().map(|t| t.1).sum::<u64>() as f64 / traffic.len() as f64),
         plan,
         ..Record::default()
     };

@@ -33,7 +33,7 @@ fn quote(s: &str) -> String {
 /// The CSV header of [`to_csv`].
 pub const CSV_HEADER: &str = "group,name,setting,x,backend_kind,backend,width,height,warmup,frames,instances,\
 median_ms,p95_ms,min_ms,mrays_per_s,reused_fraction,instances_per_ray,culled_per_ray,gpu_trace_ms,gpu_shade_ms,svo_bytes,geometry_bytes,attribute_bytes,voxels,gpu_bytes,\
-rmse,coverage_mismatch,depth_rel,machine,command";
+gpu_host_ms,gpu_buffers_per_frame,gpu_read_back_per_frame,rmse,coverage_mismatch,depth_rel,machine,command";
 
 /// One line per record, with a header.
 pub fn to_csv(records: &[Record]) -> String {
@@ -67,6 +67,9 @@ pub fn to_csv(records: &[Record]) -> String {
             r.attribute_bytes.to_string(),
             r.voxels.to_string(),
             r.gpu_bytes.map_or(String::new(), |b| b.to_string()),
+            opt(r.gpu_host_ms),
+            opt(r.gpu_buffers_per_frame),
+            opt(r.gpu_read_back_per_frame),
             opt(e.map(|e| e.rmse)),
             opt(e.map(|e| e.mismatch)),
             opt(e.map(|e| e.depth_rel)),
@@ -155,6 +158,26 @@ it pays, hit buffer) plus shadow rays. Frame time covers posing, transform updat
                 per_voxel(r.attribute_bytes, r.voxels),
                 r.gpu_bytes.map_or("–".into(), mib),
             );
+        }
+        let gpu: Vec<_> = rs.iter().filter(|r| r.gpu_read_back_per_frame.is_some()).collect();
+        if !gpu.is_empty() {
+            md += "\nWhere a GPU frame's time goes besides its passes, and what it costs in allocations and \
+host round trips (averages over the timed frames):\n\n";
+            md += "| scenario | median ms | GPU passes ms | host ms | read back MiB/frame | buffers created/frame |\n|---|---|---|---|---|---|\n";
+            for r in gpu {
+                md += &format!(
+                    "| {} | {:.1} | {} | {} | {:.1} | {:.2} |\n",
+                    r.name,
+                    r.median_ms,
+                    match (r.gpu_trace_ms, r.gpu_shade_ms) {
+                        (Some(t), Some(s)) => format!("{:.1}", t + s),
+                        _ => "–".into(),
+                    },
+                    ms(r.gpu_host_ms),
+                    r.gpu_read_back_per_frame.unwrap_or(0.0) / 1048576.0,
+                    r.gpu_buffers_per_frame.unwrap_or(0.0),
+                );
+            }
         }
         chart(&mut md, "paper");
         md += "\n";
