@@ -92,6 +92,7 @@ impl Backend {
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => &g.state,
         };
+        #[cfg_attr(not(feature = "gpu"), allow(unused_mut))]
         let mut plan = FramePlan::new(scene, camera, lights, features, (!first).then_some(prev));
         #[cfg(feature = "gpu")]
         if matches!(self, Backend::Gpu(_)) && plan.beams {
@@ -132,7 +133,11 @@ impl Backend {
     /// or sparse volume); false when the caller adds it to each frame with `gi::apply` (the CPU).
     pub fn set_gi(&mut self, gi: Option<crate::gi::GiSettings>) -> Result<bool, crate::Error> {
         match self {
-            Backend::Cpu(_) => Ok(false),
+            Backend::Cpu(_) => {
+                // The session adds GI on the CPU; nothing to keep here.
+                let _ = gi;
+                Ok(false)
+            }
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => {
                 g.set_gi(gi)?;
