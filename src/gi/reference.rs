@@ -284,12 +284,7 @@ impl<'a> PathTracer<'a> {
             specular: self.records.iter().map(|r| if r.instance >= 0 { r.attr.specular() } else { 0.0 }).collect(),
             shininess: self.records.iter().map(|r| brdf::shininess_of_gloss(r.attr.gloss())).collect(),
             primary_rays: n as u64,
-            reused: 0,
-            shadow_rays: 0,
-            shade_reused: 0,
-            moved_only: 0,
-            instances_traced: 0,
-            spheres_culled: 0,
+            ..Frame::default()
         }
     }
 }

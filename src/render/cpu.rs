@@ -29,7 +29,7 @@ impl Default for RenderOptions {
 }
 
 /// A rendered image with its AOVs (row 0 at the top).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Frame {
     /// Width in pixels.
     pub width: u32,
@@ -72,27 +72,12 @@ impl Frame {
     /// Reusing a frame spares the page faults of ~50 bytes a pixel of new memory each frame.
     pub fn buffers(spare: Option<Frame>, width: u32, height: u32) -> Frame {
         let n = width as usize * height as usize;
-        match spare {
-            Some(f)
-                if [f.radiance.len(), f.normal.len(), f.albedo.len()].iter().all(|&l| l == n)
-                    && [f.t.len(), f.instance.len(), f.specular.len(), f.shininess.len()].iter().all(|&l| l == n) =>
-            {
-                Frame {
-                    width,
-                    height,
-                    primary_rays: 0,
-                    reused: 0,
-                    shadow_rays: 0,
-                    shade_reused: 0,
-                    moved_only: 0,
-                    instances_traced: 0,
-                    spheres_culled: 0,
-                    ..f
-                }
-            }
-            _ => Frame {
-                width,
-                height,
+        let f = spare
+            .filter(|f| {
+                [f.radiance.len(), f.normal.len(), f.albedo.len()].iter().all(|&l| l == n)
+                    && [f.t.len(), f.instance.len(), f.specular.len(), f.shininess.len()].iter().all(|&l| l == n)
+            })
+            .unwrap_or_else(|| Frame {
                 radiance: vec![Vec3::ZERO; n],
                 t: vec![0.0; n],
                 instance: vec![0; n],
@@ -100,14 +85,19 @@ impl Frame {
                 albedo: vec![Vec3::ZERO; n],
                 specular: vec![0.0; n],
                 shininess: vec![0.0; n],
-                primary_rays: 0,
-                reused: 0,
-                shadow_rays: 0,
-                shade_reused: 0,
-                moved_only: 0,
-                instances_traced: 0,
-                spheres_culled: 0,
-            },
+                ..Frame::default()
+            });
+        Frame {
+            width,
+            height,
+            radiance: f.radiance,
+            t: f.t,
+            instance: f.instance,
+            normal: f.normal,
+            albedo: f.albedo,
+            specular: f.specular,
+            shininess: f.shininess,
+            ..Frame::default()
         }
     }
 
