@@ -201,6 +201,26 @@ impl Backend {
         }
     }
 
+    /// Whether the GPU reads each frame back to the host (the default; see
+    /// [`crate::gpu::GpuRenderer::set_read_back`]). The CPU's frames are always on the host.
+    #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
+    pub fn set_read_back(&mut self, on: bool) {
+        match self {
+            Backend::Cpu(_) => {}
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.set_read_back(on),
+        }
+    }
+
+    /// The GPU renderer, for callers that draw its frames on its device.
+    #[cfg(feature = "gpu")]
+    pub fn gpu(&self) -> Option<&crate::gpu::GpuRenderer> {
+        match self {
+            Backend::Cpu(_) => None,
+            Backend::Gpu(g) => Some(g),
+        }
+    }
+
     /// GPU pass times of the last frame (trace, shade) in milliseconds, when measured.
     pub fn pass_times(&self) -> Option<(f64, f64)> {
         match self {

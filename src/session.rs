@@ -86,6 +86,13 @@ impl Session {
         self.gi_in_backend
     }
 
+    /// Whether the following frames are read back to the host (on by default). Off, a GPU
+    /// frame stays on the GPU: [`Session::last_frame`] has no pixels ([`Frame::on_device`])
+    /// and the image is the GPU renderer's radiance buffer. CPU frames are always on the host.
+    pub fn set_read_back(&mut self, on: bool) {
+        self.backend.set_read_back(on);
+    }
+
     /// Lets the next frame reuse nothing from the frames before (a new clip).
     pub fn restart(&mut self) {
         self.first = true;

@@ -368,3 +368,64 @@ fn steady_gpu_frames_create_no_buffers() {
         assert_eq!(read_back, expected + timestamps, "frame {f}");
     }
 }
+
+/// Frames that stay on the GPU read nothing back, create no buffers once warm, and leave
+/// the GPU's hit buffer exactly as frames read back every time do: after four animated
+/// frames kept on the GPU, a fifth one read back equals (bit for bit, image and AOVs and
+/// reuse counts) the fifth frame of a renderer that read every frame back. The radiance
+/// buffer of a frame kept on the GPU holds the image the read-back frame shows.
+#[test]
+fn frames_kept_on_the_gpu_read_nothing_back_and_reuse_the_same_hits() {
+    if context().is_none() {
+        return;
+    }
+    let ctx = Arc::new(GpuContext::headless().unwrap());
+    let (mut scene, cars) = scene(1);
+    let lights = Lights::default();
+    let cam = Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 64,
+        height: 40,
+    };
+    let mut every = GpuRenderer::new(ctx.clone());
+    let mut kept = GpuRenderer::new(ctx.clone());
+    kept.set_read_back(false);
+    let mut last = (Frame::default(), Frame::default());
+    for f in 0..6 {
+        for c in &cars {
+            pose(&mut scene, c, f as f64 / 30.0).unwrap();
+        }
+        scene.update().unwrap();
+        if f == 5 {
+            kept.set_read_back(true);
+        }
+        let plan_a = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&every.state));
+        let plan_b = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&kept.state));
+        assert_eq!(plan_a.hit_buffer, plan_b.hit_buffer, "frame {f}: the plan must not depend on read-back");
+        let a = every.render(&scene, &cam, &lights, &plan_a, &RenderOptions::default()).unwrap();
+        let b = kept.render(&scene, &cam, &lights, &plan_b, &RenderOptions::default()).unwrap();
+        let (created, read_back) = kept.frame_traffic;
+        if f < 5 {
+            assert!(b.on_device && b.radiance.is_empty() && b.t.is_empty(), "frame {f}");
+            assert_eq!(read_back, 0, "frame {f} read back");
+            if f >= 2 {
+                assert_eq!(created, 0, "frame {f} created buffers");
+            }
+            // What stayed on the GPU is the image the other renderer read back.
+            let (_, w, h) = kept.radiance().unwrap();
+            assert_eq!((w, h), (cam.width, cam.height));
+            assert_eq!(kept.read_image().unwrap(), a.radiance, "frame {f}");
+        }
+        last = (a, b);
+    }
+    let (a, b) = last;
+    assert!(!b.on_device && a.reused > 0, "the last frame reuses hits");
+    assert_eq!((a.reused, a.moved_only), (b.reused, b.moved_only));
+    assert_eq!(a.radiance, b.radiance);
+    assert_eq!(a.t, b.t);
+    assert_eq!(a.instance, b.instance);
+    assert_eq!(a.normal, b.normal);
+}

@@ -241,3 +241,50 @@ fn a_recycled_frame_renders_like_a_fresh_one() {
     assert!(fresh.instance.iter().filter(|&&i| i < 0).count() > fresh.instance.len() / 2);
     assert_eq!(reused, fresh);
 }
+
+/// `Svo::contains` and `instances::eye_inside` against the voxel set they were built from:
+/// the centre of every cell of a random depth-4 grid, carried into the world by a rotated,
+/// anisotropically scaled instance (the forward map, while `eye_inside` inverts it), is
+/// inside exactly when its cell is set.
+#[test]
+fn eye_inside_matches_the_voxel_set() {
+    use std::collections::HashSet;
+    use voxray::render::instances::eye_inside;
+    use voxray::svo::Cube;
+    use voxray::voxelize::VoxelGrid;
+    let mut rng = voxray::rng::Rng::new(11);
+    let cells = 16u32;
+    let set: HashSet<[u32; 3]> =
+        (0..900).map(|_| [0, 1, 2].map(|_| ((rng.f32() * cells as f32) as u32).min(cells - 1))).collect();
+    let cube = Cube { min: Vec3::new(-1.0, -0.5, -2.0), size: 2.0 };
+    let grid = VoxelGrid::from_coords(4, cube, set.iter().copied(), Vec3::splat(0.5));
+    let svo = svo::build(&grid).unwrap();
+    let mut scene = Scene::new(vec![Arc::new(svo.clone())]);
+    let t = Transform {
+        translation: DVec3::new(3.0, -2.0, 7.5),
+        rotation: glam::DQuat::from_euler(glam::EulerRot::YXZ, 0.7, -0.4, 1.1),
+        scale: DVec3::new(1.5, 0.6, -2.0),
+    };
+    scene.add(Instance { part: 0, parent: None, local: t }).unwrap();
+    scene.update().unwrap();
+    let w = scene.world(0);
+    let size = cube.size as f64 / cells as f64;
+    let mut inside = 0;
+    for x in 0..cells {
+        for y in 0..cells {
+            for z in 0..cells {
+                let c = [x, y, z];
+                let unit = (DVec3::new(x as f64, y as f64, z as f64) + 0.5) / cells as f64;
+                assert_eq!(svo.contains(unit), set.contains(&c), "{c:?}");
+                let obj = cube.min.as_dvec3() + DVec3::new(x as f64, y as f64, z as f64) * size + size * 0.5;
+                let world = w.transform_point3(obj);
+                assert_eq!(eye_inside(&scene, world), set.contains(&c), "{c:?} at {world}");
+                inside += set.contains(&c) as u32;
+            }
+        }
+    }
+    assert!(inside > 100 && inside < cells * cells * cells - 100, "{inside} cells set");
+    // Outside the cube: nothing.
+    assert!(!svo.contains(DVec3::new(1.0, 0.5, 0.5)) && !svo.contains(DVec3::splat(-1e-9)));
+    assert!(!eye_inside(&scene, w.transform_point3(DVec3::new(50.0, 0.0, 0.0))));
+}

@@ -155,6 +155,11 @@ pub struct GpuRenderer {
     pub gi_capture: bool,
     /// The last frame's GI volume, when `gi_capture` is on.
     pub gi_captured: Option<super::gi::GiCapture>,
+    /// Read each frame's image, hit records and pass times back to the host (the default);
+    /// off, frames stay on the GPU ([`GpuRenderer::set_read_back`]).
+    read_back: bool,
+    /// Size of the image in the radiance buffer (the last frame's).
+    radiance_size: (u32, u32),
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -245,8 +250,54 @@ impl GpuRenderer {
             frame_traffic: (0, 0),
             gi_capture: false,
             gi_captured: None,
+            read_back: true,
+            radiance_size: (0, 0),
         }
         .with_device_limit()
+    }
+
+    /// Whether frames are read back to the host. Off, [`GpuRenderer::render`] neither waits
+    /// for the GPU nor copies anything from it: the frame it returns has no pixels
+    /// ([`Frame::on_device`]), the image stays in [`GpuRenderer::radiance`] for a caller on
+    /// the same device to draw (the demo presents it), the hit records stay in the GPU's
+    /// hit buffer for the next frame, and no pass times are measured. Turn it on for the
+    /// frames whose image, AOVs or statistics are wanted.
+    pub fn set_read_back(&mut self, on: bool) {
+        self.read_back = on;
+    }
+
+    /// Whether frames are read back ([`GpuRenderer::set_read_back`]).
+    pub fn reads_back(&self) -> bool {
+        self.read_back
+    }
+
+    /// The last frame's linear radiance on the GPU, with its width and height: one
+    /// `vec4<f32>` per pixel (rgb, then 0), row by row from the top, in a storage buffer that
+    /// may be longer than the image. It is rewritten by the next frame.
+    pub fn radiance(&self) -> Option<(&wgpu::Buffer, u32, u32)> {
+        let (w, h) = self.radiance_size;
+        self.kept.radiance.as_ref().filter(|_| w > 0 && h > 0).map(|b| (b, w, h))
+    }
+
+    /// Reads the last frame's image back from [`GpuRenderer::radiance`] (for a frame that
+    /// stayed on the GPU and is wanted after all, e.g. for a screenshot): linear radiance,
+    /// row by row from the top.
+    pub fn read_image(&mut self) -> Result<Vec<Vec3>, GpuError> {
+        let ctx = self.ctx.clone();
+        ctx.scoped(|| {
+            let (w, h) = self.radiance_size;
+            let src = self.kept.radiance.as_ref().ok_or_else(|| GpuError::Device("no frame rendered yet".into()))?;
+            let bytes = w as u64 * h as u64 * 16;
+            let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+            ensure(&ctx, &mut self.kept.radiance_read, "radiance readback", bytes, true, mappable);
+            let dst = self.kept.radiance_read.as_ref().ok_or_else(|| GpuError::Device("no readback buffer".into()))?;
+            let mut enc =
+                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("read image") });
+            enc.copy_buffer_to_buffer(src, 0, dst, 0, bytes);
+            ctx.queue.submit([enc.finish()]);
+            let rad: Vec<[f32; 4]> = read(&ctx, dst)?;
+            Ok(rad.iter().map(|c| Vec3::new(c[0], c[1], c[2])).collect())
+        })
     }
 
     fn with_device_limit(mut self) -> Self {
@@ -576,8 +627,11 @@ impl GpuRenderer {
         let copy_src = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
         let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
         replaced |= ensure(&ctx, &mut kept.radiance, "radiance", image_bytes, true, copy_src);
-        ensure(&ctx, &mut kept.hits_read, "hits readback", hit_bytes, true, mappable);
-        ensure(&ctx, &mut kept.radiance_read, "radiance readback", image_bytes, true, mappable);
+        let read_back = self.read_back;
+        if read_back {
+            ensure(&ctx, &mut kept.hits_read, "hits readback", hit_bytes, true, mappable);
+            ensure(&ctx, &mut kept.radiance_read, "radiance readback", image_bytes, true, mappable);
+        }
         if replaced {
             kept.bind = None;
         }
@@ -629,7 +683,7 @@ impl GpuRenderer {
         .iter()
         .map(|b| b.size())
         .sum();
-        if ctx.timestamps && kept.queries.is_none() {
+        if ctx.timestamps && read_back && kept.queries.is_none() {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("passes"),
                 ty: wgpu::QueryType::Timestamp,
@@ -649,7 +703,8 @@ impl GpuRenderer {
             });
             kept.queries = Some((set, resolve, read_back));
         }
-        let queries = kept.queries.as_ref();
+        // Pass times are read back too: not measured in frames that stay on the GPU.
+        let queries = kept.queries.as_ref().filter(|_| read_back);
         let ts = |k: u32| {
             queries.map(|(set, _, _)| wgpu::ComputePassTimestampWrites {
                 query_set: set,
@@ -689,18 +744,40 @@ impl GpuRenderer {
             (Some(gi), Some(_)) if self.gi_capture => gi.copy_capture(&self.ctx, &mut enc),
             _ => None,
         };
-        let (hits_rb, rad_rb) =
-            (kept.hits_read.as_ref().ok_or_else(missing)?, kept.radiance_read.as_ref().ok_or_else(missing)?);
-        enc.copy_buffer_to_buffer(hits_buf, 0, hits_rb, 0, hit_bytes);
-        enc.copy_buffer_to_buffer(radiance_buf, 0, rad_rb, 0, image_bytes);
-        // Only the passes that ran wrote their timestamps.
         let n_ts = if gi_work.is_some() { 6 } else { 4 };
+        let readbacks = if read_back {
+            let (hits_rb, rad_rb) =
+                (kept.hits_read.as_ref().ok_or_else(missing)?, kept.radiance_read.as_ref().ok_or_else(missing)?);
+            enc.copy_buffer_to_buffer(hits_buf, 0, hits_rb, 0, hit_bytes);
+            enc.copy_buffer_to_buffer(radiance_buf, 0, rad_rb, 0, image_bytes);
+            Some((hits_rb, rad_rb))
+        } else {
+            None
+        };
+        // Only the passes that ran wrote their timestamps.
         let ts_rb = queries.map(|(set, resolve, read_back)| {
             enc.resolve_query_set(set, 0..n_ts, resolve, 0);
             enc.copy_buffer_to_buffer(resolve, 0, read_back, 0, 8 * n_ts as u64);
             read_back
         });
         self.ctx.queue.submit([enc.finish()]);
+        self.radiance_size = (w, h);
+        let Some((hits_rb, rad_rb)) = readbacks else {
+            // The frame stays on the GPU: nothing is waited for or copied. The next frame
+            // reuses the records in the GPU's hit buffer under the conditions kept here.
+            self.times = None;
+            self.gi_captured = match (capture, &self.gi, &gi_work) {
+                (Some(bufs), Some(gi), Some(work)) => Some(gi.read_capture(&self.ctx, work, &bufs)?),
+                _ => None,
+            };
+            self.state.reused = 0;
+            self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
+            self.state.bvh = bvh;
+            self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
+            let now = self.ctx.traffic();
+            self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
+            return Ok(Frame { width: w, height: h, primary_rays: n as u64, on_device: true, ..Frame::default() });
+        };
         let hits: Vec<GpuHit> = read(&self.ctx, hits_rb)?;
         let rad: Vec<[f32; 4]> = read(&self.ctx, rad_rb)?;
         self.times = match ts_rb {
@@ -762,6 +839,7 @@ impl GpuRenderer {
             moved_only: hits.iter().filter(|g| g.reused == 2).count() as u64,
             instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
+            on_device: false,
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records, opts.max_level);

@@ -64,6 +64,9 @@ pub struct Frame {
     pub instances_traced: u64,
     /// Instances skipped because the traced primary rays missed their bounding spheres.
     pub spheres_culled: u64,
+    /// The image and AOVs stayed on the GPU (`GpuRenderer::set_read_back(false)`): the
+    /// per-pixel vectors are empty, and of the counters only `primary_rays` is set.
+    pub on_device: bool,
 }
 
 impl Frame {

@@ -59,8 +59,11 @@ pub struct HitBuffer {
     pub parts: Vec<usize>,
     /// Bounding spheres (camera-relative centre, radius) of the stored frame.
     pub spheres: Vec<(DVec3, f64)>,
-    /// One record per pixel, row 0 at the top.
+    /// One record per pixel, row 0 at the top (empty when the records stayed on the GPU:
+    /// [`HitBuffer::store_kept_elsewhere`]).
     pub records: Vec<HitRecord>,
+    /// Pixels of the stored frame (the records' count, wherever they are kept).
+    pub pixels: usize,
     /// Pixels reused in the last frame rendered with this buffer.
     pub reused: u64,
     /// The level of detail the stored frame was traced at (a hit at another level is not
@@ -165,7 +168,7 @@ impl HitBuffer {
 
     /// Whether the stored frame was seen by exactly this camera.
     pub fn same_camera(&self, camera: &Camera) -> bool {
-        self.camera.as_ref() == Some(camera) && self.records.len() == (camera.width * camera.height) as usize
+        self.camera.as_ref() == Some(camera) && self.pixels == (camera.width * camera.height) as usize
     }
 
     /// The reuse conditions for the current frame traced at `max_level`, or None if nothing
@@ -207,7 +210,16 @@ impl HitBuffer {
         records: Vec<HitRecord>,
         max_level: u32,
     ) {
+        self.store_kept_elsewhere(camera, scene, prepared, max_level);
+        self.records = records;
+    }
+
+    /// Stores a frame's conditions whose records are kept elsewhere (in the GPU's hit
+    /// buffer, not read back): the next frame's [`HitBuffer::reuse`] needs only these.
+    pub fn store_kept_elsewhere(&mut self, camera: &Camera, scene: &Scene, prepared: &[Prepared], max_level: u32) {
         self.camera = Some(*camera);
+        self.pixels = (camera.width * camera.height) as usize;
+        self.records.clear();
         self.max_level = max_level;
         // Refilled in place: with tens of thousands of instances, fresh vectors every frame
         // cost more in page faults than the copies themselves.
@@ -217,7 +229,6 @@ impl HitBuffer {
         self.parts.extend(scene.instances().iter().map(|i| i.part));
         self.spheres.clear();
         self.spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
-        self.records = records;
     }
 }
 

@@ -263,6 +263,35 @@ impl Svo {
         (self.links[node] + rank(self.masks[node], octant)) as usize
     }
 
+    /// Whether the point `p` (unit-cube coordinates) lies in a voxel: the leaf cell holding
+    /// it (half-open cells, as the DDA oracle's `floor`) is set. Points outside the cube are
+    /// in no voxel.
+    pub fn contains(&self, p: glam::DVec3) -> bool {
+        if !(p.cmpge(glam::DVec3::ZERO).all() && p.cmplt(glam::DVec3::ONE).all()) {
+            return false;
+        }
+        if self.depth == 0 {
+            return !self.attrs.is_empty();
+        }
+        let cells = (1u64 << self.depth) as f64;
+        let c = (p * cells).floor().min(glam::DVec3::splat(cells - 1.0));
+        let c = [c.x as u32, c.y as u32, c.z as u32];
+        let mut node = 0usize;
+        for level in 0..self.depth {
+            let shift = self.depth - 1 - level;
+            let octant = (0..3).map(|i| ((c[i] >> shift) & 1) << i).sum::<u32>();
+            let Some(&mask) = self.masks.get(node) else { return false };
+            if mask as u32 & (1 << octant) == 0 {
+                return false;
+            }
+            if level + 1 == self.depth {
+                return true;
+            }
+            node = self.child_node(node, octant);
+        }
+        false
+    }
+
     /// Attributes of valid child `octant` of internal node `node`. The same sum serves both
     /// kinds of child: a node's attributes sit at its number, and a deepest node's link
     /// points at its voxels' attributes.
