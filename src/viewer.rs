@@ -48,6 +48,9 @@ pub struct DemoOptions {
     pub car_parts: Option<CarParts>,
     /// Start with voxel-transformation GI on (it can be switched in the panel).
     pub gi: bool,
+    /// Start with GPU frames read back for the statistics (switchable in the panel; off,
+    /// GPU frames stay on the GPU).
+    pub gpu_read_back: bool,
 }
 
 /// What the demo needs to re-stage the cars when their number changes.
@@ -115,9 +118,27 @@ struct Gfx {
     sampler: wgpu::Sampler,
     tex_format: wgpu::TextureFormat,
     texture: Option<(wgpu::Texture, wgpu::BindGroup, u32, u32)>,
+    /// Draws a GPU frame from the renderer's radiance buffer (`fs_radiance`).
+    radiance_pipeline: wgpu::RenderPipeline,
+    radiance_layout: wgpu::BindGroupLayout,
+    /// The [`PresentInfo`] uniform of `fs_radiance`.
+    present_info: wgpu::Buffer,
+    /// The bind group of the radiance buffer it was made for (rebuilt when the renderer
+    /// replaces the buffer).
+    radiance_bind: Option<(wgpu::Buffer, wgpu::BindGroup)>,
     egui: egui::Context,
     egui_state: egui_winit::State,
     egui_renderer: egui_wgpu::Renderer,
+}
+
+/// `PresentInfo` of `wgsl/blit.wgsl`: where a GPU frame's radiance lies in the window.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PresentInfo {
+    origin: [u32; 2],
+    size: [u32; 2],
+    encode: u32,
+    pad: [u32; 3],
 }
 
 /// Most cars the panel offers (80 000 instances).
@@ -160,6 +181,11 @@ struct Ui {
     // Most rays hit at t = 0 last frame.
     eye_inside: bool,
     gpu_ms: Option<(f64, f64)>,
+    /// Read GPU frames back for the statistics and pass times (off: frames stay on the GPU
+    /// and are presented from its radiance buffer).
+    gpu_stats: bool,
+    /// The last frame stayed on the GPU: no per-pixel statistics.
+    on_device: bool,
     reset: bool,
 }
 
@@ -271,35 +297,70 @@ impl App {
                 },
             ],
         });
-        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("blit"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
+        let radiance_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("present radiance"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("blit"),
-            layout: Some(&pl),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: None,
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: config.format,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
+        let make_pipeline = |layout: &wgpu::BindGroupLayout, label: &str, fragment: &str| {
+            let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(&pl),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some(fragment),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: config.format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let pipeline = make_pipeline(&layout, "blit", "fs_main");
+        let radiance_pipeline = make_pipeline(&radiance_layout, "present radiance", "fs_radiance");
+        let present_info = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("present info"),
+            size: std::mem::size_of::<PresentInfo>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
         });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor { label: Some("blit"), ..Default::default() });
         let egui_ctx = egui::Context::default();
@@ -336,6 +397,10 @@ impl App {
             sampler,
             tex_format,
             texture: None,
+            radiance_pipeline,
+            radiance_layout,
+            present_info,
+            radiance_bind: None,
             egui: egui_ctx,
             egui_state,
             egui_renderer,
@@ -396,8 +461,14 @@ impl App {
             (None, None) => return Ok(()),
         };
         let camera = self.camera(w.saturating_sub(panel).max(1), h);
+        let done = self.opts.exit && self.opts.frames.is_some_and(|n| self.report.frames + 1 >= n);
+        let shoot = self.want_screenshot || (done && self.opts.screenshot.is_some());
+        // A GPU frame is drawn from the renderer's radiance buffer and read back only when
+        // asked: statistics on, or a screenshot the window cannot be copied for.
+        let can_capture = self.gfx.as_ref().is_some_and(|g| g.config.usage.contains(wgpu::TextureUsages::COPY_SRC));
         let start = Instant::now();
         let session = self.session.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
+        session.set_read_back(self.ui.gpu_stats || (shoot && !can_capture) || self.gfx.is_none());
         let other = |e: crate::Error| ViewerError::Other(e.to_string());
         // GI knobs this device cannot run (a volume past its binding limit, texture levels on a
         // sparse volume) switch GI off with the reason in the panel instead of ending the demo.
@@ -433,11 +504,21 @@ impl App {
         // Out of the session while it is shown; handed back at the end for the next frame's
         // memory.
         let frame = session.take_frame().ok_or_else(|| ViewerError::Other("the renderer kept no frame".into()))?;
-        self.ui.eye_inside = frame.eye_inside_fraction() > 0.5;
+        self.ui.on_device = frame.on_device;
+        self.ui.eye_inside = if frame.on_device {
+            crate::render::instances::eye_inside(&self.scene, camera.eye)
+        } else {
+            frame.eye_inside_fraction() > 0.5
+        };
+        // The render call alone (a GPU frame that stays on the GPU returns once submitted).
         let secs = start.elapsed().as_secs_f64();
-        self.times.push(secs * 1e3);
+        // A frame's time is from one frame's start to the next (rendering, panel, present):
+        // the rate the window shows, whichever backend.
+        if self.report.frames > 0 {
+            self.times.push(dt * 1e3);
+            self.ui.frame_ms.push_back((dt * 1e3) as f32);
+        }
         self.ui.gpu_ms = gpu_ms;
-        self.ui.frame_ms.push_back((secs * 1e3) as f32);
         if self.ui.frame_ms.len() > 180 {
             self.ui.frame_ms.pop_front();
         }
@@ -448,8 +529,6 @@ impl App {
         self.ui.mrays = (frame.primary_rays - frame.reused + frame.shadow_rays) as f64 / secs.max(1e-9) / 1e6;
         self.ui.plan = Some(plan);
         let ui_paint = self.build_ui();
-        let done = self.opts.exit && self.opts.frames.is_some_and(|n| self.report.frames + 1 >= n);
-        let shoot = self.want_screenshot || (done && self.opts.screenshot.is_some());
         let captured = self.present(&frame, shoot, ui_paint)?;
         // Errors the window's device raised while presenting (outside the renderer's scopes).
         if let Some(g) = self.gfx.as_ref() {
@@ -463,10 +542,14 @@ impl App {
         if self.report.frames % 10 == 1 {
             if let Some(window) = self.window() {
                 let ms = self.times.last().copied().unwrap_or(0.0);
+                let reused = if frame.on_device {
+                    "frame kept on the GPU".to_string()
+                } else {
+                    format!("{:.0}% reused", 100.0 * frame.reused as f64 / frame.primary_rays.max(1) as f64)
+                };
                 window.set_title(&format!(
-                    "voxray — {:.1} ms/frame, {:.0}% reused, t = {:.1} s{} — {}",
+                    "voxray — {:.1} ms/frame, {reused}, t = {:.1} s{} — {}",
                     ms,
-                    100.0 * frame.reused as f64 / frame.primary_rays.max(1) as f64,
                     self.time,
                     if self.playing { "" } else { " (paused)" },
                     self.report.backend
@@ -516,47 +599,40 @@ impl App {
         if let Some(s) = self.soft.as_mut() {
             return present_soft(s, frame, capture);
         }
+        // A frame kept on the GPU: the renderer's radiance buffer, on this device.
+        let radiance = if frame.on_device {
+            let gpu = self.session.as_ref().and_then(|s| s.backend().gpu());
+            let found = gpu.and_then(|r| r.radiance()).map(|(b, w, h)| (b.clone(), w, h));
+            Some(found.ok_or_else(|| ViewerError::Other("the GPU frame has no radiance buffer".into()))?)
+        } else {
+            None
+        };
         let Some(g) = self.gfx.as_mut() else { return Ok(None) };
         let device = &g.ctx.device;
-        if !g.texture.as_ref().is_some_and(|t| t.2 == frame.width && t.3 == frame.height) {
-            let texture = device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("frame"),
-                size: wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: g.tex_format,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            });
-            let view = texture.create_view(&Default::default());
-            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("blit"),
-                layout: &g.layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
-                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&g.sampler) },
-                ],
-            });
-            g.texture = Some((texture, bind, frame.width, frame.height));
+        match &radiance {
+            Some((buf, w, h)) => {
+                if g.radiance_bind.as_ref().is_none_or(|(b, _)| b != buf) {
+                    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                        label: Some("present radiance"),
+                        layout: &g.radiance_layout,
+                        entries: &[
+                            wgpu::BindGroupEntry { binding: 2, resource: buf.as_entire_binding() },
+                            wgpu::BindGroupEntry { binding: 3, resource: g.present_info.as_entire_binding() },
+                        ],
+                    });
+                    g.radiance_bind = Some((buf.clone(), bind));
+                }
+                let info = PresentInfo {
+                    origin: [g.config.width.saturating_sub(*w), 0],
+                    size: [*w, *h],
+                    encode: (!g.config.format.is_srgb()) as u32,
+                    pad: [0; 3],
+                };
+                g.ctx.queue.write_buffer(&g.present_info, 0, bytemuck::bytes_of(&info));
+            }
+            None => upload_frame(g, frame),
         }
-        let Some((texture, bind, _, _)) = g.texture.as_ref() else { return Ok(None) };
-        let rgba: Vec<u8> = output::srgb8(frame).chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
-        g.ctx.queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            &rgba,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * frame.width),
-                rows_per_image: Some(frame.height),
-            },
-            wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
-        );
+        let device = &g.ctx.device;
         // egui's texture changes must be applied (or freed) every frame, even one that is not
         // presented: take them out now.
         let mut free_ids = Vec::new();
@@ -611,8 +687,17 @@ impl App {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            pass.set_pipeline(&g.pipeline);
-            pass.set_bind_group(0, bind, &[]);
+            match (&radiance, &g.radiance_bind, &g.texture) {
+                (Some(_), Some((_, bind)), _) => {
+                    pass.set_pipeline(&g.radiance_pipeline);
+                    pass.set_bind_group(0, bind, &[]);
+                }
+                (None, _, Some((_, bind, _, _))) => {
+                    pass.set_pipeline(&g.pipeline);
+                    pass.set_bind_group(0, bind, &[]);
+                }
+                _ => return Err(ViewerError::Other("nothing to draw the frame from".into())),
+            }
             // The frame fills the window right of the panel (it was rendered that size).
             let x0 = w.saturating_sub(frame.width) as f32;
             pass.set_viewport(x0, 0.0, frame.width.min(w) as f32, frame.height.min(h) as f32, 0.0, 1.0);
@@ -850,14 +935,21 @@ impl App {
                             ui_.label(format!("GI (CPU): {ms:.0} ms of the frame"));
                         }
                     }
-                    if let Some((tr, sh)) = ui.gpu_ms {
-                        ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));
+                    if ui.backend == BackendKind::Gpu {
+                        ui_.checkbox(&mut ui.gpu_stats, "read GPU frames back (statistics, pass times)");
                     }
-                    ui_.label(format!("{:.2} Mrays/s traced, {:.1}% pixels reused", ui.mrays, 100.0 * ui.reused));
-                    ui_.label(format!(
-                        "per traced ray: {:.2} instances traversed, {:.2} spheres culled",
-                        ui.per_ray.0, ui.per_ray.1
-                    ));
+                    if ui.on_device {
+                        ui_.small("frames stay on the GPU and are drawn from its radiance buffer");
+                    } else {
+                        if let Some((tr, sh)) = ui.gpu_ms {
+                            ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));
+                        }
+                        ui_.label(format!("{:.2} Mrays/s traced, {:.1}% pixels reused", ui.mrays, 100.0 * ui.reused));
+                        ui_.label(format!(
+                            "per traced ray: {:.2} instances traversed, {:.2} spheres culled",
+                            ui.per_ray.0, ui.per_ray.1
+                        ));
+                    }
                     // Frame-time graph, last 180 frames, scaled to the slowest.
                     let (rect, _) =
                         ui_.allocate_exact_size(egui::vec2(ui_.available_width(), 60.0), egui::Sense::hover());
@@ -1031,6 +1123,51 @@ impl ApplicationHandler for App {
 
 /// Copies the frame (rendered at the window's size) into the software window; with
 /// `capture`, also returns those pixels, which are exactly what the window shows.
+/// Uploads a CPU frame (sRGB bytes) into the texture `fs_main` samples, made anew only when
+/// the frame's size changes.
+fn upload_frame(g: &mut Gfx, frame: &Frame) {
+    let device = &g.ctx.device;
+    if !g.texture.as_ref().is_some_and(|t| t.2 == frame.width && t.3 == frame.height) {
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("frame"),
+            size: wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: g.tex_format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&Default::default());
+        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("blit"),
+            layout: &g.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&g.sampler) },
+            ],
+        });
+        g.texture = Some((texture, bind, frame.width, frame.height));
+    }
+    let Some((texture, _, _, _)) = g.texture.as_ref() else { return };
+    let rgba: Vec<u8> = output::srgb8(frame).chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+    g.ctx.queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        &rgba,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(4 * frame.width),
+            rows_per_image: Some(frame.height),
+        },
+        wgpu::Extent3d { width: frame.width, height: frame.height, depth_or_array_layers: 1 },
+    );
+}
+
 fn present_soft(s: &mut Soft, frame: &Frame, capture: bool) -> Result<Option<(u32, u32, Vec<u8>)>, ViewerError> {
     let soft_err = |e: softbuffer::SoftBufferError| ViewerError::Other(format!("software window: {e}"));
     let (Some(w), Some(h)) = (std::num::NonZeroU32::new(frame.width), std::num::NonZeroU32::new(frame.height)) else {
@@ -1125,11 +1262,14 @@ pub fn run(
             gi_error: None,
             eye_inside: false,
             gpu_ms: None,
+            gpu_stats: false,
+            on_device: false,
             reset: false,
         },
     };
     app.ui.travel = app.cars.first().is_some_and(|c| c.travel);
     app.ui.gi_on = app.opts.gi;
+    app.ui.gpu_stats = app.opts.gpu_read_back;
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Other(e.to_string()))?;
     if let Some(e) = app.error {
         return Err(e);

@@ -23,7 +23,8 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
-fn demo_under_xvfb(backend: &str, frames: &str) {
+/// Runs the demo and checks its screenshot; returns its standard output.
+fn demo_under_xvfb(backend: &str, frames: &str) -> String {
     let d = tmp(backend);
     let shot = d.join("shot.png");
     let o = Command::new("xvfb-run")
@@ -48,19 +49,26 @@ fn demo_under_xvfb(backend: &str, frames: &str) {
     assert!(colours.len() > 50, "only {} distinct colours", colours.len());
     let red = img.pixels().filter(|p| p.0[0] as i32 > p.0[1] as i32 + 60 && p.0[0] as i32 > p.0[2] as i32 + 60).count();
     assert!(red > 300, "only {red} red-car pixels in the screenshot");
+    String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
 #[test]
 fn demo_runs_30_frames_on_the_cpu_renderer() {
     if xvfb() {
-        demo_under_xvfb("cpu", "30");
+        let out = demo_under_xvfb("cpu", "30");
+        assert!(!out.contains("gpu steady state"), "{out}");
     }
 }
 
+/// The GPU renderer draws on the window's device, and its frames stay there: after the
+/// first few, no frame reads anything back or creates a buffer (the screenshot frame, which
+/// copies the window, is left out of the averages).
 #[test]
 fn demo_runs_on_the_gpu_renderer_sharing_the_window_device() {
     if xvfb() {
-        demo_under_xvfb("gpu", "30");
+        let out = demo_under_xvfb("gpu", "30");
+        let lines: Vec<&str> = out.lines().filter(|l| l.starts_with("gpu steady state")).collect();
+        assert_eq!(lines, ["gpu steady state: read back 0 B/frame, created 0.00 buffers/frame"], "{out}");
     }
 }
 

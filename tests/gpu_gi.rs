@@ -516,3 +516,41 @@ fn gpu_revoxelization_marks_the_cells_the_cpu_voxelizer_marks() {
     let (tc, tg) = (cpu.total_occupancy(), moved.volume.total_occupancy());
     assert!((tc - tg).abs() <= 1e-4 * tc && tc > 1000.0, "total occupancy CPU {tc} vs GPU {tg}");
 }
+
+/// GI frames of an animated clip create no buffers once warm (dense and sparse volumes): the
+/// jobs, uniforms and readback are kept and rewritten, and bind groups reused while the
+/// buffers they name stay. Each frame equals a fresh renderer's frame of the same pose, so
+/// nothing stale is bound.
+#[test]
+fn gpu_gi_frames_of_an_animated_clip_create_no_buffers_and_match_fresh_frames() {
+    let Some(ctx) = context() else { return };
+    let parts = build_parts(&voxray::model::car::mesh(), Resolution::Depth(6)).unwrap();
+    let mut scene = Scene::new(parts);
+    let car = add_car(&mut scene, 0, DVec3::ZERO, 0.0, true).unwrap();
+    let cam = car_camera();
+    let lights = Lights::default();
+    for volume in [voxray::gi::shade::VolumeChoice::Dense, voxray::gi::shade::VolumeChoice::Sparse] {
+        let s = GiSettings { res: 32, volume, ..Default::default() };
+        let own = Arc::new(GpuContext::headless().unwrap());
+        let mut gpu = GpuRenderer::new(own.clone());
+        gpu.set_gi(Some(s)).unwrap();
+        for f in 0..6 {
+            pose(&mut scene, &car, 0.2 + f as f64 / 30.0).unwrap();
+            scene.update().unwrap();
+            let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&gpu.state));
+            let frame = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+            let stats = gpu.gi_stats.expect("GI ran");
+            assert_eq!(stats.reuse, GiReuse::Nothing, "{volume:?} frame {f}: the car moved");
+            let (created, _) = gpu.frame_traffic;
+            eprintln!("{volume:?} frame {f}: created {created} buffers, {} bricks", stats.bricks);
+            if f >= 2 {
+                assert_eq!(created, 0, "{volume:?} frame {f} created buffers");
+            }
+            let mut fresh = GpuRenderer::new(ctx.clone());
+            fresh.set_gi(Some(s)).unwrap();
+            let plan0 = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+            let expected = fresh.render(&scene, &cam, &lights, &plan0, &RenderOptions::default()).unwrap();
+            assert_eq!(frame.radiance, expected.radiance, "{volume:?} frame {f}");
+        }
+    }
+}

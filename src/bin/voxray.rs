@@ -349,6 +349,11 @@ struct DemoArgs {
     /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     backend: voxray::backend::BackendKind,
+    /// GPU renderer: read every frame back for the panel's statistics and pass times (the
+    /// default keeps frames on the GPU and draws them from its radiance buffer; switchable in
+    /// the panel).
+    #[arg(long)]
+    gpu_read_back: bool,
 }
 
 #[derive(Args)]
@@ -811,6 +816,7 @@ fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         features: a.switches.features(),
         car_parts,
         gi: a.gi,
+        gpu_read_back: a.gpu_read_back,
     };
     let report = run(opts, st.scene, st.cars, Lights::default(), camera).map_err(demo_err)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);

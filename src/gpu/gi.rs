@@ -12,7 +12,7 @@
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
-use super::renderer::read;
+use super::renderer::{ensure, read};
 use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
 use crate::gi::shade::LevelStore;
@@ -183,6 +183,62 @@ pub(crate) struct GiWork {
     pub stats: GpuGiStats,
 }
 
+/// Per-frame GI inputs kept from frame to frame: rewritten in place, replaced only when a
+/// frame needs a larger one, and bind groups made again only when a buffer they name was
+/// replaced, so a steady animation with GI creates no buffers either.
+#[derive(Default)]
+struct GiFrameBuffers {
+    /// The instances' transformation jobs.
+    jobs: Option<wgpu::Buffer>,
+    /// The splat uniforms, and their copy with `mark` set for the sparse allocation.
+    splat: Option<wgpu::Buffer>,
+    mark: Option<wgpu::Buffer>,
+    /// The GI frame uniforms of the tracer's entries.
+    frame: Option<wgpu::Buffer>,
+    /// The sparse brick steps' uniforms (8³ → 4³ → 2³ → top table).
+    brick_steps: Vec<Option<wgpu::Buffer>>,
+    /// Where the sparse brick count is read back.
+    brick_count: Option<wgpu::Buffer>,
+    /// Bind groups by name (and step), with the buffers they were made over.
+    binds: HashMap<(&'static str, usize), (Vec<wgpu::Buffer>, wgpu::BindGroup)>,
+}
+
+impl GiFrameBuffers {
+    /// The buffer in `slot` (exactly `bytes` long for a uniform, else at least), made only
+    /// when the one there does not fit, with `bytes` written into it.
+    fn write(
+        ctx: &GpuContext,
+        slot: &mut Option<wgpu::Buffer>,
+        label: &'static str,
+        bytes: &[u8],
+        usage: wgpu::BufferUsages,
+    ) -> Result<wgpu::Buffer, GpuError> {
+        let exact = usage.contains(wgpu::BufferUsages::UNIFORM);
+        ensure(ctx, slot, label, bytes.len() as u64, exact, usage | wgpu::BufferUsages::COPY_DST);
+        let buf = slot.clone().ok_or_else(|| GpuError::Device(format!("{label} missing")))?;
+        ctx.queue.write_buffer(&buf, 0, bytes);
+        Ok(buf)
+    }
+}
+
+/// The bind group `name` over the buffers in `key`: the one made before when it was made
+/// over the same buffers, a new one from `make` otherwise.
+fn bind_cached(
+    binds: &mut HashMap<(&'static str, usize), (Vec<wgpu::Buffer>, wgpu::BindGroup)>,
+    name: (&'static str, usize),
+    key: Vec<wgpu::Buffer>,
+    make: impl FnOnce() -> wgpu::BindGroup,
+) -> wgpu::BindGroup {
+    match binds.get(&name) {
+        Some((k, bind)) if *k == key => bind.clone(),
+        _ => {
+            let bind = make();
+            binds.insert(name, (key, bind.clone()));
+            bind
+        }
+    }
+}
+
 /// The GPU GI state kept between frames: CPU caches, their upload, pipelines and the volume.
 pub(crate) struct GpuGi {
     /// The parts' voxel caches (built on the CPU once).
@@ -213,6 +269,8 @@ pub(crate) struct GpuGi {
     /// What the volume on the GPU was made from, and the bounces (with their cones) its chain
     /// was gathered with.
     last: Option<(VolumeKey, Lights, (u32, ConeSettings))>,
+    /// Per-frame inputs and bind groups kept between frames.
+    kept: GiFrameBuffers,
 }
 
 /// The tracer's GI entry points of one plan variant.
@@ -335,19 +393,15 @@ fn stored_cells(layout: Layout, res: u32, capacity: u32) -> u64 {
     }
 }
 
-/// The bind group of one step down the level chain (`brick_top` for a brick step).
-fn level_step_bind(
+/// The bind group of one step down the level chain (`brick_top` for a brick step), with its
+/// uniforms in `ubuf`.
+fn level_step_bind_with(
     ctx: &GpuContext,
     pipe: &wgpu::ComputePipeline,
     levels: &wgpu::Buffer,
-    step: &GpuGiLevelStep,
+    ubuf: &wgpu::Buffer,
     brick_top: Option<&wgpu::Buffer>,
 ) -> wgpu::BindGroup {
-    let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("gi level step"),
-        contents: bytemuck::bytes_of(step),
-        usage: wgpu::BufferUsages::UNIFORM,
-    });
     let mut entries = vec![
         wgpu::BindGroupEntry { binding: 0, resource: levels.as_entire_binding() },
         wgpu::BindGroupEntry { binding: 1, resource: ubuf.as_entire_binding() },
@@ -359,6 +413,44 @@ fn level_step_bind(
         label: Some("gi level step"),
         layout: &pipe.get_bind_group_layout(0),
         entries: &entries,
+    })
+}
+
+/// The bind group of one step down the dense chain, with uniforms of its own (made once per
+/// volume).
+fn level_step_bind(
+    ctx: &GpuContext,
+    pipe: &wgpu::ComputePipeline,
+    levels: &wgpu::Buffer,
+    step: &GpuGiLevelStep,
+) -> wgpu::BindGroup {
+    let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("gi level step"),
+        contents: bytemuck::bytes_of(step),
+        usage: wgpu::BufferUsages::UNIFORM,
+    });
+    level_step_bind_with(ctx, pipe, levels, &ubuf, None)
+}
+
+/// The bind group of the sparse passes.
+fn sparse_bind(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    [voxels, jobs, accum, ubuf]: [&wgpu::Buffer; 4],
+    tables: &SparseTables,
+) -> wgpu::BindGroup {
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("gi sparse volume"),
+        layout,
+        entries: &[
+            wgpu::BindGroupEntry { binding: 0, resource: voxels.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: jobs.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 2, resource: accum.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 3, resource: ubuf.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 4, resource: tables.top.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 5, resource: tables.counters.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 6, resource: tables.brick_top.as_entire_binding() },
+        ],
     })
 }
 
@@ -490,6 +582,7 @@ impl GpuGi {
             placeholder: placeholder_of("gi bounce placeholder"),
             placeholder_ro: placeholder_of("gi sparse table placeholder"),
             last: None,
+            kept: GiFrameBuffers::default(),
         }
     }
 
@@ -600,7 +693,7 @@ impl GpuGi {
                     dst_res: resolutions[l],
                     ..Default::default()
                 };
-                level_step_bind(ctx, &self.levels_pipe, &levels, &step, None)
+                level_step_bind(ctx, &self.levels_pipe, &levels, &step)
             })
             .collect();
         let texture = match texture {
@@ -709,7 +802,7 @@ impl GpuGi {
     /// Marks and allocates the sparse volume's bricks for `threads` moved voxels (submitted at
     /// once) and reads back how many there are.
     fn allocate_bricks(
-        &self,
+        &mut self,
         ctx: &GpuContext,
         voxels: &wgpu::Buffer,
         jobs: &wgpu::Buffer,
@@ -719,8 +812,20 @@ impl GpuGi {
         let t0 = std::time::Instant::now();
         let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
         let device = &ctx.device;
+        let kept = &mut self.kept;
         let mark = GpuGiSplat { mark: 1, ..splat };
-        let bind = self.sparse_bind(ctx, voxels, jobs, &self.placeholder, &mark, tables);
+        let ubuf = GiFrameBuffers::write(
+            ctx,
+            &mut kept.mark,
+            "gi mark",
+            bytemuck::bytes_of(&mark),
+            wgpu::BufferUsages::UNIFORM,
+        )?;
+        let key = vec![voxels.clone(), jobs.clone(), ubuf.clone(), tables.top.clone(), tables.brick_top.clone()];
+        let (layout, placeholder) = (&self.sparse_layout, &self.placeholder);
+        let bind = bind_cached(&mut kept.binds, ("mark", 0), key, || {
+            sparse_bind(ctx, layout, [voxels, jobs, placeholder, &ubuf], tables)
+        });
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
         enc.clear_buffer(&tables.top, 0, None);
         enc.clear_buffer(&tables.counters, 0, None);
@@ -736,46 +841,14 @@ impl GpuGi {
             pass.set_pipeline(&self.sparse_alloc_pipe);
             pass.dispatch_workgroups(g, g, g);
         }
-        let readback = ctx.buffer(&wgpu::BufferDescriptor {
-            label: Some("gi brick count"),
-            size: 4,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        enc.copy_buffer_to_buffer(&tables.counters, 0, &readback, 0, 4);
+        let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+        ensure(ctx, &mut kept.brick_count, "gi brick count", 4, true, mappable);
+        let readback =
+            kept.brick_count.as_ref().ok_or_else(|| GpuError::Device("brick count buffer missing".into()))?;
+        enc.copy_buffer_to_buffer(&tables.counters, 0, readback, 0, 4);
         ctx.queue.submit([enc.finish()]);
-        let count: Vec<u32> = read(ctx, &readback)?;
+        let count: Vec<u32> = read(ctx, readback)?;
         Ok((count.first().copied().unwrap_or(0), t0.elapsed().as_secs_f64() * 1e3))
-    }
-
-    /// The bind group of the sparse passes.
-    fn sparse_bind(
-        &self,
-        ctx: &GpuContext,
-        voxels: &wgpu::Buffer,
-        jobs: &wgpu::Buffer,
-        accum: &wgpu::Buffer,
-        splat: &GpuGiSplat,
-        tables: &SparseTables,
-    ) -> wgpu::BindGroup {
-        let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("gi sparse splat"),
-            contents: bytemuck::bytes_of(splat),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("gi sparse volume"),
-            layout: &self.sparse_layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: voxels.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: jobs.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: accum.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: ubuf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: tables.top.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: tables.counters.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: tables.brick_top.as_entire_binding() },
-            ],
-        })
     }
 
     /// Allocates the bounce passes' two level-0 buffers if a frame needs them.
@@ -844,10 +917,13 @@ impl GpuGi {
             jobs.push(GpuGiJob::default());
         }
         ctx.check_binding("the GI jobs", std::mem::size_of_val(jobs.as_slice()) as u64)?;
-        let init = |label, contents: &[u8], usage| {
-            ctx.buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
-        };
-        let jobs_buf = init("gi jobs", bytemuck::cast_slice(&jobs), wgpu::BufferUsages::STORAGE);
+        let jobs_buf = GiFrameBuffers::write(
+            ctx,
+            &mut self.kept.jobs,
+            "gi jobs",
+            bytemuck::cast_slice(&jobs),
+            wgpu::BufferUsages::STORAGE,
+        )?;
         let voxels = pool.voxels.clone();
         // The sparse volume's bricks: counted on the GPU when the volume is rebuilt, kept
         // otherwise; the pool grows with a quarter's slack and shrinks when 4× too large.
@@ -929,41 +1005,62 @@ impl GpuGi {
             tex_size: vol.texture.as_ref().map_or(0, |t| t.size),
             ..Default::default()
         };
-        let splat_buf = init("gi splat", bytemuck::bytes_of(&splat), wgpu::BufferUsages::UNIFORM);
-        let frame_buf = init("gi frame", bytemuck::bytes_of(&gframe), wgpu::BufferUsages::UNIFORM);
+        let kept = &mut self.kept;
+        let uniform = wgpu::BufferUsages::UNIFORM;
+        let splat_buf = GiFrameBuffers::write(ctx, &mut kept.splat, "gi splat", bytemuck::bytes_of(&splat), uniform)?;
+        let frame_buf = GiFrameBuffers::write(ctx, &mut kept.frame, "gi frame", bytemuck::bytes_of(&gframe), uniform)?;
+        let splat_key = vec![pool.voxels.clone(), jobs_buf.clone(), vol.accum.clone(), splat_buf.clone()];
         let splat_bind = match tables {
-            Some(t) => self.sparse_bind(ctx, &pool.voxels, &jobs_buf, &vol.accum, &splat, t),
-            None => device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("gi splat"),
-                layout: &self.splat_pipe.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: pool.voxels.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: jobs_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: vol.accum.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: splat_buf.as_entire_binding() },
-                ],
+            Some(t) => {
+                let key = [splat_key, vec![t.top.clone(), t.brick_top.clone()]].concat();
+                let bufs = [&pool.voxels, &jobs_buf, &vol.accum, &splat_buf];
+                bind_cached(&mut kept.binds, ("sparse splat", 0), key, || {
+                    sparse_bind(ctx, &self.sparse_layout, bufs, t)
+                })
+            }
+            None => bind_cached(&mut kept.binds, ("splat", 0), splat_key, || {
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("gi splat"),
+                    layout: &self.splat_pipe.get_bind_group_layout(0),
+                    entries: &[
+                        wgpu::BindGroupEntry { binding: 0, resource: pool.voxels.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 1, resource: jobs_buf.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 2, resource: vol.accum.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 3, resource: splat_buf.as_entire_binding() },
+                    ],
+                })
             }),
         };
         // Sparse: 8³ → 4³ → 2³ within each brick, then 2³ → the top table's level.
-        let brick_steps = match tables {
-            Some(t) => (1..=BRICK_LEVELS)
-                .map(|l| {
-                    let side = BRICK >> l;
-                    let (groups, row_threads) = flat_groups(bricks * side.pow(3));
-                    let step = GpuGiLevelStep {
-                        src_offset: vol.offsets[l - 1],
-                        src_res: BRICK >> (l - 1),
-                        dst_offset: vol.offsets[l],
-                        dst_res: side,
-                        bricks,
-                        row_threads,
-                        ..Default::default()
-                    };
-                    (level_step_bind(ctx, &self.brick_levels_pipe, &vol.levels, &step, Some(&t.brick_top)), groups)
-                })
-                .collect(),
-            None => Vec::new(),
-        };
+        kept.brick_steps.resize(BRICK_LEVELS, None);
+        let mut brick_steps = Vec::new();
+        if let Some(t) = tables {
+            for l in 1..=BRICK_LEVELS {
+                let side = BRICK >> l;
+                let (groups, row_threads) = flat_groups(bricks * side.pow(3));
+                let step = GpuGiLevelStep {
+                    src_offset: vol.offsets[l - 1],
+                    src_res: BRICK >> (l - 1),
+                    dst_offset: vol.offsets[l],
+                    dst_res: side,
+                    bricks,
+                    row_threads,
+                    ..Default::default()
+                };
+                let ubuf = GiFrameBuffers::write(
+                    ctx,
+                    &mut kept.brick_steps[l - 1],
+                    "gi brick step",
+                    bytemuck::bytes_of(&step),
+                    uniform,
+                )?;
+                let key = vec![vol.levels.clone(), ubuf.clone(), t.brick_top.clone()];
+                let bind = bind_cached(&mut kept.binds, ("brick step", l), key, || {
+                    level_step_bind_with(ctx, &self.brick_levels_pipe, &vol.levels, &ubuf, Some(&t.brick_top))
+                });
+                brick_steps.push((bind, groups));
+            }
+        }
         let (direct, next) = match (&vol.bounce, s.bounces > 1) {
             (Some((d, n)), true) => (d, n),
             _ => (&self.placeholder, &self.placeholder),
@@ -972,25 +1069,31 @@ impl GpuGi {
             Some(t) => (&t.top, &t.brick_top),
             None => (&self.placeholder_ro, &self.placeholder_ro),
         };
-        let group1 = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("gi (tracer group 1)"),
-            layout: &self.group1_layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: vol.accum.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: vol.levels.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: frame_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: direct.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: next.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: top.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: brick_top.as_entire_binding() },
-                wgpu::BindGroupEntry {
-                    binding: 7,
-                    resource: wgpu::BindingResource::TextureView(
-                        vol.texture.as_ref().map_or(&self.placeholder_tex, |t| &t.view),
-                    ),
-                },
-                wgpu::BindGroupEntry { binding: 8, resource: wgpu::BindingResource::Sampler(&self.sampler) },
-            ],
+        // The level texture is made with the volume's buffers, so the levels buffer in the key
+        // stands for it too.
+        let group1_key =
+            [&vol.accum, &vol.levels, &frame_buf, direct, next, top, brick_top].map(|b| b.clone()).to_vec();
+        let group1 = bind_cached(&mut kept.binds, ("group 1", vol.texture.is_some() as usize), group1_key, || {
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("gi (tracer group 1)"),
+                layout: &self.group1_layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: vol.accum.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: vol.levels.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: frame_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: direct.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: next.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: top.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 6, resource: brick_top.as_entire_binding() },
+                    wgpu::BindGroupEntry {
+                        binding: 7,
+                        resource: wgpu::BindingResource::TextureView(
+                            vol.texture.as_ref().map_or(&self.placeholder_tex, |t| &t.view),
+                        ),
+                    },
+                    wgpu::BindGroupEntry { binding: 8, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+                ],
+            })
         });
         let stats = GpuGiStats {
             voxels: threads,

@@ -104,7 +104,7 @@ struct FrameBuffers {
 
 /// Makes `slot` a buffer of at least `size` bytes (exactly `size` when `exact`), creating one
 /// only when the one there does not fit; returns whether it did.
-fn ensure(
+pub(crate) fn ensure(
     ctx: &GpuContext,
     slot: &mut Option<wgpu::Buffer>,
     label: &'static str,
