@@ -25,7 +25,8 @@ pub struct Session {
     backend: Backend,
     description: String,
     gi: Option<GiSettings>,
-    /// The backend runs GI itself (the GPU); otherwise [`crate::gi::apply`] adds it here.
+    /// The backend runs GI itself (the GPU); otherwise the CPU frame is rendered with
+    /// [`crate::gi::render_with_gi`].
     gi_in_backend: bool,
     gi_caches: GiCaches,
     /// The next frame has no previous one to reuse.
@@ -115,18 +116,37 @@ impl Session {
         if let Some(old) = self.frame.take() {
             self.backend.recycle(old);
         }
-        let mut frame = self.backend.render(scene, camera, lights, &plan, opts, progress)?;
-        self.first = false;
         let (mut gi, mut gi_reuse) = (None, None);
-        if let Some(g) = &self.gi {
-            let layout = if self.gi_in_backend {
-                gi_reuse = self.backend.gi_reuse();
-                self.backend.gi_volume().map(|v| v.0)
-            } else {
-                let stats = crate::gi::apply(&mut frame, scene, camera, lights, g, &mut self.gi_caches)?;
-                gi_reuse = Some(stats.reuse);
+        let frame = match (&self.gi, self.gi_in_backend, &mut self.backend) {
+            // The CPU lights the frame with the cones itself (the same steps as the GPU's).
+            (Some(g), false, Backend::Cpu(hits)) => {
+                let (frame, stats) = crate::gi::render_with_gi(
+                    scene,
+                    camera,
+                    lights,
+                    &plan,
+                    opts,
+                    Some(hits),
+                    g,
+                    &mut self.gi_caches,
+                    progress,
+                )?;
                 gi = Some(stats);
-                stats.layout
+                frame
+            }
+            _ => self.backend.render(scene, camera, lights, &plan, opts, progress)?,
+        };
+        self.first = false;
+        if self.gi.is_some() {
+            let layout = match &gi {
+                Some(stats) => {
+                    gi_reuse = Some(stats.reuse);
+                    stats.layout
+                }
+                None => {
+                    gi_reuse = self.backend.gi_reuse();
+                    self.backend.gi_volume().map(|v| v.0)
+                }
             };
             if let Some(reuse) = gi_reuse {
                 plan.with_gi(GiPlan { reuse, layout: layout.unwrap_or_default() });

@@ -20,7 +20,7 @@ fn gi_approaches_the_path_traced_box_as_resolution_and_cones_rise() {
     let reference = pt.frame();
     assert!(reference.radiance.iter().all(|c| c.is_finite()));
     let flip = |s: &GiSettings| {
-        let (_, f) = gi_frame(&scene, &camera, &lights, &base, s, 1).unwrap();
+        let (_, f) = gi_frame(&scene, &camera, &lights, &plan, s, 1).unwrap();
         assert!(f.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
         compare(&f, &reference).unwrap().flip.unwrap()
     };
@@ -72,14 +72,13 @@ fn a_second_bounce_brightens_the_box_towards_the_all_bounce_reference() {
     let camera = voxray::model::room::camera(48, 36);
     let lights = voxray::model::room::lights();
     let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
-    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     let mut pt =
         PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: 96, bounces: None, seed: 5 }).unwrap();
     pt.run(&mut |_, _| {});
     let reference = pt.frame();
     let run = |bounces| {
         let s = GiSettings { res: 64, bounces, ..GiSettings::default() };
-        let (_, f) = gi_frame(&scene, &camera, &lights, &base, &s, 1).unwrap();
+        let (_, f) = gi_frame(&scene, &camera, &lights, &plan, &s, 1).unwrap();
         assert!(f.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
         f
     };
@@ -118,10 +117,9 @@ fn the_specular_cone_moves_glossy_surfaces_towards_the_reference() {
     let reference = pt.frame();
     assert!(reference.radiance.iter().all(|c| c.is_finite()));
     let s = GiSettings::default();
-    let (_, with_cone) = gi_frame(&scene, &camera, &lights, &base, &s, 1).unwrap();
-    let mut flat = base.clone();
-    flat.specular.iter_mut().for_each(|ks| *ks = 0.0);
-    let (_, without) = gi_frame(&scene, &camera, &lights, &flat, &s, 1).unwrap();
+    let (_, with_cone) = gi_frame(&scene, &camera, &lights, &plan, &s, 1).unwrap();
+    let flat = GiSettings { cones: ConeSettings { specular_cone: false, ..s.cones }, ..s };
+    let (_, without) = gi_frame(&scene, &camera, &lights, &plan, &flat, 1).unwrap();
     assert!(with_cone.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
     let (a, b) = (compare(&with_cone, &reference).unwrap(), compare(&without, &reference).unwrap());
     eprintln!("glossy box, FLIP / RMSE: specular cone {:?} / {}, flat sky {:?} / {}", a.flip, a.rmse, b.flip, b.rmse);

@@ -313,9 +313,14 @@ fn every_cone_knob_value_gives_finite_light_and_bad_ones_clear_errors() {
     for cones in [1, 2, 3, 6, 16, 64] {
         for aperture in [0.5, 10.0, 60.0, 120.0, 179.5] {
             for n in [DVec3::X, DVec3::Y, DVec3::new(1.0, 1e-12, 0.0), DVec3::ZERO] {
-                let s = ConeSettings { diffuse_cones: cones, aperture_deg: aperture, max_distance: 50.0 }
-                    .validated()
-                    .unwrap();
+                let s = ConeSettings {
+                    diffuse_cones: cones,
+                    aperture_deg: aperture,
+                    max_distance: 50.0,
+                    specular_cone: true,
+                }
+                .validated()
+                .unwrap();
                 let (light, open) = gather(&chain, DVec3::new(10.0, 16.0, 16.0), n, Vec3::splat(0.3), &s);
                 assert!(
                     light.is_finite() && open.is_finite() && (0.0..=1.0 + 1e-6).contains(&open),
@@ -363,7 +368,7 @@ fn caches_from_an_svo_hold_its_voxels_at_every_level() {
 
 #[test]
 fn gi_bleeds_a_red_wall_onto_a_white_floor_and_leaves_the_sky_alone() {
-    use voxray::gi::{apply, GiSettings};
+    use voxray::gi::{render_with_gi, GiSettings};
     use voxray::mesh::Mesh;
     use voxray::render::{render, Features, FramePlan, RenderOptions};
     use voxray::scene::{Camera, Instance, Lights, Scene, Sun, Transform};
@@ -409,9 +414,10 @@ fn gi_bleeds_a_red_wall_onto_a_white_floor_and_leaves_the_sky_alone() {
     };
     let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
     let plain = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
-    let mut lit = plain.clone();
     let s = GiSettings { res: 64, extent: Some(12.0), ..GiSettings::default() };
-    let stats = apply(&mut lit, &scene, &cam, &lights, &s, &mut voxray::gi::GiCaches::new()).unwrap();
+    let mut caches = voxray::gi::GiCaches::new();
+    let opts = RenderOptions::default();
+    let (lit, stats) = render_with_gi(&scene, &cam, &lights, &plan, &opts, None, &s, &mut caches, &|_, _| {}).unwrap();
     assert!(stats.occupied > 100, "{stats:?}");
     assert!(lit.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
     let redness = |f: &voxray::render::Frame| {
@@ -476,12 +482,13 @@ fn box_gi(
     lights: &voxray::scene::Lights,
     caches: &mut voxray::gi::GiCaches,
 ) -> (Vec<Vec3>, voxray::gi::GiStats) {
-    use voxray::render::{render, Features, FramePlan, RenderOptions};
+    use voxray::render::{Features, FramePlan, RenderOptions};
     let cam = voxray::model::room::camera(32, 24);
     let plan = FramePlan::new(scene, &cam, lights, &Features::default(), None);
-    let mut f = render(scene, &cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     let s = voxray::gi::GiSettings { res: 32, ..Default::default() };
-    let stats = voxray::gi::apply(&mut f, scene, &cam, lights, &s, caches).unwrap();
+    let opts = RenderOptions::default();
+    let (f, stats) =
+        voxray::gi::render_with_gi(scene, &cam, lights, &plan, &opts, None, &s, caches, &|_, _| {}).unwrap();
     (f.radiance, stats)
 }
 
@@ -513,4 +520,65 @@ fn static_frames_reuse_the_volume_and_render_what_a_fresh_frame_renders() {
     let (d, sd) = box_gi(&scene, &dim, &mut caches);
     assert_eq!(sd.reuse, GiReuse::Nothing);
     assert_eq!(d, box_gi(&scene, &dim, &mut GiCaches::new()).0);
+}
+
+/// With GI the CPU lights each hit once, with the cones as its ambient term, and a colour kept
+/// by the hit buffer is one whose light was kept too: a static second frame keeps colours
+/// (the level chain and the cones are the same) and equals a fresh frame; other cones, or GI
+/// switched off, keep none and equal fresh frames of their own settings.
+#[test]
+fn cpu_gi_keeps_colours_only_where_the_light_was_kept() {
+    use voxray::gi::{render_with_gi, GiCaches, GiReuse, GiSettings};
+    use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+    let scene = voxray::bench::gi::room_scene(5).unwrap();
+    let lights = voxray::model::room::lights();
+    let cam = voxray::model::room::camera(32, 24);
+    let opts = RenderOptions::default();
+    let (mut hits, mut caches) = (HitBuffer::new(), GiCaches::new());
+    let fresh = |s: &GiSettings| {
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+        render_with_gi(&scene, &cam, &lights, &plan, &opts, None, s, &mut GiCaches::new(), &|_, _| {}).unwrap().0
+    };
+    let mut frame = |s: Option<&GiSettings>, hits: &mut HitBuffer, first: bool| {
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (!first).then_some(&*hits));
+        match s {
+            Some(s) => {
+                let (f, st) =
+                    render_with_gi(&scene, &cam, &lights, &plan, &opts, Some(hits), s, &mut caches, &|_, _| {})
+                        .unwrap();
+                (f, Some(st))
+            }
+            None => (render(&scene, &cam, &lights, &plan, &opts, Some(hits), &|_, _| {}), None),
+        }
+    };
+    let s = GiSettings { res: 32, ..Default::default() };
+    let (a, _) = frame(Some(&s), &mut hits, true);
+    let (b, sb) = frame(Some(&s), &mut hits, false);
+    let sb = sb.unwrap();
+    assert!(sb.reuse == GiReuse::Levels && sb.reuse_pixels);
+    let pixels = (cam.width * cam.height) as u64;
+    assert_eq!(b.shade_reused, pixels, "a static frame keeps every colour");
+    assert_eq!(a.radiance, b.radiance);
+    assert_eq!(b.radiance, fresh(&s).radiance);
+    // Other cones: the chain is kept, the pixels' light is not.
+    let fewer = GiSettings { cones: voxray::gi::ConeSettings { diffuse_cones: 3, ..s.cones }, ..s };
+    let (c, sc) = frame(Some(&fewer), &mut hits, false);
+    let sc = sc.unwrap();
+    assert!(sc.reuse == GiReuse::Levels && !sc.reuse_pixels);
+    assert_eq!(c.shade_reused, 0);
+    assert_ne!(c.radiance, b.radiance);
+    assert_eq!(c.radiance, fresh(&fewer).radiance);
+    // GI off: the kept colours were lit by the cones, not the sky.
+    let (d, _) = frame(None, &mut hits, false);
+    assert_eq!(d.shade_reused, 0);
+    let plain = render(
+        &scene,
+        &cam,
+        &lights,
+        &FramePlan::new(&scene, &cam, &lights, &Features::default(), None),
+        &opts,
+        None,
+        &|_, _| {},
+    );
+    assert_eq!(d.radiance, plain.radiance);
 }

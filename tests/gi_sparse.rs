@@ -132,20 +132,22 @@ fn sparse_gi_renders_the_dense_image() {
     let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     for bounces in [1, 3] {
         let s = |volume| GiSettings { res: 64, bounces, volume, ..GiSettings::default() };
-        let (_, dense) = gi_frame(&scene, &camera, &lights, &base, &s(VolumeChoice::Dense), 1).unwrap();
-        let (_, sparse) = gi_frame(&scene, &camera, &lights, &base, &s(VolumeChoice::Sparse), 1).unwrap();
+        let (_, dense) = gi_frame(&scene, &camera, &lights, &plan, &s(VolumeChoice::Dense), 1).unwrap();
+        let (_, sparse) = gi_frame(&scene, &camera, &lights, &plan, &s(VolumeChoice::Sparse), 1).unwrap();
         assert!(dense.radiance != base.radiance, "GI changed the image");
         assert_eq!(dense.radiance, sparse.radiance, "{bounces} bounces");
     }
     let mut caches = voxray::gi::GiCaches::new();
-    let mut f = base.clone();
-    let stats = voxray::gi::apply(
-        &mut f,
+    let (_, stats) = voxray::gi::render_with_gi(
         &scene,
         &camera,
         &lights,
+        &plan,
+        &RenderOptions::default(),
+        None,
         &GiSettings { res: 64, volume: VolumeChoice::Sparse, ..GiSettings::default() },
         &mut caches,
+        &|_, _| {},
     )
     .unwrap();
     assert_eq!(stats.layout, Some(Layout::Sparse));

@@ -220,9 +220,11 @@ fn box_images_agree_with_stats(
     let cam = voxray::model::room::camera(64, 48);
     let lights = voxray::model::room::lights();
     let plan = FramePlan::new(scene, &cam, &lights, &Features::default(), None);
-    let mut cpu = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
-    let flat = cpu.radiance.clone();
-    voxray::gi::apply(&mut cpu, scene, &cam, &lights, &s, &mut GiCaches::new()).unwrap();
+    let flat = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).radiance;
+    let opts = RenderOptions::default();
+    let mut caches = GiCaches::new();
+    let (cpu, _) =
+        voxray::gi::render_with_gi(scene, &cam, &lights, &plan, &opts, None, &s, &mut caches, &|_, _| {}).unwrap();
     let mut renderer = GpuRenderer::new(ctx);
     renderer.set_gi(Some(s)).unwrap();
     let gpu = renderer.render(scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
@@ -277,7 +279,12 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
         GiSettings { res: 2, filter: Filter::Nearest, ..Default::default() },
         GiSettings {
             res: 16,
-            cones: voxray::gi::ConeSettings { diffuse_cones: 64, aperture_deg: 179.0, max_distance: 1e-3 },
+            cones: voxray::gi::ConeSettings {
+                diffuse_cones: 64,
+                aperture_deg: 179.0,
+                max_distance: 1e-3,
+                specular_cone: true,
+            },
             ..Default::default()
         },
         GiSettings { res: 16, extent: Some(1e-3), ..Default::default() },

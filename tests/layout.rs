@@ -227,7 +227,7 @@ fn wgsl_structs_match_rust() {
                 ("row_threads", offset_of!(GpuGiFrame, row_threads)),
                 ("top_res", offset_of!(GpuGiFrame, top_res)),
                 ("tex_size", offset_of!(GpuGiFrame, tex_size)),
-                ("pad1", offset_of!(GpuGiFrame, pad1)),
+                ("specular_cone", offset_of!(GpuGiFrame, specular_cone)),
             ],
         ),
         (

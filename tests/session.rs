@@ -43,8 +43,9 @@ fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
     let (mut hits, mut caches) = (HitBuffer::new(), GiCaches::new());
     let mut by_hand = |first: bool| {
         let mut plan = FramePlan::new(&scene, &cam, &lights, &features, (!first).then_some(&hits));
-        let mut f = render(&scene, &cam, &lights, &plan, &opts, Some(&mut hits), &|_, _| {});
-        let stats = gi::apply(&mut f, &scene, &cam, &lights, &g, &mut caches).unwrap();
+        let (f, stats) =
+            gi::render_with_gi(&scene, &cam, &lights, &plan, &opts, Some(&mut hits), &g, &mut caches, &|_, _| {})
+                .unwrap();
         plan.with_gi(GiPlan { reuse: stats.reuse, layout: stats.layout.unwrap_or_default() });
         (plan, f, stats)
     };

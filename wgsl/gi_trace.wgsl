@@ -257,7 +257,9 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let p = ray_dir(gid.x, gid.y) * h.t;
     var ambient = albedo * gi_gather(p, n);
     let ks = specular_of(h.material);
-    if ks > 0.0 {
+    if ks > 0.0 && gi.specular_cone == 0u {
+        ambient += ks * frame.sky.xyz;
+    } else if ks > 0.0 {
         // The specular cone (shade.rs): the Phong lobe's light, the sky where it escapes.
         let r = reflect(ray_dir(gid.x, gid.y), n);
         let e = shininess_of(h.material);

@@ -182,7 +182,8 @@ struct GiFrame {
     top_res: u32,
     // Texture levels: the texture's cells per side (res rounded up to a power of two).
     tex_size: u32,
-    pad1: u32,
+    // 1: glossy hits trace the specular cone; 0: their specular ambient is the flat sky's.
+    specular_cone: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuGiLevelStep: one step down the level chain.

@@ -6,7 +6,9 @@
 
 use super::metrics::{compare, ImageError};
 use super::{summarize, Record};
-use crate::gi::{apply, Filter, GiCaches, GiSettings, PathTracer, ReferenceSettings, Volume, VolumeSpec, VoxelCache};
+use crate::gi::{
+    render_with_gi, Filter, GiCaches, GiSettings, PathTracer, ReferenceSettings, Volume, VolumeSpec, VoxelCache,
+};
 use crate::mesh::{Mesh, Part};
 use crate::render::{render, Features, Frame, FramePlan, RenderOptions};
 use crate::scene::car::pose_all;
@@ -329,31 +331,39 @@ pub struct AccuracyConfig {
     pub machine: String,
 }
 
-/// One GI setting measured against the reference: (median GI milliseconds, frame).
+/// One GI setting measured against the reference: (median GI milliseconds, frame). The
+/// frame is rendered with the cones as its ambient term ([`crate::gi::render_with_gi`]);
+/// GI's time is its passes' (caches, transformation, injection, levels, cones), not the
+/// primary rays and sun.
 pub fn gi_frame(
     scene: &Scene,
     camera: &crate::scene::Camera,
     lights: &crate::scene::Lights,
-    base: &Frame,
+    plan: &FramePlan,
     settings: &GiSettings,
     repeats: usize,
 ) -> Result<(f64, Frame), crate::Error> {
     let mut caches = GiCaches::new();
     let mut times = Vec::new();
-    let mut last = base.clone();
+    let mut last = None;
     // One untimed run builds the caches (load-time work). Every run is timed as a first
     // frame: reusing the last frame's chain would time the cones alone.
     for k in 0..repeats.max(1) + 1 {
         caches.forget_last_frame();
-        let mut f = base.clone();
-        let t0 = Instant::now();
-        apply(&mut f, scene, camera, lights, settings, &mut caches)?;
+        let opts = RenderOptions::default();
+        let (f, stats) = render_with_gi(scene, camera, lights, plan, &opts, None, settings, &mut caches, &|_, _| {})?;
         if k > 0 {
-            times.push(t0.elapsed().as_secs_f64() * 1e3);
+            times.push(gi_ms(&stats));
         }
-        last = f;
+        last = Some(f);
     }
-    Ok((summarize(&times).0, last))
+    let frame = last.ok_or_else(|| crate::gi::GiError::Settings("no GI frame".into()))?;
+    Ok((summarize(&times).0, frame))
+}
+
+/// Milliseconds of a CPU frame's GI passes.
+fn gi_ms(s: &crate::gi::GiStats) -> f64 {
+    s.caches_ms + s.transform_ms + s.inject_ms + s.levels_ms + s.cones_ms
 }
 
 /// The GPU's own GI knob against the path-traced box (`--scenarios gi-accuracy --backends
@@ -464,17 +474,17 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     let default = GiSettings::default();
     for &res in &cfg.resolutions {
         progress(&format!("gi-accuracy: {res}³"));
-        let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { res, ..default }, cfg.repeats)?;
+        let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &GiSettings { res, ..default }, cfg.repeats)?;
         push("volume resolution", format!("{res}³"), res as f64, ms, &f)?;
     }
     for &cones in &cfg.cones {
         progress(&format!("gi-accuracy: {cones} cones"));
         let s = GiSettings { cones: crate::gi::ConeSettings { diffuse_cones: cones, ..default.cones }, ..default };
-        let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &s, cfg.repeats)?;
+        let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &s, cfg.repeats)?;
         push("diffuse cones", format!("{cones}"), cones as f64, ms, &f)?;
     }
     for filter in [Filter::Nearest, Filter::Split] {
-        let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { filter, ..default }, cfg.repeats)?;
+        let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &GiSettings { filter, ..default }, cfg.repeats)?;
         push("filter", format!("{filter:?}").to_lowercase(), if filter == Filter::Split { 1.0 } else { 0.0 }, ms, &f)?;
     }
     if !cfg.bounces.is_empty() {
@@ -493,7 +503,7 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
         out.push(accuracy_record(cfg, instances, "reference (all bounces)", setting, cfg.spp as f64, all_ms, error));
         for &bounces in &cfg.bounces {
             progress(&format!("gi-accuracy: {bounces} bounces"));
-            let (ms, f) = gi_frame(&scene, &camera, &lights, &base, &GiSettings { bounces, ..default }, cfg.repeats)?;
+            let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &GiSettings { bounces, ..default }, cfg.repeats)?;
             let error = compare_to(&f, &all)?;
             let name = "bounces (vs all-bounce reference)";
             out.push(accuracy_record(cfg, instances, name, format!("{bounces}"), bounces as f64, ms, error));
@@ -548,7 +558,6 @@ pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec
     let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
     let lights = crate::model::room::lights();
     let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
-    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
     let mut out = Vec::new();
     for &res in &cfg.resolutions {
         for (choice, name) in [(VolumeChoice::Dense, "dense"), (VolumeChoice::Sparse, "sparse")] {
@@ -562,11 +571,10 @@ pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec
             let mut stats = crate::gi::GiStats::default();
             for k in 0..cfg.repeats.max(1) + 1 {
                 caches.forget_last_frame();
-                let mut f = base.clone();
-                let t0 = Instant::now();
-                stats = apply(&mut f, &scene, &camera, &lights, &s, &mut caches)?;
+                let opts = RenderOptions::default();
+                stats = render_with_gi(&scene, &camera, &lights, &plan, &opts, None, &s, &mut caches, &|_, _| {})?.1;
                 if k > 0 {
-                    times.push(t0.elapsed().as_secs_f64() * 1e3);
+                    times.push(gi_ms(&stats));
                 }
             }
             let mut r = layout_record(cfg, name, res, &times, stats.volume_bytes, scene.instances().len());

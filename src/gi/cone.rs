@@ -18,11 +18,14 @@ pub struct ConeSettings {
     pub aperture_deg: f64,
     /// Longest distance a cone travels (world units).
     pub max_distance: f64,
+    /// Glossy hits (specular reflectance ks > 0) trace a specular cone along the mirror
+    /// direction; off, their specular ambient term stays the flat sky's (ks × sky).
+    pub specular_cone: bool,
 }
 
 impl Default for ConeSettings {
     fn default() -> Self {
-        ConeSettings { diffuse_cones: 6, aperture_deg: 60.0, max_distance: f64::INFINITY }
+        ConeSettings { diffuse_cones: 6, aperture_deg: 60.0, max_distance: f64::INFINITY, specular_cone: true }
     }
 }
 

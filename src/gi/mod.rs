@@ -19,6 +19,6 @@ pub use cone::{gather, ConeError, ConeSettings};
 pub use inject::{inject, Injected};
 pub use levels::{Chain, Level, Levels};
 pub use reference::{path_trace, PathTracer, ReferenceError, ReferenceSettings};
-pub use shade::{apply, plan_volume, GiCaches, GiReuse, GiSettings, GiStats, VolumeKey};
+pub use shade::{plan_volume, prepare_light, render_with_gi, GiCaches, GiReuse, GiSettings, GiStats, VolumeKey};
 pub use sparse::{SparseLevels, SparseVolume};
 pub use volume::{Filter, GiError, Layout, SplatStats, Volume, VolumeSpec};

@@ -12,6 +12,7 @@ use super::inject::{inject_cells, Cells};
 use super::levels::{self, Chain, Levels};
 use super::sparse::{SparseLevels, SparseVolume};
 use super::volume::{Filter, GiError, Layout, Volume, VolumeSpec};
+use crate::render::hitbuffer::HitRecord;
 use crate::render::Frame;
 use crate::scene::{Camera, Lights, Scene};
 use crate::svo::PartId;
@@ -34,6 +35,8 @@ struct LastVolume {
     lights: Lights,
     // Bounces and the cones they were gathered with (the chain depends on both past one bounce).
     bounces: (u32, ConeSettings),
+    // The cones the pixels gathered with (their light changes with them, the chain does not).
+    cones: ConeSettings,
     volume: WorldVolume,
     chain: WorldChain,
 }
@@ -402,7 +405,7 @@ pub struct GiStats {
     pub inject_ms: f64,
     /// The level chain.
     pub levels_ms: f64,
-    /// Cone tracing at the pixels.
+    /// Cone tracing at the pixels (the lighting pass's gather of the ambient term).
     pub cones_ms: f64,
     /// Cache voxels moved.
     pub voxels: u64,
@@ -410,6 +413,9 @@ pub struct GiStats {
     pub occupied: usize,
     /// What was kept from the frame before.
     pub reuse: GiReuse,
+    /// The pixels' GI light is the frame before's (the level chain kept and the same cones),
+    /// so colours kept by the hit buffer stay valid.
+    pub reuse_pixels: bool,
     /// The volume's layout.
     pub layout: Option<Layout>,
     /// Bytes the volume's cells take (for the dense layout, all of them).
@@ -456,10 +462,10 @@ pub fn plan_volume(
     Ok((spec, levels_of))
 }
 
-/// Adds indirect light to `frame` (rendered from `camera` with `lights`); `caches` carries
-/// the parts' voxel caches from frame to frame.
-pub fn apply(
-    frame: &mut Frame,
+/// Makes this frame's GI light: the world volume (transformed, injected, averaged into the
+/// level chain; or the last frame's, kept as [`GiReuse`] allows), left in `caches` for
+/// [`GiCaches::ambient`]. The returned statistics have every time but the cones'.
+pub fn prepare_light(
     scene: &Scene,
     camera: &Camera,
     lights: &Lights,
@@ -475,6 +481,7 @@ pub fn apply(
     let layout = s.layout();
     let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
     let last = caches.last.take();
+    let same_cones = last.as_ref().is_some_and(|l| l.cones == cones);
     let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
     if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
@@ -537,43 +544,67 @@ pub fn apply(
         }
     };
     let t4 = Instant::now();
-    let sky = lights.sky();
-    let basis = camera.basis();
-    let w = frame.width as usize;
-    let gi_pixel = |k: usize| {
-        if frame.instance[k] < 0 {
-            return None;
-        }
-        let (x, y) = ((k % w) as u32, (k / w) as u32);
-        let d = camera.ray_dir(&basis, x, y);
-        let p = camera.eye + d * frame.t[k] as f64;
-        let n = frame.normal[k].as_dvec3();
-        let (light, _open) = gather(&chain, p, n, sky, &cones);
-        let mut add = frame.albedo[k] * (light - sky);
-        let ks = frame.specular[k];
-        if ks > 0.0 {
-            // The specular cone: the Phong lobe's light, the sky where the cone escapes.
-            let r = crate::render::brdf::reflect(d, n).normalize();
-            let aperture = crate::render::brdf::cone_aperture(frame.shininess[k]);
-            let s = trace(&chain, p, n, r, aperture, cones.max_distance);
-            add += (s.truncate() + sky * (1.0 - s.w) - sky) * ks;
-        }
-        Some(add)
-    };
-    let add = crate::render::cpu::par_map(frame.radiance.len(), gi_pixel);
-    for (r, a) in frame.radiance.iter_mut().zip(add) {
-        if let Some(a) = a {
-            // The flat ambient term albedo × sky is already in; swap it for the gathered light.
-            *r = (*r + a).max(glam::Vec3::ZERO);
-        }
-    }
-    let t5 = Instant::now();
-    caches.last = Some(LastVolume { key, lights: *lights, bounces: bounce_key, volume: vol, chain });
+    // The pixels' light is the last frame's only when the chain and the cones are.
+    stats.reuse_pixels = stats.reuse == GiReuse::Levels && same_cones;
+    caches.last = Some(LastVolume { key, lights: *lights, bounces: bounce_key, cones, volume: vol, chain });
     let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
     stats.caches_ms = ms(t0, t1);
     stats.transform_ms = ms(t1, t2);
     stats.inject_ms = ms(t2, t3);
     stats.levels_ms = ms(t3, t4);
-    stats.cones_ms = ms(t4, t5);
     Ok(stats)
+}
+
+impl GiCaches {
+    /// The ambient term of a hit under the light [`prepare_light`] made last (None before
+    /// it): both lobes' reflectance times what their cones gather — the diffuse cones
+    /// (cosine-weighted, the sky where they escape) for the albedo, and for a glossy hit
+    /// (specular reflectance ks > 0) one cone along the mirror direction as wide as its
+    /// Phong lobe. Arguments: the hit's record, the world-space hit point and the primary
+    /// ray's unit direction, as [`crate::render::AmbientLight`] takes them.
+    pub fn ambient(&self, lights: &Lights) -> Option<impl Fn(&HitRecord, DVec3, DVec3) -> glam::Vec3 + Sync + '_> {
+        let last = self.last.as_ref()?;
+        let (chain, cones, sky) = (&last.chain, last.cones, lights.sky());
+        Some(move |r: &HitRecord, p: DVec3, d: DVec3| {
+            let n = r.normal.as_dvec3();
+            let (light, _open) = gather(chain, p, n, sky, &cones);
+            let mut ambient = r.attr.albedo_linear() * light;
+            let ks = r.attr.specular();
+            if ks > 0.0 && !cones.specular_cone {
+                ambient += sky * ks;
+            } else if ks > 0.0 {
+                // The specular cone: the Phong lobe's light, the sky where the cone escapes.
+                let reflected = crate::render::brdf::reflect(d, n).normalize();
+                let shininess = crate::render::brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
+                let aperture = crate::render::brdf::cone_aperture(shininess);
+                let s = trace(chain, p, n, reflected, aperture, cones.max_distance);
+                ambient += (s.truncate() + sky * (1.0 - s.w)) * ks;
+            }
+            ambient
+        })
+    }
+}
+
+/// Renders one CPU frame lit with GI: [`prepare_light`], then [`crate::render::render_lit`]
+/// with the cones as the ambient term (kept colours stay only where the pixels' light was
+/// reused too). `cones_ms` of the statistics is the time of gathering them.
+#[allow(clippy::too_many_arguments)]
+pub fn render_with_gi(
+    scene: &Scene,
+    camera: &Camera,
+    lights: &Lights,
+    plan: &crate::render::FramePlan,
+    opts: &crate::render::RenderOptions,
+    hits: Option<&mut crate::render::HitBuffer>,
+    s: &GiSettings,
+    caches: &mut GiCaches,
+    progress: &(dyn Fn(u32, u32) + Sync),
+) -> Result<(Frame, GiStats), GiError> {
+    let mut stats = prepare_light(scene, camera, lights, s, caches)?;
+    let term = caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
+    let ambient = crate::render::AmbientLight { term: &term, unchanged: stats.reuse_pixels };
+    let (frame, cones_ms) =
+        crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress);
+    stats.cones_ms = cones_ms;
+    Ok((frame, stats))
 }

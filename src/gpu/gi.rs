@@ -1003,7 +1003,7 @@ impl GpuGi {
             row_threads: cell_row,
             top_res: spec.res / BRICK,
             tex_size: vol.texture.as_ref().map_or(0, |t| t.size),
-            ..Default::default()
+            specular_cone: cones.specular_cone as u32,
         };
         let kept = &mut self.kept;
         let uniform = wgpu::BufferUsages::UNIFORM;

@@ -269,8 +269,9 @@ pub struct GpuGiFrame {
     pub top_res: u32,
     /// Texture levels: the texture's cells per side (res rounded up to a power of two).
     pub tex_size: u32,
-    /// Padding.
-    pub pad1: u32,
+    /// 1: glossy hits trace the specular cone (`ConeSettings::specular_cone`); 0: their
+    /// specular ambient term is the flat sky's.
+    pub specular_cone: u32,
 }
 
 /// One step down the level chain. WGSL: `GiLevelStep`.

@@ -206,9 +206,21 @@ pub(crate) fn leave(r: &HitRecord, at: DVec3) -> DVec3 {
     at + r.normal.as_dvec3() * v + r.face_normal.as_dvec3() * (0.1 * v)
 }
 
+/// Where the lighting's ambient term comes from when it is not the flat sky: a function of
+/// the hit (its record, the world-space hit point and the primary ray's unit direction)
+/// giving both lobes' ambient light, reflectance included (GI's cones,
+/// [`crate::gi::render_with_gi`]).
+pub struct AmbientLight<'a> {
+    /// The ambient term of one hit.
+    pub term: &'a (dyn Fn(&HitRecord, DVec3, DVec3) -> Vec3 + Sync),
+    /// The term gives what it gave in the stored frame (the same light, gathered the same
+    /// way), so colours kept by the hit buffer stay valid.
+    pub unchanged: bool,
+}
+
 /// Renders one frame of `scene` as `plan` says. With a hit buffer, pixels are reused where
 /// the plan allows it and the buffer is refreshed for the next frame. `progress(rows, of)` is
-/// called as rows finish (both passes count).
+/// called as rows finish (both passes count). The ambient term is the flat sky.
 pub fn render(
     scene: &Scene,
     camera: &Camera,
@@ -218,6 +230,25 @@ pub fn render(
     hits: Option<&mut HitBuffer>,
     progress: &(dyn Fn(u32, u32) + Sync),
 ) -> Frame {
+    render_lit(scene, camera, lights, plan, opts, hits, None, progress).0
+}
+
+/// [`render`] with the ambient term from `ambient` instead of the flat sky; also returns the
+/// milliseconds spent gathering it. The steps and their order are the WGSL renderer's:
+/// trace → hit records (the G-buffer: t, normal, albedo, material, instance) → lighting,
+/// where a hit's colour is its ambient term (the sky's, or `ambient`'s, clamped at zero)
+/// plus its direct light (the sun with its shadow ray, then its emission).
+#[allow(clippy::too_many_arguments)]
+pub fn render_lit(
+    scene: &Scene,
+    camera: &Camera,
+    lights: &Lights,
+    plan: &FramePlan,
+    opts: &RenderOptions,
+    hits: Option<&mut HitBuffer>,
+    ambient: Option<&AmbientLight>,
+    progress: &(dyn Fn(u32, u32) + Sync),
+) -> (Frame, f64) {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
     let prepared = prepare(scene, camera.eye, plan.transform);
@@ -277,7 +308,11 @@ pub fn render(
     let shade_reused = AtomicU64::new(0);
     let n = w * h;
     let shade_from = reuse.as_ref().zip(previous).filter(|(_, prev)| {
-        prev.lights.as_ref() == Some(lights) && prev.shadows == plan.shadows && prev.radiance.len() == n
+        prev.lights.as_ref() == Some(lights)
+            && prev.shadows == plan.shadows
+            && prev.radiance.len() == n
+            && prev.lit_by_gi == ambient.is_some()
+            && ambient.is_none_or(|a| a.unchanged)
     });
     let mut f = Frame {
         primary_rays: n as u64,
@@ -290,6 +325,22 @@ pub fn render(
         ..Frame::buffers(spare, camera.width, camera.height)
     };
     aovs(&mut f, &records);
+    // Pass 2a (GI): the ambient term of every hit to be shaded, from the G-buffer alone.
+    let ambient_start = std::time::Instant::now();
+    let ambient_terms: Vec<Vec3> = match ambient {
+        Some(a) => par_map(n, |k| {
+            let (x, y) = (k % w, k / w);
+            let r = &records[k];
+            let kept = shade_from.is_some() && kept_hit(x, y);
+            if r.instance < 0 || kept {
+                return Vec3::ZERO;
+            }
+            let d = camera.ray_dir(&basis, x as u32, y as u32);
+            (a.term)(r, camera.eye + d * r.t as f64, d).max(Vec3::ZERO)
+        }),
+        None => Vec::new(),
+    };
+    let ambient_ms = ambient_start.elapsed().as_secs_f64() * 1e3;
     for_rows(&mut f.radiance, w, |y, row| {
         let mut kept = 0;
         for (x, out) in row.iter_mut().enumerate() {
@@ -310,8 +361,14 @@ pub fn render(
             }
             let albedo = r.attr.albedo_linear();
             let ks = r.attr.specular();
-            // The sky is uniform, so the ambient term of either lobe is its reflectance × sky.
-            let mut radiance = (albedo + Vec3::splat(ks)) * sky;
+            let ambient_term = match ambient {
+                Some(_) => ambient_terms[k],
+                // The sky is uniform, so the ambient term of either lobe is its reflectance × sky.
+                None => (albedo + Vec3::splat(ks)) * sky,
+            };
+            // The direct light: the sun (with its shadow ray), then the emission (WGSL's
+            // `direct_light`), added to the ambient term.
+            let mut radiance = Vec3::ZERO;
             if let Some(sun) = lights.sun {
                 let d = camera.ray_dir(&basis, x as u32, y as u32);
                 let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
@@ -329,7 +386,7 @@ pub fn render(
             if lights.use_mtl_emitters {
                 radiance += r.attr.emission();
             }
-            *out = radiance;
+            *out = ambient_term + radiance;
         }
         shade_reused.fetch_add(kept, Ordering::Relaxed);
         tick();
@@ -342,11 +399,12 @@ pub fn render(
         if plan.keep_hits {
             b.store(camera, scene, &prepared, records, opts.max_level);
             b.keep_shading(lights, plan.shadows, &f.radiance);
+            b.lit_by_gi = ambient.is_some();
         } else {
             // Nothing to keep: a later frame with the buffer switched on starts afresh.
             b.camera = None;
         }
         b.bvh = bvh;
     }
-    f
+    (f, ambient_ms)
 }

@@ -74,8 +74,10 @@ pub struct HitBuffer {
     pub bvh: Option<super::bvh::Bvh>,
     /// Instance BVHs built from scratch for frames rendered with this buffer.
     pub bvh_builds: u64,
-    /// Each pixel's colour in the stored frame (direct light; GI is added by the caller).
+    /// Each pixel's colour in the stored frame.
     pub radiance: Vec<Vec3>,
+    /// The stored colours' ambient term came from GI's cones, not the flat sky.
+    pub lit_by_gi: bool,
     /// The lights the stored colours were computed under.
     pub lights: Option<Lights>,
     /// Whether the stored colours traced shadow rays.

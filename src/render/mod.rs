@@ -12,6 +12,6 @@ pub mod plan;
 pub mod primary;
 pub mod visibility;
 
-pub use cpu::{render, Frame, RenderOptions};
+pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions};
 pub use hitbuffer::HitBuffer;
 pub use plan::{Features, FramePlan};
