@@ -1,0 +1,349 @@
+//! The command line: clap's argument structs of every subcommand.
+
+use super::*;
+
+#[derive(Parser)]
+#[command(
+    name = "voxray",
+    version,
+    about = "Ray tracing of sparse voxel octrees (Laine–Karras SVOs, Revelles traversal)."
+)]
+#[command(long_about = "Ray tracing of sparse voxel octrees. With no subcommand, opens the demo window on the \
+embedded animated car (`voxray demo`); without a display, renders it to voxray.png (`voxray render`).")]
+pub(crate) struct Cli {
+    #[command(subcommand)]
+    pub(crate) cmd: Option<Cmd>,
+    /// Worker threads (default: one per core).
+    #[arg(long, global = true)]
+    pub(crate) threads: Option<usize>,
+}
+
+#[derive(Subcommand)]
+pub(crate) enum Cmd {
+    /// Render OBJ parts (default: the embedded car) to PNG/EXR, with optional AOVs.
+    Render(RenderArgs),
+    /// Voxelize OBJ parts and write one .svo file per part, with size statistics.
+    Voxelize(VoxelizeArgs),
+    /// Validate an .svo file and print its statistics.
+    Info {
+        /// The .svo file.
+        file: PathBuf,
+    },
+    /// Run the numerical stability suite against the brute-force DDA oracle.
+    Stability {
+        /// Rays in the random families (the adversarial families have fixed sizes).
+        #[arg(long, default_value_t = 1_000_000)]
+        rays: usize,
+        /// Also write the table, with the command that produced it, to this Markdown file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Time the animated car: static vs animated vs animated+optimized, and instance counts.
+    Bench(BenchArgs),
+    /// Open a window with the animated car (what `voxray` with no subcommand does): left-drag
+    /// orbits, right-drag pans, wheel zooms, F toggles fly mode (W A S D, Q E, Shift), Space
+    /// pauses, R resets the view, P writes a screenshot, H hides the panel, Esc quits.
+    Demo(DemoArgs),
+    /// Regenerate a built-in model's files.
+    Model {
+        /// Which model: `car` (the default car) or `box` (the coloured-wall box of the GI tests).
+        #[arg(value_parser = ["car", "box"])]
+        name: String,
+        /// Output folder (default: models/NAME).
+        #[arg(long)]
+        out_dir: Option<PathBuf>,
+    },
+}
+
+#[derive(Args, Clone)]
+pub(crate) struct SourceArgs {
+    /// OBJ files; each object/group (or file) is a part. Default: the embedded car.
+    #[arg(long, num_args = 1..)]
+    pub(crate) obj: Vec<PathBuf>,
+    /// Voxels along the largest part's longest side, as 2^DEPTH; all parts share that voxel size.
+    #[arg(long, default_value_t = 9, conflicts_with = "voxel_size", value_parser = clap::value_parser!(u32).range(1..=20))]
+    pub(crate) depth: u32,
+    /// Voxel edge length in OBJ units (instead of --depth).
+    #[arg(long)]
+    pub(crate) voxel_size: Option<f32>,
+    /// Fill closed surfaces (depth ≤ 9).
+    #[arg(long)]
+    pub(crate) solid: bool,
+    /// Folder of the SVO cache (default: $VOXRAY_CACHE_DIR, $XDG_CACHE_HOME/voxray or ~/.cache/voxray).
+    #[arg(long)]
+    pub(crate) cache_dir: Option<PathBuf>,
+    /// Always voxelize; neither read nor write the cache.
+    #[arg(long)]
+    pub(crate) no_cache: bool,
+    /// Ignore MTL Ks/Ns: every material purely Lambertian (the shared convention of
+    /// DESIGN.md, for comparing images with other renderers).
+    #[arg(long)]
+    pub(crate) lambertian: bool,
+}
+
+#[derive(Args, Clone)]
+pub(crate) struct RenderArgs {
+    #[command(flatten)]
+    pub(crate) source: SourceArgs,
+    /// Camera JSON (eye, target, up, vfov_deg, width, height). Default: a three-quarter view framing the scene.
+    #[arg(long)]
+    pub(crate) camera_json: Option<PathBuf>,
+    /// Lights JSON (sun, ambient, use_mtl_emitters). Default: afternoon sun and a pale sky.
+    #[arg(long)]
+    pub(crate) lights_json: Option<PathBuf>,
+    /// Image width (overrides the camera JSON).
+    #[arg(long)]
+    pub(crate) width: Option<u32>,
+    /// Image height (overrides the camera JSON).
+    #[arg(long)]
+    pub(crate) height: Option<u32>,
+    /// Output: .png (sRGB 8-bit) or .exr (linear float radiance); with --frames, name_0000.png … or one animated .gif.
+    #[arg(long, default_value = "voxray.png")]
+    pub(crate) out: PathBuf,
+    /// Write t.npy, instance.npy and normal.npy into this folder (with --frames: DIR/frame_0000/ …).
+    #[arg(long)]
+    pub(crate) aov_dir: Option<PathBuf>,
+    /// Level-of-detail: stop this many levels below the root.
+    #[arg(long)]
+    pub(crate) lod: Option<u32>,
+    /// Frames to render (the car animates; other scenes stay still).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub(crate) frames: u32,
+    /// Frames per second of the clip.
+    #[arg(long, default_value_t = 30.0)]
+    pub(crate) fps: f64,
+    /// Clip time of the first frame, in seconds.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub(crate) time: f64,
+    /// Cars (default car only): each a figure-eight of its own, with its own time offset.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub(crate) cars: u32,
+    /// Keep the car(s) in place (wheels, steering and doors still move).
+    #[arg(long)]
+    pub(crate) in_place: bool,
+    /// The whole car merged into one static SVO (the static baseline; no animation).
+    #[arg(long)]
+    pub(crate) static_car: bool,
+    /// No ground under the default car.
+    #[arg(long)]
+    pub(crate) no_ground: bool,
+    /// Orbit the camera about its target at this many degrees per second (a moving camera).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub(crate) orbit: f64,
+    #[command(flatten)]
+    pub(crate) switches: Switches,
+    /// Print the frame plan (first frame, and whenever it changes).
+    #[arg(long)]
+    pub(crate) explain: bool,
+    /// Voxel-transformation global illumination, on the backend that renders: colour bleeding
+    /// and ambient occlusion in place of the flat sky term, and glossy reflections (one
+    /// specular cone) on materials with MTL Ks and Ns.
+    #[arg(long)]
+    pub(crate) gi: bool,
+    /// GI world volume cells per side.
+    #[arg(long, default_value_t = 128, requires = "gi")]
+    pub(crate) gi_res: u32,
+    /// GI filtering of moved voxels: nearest or split (8-neighbour).
+    #[arg(long, default_value = "split", requires = "gi")]
+    pub(crate) gi_filter: voxray::gi::Filter,
+    /// GI diffuse cones per pixel (1–64).
+    #[arg(long, default_value_t = 6, requires = "gi")]
+    pub(crate) gi_cones: u32,
+    /// GI world volume edge in scene units (default: 3× the camera's distance to its target).
+    #[arg(long, requires = "gi")]
+    pub(crate) gi_extent: Option<f64>,
+    /// GI bounces (1…8): each bounce past the first cone-traces every occupied cell's incoming light.
+    #[arg(long, default_value_t = 1, requires = "gi")]
+    pub(crate) gi_bounces: u32,
+    /// GI world volume: dense (every cell, up to 512³), sparse (8³ bricks where voxels land,
+    /// multiples of 8 up to 1024³) or auto (CPU: sparse above 128³; GPU: sparse above 512³).
+    #[arg(long, default_value = "auto", requires = "gi")]
+    pub(crate) gi_volume: voxray::gi::shade::VolumeChoice,
+    /// Where the GPU's cones read the GI level chain: buffer (filtered in f32 in the shader,
+    /// equal to the CPU) or texture (a 3D texture with mips, hardware filtering; dense volume).
+    #[arg(long, default_value = "buffer", requires = "gi")]
+    pub(crate) gi_levels: voxray::gi::shade::LevelStore,
+    /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
+    /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
+    #[arg(long, conflicts_with = "gi")]
+    pub(crate) reference: bool,
+    /// Reference samples per pixel.
+    #[arg(long, default_value_t = 256, requires = "reference")]
+    pub(crate) spp: u32,
+    /// Reference indirect bounces (1: the one-bounce image a single GI bounce approximates); default unlimited.
+    #[arg(long, requires = "reference")]
+    pub(crate) bounces: Option<u32>,
+    /// Where to render: cpu, gpu (an error without an adapter) or auto (the GPU on a hardware adapter, else the CPU).
+    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
+    pub(crate) backend: voxray::backend::BackendKind,
+}
+
+/// The technique switches (`FramePlan` features), shared by `render` and `demo`.
+#[derive(Args, Clone)]
+pub(crate) struct Switches {
+    /// No bounding-sphere culling.
+    #[arg(long)]
+    pub(crate) no_cull: bool,
+    /// No depth-sorted early-out.
+    #[arg(long)]
+    pub(crate) no_sort: bool,
+    /// No instance BVH.
+    #[arg(long)]
+    pub(crate) no_bvh: bool,
+    /// No per-pixel hit buffer.
+    #[arg(long)]
+    pub(crate) no_hit_buffer: bool,
+    /// No shadow rays.
+    #[arg(long)]
+    pub(crate) no_shadows: bool,
+    /// No beams (primary rays start at the eye instead of where their tile's cone first
+    /// meets each instance; the image is the same).
+    #[arg(long)]
+    pub(crate) no_beams: bool,
+}
+
+impl Switches {
+    pub(crate) fn features(&self) -> Features {
+        Features {
+            cull: !self.no_cull,
+            sort: !self.no_sort,
+            bvh: !self.no_bvh,
+            hit_buffer: !self.no_hit_buffer,
+            shadows: !self.no_shadows,
+            beams: !self.no_beams,
+        }
+    }
+}
+
+#[derive(Args, Clone)]
+pub(crate) struct BenchArgs {
+    #[command(flatten)]
+    pub(crate) source: SourceArgs,
+    /// Scenario families: paper (static vs animated vs optimized), instances, resolution,
+    /// depth (LOD error vs time), peers (Embree / parry3d; needs `--features peers`), gi-scaling
+    /// (voxel transformation vs re-voxelization), gi-volume (dense vs sparse GI volume: time and
+    /// memory), gi-accuracy (GI knobs vs the path-traced box; writes docs/accuracy.md).
+    #[arg(long, value_delimiter = ',', default_value = "paper,instances,resolution,depth")]
+    pub(crate) scenarios: Vec<String>,
+    /// Backends to run every scenario on: cpu, gpu, auto (gpu is skipped with a note when there is no adapter).
+    #[arg(long, value_delimiter = ',', env = "VOXRAY_BACKEND", default_value = "auto")]
+    pub(crate) backends: Vec<voxray::backend::BackendKind>,
+    /// Untimed warm-up frames before each measurement.
+    #[arg(long, default_value_t = 3)]
+    pub(crate) warmup: usize,
+    /// Timed frames per measurement (paper, resolution, depth, peers).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub(crate) frames: u64,
+    /// Image width of the paper, depth and peers scenarios.
+    #[arg(long, default_value_t = 1280)]
+    pub(crate) width: u32,
+    /// Image height of the paper, depth and peers scenarios.
+    #[arg(long, default_value_t = 768)]
+    pub(crate) height: u32,
+    /// Car counts of the instance sweep (8 instances per car).
+    #[arg(long, value_delimiter = ',', default_value = "1,10,100,1000,10000")]
+    pub(crate) sweep_cars: Vec<usize>,
+    /// Timed frames per instance-sweep point.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub(crate) sweep_frames: u64,
+    /// Image width of the instance sweep.
+    #[arg(long, default_value_t = 320)]
+    pub(crate) sweep_width: u32,
+    /// Image height of the instance sweep.
+    #[arg(long, default_value_t = 192)]
+    pub(crate) sweep_height: u32,
+    /// Image sizes of the resolution sweep, WxH.
+    #[arg(long, value_delimiter = ',', default_value = "320x192,640x384,1280x768,1920x1152")]
+    pub(crate) resolutions: Vec<String>,
+    /// LOD levels of the depth sweep (default: the three levels above full depth).
+    #[arg(long, value_delimiter = ',')]
+    pub(crate) lod_levels: Vec<u32>,
+    /// Folder for bench.json and bench.csv (records of earlier runs for other backends or scenarios are kept).
+    #[arg(long, default_value = "docs/data")]
+    pub(crate) out_dir: PathBuf,
+    /// Folder for the PNG charts.
+    #[arg(long, default_value = "docs/images")]
+    pub(crate) charts_dir: PathBuf,
+    /// Markdown file whose generated section is rewritten from the records.
+    #[arg(long, default_value = "docs/benchmarks.md")]
+    pub(crate) docs: PathBuf,
+    /// Do not touch the Markdown file.
+    #[arg(long)]
+    pub(crate) no_docs: bool,
+    /// Measure nothing: redraw the tables and charts from the records in --out-dir.
+    #[arg(long)]
+    pub(crate) report_only: bool,
+    /// GI scaling scenario: moving car counts.
+    #[arg(long, value_delimiter = ',', default_value = "1,16,64,256")]
+    pub(crate) gi_cars: Vec<usize>,
+    /// GI scaling scenario: world volume cells per side (a power of two).
+    #[arg(long, default_value_t = 128)]
+    pub(crate) gi_res: u32,
+    /// GI scenarios: timed runs per setting (the median is kept).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub(crate) gi_repeats: u64,
+    /// GI accuracy scenario: path-traced reference samples per pixel.
+    #[arg(long, default_value_t = 512)]
+    pub(crate) spp: u32,
+    /// GI accuracy scenario: image size.
+    #[arg(long, default_value = "160x120")]
+    pub(crate) accuracy_size: String,
+    /// GI accuracy scenario: the Markdown file whose generated section is rewritten.
+    #[arg(long, default_value = "docs/accuracy.md")]
+    pub(crate) accuracy_docs: PathBuf,
+    /// Forget earlier records instead of merging this run into them.
+    #[arg(long)]
+    pub(crate) fresh: bool,
+}
+
+#[derive(Args, Clone)]
+pub(crate) struct DemoArgs {
+    #[command(flatten)]
+    pub(crate) source: SourceArgs,
+    /// Window width.
+    #[arg(long, default_value_t = 1280)]
+    pub(crate) width: u32,
+    /// Window height.
+    #[arg(long, default_value_t = 768)]
+    pub(crate) height: u32,
+    /// Draw this many frames (the clip advances 1/30 s per frame), then stop with --exit.
+    #[arg(long)]
+    pub(crate) frames: Option<u64>,
+    /// Quit after --frames.
+    #[arg(long, requires = "frames")]
+    pub(crate) exit: bool,
+    /// Write the last frame (and each P press) to this PNG.
+    #[arg(long)]
+    pub(crate) screenshot: Option<PathBuf>,
+    /// Cars, each on its own figure-eight.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub(crate) cars: u32,
+    /// Keep the car(s) in place (wheels, steering and doors still move).
+    #[arg(long)]
+    pub(crate) in_place: bool,
+    /// No ground.
+    #[arg(long)]
+    pub(crate) no_ground: bool,
+    #[command(flatten)]
+    pub(crate) switches: Switches,
+    /// Start with voxel-transformation GI on (on the backend that renders; switchable in the panel).
+    #[arg(long)]
+    pub(crate) gi: bool,
+    /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
+    #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
+    pub(crate) backend: voxray::backend::BackendKind,
+    /// GPU renderer: read every frame back for the panel's statistics and pass times (the
+    /// default keeps frames on the GPU and draws them from its radiance buffer; switchable in
+    /// the panel).
+    #[arg(long)]
+    pub(crate) gpu_read_back: bool,
+}
+
+#[derive(Args)]
+pub(crate) struct VoxelizeArgs {
+    #[command(flatten)]
+    pub(crate) source: SourceArgs,
+    /// Where to write <part>.svo files.
+    #[arg(long, default_value = "svo")]
+    pub(crate) out_dir: PathBuf,
+}

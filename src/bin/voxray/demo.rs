@@ -1,0 +1,33 @@
+//! `voxray demo`: the interactive window.
+
+use super::*;
+
+pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
+    use voxray::viewer::{check_display, run, CarParts, DemoOptions, ViewerError};
+    let demo_err = |e: ViewerError| Error::Io { path: "demo".into(), source: std::io::Error::other(e.to_string()) };
+    check_display().map_err(demo_err)?;
+    let st = stage(&a.source, a.cars, a.in_place, false, !a.no_ground)?;
+    let (lo, hi) = if st.cars.is_empty() || a.in_place { st.cars_bounds() } else { st.bounds };
+    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
+    // The default car can be re-staged with another car count from the panel.
+    let car_parts =
+        (!st.cars.is_empty()).then(|| CarParts { parts: st.scene.parts[..8].to_vec(), ground: !a.no_ground });
+    let opts = DemoOptions {
+        width: a.width,
+        height: a.height,
+        frames: a.frames,
+        exit: a.exit,
+        screenshot: a.screenshot.clone(),
+        backend: a.backend,
+        features: a.switches.features(),
+        car_parts,
+        gi: a.gi,
+        gpu_read_back: a.gpu_read_back,
+    };
+    let report = run(opts, st.scene, st.cars, Lights::default(), camera).map_err(demo_err)?;
+    eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
+    if let Some(line) = report.gpu_steady_state() {
+        println!("{line}");
+    }
+    Ok(())
+}

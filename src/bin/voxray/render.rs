@@ -1,0 +1,259 @@
+//! `voxray render`: stills, clips and the path-traced reference, with their image and AOV
+//! output.
+
+use super::*;
+
+/// `car.png` → `car_0007.png` for frame 7 of a sequence.
+pub(crate) fn numbered(path: &Path, frame: u32) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    path.with_file_name(format!("{stem}_{frame:04}{ext}"))
+}
+
+pub(crate) fn orbit(camera: &Camera, degrees: f64) -> Camera {
+    let q = glam::DQuat::from_axis_angle(camera.up.normalize(), degrees.to_radians());
+    Camera { eye: camera.target + q * (camera.eye - camera.target), ..*camera }
+}
+
+pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
+    let t0 = Instant::now();
+    let is_gif = a.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"));
+    if is_gif && a.frames < 2 {
+        return Err(usage("a .gif output needs --frames 2 or more"));
+    }
+    if !(a.fps.is_finite() && a.fps > 0.0 && a.time.is_finite() && a.orbit.is_finite()) {
+        return Err(usage("--fps must be positive; --time and --orbit finite"));
+    }
+    let lights = match &a.lights_json {
+        Some(p) => Lights::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
+        None => Lights::default(),
+    };
+    let camera_json = a
+        .camera_json
+        .as_ref()
+        .map(|p| read_text(p).and_then(|t| Camera::from_json(&t).map_err(|e| with_path(p, e))))
+        .transpose()?;
+    let mut st = stage(&a.source, a.cars, a.in_place, a.static_car, !a.no_ground)?;
+    let mut camera = camera_json.unwrap_or_else(|| {
+        if a.frames == 1 {
+            // One frame: frame the car(s) as posed, seen from the front left of the first car.
+            let _ = pose_all(&mut st.scene, &st.cars, a.time);
+            let _ = st.scene.update();
+            let heading = st
+                .cars
+                .first()
+                .map_or(glam::DQuat::IDENTITY, |c| st.scene.world(c.body).to_scale_rotation_translation().1);
+            let (lo, hi) = st.cars_bounds();
+            Camera::framing_from(lo.as_vec3(), hi.as_vec3(), 1280, 768, heading * glam::DVec3::new(0.95, 0.36, -0.9))
+        } else {
+            Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 1280, 768)
+        }
+    });
+    camera.width = a.width.unwrap_or(camera.width);
+    camera.height = a.height.unwrap_or(camera.height);
+    camera.validate()?;
+    let t_setup = t0.elapsed();
+
+    if a.reference {
+        return reference_cmd(&a, &st, &camera, &lights, t_setup);
+    }
+    let features = a.switches.features();
+    let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
+    let gi = a.gi.then(|| voxray::gi::GiSettings {
+        res: a.gi_res,
+        filter: a.gi_filter,
+        cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
+        extent: a.gi_extent,
+        bounces: a.gi_bounces,
+        volume: a.gi_volume,
+        levels: a.gi_levels,
+    });
+    if let Some(g) = &gi {
+        // Check the knobs before any frame is rendered.
+        g.validated().map_err(|e| usage(&e.to_string()))?;
+    }
+    let mut session = voxray::session::Session::open(a.backend)?;
+    eprintln!("backend: {}", session.description());
+    session.set_gi(gi)?;
+    let mut gpu_times = Vec::new();
+    let mut last_plan: Option<FramePlan> = None;
+    let mut gif_frames = Vec::new();
+    let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
+    let pb = if a.frames > 1 { bar(a.frames as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
+    for f in 0..a.frames {
+        let start = Instant::now();
+        let t = a.time + f as f64 / a.fps;
+        pose_all(&mut st.scene, &st.cars, t)?;
+        st.scene.update()?;
+        let cam = orbit(&camera, a.orbit * (t - a.time));
+        let report = session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {
+            if a.frames == 1 {
+                pb.set_position(d as u64)
+            }
+        })?;
+        let plan = report.plan;
+        if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
+            pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
+        }
+        let frame = session.last_frame().ok_or_else(|| usage("the renderer kept no frame"))?;
+        if f == 0 && frame.eye_inside_fraction() > 0.5 {
+            pb.suspend(|| {
+                eprintln!(
+                    "warning: the eye is inside a voxel ({:.0} % of the rays hit at t = 0), so the image is one flat \
+                     colour: move the camera (--camera-json) out of the geometry",
+                    100.0 * frame.eye_inside_fraction()
+                )
+            });
+        }
+        let backend = session.backend();
+        match (session.gi(), &report.gi, f) {
+            (Some(g), Some(s), 0) => pb.suspend(|| {
+                eprintln!(
+                    "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms",
+                    s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms
+                );
+                let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
+                eprintln!(
+                    "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB)",
+                    s.layout.unwrap_or(voxray::gi::Layout::Dense),
+                    mb(s.volume_bytes),
+                    g.res,
+                    mb(s.dense_bytes),
+                )
+            }),
+            (Some(g), None, 0) => {
+                let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
+                let volume = match backend.gi_volume() {
+                    Some((voxray::gi::Layout::Sparse, bricks, bytes)) => {
+                        format!(
+                            "sparse {}³ volume ({bricks} bricks, {:.1} MiB of GI buffers)",
+                            g.res,
+                            bytes as f64 / 1048576.0
+                        )
+                    }
+                    Some((_, _, bytes)) => {
+                        format!("dense {}³ volume ({:.1} MiB of GI buffers)", g.res, bytes as f64 / 1048576.0)
+                    }
+                    None => format!("{}³ volume", g.res),
+                };
+                pb.suspend(|| {
+                    eprintln!(
+                        "GI on the GPU: {volume}; transform + inject + levels{} {ms} (cones are in the shade pass)",
+                        if g.bounces > 1 { format!(" + {} more bounces", g.bounces - 1) } else { String::new() }
+                    )
+                });
+            }
+            _ => {}
+        }
+        times.push(start.elapsed().as_secs_f64());
+        if let Some(t) = backend.pass_times() {
+            gpu_times.push(t);
+        }
+        traced += frame.primary_rays - frame.reused + frame.shadow_rays;
+        reused += frame.reused;
+        last_plan = Some(plan);
+        write_frame(&a, frame, f, is_gif, &mut gif_frames)?;
+        if a.frames > 1 {
+            pb.inc(1);
+        }
+    }
+    pb.finish_and_clear();
+    if is_gif {
+        output::write_gif(&a.out, camera.width, camera.height, a.fps, gif_frames)?;
+    }
+    let total: f64 = times.iter().sum();
+    let (median, p95, _) = voxray::bench::summarize(&times);
+    let pixels = camera.width as u64 * camera.height as u64 * a.frames as u64;
+    eprintln!(
+        "timings: setup (load, voxelize, build) {:.2}s | {} frame(s) {:.3}s, median {:.1} ms, p95 {:.1} ms",
+        t_setup.as_secs_f64(),
+        a.frames,
+        total,
+        median * 1e3,
+        p95 * 1e3
+    );
+    if !gpu_times.is_empty() {
+        let (tr, _, _) = voxray::bench::summarize(&gpu_times.iter().map(|t| t.0).collect::<Vec<_>>());
+        let (sh, _, _) = voxray::bench::summarize(&gpu_times.iter().map(|t| t.1).collect::<Vec<_>>());
+        eprintln!("GPU passes (timestamp queries, median): trace {tr:.2} ms, shade {sh:.2} ms");
+    }
+    eprintln!(
+        "rays: {traced} traced ({:.1}% of pixels reused from the hit buffer) = {:.2} Mrays/s on {} ({}x{}, {} instances)",
+        100.0 * reused as f64 / pixels as f64,
+        traced as f64 / total / 1e6,
+        if matches!(session.backend(), Backend::Cpu(_)) {
+            format!("{} threads", rayon::current_num_threads())
+        } else {
+            "the GPU".into()
+        },
+        camera.width,
+        camera.height,
+        st.scene.instances().len()
+    );
+    Ok(())
+}
+
+/// `voxray render --reference`: path-traces the first frame, writing the estimate so far each
+/// time another tenth of the samples is done (stop it early and the image is still there).
+pub(crate) fn reference_cmd(
+    a: &RenderArgs,
+    st: &Staged,
+    camera: &Camera,
+    lights: &Lights,
+    t_setup: std::time::Duration,
+) -> Result<(), Error> {
+    if a.frames > 1 {
+        return Err(usage("--reference renders one frame; drop --frames"));
+    }
+    let settings = voxray::gi::ReferenceSettings { spp: a.spp, bounces: a.bounces, seed: 1 };
+    let start = Instant::now();
+    let mut pt = voxray::gi::PathTracer::new(&st.scene, camera, lights, settings).map_err(|e| usage(&e.to_string()))?;
+    let pb = bar(a.spp as u64, "samples per pixel");
+    let checkpoint = a.spp.div_ceil(10);
+    while pt.samples() < a.spp {
+        pt.pass();
+        pb.set_position(pt.samples() as u64);
+        if pt.samples() % checkpoint == 0 || pt.samples() == a.spp {
+            output::write_image(&pt.frame(), &a.out)?;
+        }
+    }
+    pb.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    eprintln!("wrote {} ({} samples per pixel)", a.out.display(), pt.samples());
+    eprintln!(
+        "timings: setup (load, voxelize, build) {:.2}s | path tracing {:.2}s, {} rays = {:.2} Mrays/s",
+        t_setup.as_secs_f64(),
+        secs,
+        pt.rays(),
+        pt.rays() as f64 / secs / 1e6
+    );
+    Ok(())
+}
+
+pub(crate) fn write_frame(
+    a: &RenderArgs,
+    frame: &Frame,
+    f: u32,
+    is_gif: bool,
+    gif: &mut Vec<Vec<u8>>,
+) -> Result<(), Error> {
+    if is_gif {
+        gif.push(output::srgb8(frame));
+    } else {
+        let path = if a.frames > 1 { numbered(&a.out, f) } else { a.out.clone() };
+        output::write_image(frame, &path)?;
+        if a.frames == 1 {
+            println!("wrote {}", path.display());
+        } else if f + 1 == a.frames {
+            println!("wrote {} … {}", numbered(&a.out, 0).display(), path.display());
+        }
+    }
+    if let Some(dir) = &a.aov_dir {
+        let d = if a.frames > 1 { dir.join(format!("frame_{f:04}")) } else { dir.clone() };
+        output::write_aovs(frame, &d)?;
+        if f + 1 == a.frames {
+            println!("wrote AOVs (t, instance, normal .npy) under {}", dir.display());
+        }
+    }
+    Ok(())
+}
