@@ -25,43 +25,62 @@ use crate::svo::PartId;
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
 
+mod capture;
+mod frame;
+mod sparse;
+mod texture;
+mod volume;
+
+pub use capture::GiCapture;
+use frame::{bind_cached, GiFrameBuffers};
+use sparse::{sparse_bind, SparseTables};
+use texture::{level_texture, LevelTexture};
+use volume::{level_step_bind_with, VolumeBuffers};
+
 /// Fixed-point scale of occupancy, weighted albedo and weighted normal sums (per unit weight);
 /// the WGSL side is `wgsl/gi_fixed.wgsl`.
 pub const FIX: f64 = 65536.0;
+
 /// Fixed-point scale of weighted emission (up to 16× the albedo).
 pub const EMIT_FIX: f64 = 4096.0;
+
 /// Fixed-point scale of the weight that fell outside the volume.
 pub const OUT_FIX: f64 = 256.0;
+
 /// Words per cell in the accumulation buffer.
 pub(crate) const STRIDE: usize = 10;
+
 /// Levels the shaders can address (a 512³ volume has 10, a sparse 1024³ one 11).
 const MAX_LEVELS: usize = 12;
+
 /// Finest cells per brick.
 const BRICK_CELLS: u32 = BRICK * BRICK * BRICK;
+
 /// Brick levels stored per brick (8³, 4³, 2³), as `gi::sparse`.
 const BRICK_LEVELS: usize = 3;
+
 /// Fewest bricks the pool holds.
 const MIN_BRICKS: u32 = 8;
 
 /// The transformation shader into the dense volume.
 pub fn transform_source() -> String {
-    transform_source_for(include_str!("../../wgsl/gi_dense_cell.wgsl"))
+    transform_source_for(include_str!("../../../wgsl/gi_dense_cell.wgsl"))
 }
 
 /// The transformation shader into the sparse volume (with its allocate pass).
 pub fn sparse_transform_source() -> String {
-    transform_source_for(include_str!("../../wgsl/gi_sparse_cell.wgsl"))
+    transform_source_for(include_str!("../../../wgsl/gi_sparse_cell.wgsl"))
 }
 
 fn transform_source_for(cells: &str) -> String {
     [
         &super::prelude::prelude(),
-        include_str!("../../wgsl/layout.wgsl"),
-        include_str!("../../wgsl/attr.wgsl"),
-        include_str!("../../wgsl/gi_fixed.wgsl"),
-        include_str!("../../wgsl/gi_splat.wgsl"),
+        include_str!("../../../wgsl/layout.wgsl"),
+        include_str!("../../../wgsl/attr.wgsl"),
+        include_str!("../../../wgsl/gi_fixed.wgsl"),
+        include_str!("../../../wgsl/gi_splat.wgsl"),
         cells,
-        include_str!("../../wgsl/gi_transform.wgsl"),
+        include_str!("../../../wgsl/gi_transform.wgsl"),
     ]
     .join("\n")
 }
@@ -76,20 +95,12 @@ fn flat_groups(threads: u32) -> ((u32, u32), u32) {
 
 /// The level-chain shader.
 pub fn levels_source() -> String {
-    [&super::prelude::prelude(), include_str!("../../wgsl/layout.wgsl"), include_str!("../../wgsl/gi_levels.wgsl")]
-        .join("\n")
-}
-
-/// The GI volume of the last frame, read back from the GPU (for tests and tools: the render
-/// path never reads it back).
-#[derive(Clone, Debug)]
-pub struct GiCapture {
-    /// The transformed voxels, the fixed-point sums converted back to floats.
-    pub volume: Volume,
-    /// Weight that fell outside the volume.
-    pub outside: f64,
-    /// The injected light and the level chain.
-    pub levels: Levels,
+    [
+        &super::prelude::prelude(),
+        include_str!("../../../wgsl/layout.wgsl"),
+        include_str!("../../../wgsl/gi_levels.wgsl"),
+    ]
+    .join("\n")
 }
 
 /// What the GPU GI did in the last frame.
@@ -116,47 +127,6 @@ pub struct GpuGiStats {
     pub bricks_ms: f64,
 }
 
-/// The level chain copied into a 3D texture's mips (`LevelStore::Texture`).
-struct LevelTexture {
-    /// Texels per side of mip 0 (res rounded up to a power of two).
-    size: u32,
-    view: wgpu::TextureView,
-    /// Per level: the copy's bind group and its workgroups per side.
-    steps: Vec<(wgpu::BindGroup, u32)>,
-}
-
-struct VolumeBuffers {
-    layout: Layout,
-    /// The chain's texture copy, when the cones read it from a texture.
-    texture: Option<LevelTexture>,
-    res: u32,
-    /// Bricks the sparse buffers hold (0 for dense).
-    capacity: u32,
-    /// STRIDE words per stored cell (then, dense, the outside counter).
-    accum: wgpu::Buffer,
-    levels: wgpu::Buffer,
-    offsets: Vec<u32>,
-    resolutions: Vec<u32>,
-    /// The dense steps down the chain (sparse: from the top table's level on).
-    steps: Vec<wgpu::BindGroup>,
-    /// The direct and next level 0 of the bounce passes (allocated when a frame asks for more
-    /// than one bounce).
-    bounce: Option<(wgpu::Buffer, wgpu::Buffer)>,
-}
-
-/// The sparse volume's tables, sized by the resolution alone.
-struct SparseTables {
-    res: u32,
-    /// Brick of each top cell (or none), as `SparseVolume::top`.
-    top: wgpu::Buffer,
-    /// Top cell of each brick.
-    brick_top: wgpu::Buffer,
-    /// Bricks allocated, weight outside (`OUT_FIX`).
-    counters: wgpu::Buffer,
-    /// Bricks allocated by the last mark and allocate passes.
-    bricks: u32,
-}
-
 struct Pool {
     keys: Vec<(PartId, u32)>,
     voxels: wgpu::Buffer,
@@ -181,62 +151,6 @@ pub(crate) struct GiWork {
     bounces: u32,
     /// What this frame does.
     pub stats: GpuGiStats,
-}
-
-/// Per-frame GI inputs kept from frame to frame: rewritten in place, replaced only when a
-/// frame needs a larger one, and bind groups made again only when a buffer they name was
-/// replaced, so a steady animation with GI creates no buffers either.
-#[derive(Default)]
-struct GiFrameBuffers {
-    /// The instances' transformation jobs.
-    jobs: Option<wgpu::Buffer>,
-    /// The splat uniforms, and their copy with `mark` set for the sparse allocation.
-    splat: Option<wgpu::Buffer>,
-    mark: Option<wgpu::Buffer>,
-    /// The GI frame uniforms of the tracer's entries.
-    frame: Option<wgpu::Buffer>,
-    /// The sparse brick steps' uniforms (8³ → 4³ → 2³ → top table).
-    brick_steps: Vec<Option<wgpu::Buffer>>,
-    /// Where the sparse brick count is read back.
-    brick_count: Option<wgpu::Buffer>,
-    /// Bind groups by name (and step), with the buffers they were made over.
-    binds: HashMap<(&'static str, usize), (Vec<wgpu::Buffer>, wgpu::BindGroup)>,
-}
-
-impl GiFrameBuffers {
-    /// The buffer in `slot` (exactly `bytes` long for a uniform, else at least), made only
-    /// when the one there does not fit, with `bytes` written into it.
-    fn write(
-        ctx: &GpuContext,
-        slot: &mut Option<wgpu::Buffer>,
-        label: &'static str,
-        bytes: &[u8],
-        usage: wgpu::BufferUsages,
-    ) -> Result<wgpu::Buffer, GpuError> {
-        let exact = usage.contains(wgpu::BufferUsages::UNIFORM);
-        ensure(ctx, slot, label, bytes.len() as u64, exact, usage | wgpu::BufferUsages::COPY_DST);
-        let buf = slot.clone().ok_or_else(|| GpuError::Device(format!("{label} missing")))?;
-        ctx.queue.write_buffer(&buf, 0, bytes);
-        Ok(buf)
-    }
-}
-
-/// The bind group `name` over the buffers in `key`: the one made before when it was made
-/// over the same buffers, a new one from `make` otherwise.
-fn bind_cached(
-    binds: &mut HashMap<(&'static str, usize), (Vec<wgpu::Buffer>, wgpu::BindGroup)>,
-    name: (&'static str, usize),
-    key: Vec<wgpu::Buffer>,
-    make: impl FnOnce() -> wgpu::BindGroup,
-) -> wgpu::BindGroup {
-    match binds.get(&name) {
-        Some((k, bind)) if *k == key => bind.clone(),
-        _ => {
-            let bind = make();
-            binds.insert(name, (key, bind.clone()));
-            bind
-        }
-    }
 }
 
 /// The GPU GI state kept between frames: CPU caches, their upload, pipelines and the volume.
@@ -368,90 +282,6 @@ pub fn volume_from_accum(accum: &[u32], spec: VolumeSpec) -> (Volume, f64) {
     }
     let outside = accum.last().copied().unwrap_or(0) as f64 / OUT_FIX;
     (volume, outside)
-}
-
-/// A 3D rgba16float texture of `size`³ texels with `mips` levels, sampled by the cones and
-/// written by the level copies.
-fn level_texture(device: &wgpu::Device, size: u32, mips: u32) -> wgpu::Texture {
-    device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("gi level texture"),
-        size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: size },
-        mip_level_count: mips,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D3,
-        format: wgpu::TextureFormat::Rgba16Float,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::STORAGE_BINDING,
-        view_formats: &[],
-    })
-}
-
-/// Finest cells stored: every cell (dense) or `capacity` bricks' (sparse).
-fn stored_cells(layout: Layout, res: u32, capacity: u32) -> u64 {
-    match layout {
-        Layout::Dense => (res as u64).pow(3),
-        Layout::Sparse => capacity as u64 * BRICK_CELLS as u64,
-    }
-}
-
-/// The bind group of one step down the level chain (`brick_top` for a brick step), with its
-/// uniforms in `ubuf`.
-fn level_step_bind_with(
-    ctx: &GpuContext,
-    pipe: &wgpu::ComputePipeline,
-    levels: &wgpu::Buffer,
-    ubuf: &wgpu::Buffer,
-    brick_top: Option<&wgpu::Buffer>,
-) -> wgpu::BindGroup {
-    let mut entries = vec![
-        wgpu::BindGroupEntry { binding: 0, resource: levels.as_entire_binding() },
-        wgpu::BindGroupEntry { binding: 1, resource: ubuf.as_entire_binding() },
-    ];
-    if let Some(b) = brick_top {
-        entries.push(wgpu::BindGroupEntry { binding: 2, resource: b.as_entire_binding() });
-    }
-    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("gi level step"),
-        layout: &pipe.get_bind_group_layout(0),
-        entries: &entries,
-    })
-}
-
-/// The bind group of one step down the dense chain, with uniforms of its own (made once per
-/// volume).
-fn level_step_bind(
-    ctx: &GpuContext,
-    pipe: &wgpu::ComputePipeline,
-    levels: &wgpu::Buffer,
-    step: &GpuGiLevelStep,
-) -> wgpu::BindGroup {
-    let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("gi level step"),
-        contents: bytemuck::bytes_of(step),
-        usage: wgpu::BufferUsages::UNIFORM,
-    });
-    level_step_bind_with(ctx, pipe, levels, &ubuf, None)
-}
-
-/// The bind group of the sparse passes.
-fn sparse_bind(
-    ctx: &GpuContext,
-    layout: &wgpu::BindGroupLayout,
-    [voxels, jobs, accum, ubuf]: [&wgpu::Buffer; 4],
-    tables: &SparseTables,
-) -> wgpu::BindGroup {
-    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("gi sparse volume"),
-        layout,
-        entries: &[
-            wgpu::BindGroupEntry { binding: 0, resource: voxels.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 1, resource: jobs.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 2, resource: accum.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 3, resource: ubuf.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 4, resource: tables.top.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 5, resource: tables.counters.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 6, resource: tables.brick_top.as_entire_binding() },
-        ],
-    })
 }
 
 fn gi_layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
@@ -625,248 +455,6 @@ impl GpuGi {
             usage: wgpu::BufferUsages::STORAGE,
         });
         self.pool = Some(Pool { keys, voxels, ranges });
-        Ok(())
-    }
-
-    /// Allocates the accumulation and level buffers for `res` cells per side: every cell
-    /// (dense) or `capacity` bricks (sparse).
-    fn volume_buffers(
-        &mut self,
-        ctx: &GpuContext,
-        layout: Layout,
-        res: u32,
-        capacity: u32,
-        texture: bool,
-    ) -> Result<(), GpuError> {
-        if self.volume.as_ref().is_some_and(|v| {
-            v.layout == layout && v.res == res && v.capacity == capacity && v.texture.is_some() == texture
-        }) {
-            return Ok(());
-        }
-        self.volume = None; // free the old volume before allocating the new one
-        let cells = stored_cells(layout, res, capacity);
-        let accum_size = (cells * STRIDE as u64 + 1) * 4;
-        ctx.check_binding("the GI accumulation volume", accum_size)?;
-        let (mut offsets, mut resolutions, mut total) = (Vec::new(), Vec::new(), 0u64);
-        let mut r = res;
-        if layout == Layout::Sparse {
-            // The bricks' levels, then the dense chain from the top table.
-            for l in 0..BRICK_LEVELS {
-                offsets.push(total as u32);
-                resolutions.push(res >> l);
-                total += capacity as u64 * ((BRICK >> l) as u64).pow(3);
-            }
-            r = res / BRICK;
-        }
-        let first_dense = offsets.len();
-        loop {
-            offsets.push(total as u32);
-            resolutions.push(r);
-            total += (r as u64).pow(3);
-            if r == 1 {
-                break;
-            }
-            r = r.div_ceil(2);
-        }
-        if offsets.len() > MAX_LEVELS {
-            return Err(GiError::Resolution(res).into());
-        }
-        ctx.check_binding("the GI level chain", total * 16)?;
-        let accum = ctx.buffer(&wgpu::BufferDescriptor {
-            label: Some("gi accumulation"),
-            size: accum_size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let levels = ctx.buffer(&wgpu::BufferDescriptor {
-            label: Some("gi levels"),
-            size: total * 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let steps = (first_dense + 1..offsets.len())
-            .map(|l| {
-                let step = GpuGiLevelStep {
-                    src_offset: offsets[l - 1],
-                    src_res: resolutions[l - 1],
-                    dst_offset: offsets[l],
-                    dst_res: resolutions[l],
-                    ..Default::default()
-                };
-                level_step_bind(ctx, &self.levels_pipe, &levels, &step)
-            })
-            .collect();
-        let texture = match texture {
-            true => Some(self.level_texture_for(ctx, &levels, &offsets, &resolutions)?),
-            false => None,
-        };
-        self.volume = Some(VolumeBuffers {
-            layout,
-            texture,
-            res,
-            capacity,
-            accum,
-            levels,
-            offsets,
-            resolutions,
-            steps,
-            bounce: None,
-        });
-        Ok(())
-    }
-
-    /// The level texture of a dense chain and the copies that fill its mips.
-    fn level_texture_for(
-        &self,
-        ctx: &GpuContext,
-        levels: &wgpu::Buffer,
-        offsets: &[u32],
-        resolutions: &[u32],
-    ) -> Result<LevelTexture, GpuError> {
-        let size = resolutions[0].next_power_of_two();
-        let mips = offsets.len() as u32;
-        if size.trailing_zeros() + 1 != mips || size > ctx.limits.max_texture_dimension_3d {
-            return Err(GiError::Settings(format!(
-                "a {}³ GI level texture is beyond this device (3D textures up to {}³)",
-                size, ctx.limits.max_texture_dimension_3d
-            ))
-            .into());
-        }
-        let tex = level_texture(&ctx.device, size, mips);
-        let steps = (0..mips as usize)
-            .map(|l| {
-                let step = GpuGiLevelStep {
-                    src_offset: offsets[l],
-                    src_res: resolutions[l],
-                    dst_res: size >> l,
-                    ..Default::default()
-                };
-                let ubuf = ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("gi level copy"),
-                    contents: bytemuck::bytes_of(&step),
-                    usage: wgpu::BufferUsages::UNIFORM,
-                });
-                let view = tex.create_view(&wgpu::TextureViewDescriptor {
-                    label: Some("gi level mip"),
-                    dimension: Some(wgpu::TextureViewDimension::D3),
-                    base_mip_level: l as u32,
-                    mip_level_count: Some(1),
-                    ..Default::default()
-                });
-                let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("gi level copy"),
-                    layout: &self.texture_pipe.get_bind_group_layout(0),
-                    entries: &[
-                        wgpu::BindGroupEntry { binding: 0, resource: levels.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 1, resource: ubuf.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&view) },
-                    ],
-                });
-                (bind, (size >> l).div_ceil(4))
-            })
-            .collect();
-        let view = tex.create_view(&wgpu::TextureViewDescriptor {
-            label: Some("gi level texture"),
-            dimension: Some(wgpu::TextureViewDimension::D3),
-            ..Default::default()
-        });
-        Ok(LevelTexture { size, view, steps })
-    }
-
-    /// Allocates the sparse volume's top tables for `res` cells per side.
-    fn sparse_tables(&mut self, ctx: &GpuContext, res: u32) -> Result<(), GpuError> {
-        if self.sparse.as_ref().is_some_and(|t| t.res == res) {
-            return Ok(());
-        }
-        let top_cells = ((res / BRICK) as u64).pow(3).max(1);
-        ctx.check_binding("the GI top table", top_cells * 4)?;
-        let make = |label, size, usage| {
-            ctx.buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage: wgpu::BufferUsages::STORAGE | usage,
-                mapped_at_creation: false,
-            })
-        };
-        let copy = wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
-        self.sparse = Some(SparseTables {
-            res,
-            top: make("gi top table", top_cells * 4, copy),
-            brick_top: make("gi brick top cells", top_cells * 4, copy),
-            counters: make("gi sparse counters", 16, copy),
-            bricks: 0,
-        });
-        Ok(())
-    }
-
-    /// Marks and allocates the sparse volume's bricks for `threads` moved voxels (submitted at
-    /// once) and reads back how many there are.
-    fn allocate_bricks(
-        &mut self,
-        ctx: &GpuContext,
-        voxels: &wgpu::Buffer,
-        jobs: &wgpu::Buffer,
-        splat: GpuGiSplat,
-        groups: (u32, u32),
-    ) -> Result<(u32, f64), GpuError> {
-        let t0 = std::time::Instant::now();
-        let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
-        let device = &ctx.device;
-        let kept = &mut self.kept;
-        let mark = GpuGiSplat { mark: 1, ..splat };
-        let ubuf = GiFrameBuffers::write(
-            ctx,
-            &mut kept.mark,
-            "gi mark",
-            bytemuck::bytes_of(&mark),
-            wgpu::BufferUsages::UNIFORM,
-        )?;
-        let key = vec![voxels.clone(), jobs.clone(), ubuf.clone(), tables.top.clone(), tables.brick_top.clone()];
-        let (layout, placeholder) = (&self.sparse_layout, &self.placeholder);
-        let bind = bind_cached(&mut kept.binds, ("mark", 0), key, || {
-            sparse_bind(ctx, layout, [voxels, jobs, placeholder, &ubuf], tables)
-        });
-        let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
-        enc.clear_buffer(&tables.top, 0, None);
-        enc.clear_buffer(&tables.counters, 0, None);
-        {
-            let mut pass = enc
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("gi bricks"), timestamp_writes: None });
-            pass.set_bind_group(0, &bind, &[]);
-            if groups.0 > 0 {
-                pass.set_pipeline(&self.sparse_splat_pipe);
-                pass.dispatch_workgroups(groups.0, groups.1, 1);
-            }
-            let g = (tables.res / BRICK).div_ceil(4);
-            pass.set_pipeline(&self.sparse_alloc_pipe);
-            pass.dispatch_workgroups(g, g, g);
-        }
-        let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-        ensure(ctx, &mut kept.brick_count, "gi brick count", 4, true, mappable);
-        let readback =
-            kept.brick_count.as_ref().ok_or_else(|| GpuError::Device("brick count buffer missing".into()))?;
-        enc.copy_buffer_to_buffer(&tables.counters, 0, readback, 0, 4);
-        ctx.queue.submit([enc.finish()]);
-        let count: Vec<u32> = read(ctx, readback)?;
-        Ok((count.first().copied().unwrap_or(0), t0.elapsed().as_secs_f64() * 1e3))
-    }
-
-    /// Allocates the bounce passes' two level-0 buffers if a frame needs them.
-    fn bounce_buffers(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
-        let Some(vol) = self.volume.as_mut().filter(|v| v.bounce.is_none()) else {
-            return Ok(());
-        };
-        let size = stored_cells(vol.layout, vol.res, vol.capacity) * 16;
-        ctx.check_binding("the GI bounce volume", size)?;
-        let make = |label| {
-            ctx.buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage: wgpu::BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            })
-        };
-        vol.bounce = Some((make("gi direct level 0"), make("gi next level 0")));
         Ok(())
     }
 
@@ -1197,99 +785,5 @@ impl GpuGi {
             levels(&mut pass);
         }
         Ok(())
-    }
-
-    /// Copies the volume to readback buffers (submit `enc`, then [`GpuGi::read_capture`]).
-    pub(crate) fn copy_capture(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder) -> Option<Vec<wgpu::Buffer>> {
-        let vol = self.volume.as_ref()?;
-        let copy = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer| {
-            let dst = ctx.buffer(&wgpu::BufferDescriptor {
-                label: Some("gi readback"),
-                size: src.size(),
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            enc.copy_buffer_to_buffer(src, 0, &dst, 0, src.size());
-            dst
-        };
-        let mut out = vec![copy(enc, &vol.accum), copy(enc, &vol.levels)];
-        if let Some(t) = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse) {
-            out.extend([copy(enc, &t.brick_top), copy(enc, &t.counters)]);
-        }
-        Some(out)
-    }
-
-    /// Reads the copies of [`GpuGi::copy_capture`] back into CPU structures; a sparse volume
-    /// comes back scattered into the dense layout (cells and levels without a brick empty), so
-    /// both compare with the CPU's dense volume.
-    pub(crate) fn read_capture(
-        &self,
-        ctx: &GpuContext,
-        work: &GiWork,
-        bufs: &[wgpu::Buffer],
-    ) -> Result<GiCapture, GpuError> {
-        let vol = self.volume.as_ref().ok_or_else(|| GpuError::Device("GI volume missing".into()))?;
-        let missing = || GpuError::Readback("GI capture incomplete".into());
-        let mut accum: Vec<u32> = read(ctx, bufs.first().ok_or_else(missing)?)?;
-        let mut rgba: Vec<[f32; 4]> = read(ctx, bufs.get(1).ok_or_else(missing)?)?;
-        let mut offsets = vol.offsets.clone();
-        if vol.layout == Layout::Sparse {
-            let brick_top: Vec<u32> = read(ctx, bufs.get(2).ok_or_else(missing)?)?;
-            let counters: Vec<u32> = read(ctx, bufs.get(3).ok_or_else(missing)?)?;
-            let bricks = work.stats.bricks as usize;
-            let (res, tr) = (vol.res as usize, (vol.res / BRICK) as usize);
-            // The finest cell (dense index) of cell k of brick level l's brick b.
-            let dense_index = |l: usize, b: usize, k: usize| {
-                let (side, r) = ((BRICK >> l) as usize, res >> l);
-                let t = brick_top[b] as usize;
-                let c = [
-                    (t % tr) * side + k % side,
-                    ((t / tr) % tr) * side + (k / side) % side,
-                    (t / (tr * tr)) * side + k / (side * side),
-                ];
-                c[0] + r * (c[1] + r * c[2])
-            };
-            let mut dense_accum = vec![0u32; res.pow(3) * STRIDE + 1];
-            for b in 0..bricks {
-                for k in 0..BRICK_CELLS as usize {
-                    let (src, dst) = ((b * BRICK_CELLS as usize + k) * STRIDE, dense_index(0, b, k) * STRIDE);
-                    dense_accum[dst..dst + STRIDE].copy_from_slice(&accum[src..src + STRIDE]);
-                }
-            }
-            dense_accum[res.pow(3) * STRIDE] = counters.get(1).copied().unwrap_or(0);
-            accum = dense_accum;
-            let mut dense_rgba = Vec::new();
-            offsets.clear();
-            for l in 0..BRICK_LEVELS {
-                offsets.push(dense_rgba.len() as u32);
-                let n = (BRICK >> l).pow(3) as usize;
-                let base = dense_rgba.len();
-                dense_rgba.resize(base + (res >> l).pow(3), [0.0; 4]);
-                for b in 0..bricks {
-                    for k in 0..n {
-                        dense_rgba[base + dense_index(l, b, k)] = rgba[vol.offsets[l] as usize + b * n + k];
-                    }
-                }
-            }
-            let shift = dense_rgba.len() as u32 - vol.offsets[BRICK_LEVELS];
-            offsets.extend(vol.offsets[BRICK_LEVELS..].iter().map(|o| o + shift));
-            dense_rgba.extend_from_slice(&rgba[vol.offsets[BRICK_LEVELS] as usize..]);
-            rgba = dense_rgba;
-        }
-        let (volume, outside) = volume_from_accum(&accum, work.spec);
-        let levels = offsets
-            .iter()
-            .zip(&vol.resolutions)
-            .enumerate()
-            .map(|(l, (&off, &res))| {
-                let n = (res as usize).pow(3);
-                Level {
-                    res,
-                    cell: work.spec.cell * (1u64 << l) as f64,
-                    rgba: rgba[off as usize..off as usize + n].iter().map(|&v| Vec4::from_array(v)).collect(),
-                }
-            })
-            .collect();
-        Ok(GiCapture { volume, outside, levels: Levels { min: work.spec.min, levels } })
     }
 }

@@ -1,0 +1,111 @@
+//! Reading the GI volume back (tests and tools).
+
+use super::*;
+
+/// The GI volume of the last frame, read back from the GPU (for tests and tools: the render
+/// path never reads it back).
+#[derive(Clone, Debug)]
+pub struct GiCapture {
+    /// The transformed voxels, the fixed-point sums converted back to floats.
+    pub volume: Volume,
+    /// Weight that fell outside the volume.
+    pub outside: f64,
+    /// The injected light and the level chain.
+    pub levels: Levels,
+}
+
+impl GpuGi {
+    /// Copies the volume to readback buffers (submit `enc`, then [`GpuGi::read_capture`]).
+    pub(crate) fn copy_capture(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder) -> Option<Vec<wgpu::Buffer>> {
+        let vol = self.volume.as_ref()?;
+        let copy = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer| {
+            let dst = ctx.buffer(&wgpu::BufferDescriptor {
+                label: Some("gi readback"),
+                size: src.size(),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            enc.copy_buffer_to_buffer(src, 0, &dst, 0, src.size());
+            dst
+        };
+        let mut out = vec![copy(enc, &vol.accum), copy(enc, &vol.levels)];
+        if let Some(t) = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse) {
+            out.extend([copy(enc, &t.brick_top), copy(enc, &t.counters)]);
+        }
+        Some(out)
+    }
+
+    /// Reads the copies of [`GpuGi::copy_capture`] back into CPU structures; a sparse volume
+    /// comes back scattered into the dense layout (cells and levels without a brick empty), so
+    /// both compare with the CPU's dense volume.
+    pub(crate) fn read_capture(
+        &self,
+        ctx: &GpuContext,
+        work: &GiWork,
+        bufs: &[wgpu::Buffer],
+    ) -> Result<GiCapture, GpuError> {
+        let vol = self.volume.as_ref().ok_or_else(|| GpuError::Device("GI volume missing".into()))?;
+        let missing = || GpuError::Readback("GI capture incomplete".into());
+        let mut accum: Vec<u32> = read(ctx, bufs.first().ok_or_else(missing)?)?;
+        let mut rgba: Vec<[f32; 4]> = read(ctx, bufs.get(1).ok_or_else(missing)?)?;
+        let mut offsets = vol.offsets.clone();
+        if vol.layout == Layout::Sparse {
+            let brick_top: Vec<u32> = read(ctx, bufs.get(2).ok_or_else(missing)?)?;
+            let counters: Vec<u32> = read(ctx, bufs.get(3).ok_or_else(missing)?)?;
+            let bricks = work.stats.bricks as usize;
+            let (res, tr) = (vol.res as usize, (vol.res / BRICK) as usize);
+            // The finest cell (dense index) of cell k of brick level l's brick b.
+            let dense_index = |l: usize, b: usize, k: usize| {
+                let (side, r) = ((BRICK >> l) as usize, res >> l);
+                let t = brick_top[b] as usize;
+                let c = [
+                    (t % tr) * side + k % side,
+                    ((t / tr) % tr) * side + (k / side) % side,
+                    (t / (tr * tr)) * side + k / (side * side),
+                ];
+                c[0] + r * (c[1] + r * c[2])
+            };
+            let mut dense_accum = vec![0u32; res.pow(3) * STRIDE + 1];
+            for b in 0..bricks {
+                for k in 0..BRICK_CELLS as usize {
+                    let (src, dst) = ((b * BRICK_CELLS as usize + k) * STRIDE, dense_index(0, b, k) * STRIDE);
+                    dense_accum[dst..dst + STRIDE].copy_from_slice(&accum[src..src + STRIDE]);
+                }
+            }
+            dense_accum[res.pow(3) * STRIDE] = counters.get(1).copied().unwrap_or(0);
+            accum = dense_accum;
+            let mut dense_rgba = Vec::new();
+            offsets.clear();
+            for l in 0..BRICK_LEVELS {
+                offsets.push(dense_rgba.len() as u32);
+                let n = (BRICK >> l).pow(3) as usize;
+                let base = dense_rgba.len();
+                dense_rgba.resize(base + (res >> l).pow(3), [0.0; 4]);
+                for b in 0..bricks {
+                    for k in 0..n {
+                        dense_rgba[base + dense_index(l, b, k)] = rgba[vol.offsets[l] as usize + b * n + k];
+                    }
+                }
+            }
+            let shift = dense_rgba.len() as u32 - vol.offsets[BRICK_LEVELS];
+            offsets.extend(vol.offsets[BRICK_LEVELS..].iter().map(|o| o + shift));
+            dense_rgba.extend_from_slice(&rgba[vol.offsets[BRICK_LEVELS] as usize..]);
+            rgba = dense_rgba;
+        }
+        let (volume, outside) = volume_from_accum(&accum, work.spec);
+        let levels = offsets
+            .iter()
+            .zip(&vol.resolutions)
+            .enumerate()
+            .map(|(l, (&off, &res))| {
+                let n = (res as usize).pow(3);
+                Level {
+                    res,
+                    cell: work.spec.cell * (1u64 << l) as f64,
+                    rgba: rgba[off as usize..off as usize + n].iter().map(|&v| Vec4::from_array(v)).collect(),
+                }
+            })
+            .collect();
+        Ok(GiCapture { volume, outside, levels: Levels { min: work.spec.min, levels } })
+    }
+}
