@@ -1,5 +1,5 @@
 //! Revelles' parametric octree traversal (Revelles, Ureña & Lastra 2000), made iterative
-//! with a fixed-size explicit stack so that `wgsl/traverse.wgsl` can mirror it step by step.
+//! with a fixed-size explicit stack so that `wgsl/shared/traverse.wgsl` can mirror it step by step.
 //!
 //! The ray is mirrored so every moving direction component is positive (§3.2, the `a`
 //! mask); a child's t-interval comes from its parent's entry, midpoint and exit t-values

@@ -1,4 +1,4 @@
-//! Every struct in wgsl/layout.wgsl has the size and field offsets of its Rust twin.
+//! Every struct in wgsl/shared/layout.wgsl has the size and field offsets of its Rust twin.
 #![cfg(feature = "gpu")]
 //! Offsets on the WGSL side follow the WGSL layout rules for the scalar and vector types
 //! used there (an unknown type fails the test rather than being guessed).
@@ -255,7 +255,7 @@ fn wgsl_structs_match_rust() {
             ],
         ),
     ];
-    let parsed = wgsl_structs(include_str!("../wgsl/layout.wgsl"));
+    let parsed = wgsl_structs(include_str!("../wgsl/shared/layout.wgsl"));
     assert_eq!(parsed.len(), rust.len(), "every WGSL struct needs a Rust twin in this test");
     for (name, size, fields) in rust {
         let (_, wfields) = parsed.iter().find(|(n, _)| n == name).unwrap_or_else(|| panic!("{name} missing in WGSL"));
@@ -279,8 +279,14 @@ fn shared_constants_come_from_rust_once() {
     use voxray::gpu::prelude::{prelude, shared};
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("wgsl");
     let mut all = String::new();
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
+    // The passes and, in wgsl/shared/, the includes they share.
+    let files: Vec<_> = [dir.clone(), dir.join("shared")]
+        .iter()
+        .flat_map(|d| std::fs::read_dir(d).unwrap().map(|e| e.unwrap().path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "wgsl"))
+        .collect();
+    assert!(files.len() > 10, "{} shader files", files.len());
+    for path in files {
         let src = std::fs::read_to_string(&path).unwrap();
         for (name, _, _) in shared() {
             let defined = src.lines().any(|l| l.trim_start().starts_with(&format!("const {name}:")));

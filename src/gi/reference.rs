@@ -13,7 +13,7 @@
 
 use crate::render::brdf;
 use crate::render::bvh::Bvh;
-use crate::render::cpu::{leave, par_map, record};
+use crate::render::cpu::{hit_record, leave, par_map};
 use crate::render::hitbuffer::HitRecord;
 use crate::render::instances::{prepare, Prepared};
 use crate::render::visibility::{nearest, occluded, FrameInstances, Search};
@@ -131,7 +131,7 @@ impl<'a> PathTracer<'a> {
             match nearest(&fi, DVec3::ZERO, d, pt.search, &TraceOptions::default()) {
                 None => (HitRecord::MISS, DVec3::ZERO, pt.lights.sky(), 1),
                 Some(h) => {
-                    let r = record(scene, &pt.prepared, &h, d);
+                    let r = hit_record(scene, &pt.prepared, &h, d);
                     let at = d * r.t as f64;
                     let (light, rays) = pt.surface_light(&fi, &r, at, d);
                     (r, at, light, 1 + rays)
@@ -198,7 +198,7 @@ impl<'a> PathTracer<'a> {
                 light += beta * self.lights.sky().as_dvec3();
                 break;
             };
-            r = record(self.scene, &self.prepared, &h, d);
+            r = hit_record(self.scene, &self.prepared, &h, d);
             at = from + d * r.t as f64;
             let (l, shadow) = self.surface_light(fi, &r, at, d);
             rays += shadow;

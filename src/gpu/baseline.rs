@@ -19,9 +19,9 @@ use std::time::Instant;
 pub fn revoxelize_source() -> String {
     [
         &super::prelude::prelude(),
-        include_str!("../../wgsl/layout.wgsl"),
-        include_str!("../../wgsl/gi_fixed.wgsl"),
-        include_str!("../../wgsl/gi_splat.wgsl"),
+        include_str!("../../wgsl/shared/layout.wgsl"),
+        include_str!("../../wgsl/shared/gi_fixed.wgsl"),
+        include_str!("../../wgsl/shared/gi_splat.wgsl"),
         include_str!("../../wgsl/gi_revoxelize.wgsl"),
     ]
     .join("\n")

@@ -1,5 +1,5 @@
 //! Structs shared with WGSL. Each is `#[repr(C)]` + Pod and must be kept in sync with the
-//! struct of the same role in `wgsl/layout.wgsl` (named in its doc line); `tests/layout.rs`
+//! struct of the same role in `wgsl/shared/layout.wgsl` (named in its doc line); `tests/layout.rs`
 //! compares sizes and offsets. All vec4 fields come first so Rust's packing equals WGSL's.
 
 use bytemuck::{Pod, Zeroable};

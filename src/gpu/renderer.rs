@@ -20,11 +20,11 @@ use std::sync::Arc;
 pub fn trace_source() -> String {
     [
         &super::prelude::prelude(),
-        include_str!("../../wgsl/layout.wgsl"),
-        include_str!("../../wgsl/attr.wgsl"),
-        include_str!("../../wgsl/traverse.wgsl"),
+        include_str!("../../wgsl/shared/layout.wgsl"),
+        include_str!("../../wgsl/shared/attr.wgsl"),
+        include_str!("../../wgsl/shared/traverse.wgsl"),
         include_str!("../../wgsl/trace.wgsl"),
-        include_str!("../../wgsl/gi_fixed.wgsl"),
+        include_str!("../../wgsl/shared/gi_fixed.wgsl"),
         include_str!("../../wgsl/gi_trace.wgsl"),
     ]
     .join("\n")
@@ -34,8 +34,8 @@ pub fn trace_source() -> String {
 pub fn rays_source() -> String {
     [
         &super::prelude::prelude(),
-        include_str!("../../wgsl/layout.wgsl"),
-        include_str!("../../wgsl/traverse.wgsl"),
+        include_str!("../../wgsl/shared/layout.wgsl"),
+        include_str!("../../wgsl/shared/traverse.wgsl"),
         include_str!("../../wgsl/rays.wgsl"),
     ]
     .join("\n")

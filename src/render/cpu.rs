@@ -136,7 +136,7 @@ fn for_rows<T: Send>(buf: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + 
 
 /// The hit record of a nearest hit along unit direction `d`: world normals turned to face the
 /// ray (surfaces are two-sided), the voxel's world size for offsets.
-pub(crate) fn record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
+pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
     let p = &prepared[h.instance];
     let to_world = |n: Vec3| (p.normal_to_world * n.as_dvec3()).normalize_or_zero().as_vec3();
     let mut normal = to_world(h.hit.normal());
@@ -218,6 +218,24 @@ pub struct AmbientLight<'a> {
     pub unchanged: bool,
 }
 
+/// The light a hit receives besides the ambient term (WGSL's `direct_light`): the sun, when
+/// the surface faces it and `visible(start, to_sun)` says its shadow ray from `start` is
+/// free, then the hit's own emission. `d` is the primary ray's unit direction.
+fn direct_light(r: &HitRecord, d: DVec3, lights: &Lights, visible: &dyn Fn(DVec3, DVec3) -> bool) -> Vec3 {
+    let mut c = Vec3::ZERO;
+    if let Some(sun) = lights.sun {
+        if r.normal.dot(sun.to_sun) > 0.0 && visible(leave(r, d * r.t as f64), sun.to_sun.as_dvec3()) {
+            let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
+            let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
+            c += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun) * sun.irradiance;
+        }
+    }
+    if lights.use_mtl_emitters {
+        c += r.attr.emission();
+    }
+    c
+}
+
 /// Renders one frame of `scene` as `plan` says. With a hit buffer, pixels are reused where
 /// the plan allows it and the buffer is refreshed for the next frame. `progress(rows, of)` is
 /// called as rows finish (both passes count). The ambient term is the flat sky.
@@ -286,7 +304,7 @@ pub fn render_lit(
         None => Todo::All,
     };
     let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
-        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| record(scene, &prepared, &hit, d));
+        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, &hit, d));
     };
     let traced = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
         for _ in 0..rows {
@@ -366,26 +384,14 @@ pub fn render_lit(
                 // The sky is uniform, so the ambient term of either lobe is its reflectance × sky.
                 None => (albedo + Vec3::splat(ks)) * sky,
             };
-            // The direct light: the sun (with its shadow ray), then the emission (WGSL's
-            // `direct_light`), added to the ambient term.
-            let mut radiance = Vec3::ZERO;
-            if let Some(sun) = lights.sun {
-                let d = camera.ray_dir(&basis, x as u32, y as u32);
-                let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
-                let response = brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun);
-                if r.normal.dot(sun.to_sun) > 0.0 {
-                    let visible = !plan.shadows || {
-                        shadow_rays.fetch_add(1, Ordering::Relaxed);
-                        !occluded(&fi, leave(r, d * r.t as f64), sun.to_sun.as_dvec3(), search)
-                    };
-                    if visible {
-                        radiance += response * sun.irradiance;
-                    }
+            let d = camera.ray_dir(&basis, x as u32, y as u32);
+            let radiance = direct_light(r, d, lights, &|start, to_sun| {
+                if !plan.shadows {
+                    return true;
                 }
-            }
-            if lights.use_mtl_emitters {
-                radiance += r.attr.emission();
-            }
+                shadow_rays.fetch_add(1, Ordering::Relaxed);
+                !occluded(&fi, start, to_sun, search)
+            });
             *out = ambient_term + radiance;
         }
         shade_reused.fetch_add(kept, Ordering::Relaxed);

@@ -13,7 +13,7 @@ pub const MAX_DEPTH: u32 = 20;
 /// Per-node attributes: albedo (sRGB-encoded RGBA8), an octahedral-encoded unit normal and
 /// the specular lobe ([`crate::render::brdf`]).
 ///
-/// Must be kept in sync with `struct Attr` in `wgsl/layout.wgsl` (the GPU path).
+/// Must be kept in sync with `struct Attr` in `wgsl/shared/layout.wgsl` (the GPU path).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct Attr {

@@ -38,7 +38,7 @@ use texture::{level_texture, LevelTexture};
 use volume::{level_step_bind_with, VolumeBuffers};
 
 /// Fixed-point scale of occupancy, weighted albedo and weighted normal sums (per unit weight);
-/// the WGSL side is `wgsl/gi_fixed.wgsl`.
+/// the WGSL side is `wgsl/shared/gi_fixed.wgsl`.
 pub const FIX: f64 = 65536.0;
 
 /// Fixed-point scale of weighted emission (up to 16× the albedo).
@@ -75,10 +75,10 @@ pub fn sparse_transform_source() -> String {
 fn transform_source_for(cells: &str) -> String {
     [
         &super::prelude::prelude(),
-        include_str!("../../../wgsl/layout.wgsl"),
-        include_str!("../../../wgsl/attr.wgsl"),
-        include_str!("../../../wgsl/gi_fixed.wgsl"),
-        include_str!("../../../wgsl/gi_splat.wgsl"),
+        include_str!("../../../wgsl/shared/layout.wgsl"),
+        include_str!("../../../wgsl/shared/attr.wgsl"),
+        include_str!("../../../wgsl/shared/gi_fixed.wgsl"),
+        include_str!("../../../wgsl/shared/gi_splat.wgsl"),
         cells,
         include_str!("../../../wgsl/gi_transform.wgsl"),
     ]
@@ -97,7 +97,7 @@ fn flat_groups(threads: u32) -> ((u32, u32), u32) {
 pub fn levels_source() -> String {
     [
         &super::prelude::prelude(),
-        include_str!("../../../wgsl/layout.wgsl"),
+        include_str!("../../../wgsl/shared/layout.wgsl"),
         include_str!("../../../wgsl/gi_levels.wgsl"),
     ]
     .join("\n")
