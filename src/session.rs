@@ -18,6 +18,10 @@ pub struct FrameReport {
     pub gi: Option<GiStats>,
     /// What GI kept from the frame before, on either backend (None without GI).
     pub gi_reuse: Option<GiReuse>,
+    /// GPU: buffers created and bytes read back by this frame (None on the CPU).
+    pub gpu_traffic: Option<(u64, u64)>,
+    /// GPU: the trace and shade passes' milliseconds, when timestamps were read back.
+    pub gpu_pass_ms: Option<(f64, f64)>,
 }
 
 /// A backend and everything kept between its frames.
@@ -153,12 +157,27 @@ impl Session {
             }
         }
         self.frame = Some(frame);
-        Ok(FrameReport { plan, gi, gi_reuse })
+        let (gpu_traffic, gpu_pass_ms) = (self.backend.gpu_traffic(), self.backend.pass_times());
+        Ok(FrameReport { plan, gi, gi_reuse, gpu_traffic, gpu_pass_ms })
     }
 
     /// The last frame rendered: its image and surface AOVs.
     pub fn last_frame(&self) -> Option<&Frame> {
         self.frame.as_ref()
+    }
+
+    /// The last frame's image (linear radiance, row by row from the top), read from the GPU
+    /// when the frame stayed there ([`Session::set_read_back`]); None before any frame.
+    pub fn image(&mut self) -> Result<Option<Vec<glam::Vec3>>, crate::Error> {
+        let Some(frame) = self.frame.as_ref() else { return Ok(None) };
+        if !frame.on_device {
+            return Ok(Some(frame.radiance.clone()));
+        }
+        match &mut self.backend {
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Ok(Some(g.read_image()?)),
+            _ => Ok(None),
+        }
     }
 
     /// Takes the last frame out of the session (it is then not recycled).

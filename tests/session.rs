@@ -1,5 +1,6 @@
-//! The renderer session against doing its steps by hand: plan, render on the backend, GI on
-//! the CPU afterwards.
+//! The renderer session against doing its steps by hand: plan, then render on the backend
+//! (on the CPU with GI, the frame lit by the cones); and a GPU session whose frames stay on
+//! the GPU.
 
 use glam::DVec3;
 use voxray::backend::Backend;
@@ -11,6 +12,25 @@ use voxray::scene::car::{add_car, pose};
 use voxray::scene::{Camera, Lights, Scene};
 use voxray::session::Session;
 use voxray::voxelize::Resolution;
+
+/// The car, posed, with a camera and the default lights.
+#[cfg(feature = "gpu")]
+fn car_frame() -> (Scene, Camera, Lights) {
+    let parts = build_parts(&voxray::model::car::mesh(), Resolution::Depth(5)).unwrap();
+    let mut scene = Scene::new(parts);
+    let car = add_car(&mut scene, 0, DVec3::ZERO, 0.0, true).unwrap();
+    pose(&mut scene, &car, 0.5).unwrap();
+    scene.update().unwrap();
+    let cam = Camera {
+        eye: DVec3::new(4.0, 3.0, 9.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 48,
+        height: 32,
+    };
+    (scene, cam, Lights::default())
+}
 
 #[test]
 fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
@@ -71,4 +91,34 @@ fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
     let plain = FramePlan::new(&scene, &cam, &lights, &features, None);
     let c = render(&scene, &cam, &lights, &plain, &opts, None, &|_, _| {});
     assert_eq!(session.last_frame(), Some(&c));
+}
+
+/// A GPU session whose frames stay on the GPU: the report counts no bytes read back once
+/// warm, the kept frame has no pixels, and its image, read on request, is the image of the
+/// same frames rendered with read-back on.
+#[cfg(feature = "gpu")]
+#[test]
+fn a_gpu_session_keeps_frames_on_the_gpu_and_reads_the_image_on_request() {
+    use voxray::gpu::{GpuContext, GpuRenderer};
+    let ctx = match GpuContext::headless() {
+        Ok(c) => std::sync::Arc::new(c),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
+        Err(_) => return,
+    };
+    let (scene, cam, lights) = car_frame();
+    let features = Features::default();
+    let opts = RenderOptions::default();
+    let mut kept = Session::new(Backend::Gpu(Box::new(GpuRenderer::new(ctx.clone()))), "GPU".into());
+    let mut read = Session::new(Backend::Gpu(Box::new(GpuRenderer::new(ctx))), "GPU".into());
+    kept.set_read_back(false);
+    for f in 0..3 {
+        let r = kept.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
+        read.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
+        assert_eq!(r.gpu_traffic.map(|t| t.1), Some(0), "frame {f} read back");
+        assert!(r.gpu_pass_ms.is_none());
+        assert!(kept.last_frame().is_some_and(|fr| fr.on_device && fr.radiance.is_empty()));
+    }
+    let expected = read.last_frame().unwrap().radiance.clone();
+    assert_eq!(kept.image().unwrap(), Some(expected.clone()));
+    assert_eq!(read.image().unwrap(), Some(expected));
 }

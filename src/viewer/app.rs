@@ -70,8 +70,8 @@ impl App {
             Some(g) => Some(g.caches_ms + g.transform_ms + g.inject_ms + g.levels_ms + g.cones_ms),
             None => session.backend().gi_pass_ms(),
         };
-        let gpu_ms = session.backend().pass_times();
-        let gpu_traffic = session.backend().gpu_traffic();
+        let gpu_ms = report.gpu_pass_ms;
+        let gpu_traffic = report.gpu_traffic;
         let plan = report.plan;
         // Out of the session while it is shown; handed back at the end for the next frame's
         // memory.
