@@ -306,3 +306,25 @@ fn shared_constants_come_from_rust_once() {
     assert!(p.contains(&format!("const MAX_DEPTH: u32 = {}u;", voxray::svo::MAX_DEPTH)));
     assert!(p.contains(&format!("const PARALLEL_RATIO: f32 = {:?};", voxray::ray::PARALLEL_RATIO)));
 }
+
+/// The tracer's bind groups are numbered once, in Rust (`gpu::prelude::binding`): its shaders
+/// name every binding by the prelude's constant, each constant once.
+#[test]
+fn tracer_bindings_are_named_from_rust() {
+    use voxray::gpu::prelude::binding::ALL;
+    let src = [include_str!("../wgsl/trace.wgsl"), include_str!("../wgsl/gi_trace.wgsl")].concat();
+    let bindings: Vec<&str> = src.lines().filter(|l| l.trim_start().starts_with("@group(")).collect();
+    assert_eq!(bindings.len(), ALL.len(), "{bindings:#?}");
+    for (name, _) in ALL {
+        let n = bindings.iter().filter(|l| l.contains(&format!("@binding({name})"))).count();
+        assert_eq!(n, 1, "{name} binds {n} variables");
+    }
+    // Within a group, no two numbers are the same.
+    let (g0, g1) = ALL.split_at(12);
+    for g in [g0, g1] {
+        let mut v: Vec<u32> = g.iter().map(|x| x.1).collect();
+        v.sort();
+        v.dedup();
+        assert_eq!(v.len(), g.len());
+    }
+}

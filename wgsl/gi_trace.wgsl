@@ -11,22 +11,22 @@ override GI_SPARSE: bool = false;
 // filtering (border: transparent black, as outside the volume is empty).
 override GI_TEXTURE: bool = false;
 
-@group(1) @binding(0) var<storage, read> gi_accum: array<u32>;
-@group(1) @binding(1) var<storage, read_write> gi_levels: array<vec4<f32>>;
-@group(1) @binding(2) var<uniform> gi: GiFrame;
+@group(1) @binding(B_GI_ACCUM) var<storage, read> gi_accum: array<u32>;
+@group(1) @binding(B_GI_LEVELS) var<storage, read_write> gi_levels: array<vec4<f32>>;
+@group(1) @binding(B_GI_FRAME) var<uniform> gi: GiFrame;
 // With more than one bounce: the injected (direct) level 0, kept across bounces, and the next
 // bounce's level 0 (written apart from the chain its cones read). One-element placeholders
 // otherwise.
-@group(1) @binding(3) var<storage, read_write> gi_direct: array<vec4<f32>>;
-@group(1) @binding(4) var<storage, read_write> gi_next: array<vec4<f32>>;
+@group(1) @binding(B_GI_DIRECT) var<storage, read_write> gi_direct: array<vec4<f32>>;
+@group(1) @binding(B_GI_NEXT) var<storage, read_write> gi_next: array<vec4<f32>>;
 // Sparse: the brick of each top cell (GI_EMPTY for none) and the top cell of each brick.
 // One-element placeholders when dense.
-@group(1) @binding(5) var<storage, read> gi_top: array<u32>;
-@group(1) @binding(6) var<storage, read> gi_brick_top: array<u32>;
+@group(1) @binding(B_GI_TOP) var<storage, read> gi_top: array<u32>;
+@group(1) @binding(B_GI_BRICK_TOP) var<storage, read> gi_brick_top: array<u32>;
 
 // The level chain as a 3D texture with mips (a 1³ placeholder unless GI_TEXTURE).
-@group(1) @binding(7) var gi_tex: texture_3d<f32>;
-@group(1) @binding(8) var gi_sampler: sampler;
+@group(1) @binding(B_GI_TEX) var gi_tex: texture_3d<f32>;
+@group(1) @binding(B_GI_SAMPLER) var gi_sampler: sampler;
 
 // GI_EMPTY (a top cell without a brick) and GI_BRICK_LEVELS (8³, 4³, 2³) come from the
 // prelude (src/gpu/prelude.rs).

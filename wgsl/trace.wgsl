@@ -9,18 +9,18 @@ override REUSE: bool = false;
 // Shadow rays (plan.shadows).
 override SHADOWS: bool = true;
 
-@group(0) @binding(0) var<storage, read> nodes: array<u32>;
-@group(0) @binding(1) var<storage, read> attrs: array<Attr>;
-@group(0) @binding(2) var<storage, read> parts: array<Part>;
-@group(0) @binding(3) var<storage, read> insts: array<Inst>;
-@group(0) @binding(4) var<uniform> frame: Frame;
-@group(0) @binding(5) var<storage, read> bvh: array<BvhNode>;
-@group(0) @binding(6) var<storage, read> bvh_items: array<u32>;
-@group(0) @binding(7) var<storage, read_write> hits: array<Hit>;
-@group(0) @binding(8) var<storage, read> moved: array<MovedSphere>;
-@group(0) @binding(9) var<storage, read_write> radiance: array<vec4<f32>>;
-@group(0) @binding(10) var<storage, read> nodes_hi: array<u32>;
-@group(0) @binding(11) var<storage, read> attrs_hi: array<Attr>;
+@group(0) @binding(B_NODES) var<storage, read> nodes: array<u32>;
+@group(0) @binding(B_ATTRS) var<storage, read> attrs: array<Attr>;
+@group(0) @binding(B_PARTS) var<storage, read> parts: array<Part>;
+@group(0) @binding(B_INSTS) var<storage, read> insts: array<Inst>;
+@group(0) @binding(B_FRAME) var<uniform> frame: Frame;
+@group(0) @binding(B_BVH) var<storage, read> bvh: array<BvhNode>;
+@group(0) @binding(B_BVH_ITEMS) var<storage, read> bvh_items: array<u32>;
+@group(0) @binding(B_HITS) var<storage, read_write> hits: array<Hit>;
+@group(0) @binding(B_MOVED) var<storage, read> moved: array<MovedSphere>;
+@group(0) @binding(B_RADIANCE) var<storage, read_write> radiance: array<vec4<f32>>;
+@group(0) @binding(B_NODES_HI) var<storage, read> nodes_hi: array<u32>;
+@group(0) @binding(B_ATTRS_HI) var<storage, read> attrs_hi: array<Attr>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;

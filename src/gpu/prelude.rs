@@ -2,12 +2,83 @@
 //! starts with [`prelude`], generated here from the Rust constants, and no `.wgsl` file
 //! defines them itself (`tests/layout.rs` checks both).
 
+/// Binding numbers of the tracer's bind groups (`wgsl/trace.wgsl` group 0,
+/// `wgsl/gi_trace.wgsl` group 1): WGSL reads them as `B_<name>` from the prelude.
+pub mod binding {
+    /// Tracer group 0: `nodes`.
+    pub const NODES: u32 = 0;
+    /// Tracer group 0: `attrs`.
+    pub const ATTRS: u32 = 1;
+    /// Tracer group 0: `parts`.
+    pub const PARTS: u32 = 2;
+    /// Tracer group 0: `insts`.
+    pub const INSTS: u32 = 3;
+    /// Tracer group 0: `frame`.
+    pub const FRAME: u32 = 4;
+    /// Tracer group 0: `bvh`.
+    pub const BVH: u32 = 5;
+    /// Tracer group 0: `bvh_items`.
+    pub const BVH_ITEMS: u32 = 6;
+    /// Tracer group 0: `hits`.
+    pub const HITS: u32 = 7;
+    /// Tracer group 0: `moved`.
+    pub const MOVED: u32 = 8;
+    /// Tracer group 0: `radiance`.
+    pub const RADIANCE: u32 = 9;
+    /// Tracer group 0: `nodes_hi`.
+    pub const NODES_HI: u32 = 10;
+    /// Tracer group 0: `attrs_hi`.
+    pub const ATTRS_HI: u32 = 11;
+    /// Tracer group 1 (GI): `gi_accum`.
+    pub const GI_ACCUM: u32 = 0;
+    /// Tracer group 1 (GI): `gi_levels`.
+    pub const GI_LEVELS: u32 = 1;
+    /// Tracer group 1 (GI): `gi`.
+    pub const GI_FRAME: u32 = 2;
+    /// Tracer group 1 (GI): `gi_direct`.
+    pub const GI_DIRECT: u32 = 3;
+    /// Tracer group 1 (GI): `gi_next`.
+    pub const GI_NEXT: u32 = 4;
+    /// Tracer group 1 (GI): `gi_top`.
+    pub const GI_TOP: u32 = 5;
+    /// Tracer group 1 (GI): `gi_brick_top`.
+    pub const GI_BRICK_TOP: u32 = 6;
+    /// Tracer group 1 (GI): `gi_tex`.
+    pub const GI_TEX: u32 = 7;
+    /// Tracer group 1 (GI): `gi_sampler`.
+    pub const GI_SAMPLER: u32 = 8;
+    /// Every binding with its WGSL constant's name.
+    pub const ALL: [(&str, u32); 21] = [
+        ("B_NODES", NODES),
+        ("B_ATTRS", ATTRS),
+        ("B_PARTS", PARTS),
+        ("B_INSTS", INSTS),
+        ("B_FRAME", FRAME),
+        ("B_BVH", BVH),
+        ("B_BVH_ITEMS", BVH_ITEMS),
+        ("B_HITS", HITS),
+        ("B_MOVED", MOVED),
+        ("B_RADIANCE", RADIANCE),
+        ("B_NODES_HI", NODES_HI),
+        ("B_ATTRS_HI", ATTRS_HI),
+        ("B_GI_ACCUM", GI_ACCUM),
+        ("B_GI_LEVELS", GI_LEVELS),
+        ("B_GI_FRAME", GI_FRAME),
+        ("B_GI_DIRECT", GI_DIRECT),
+        ("B_GI_NEXT", GI_NEXT),
+        ("B_GI_TOP", GI_TOP),
+        ("B_GI_BRICK_TOP", GI_BRICK_TOP),
+        ("B_GI_TEX", GI_TEX),
+        ("B_GI_SAMPLER", GI_SAMPLER),
+    ];
+}
+
 /// The shared constants: WGSL name, WGSL type and value (as a WGSL literal).
 pub fn shared() -> Vec<(&'static str, &'static str, String)> {
     let u = |v: u64| format!("{v}u");
     // Debug prints the shortest text that reads back as the same f32.
     let f = |v: f32| format!("{v:?}");
-    vec![
+    let mut v = vec![
         ("MAX_DEPTH", "u32", u(crate::svo::MAX_DEPTH as u64)),
         ("PARALLEL_RATIO", "f32", f(crate::ray::PARALLEL_RATIO)),
         ("MAX_UNIT_ORIGIN", "f32", f(crate::ray::MAX_UNIT_ORIGIN)),
@@ -20,7 +91,9 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("GI_BRICK_LEVELS", "u32", u(crate::gi::sparse::BRICK_LEVELS as u64)),
         ("GI_EMPTY", "u32", u(crate::gi::sparse::EMPTY as u64)),
         ("GI_CLEARANCE", "f32", f(crate::gi::cone::CLEARANCE as f32)),
-    ]
+    ];
+    v.extend(binding::ALL.iter().map(|&(name, b)| (name, "u32", u(b as u64))));
+    v
 }
 
 /// The WGSL that every shader source starts with.

@@ -205,10 +205,14 @@ impl GpuRenderer {
             label: Some("trace.wgsl"),
             source: wgpu::ShaderSource::Wgsl(trace_source().into()),
         });
+        use super::prelude::binding as b;
         let mut entries: Vec<wgpu::BindGroupLayoutEntry> =
-            [(0, true), (1, true), (2, true), (3, true)].iter().map(|&(b, r)| storage(b, r)).collect();
+            [(b::NODES, true), (b::ATTRS, true), (b::PARTS, true), (b::INSTS, true)]
+                .iter()
+                .map(|&(b, r)| storage(b, r))
+                .collect();
         entries.push(wgpu::BindGroupLayoutEntry {
-            binding: 4,
+            binding: b::FRAME,
             visibility: wgpu::ShaderStages::COMPUTE,
             ty: wgpu::BindingType::Buffer {
                 ty: wgpu::BufferBindingType::Uniform,
@@ -218,9 +222,17 @@ impl GpuRenderer {
             count: None,
         });
         entries.extend(
-            [(5, true), (6, true), (7, false), (8, true), (9, false), (10, true), (11, true)]
-                .iter()
-                .map(|&(b, r)| storage(b, r)),
+            [
+                (b::BVH, true),
+                (b::BVH_ITEMS, true),
+                (b::HITS, false),
+                (b::MOVED, true),
+                (b::RADIANCE, false),
+                (b::NODES_HI, true),
+                (b::ATTRS_HI, true),
+            ]
+            .iter()
+            .map(|&(b, r)| storage(b, r)),
         );
         let layout = device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("trace"), entries: &entries });
@@ -646,23 +658,24 @@ impl GpuRenderer {
         );
         let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
         let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
+        use super::prelude::binding as b;
         let bind = kept.bind.get_or_insert_with(|| {
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("trace"),
                 layout: &self.layout,
                 entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: pools.nodes.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: pools.attrs.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: pools.infos.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: inst_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 4, resource: frame_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 5, resource: bvh_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 6, resource: item_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 7, resource: hits_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 8, resource: moved_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 9, resource: radiance_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 10, resource: pools.nodes_hi.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 11, resource: pools.attrs_hi.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::NODES, resource: pools.nodes.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::ATTRS, resource: pools.attrs.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::PARTS, resource: pools.infos.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::INSTS, resource: inst_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::FRAME, resource: frame_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::BVH, resource: bvh_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::BVH_ITEMS, resource: item_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::HITS, resource: hits_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::MOVED, resource: moved_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::RADIANCE, resource: radiance_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::NODES_HI, resource: pools.nodes_hi.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::ATTRS_HI, resource: pools.attrs_hi.as_entire_binding() },
                 ],
             })
         });

@@ -12,6 +12,7 @@
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
+use super::prelude::binding as b;
 use super::renderer::{ensure, read};
 use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
@@ -347,15 +348,15 @@ impl GpuGi {
         let group1_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("gi (tracer group 1)"),
             entries: &[
-                gi_layout_entry(0, wgpu::BufferBindingType::Storage { read_only: true }),
-                gi_layout_entry(1, wgpu::BufferBindingType::Storage { read_only: false }),
-                gi_layout_entry(2, wgpu::BufferBindingType::Uniform),
-                gi_layout_entry(3, rw),
-                gi_layout_entry(4, rw),
-                gi_layout_entry(5, ro),
-                gi_layout_entry(6, ro),
+                gi_layout_entry(b::GI_ACCUM, wgpu::BufferBindingType::Storage { read_only: true }),
+                gi_layout_entry(b::GI_LEVELS, wgpu::BufferBindingType::Storage { read_only: false }),
+                gi_layout_entry(b::GI_FRAME, wgpu::BufferBindingType::Uniform),
+                gi_layout_entry(b::GI_DIRECT, rw),
+                gi_layout_entry(b::GI_NEXT, rw),
+                gi_layout_entry(b::GI_TOP, ro),
+                gi_layout_entry(b::GI_BRICK_TOP, ro),
                 wgpu::BindGroupLayoutEntry {
-                    binding: 7,
+                    binding: b::GI_TEX,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Float { filterable: true },
@@ -365,7 +366,7 @@ impl GpuGi {
                     count: None,
                 },
                 wgpu::BindGroupLayoutEntry {
-                    binding: 8,
+                    binding: b::GI_SAMPLER,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
@@ -666,20 +667,23 @@ impl GpuGi {
                 label: Some("gi (tracer group 1)"),
                 layout: &self.group1_layout,
                 entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: vol.accum.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: vol.levels.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: frame_buf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: direct.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 4, resource: next.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 5, resource: top.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 6, resource: brick_top.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_ACCUM, resource: vol.accum.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_LEVELS, resource: vol.levels.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_FRAME, resource: frame_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_DIRECT, resource: direct.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_NEXT, resource: next.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_TOP, resource: top.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_BRICK_TOP, resource: brick_top.as_entire_binding() },
                     wgpu::BindGroupEntry {
-                        binding: 7,
+                        binding: b::GI_TEX,
                         resource: wgpu::BindingResource::TextureView(
                             vol.texture.as_ref().map_or(&self.placeholder_tex, |t| &t.view),
                         ),
                     },
-                    wgpu::BindGroupEntry { binding: 8, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+                    wgpu::BindGroupEntry {
+                        binding: b::GI_SAMPLER,
+                        resource: wgpu::BindingResource::Sampler(&self.sampler),
+                    },
                 ],
             })
         });
