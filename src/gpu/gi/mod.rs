@@ -26,6 +26,7 @@ use crate::svo::PartId;
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
 use std::collections::HashMap;
 
+mod bounces;
 mod capture;
 mod frame;
 mod sparse;

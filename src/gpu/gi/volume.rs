@@ -156,23 +156,4 @@ impl GpuGi {
         });
         Ok(())
     }
-
-    /// Allocates the bounce passes' two level-0 buffers if a frame needs them.
-    pub(super) fn bounce_buffers(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
-        let Some(vol) = self.volume.as_mut().filter(|v| v.bounce.is_none()) else {
-            return Ok(());
-        };
-        let size = stored_cells(vol.layout, vol.res, vol.capacity) * 16;
-        ctx.check_binding("the GI bounce volume", size)?;
-        let make = |label| {
-            ctx.buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage: wgpu::BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            })
-        };
-        vol.bounce = Some((make("gi direct level 0"), make("gi next level 0")));
-        Ok(())
-    }
 }

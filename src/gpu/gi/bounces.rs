@@ -1,0 +1,27 @@
+//! More than one bounce: the direct light and the next bounce's level 0, which the bounce
+//! and commit passes (`wgsl/gi_trace.wgsl`) gather into and the level chain is made again
+//! from; the GPU side of `gi::shade`'s bounces.
+
+use super::volume::stored_cells;
+use super::*;
+
+impl GpuGi {
+    /// Allocates the bounce passes' two level-0 buffers if a frame needs them.
+    pub(super) fn bounce_buffers(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        let Some(vol) = self.volume.as_mut().filter(|v| v.bounce.is_none()) else {
+            return Ok(());
+        };
+        let size = stored_cells(vol.layout, vol.res, vol.capacity) * 16;
+        ctx.check_binding("the GI bounce volume", size)?;
+        let make = |label| {
+            ctx.buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            })
+        };
+        vol.bounce = Some((make("gi direct level 0"), make("gi next level 0")));
+        Ok(())
+    }
+}
