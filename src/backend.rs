@@ -212,6 +212,17 @@ impl Backend {
         }
     }
 
+    /// Whether the GPU adds up each frame's statistics itself, so that frames kept on the
+    /// GPU still come with their counters ([`crate::gpu::GpuRenderer::set_counting`]).
+    #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
+    pub fn set_counting(&mut self, on: bool) {
+        match self {
+            Backend::Cpu(_) => {}
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.set_counting(on),
+        }
+    }
+
     /// The GPU renderer, for callers that draw its frames on its device.
     #[cfg(feature = "gpu")]
     pub fn gpu(&self) -> Option<&crate::gpu::GpuRenderer> {

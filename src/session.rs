@@ -98,6 +98,12 @@ impl Session {
         self.backend.set_read_back(on);
     }
 
+    /// Whether the GPU adds up each frame's statistics itself (off by default): frames kept on
+    /// the GPU then come with their counters for 32 bytes (and the pass times) read back.
+    pub fn set_counting(&mut self, on: bool) {
+        self.backend.set_counting(on);
+    }
+
     /// Lets the next frame reuse nothing from the frames before (a new clip).
     pub fn restart(&mut self) {
         self.first = true;

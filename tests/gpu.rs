@@ -429,3 +429,61 @@ fn frames_kept_on_the_gpu_read_nothing_back_and_reuse_the_same_hits() {
     assert_eq!(a.instance, b.instance);
     assert_eq!(a.normal, b.normal);
 }
+
+/// The statistics the GPU adds up itself (atomics) equal the ones summed from the read-back
+/// hit records, frame by frame of an animated clip with shadows; a renderer keeping its
+/// frames on the GPU with counting on gets the same counters while reading back only the
+/// 32-byte statistics (and the pass times).
+#[test]
+fn gpu_counters_equal_the_counts_of_the_read_back_records() {
+    if context().is_none() {
+        return;
+    }
+    let ctx = Arc::new(GpuContext::headless().unwrap());
+    let (mut scene, cars) = scene(2);
+    let lights = Lights::default();
+    assert!(lights.sun.is_some());
+    let cam = Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width: 64,
+        height: 40,
+    };
+    let mut read = GpuRenderer::new(ctx.clone());
+    read.set_counting(true);
+    let mut kept = GpuRenderer::new(ctx.clone());
+    kept.set_read_back(false);
+    kept.set_counting(true);
+    let mut moved_only = 0;
+    for f in 0..6 {
+        for c in &cars {
+            pose(&mut scene, c, f as f64 / 30.0).unwrap();
+        }
+        scene.update().unwrap();
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&read.state));
+        let a = read.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        let st = read.stats.expect("counted");
+        let counted = (st.reused, st.moved_only, st.instances_traced, st.spheres_culled, st.shadow_rays);
+        let summed = (a.reused, a.moved_only, a.instances_traced, a.spheres_culled, a.shadow_rays);
+        assert_eq!(counted.0 as u64, summed.0, "frame {f} reused");
+        assert_eq!(counted.1 as u64, summed.1, "frame {f} moved-only");
+        assert_eq!(counted.2 as u64, summed.2, "frame {f} octrees traversed");
+        assert_eq!(counted.3 as u64, summed.3, "frame {f} spheres culled");
+        assert_eq!(counted.4 as u64, summed.4, "frame {f} shadow rays");
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&kept.state));
+        let b = kept.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        assert!(b.on_device);
+        assert_eq!(
+            (b.reused, b.moved_only, b.instances_traced, b.spheres_culled, b.shadow_rays),
+            summed,
+            "frame {f} kept on the GPU"
+        );
+        let timestamps = if ctx.timestamps { 48 } else { 0 };
+        assert_eq!(kept.frame_traffic.1, 32 + timestamps, "frame {f}: only the statistics read back");
+        moved_only += a.moved_only;
+        assert!(a.shadow_rays > 0 && (f == 0 || a.reused > 0), "frame {f}: {summed:?}");
+    }
+    assert!(moved_only > 0, "the clip has moved-only pixels");
+}

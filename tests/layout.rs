@@ -105,7 +105,7 @@ fn wgsl_structs_match_rust() {
                 ("max_level", offset_of!(GpuFrame, max_level)),
                 ("moved", offset_of!(GpuFrame, moved)),
                 ("bvh_nodes", offset_of!(GpuFrame, bvh_nodes)),
-                ("pad0", offset_of!(GpuFrame, pad0)),
+                ("count", offset_of!(GpuFrame, count)),
                 ("pad1", offset_of!(GpuFrame, pad1)),
             ],
         ),
@@ -320,7 +320,7 @@ fn tracer_bindings_are_named_from_rust() {
         assert_eq!(n, 1, "{name} binds {n} variables");
     }
     // Within a group, no two numbers are the same.
-    let (g0, g1) = ALL.split_at(12);
+    let (g0, g1) = ALL.split_at(13);
     for g in [g0, g1] {
         let mut v: Vec<u32> = g.iter().map(|x| x.1).collect();
         v.sort();

@@ -21,6 +21,8 @@ override SHADOWS: bool = true;
 @group(0) @binding(B_RADIANCE) var<storage, read_write> radiance: array<vec4<f32>>;
 @group(0) @binding(B_NODES_HI) var<storage, read> nodes_hi: array<u32>;
 @group(0) @binding(B_ATTRS_HI) var<storage, read> attrs_hi: array<Attr>;
+// The frame's statistics (GpuStats), added up when frame.count is 1.
+@group(0) @binding(B_STATS) var<storage, read_write> stats: array<atomic<u32>>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;
@@ -402,6 +404,11 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let idx = gid.y * frame.width + gid.x;
+    trace_pixel(idx, gid);
+    count_pixel(idx);
+}
+
+fn trace_pixel(idx: u32, gid: vec3<u32>) {
     let d = ray_dir(gid.x, gid.y);
     if REUSE {
         let old = hits[idx];
@@ -423,6 +430,29 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     hits[idx] = hit_record(nearest(vec3<f32>(0.0), d), d, 0u);
+}
+
+// Adds a pixel's primary ray to the frame's statistics (what the host sums from the hit
+// records when it reads them back: kept, moved-only, octrees traversed, spheres culled).
+fn count_pixel(idx: u32) {
+    if frame.count == 0u {
+        return;
+    }
+    let h = hits[idx];
+    if h.reused == 1u {
+        atomicAdd(&stats[STAT_REUSED], 1u);
+    }
+    if h.reused == TODO_MOVED {
+        atomicAdd(&stats[STAT_MOVED_ONLY], 1u);
+    }
+    let traced = h.work & 0xFFFFu;
+    let culled = h.work >> 16u;
+    if traced > 0u {
+        atomicAdd(&stats[STAT_INSTANCES_TRACED], traced);
+    }
+    if culled > 0u {
+        atomicAdd(&stats[STAT_SPHERES_CULLED], culled);
+    }
 }
 
 // brdf::sun_response: the diffuse and Phong lobes lit by the sun, per unit irradiance.
@@ -452,6 +482,9 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
         if cosv > 0.0 {
             var visible = true;
             if SHADOWS {
+                if frame.count != 0u {
+                    atomicAdd(&stats[STAT_SHADOW_RAYS], 1u);
+                }
                 let d = ray_dir(x, y);
                 let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
                 visible = !occluded(start, frame.sun_dir.xyz);

@@ -83,10 +83,29 @@ pub struct GpuFrame {
     pub moved: u32,
     /// BVH nodes (0: no BVH).
     pub bvh_nodes: u32,
-    /// Padding.
-    pub pad0: u32,
+    /// 1: the passes add up the frame's statistics in the `stats` buffer ([`GpuStats`]).
+    pub count: u32,
     /// Padding.
     pub pad1: u32,
+}
+
+/// The frame's statistics as the trace and shade passes add them up (atomics), when
+/// `GpuFrame::count` is 1. WGSL: `stats`, indexed by the `STAT_*` constants.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct GpuStats {
+    /// Pixels whose hit record was kept.
+    pub reused: u32,
+    /// Pixels searched among the moved instances only.
+    pub moved_only: u32,
+    /// Instance octrees traversed by the traced primary rays.
+    pub instances_traced: u32,
+    /// Instances skipped because the traced primary rays missed their spheres.
+    pub spheres_culled: u32,
+    /// Shadow rays traced.
+    pub shadow_rays: u32,
+    /// Padding.
+    pub pad: [u32; 3],
 }
 
 /// One BVH node; `lo[3]`/`hi[3]` hold `first`/`count` as bits. WGSL: `BvhNode`.

@@ -29,6 +29,8 @@ pub mod binding {
     pub const NODES_HI: u32 = 10;
     /// Tracer group 0: `attrs_hi`.
     pub const ATTRS_HI: u32 = 11;
+    /// Tracer group 0: `stats`.
+    pub const STATS: u32 = 12;
     /// Tracer group 1 (GI): `gi_accum`.
     pub const GI_ACCUM: u32 = 0;
     /// Tracer group 1 (GI): `gi_levels`.
@@ -48,7 +50,7 @@ pub mod binding {
     /// Tracer group 1 (GI): `gi_sampler`.
     pub const GI_SAMPLER: u32 = 8;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 21] = [
+    pub const ALL: [(&str, u32); 22] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -61,6 +63,7 @@ pub mod binding {
         ("B_RADIANCE", RADIANCE),
         ("B_NODES_HI", NODES_HI),
         ("B_ATTRS_HI", ATTRS_HI),
+        ("B_STATS", STATS),
         ("B_GI_ACCUM", GI_ACCUM),
         ("B_GI_LEVELS", GI_LEVELS),
         ("B_GI_FRAME", GI_FRAME),
@@ -93,6 +96,19 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("GI_CLEARANCE", "f32", f(crate::gi::cone::CLEARANCE as f32)),
     ];
     v.extend(binding::ALL.iter().map(|&(name, b)| (name, "u32", u(b as u64))));
+    // Word index of each statistic in the `stats` buffer (GpuStats).
+    use super::layout::GpuStats;
+    use std::mem::offset_of;
+    v.extend(
+        [
+            ("STAT_REUSED", offset_of!(GpuStats, reused)),
+            ("STAT_MOVED_ONLY", offset_of!(GpuStats, moved_only)),
+            ("STAT_INSTANCES_TRACED", offset_of!(GpuStats, instances_traced)),
+            ("STAT_SPHERES_CULLED", offset_of!(GpuStats, spheres_culled)),
+            ("STAT_SHADOW_RAYS", offset_of!(GpuStats, shadow_rays)),
+        ]
+        .map(|(name, off)| (name, "u32", u(off as u64 / 4))),
+    );
     v
 }
 

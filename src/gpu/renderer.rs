@@ -96,6 +96,9 @@ struct FrameBuffers {
     radiance: Option<wgpu::Buffer>,
     hits_read: Option<wgpu::Buffer>,
     radiance_read: Option<wgpu::Buffer>,
+    /// The statistics the passes add up (`GpuStats`), and where they are read.
+    stats: Option<wgpu::Buffer>,
+    stats_read: Option<wgpu::Buffer>,
     /// Timestamp queries, where to resolve them and where to read them.
     queries: Option<(wgpu::QuerySet, wgpu::Buffer, wgpu::Buffer)>,
     /// The trace/shade bind group; None when a buffer it names was replaced.
@@ -160,6 +163,10 @@ pub struct GpuRenderer {
     read_back: bool,
     /// Size of the image in the radiance buffer (the last frame's).
     radiance_size: (u32, u32),
+    /// Add up the frame's statistics on the GPU ([`GpuRenderer::set_counting`]).
+    counting: bool,
+    /// The last frame's statistics as the GPU added them up (when counting).
+    pub stats: Option<super::layout::GpuStats>,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -230,6 +237,7 @@ impl GpuRenderer {
                 (b::RADIANCE, false),
                 (b::NODES_HI, true),
                 (b::ATTRS_HI, true),
+                (b::STATS, false),
             ]
             .iter()
             .map(|&(b, r)| storage(b, r)),
@@ -264,6 +272,8 @@ impl GpuRenderer {
             gi_captured: None,
             read_back: true,
             radiance_size: (0, 0),
+            counting: false,
+            stats: None,
         }
         .with_device_limit()
     }
@@ -276,6 +286,15 @@ impl GpuRenderer {
     /// frames whose image, AOVs or statistics are wanted.
     pub fn set_read_back(&mut self, on: bool) {
         self.read_back = on;
+    }
+
+    /// Whether the passes add up the frame's statistics on the GPU (atomics into a 32-byte
+    /// buffer; off by default). A frame kept on the GPU then reads back only those and the
+    /// pass times, and comes with its counters (reused, moved-only, octrees traversed,
+    /// spheres culled, shadow rays) filled in; every frame leaves them in
+    /// [`GpuRenderer::stats`].
+    pub fn set_counting(&mut self, on: bool) {
+        self.counting = on;
     }
 
     /// Whether frames are read back ([`GpuRenderer::set_read_back`]).
@@ -546,6 +565,7 @@ impl GpuRenderer {
         });
         let items: Vec<u32> = bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
         let basis = camera.basis();
+        let counting = self.counting;
         let frame = GpuFrame {
             forward: f4(basis.forward, basis.tan_half),
             right: f4(basis.right, w as f64 / h as f64),
@@ -562,7 +582,7 @@ impl GpuRenderer {
             max_level: opts.max_level.min(64),
             moved: moved.len() as u32,
             bvh_nodes: bvh_nodes.len() as u32,
-            pad0: 0,
+            count: counting as u32,
             pad1: 0,
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
@@ -639,7 +659,13 @@ impl GpuRenderer {
         let copy_src = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
         let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
         replaced |= ensure(&ctx, &mut kept.radiance, "radiance", image_bytes, true, copy_src);
+        let stats_bytes = std::mem::size_of::<super::layout::GpuStats>() as u64;
+        let stats_usage = copy_src | wgpu::BufferUsages::COPY_DST;
+        replaced |= ensure(&ctx, &mut kept.stats, "stats", stats_bytes, true, stats_usage);
         let read_back = self.read_back;
+        if counting {
+            ensure(&ctx, &mut kept.stats_read, "stats readback", stats_bytes, true, mappable);
+        }
         if read_back {
             ensure(&ctx, &mut kept.hits_read, "hits readback", hit_bytes, true, mappable);
             ensure(&ctx, &mut kept.radiance_read, "radiance readback", image_bytes, true, mappable);
@@ -656,6 +682,7 @@ impl GpuRenderer {
             kept.moved.as_ref().ok_or_else(missing)?,
             kept.radiance.as_ref().ok_or_else(missing)?,
         );
+        let stats_buf = kept.stats.as_ref().ok_or_else(missing)?;
         let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
         let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
         use super::prelude::binding as b;
@@ -676,6 +703,7 @@ impl GpuRenderer {
                     wgpu::BindGroupEntry { binding: b::RADIANCE, resource: radiance_buf.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::NODES_HI, resource: pools.nodes_hi.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::ATTRS_HI, resource: pools.attrs_hi.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::STATS, resource: stats_buf.as_entire_binding() },
                 ],
             })
         });
@@ -692,11 +720,12 @@ impl GpuRenderer {
             hits_buf,
             moved_buf,
             radiance_buf,
+            stats_buf,
         ]
         .iter()
         .map(|b| b.size())
         .sum();
-        if ctx.timestamps && read_back && kept.queries.is_none() {
+        if ctx.timestamps && (read_back || counting) && kept.queries.is_none() {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("passes"),
                 ty: wgpu::QueryType::Timestamp,
@@ -717,7 +746,7 @@ impl GpuRenderer {
             kept.queries = Some((set, resolve, read_back));
         }
         // Pass times are read back too: not measured in frames that stay on the GPU.
-        let queries = kept.queries.as_ref().filter(|_| read_back);
+        let queries = kept.queries.as_ref().filter(|_| read_back || counting);
         let ts = |k: u32| {
             queries.map(|(set, _, _)| wgpu::ComputePassTimestampWrites {
                 query_set: set,
@@ -726,6 +755,9 @@ impl GpuRenderer {
             })
         };
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        if counting {
+            enc.clear_buffer(stats_buf, 0, None);
+        }
         let groups = (w.div_ceil(8), h.div_ceil(8));
         {
             let mut pass =
@@ -767,6 +799,13 @@ impl GpuRenderer {
         } else {
             None
         };
+        let stats_rb = match (counting, kept.stats_read.as_ref()) {
+            (true, Some(rb)) => {
+                enc.copy_buffer_to_buffer(stats_buf, 0, rb, 0, stats_bytes);
+                Some(rb)
+            }
+            _ => None,
+        };
         // Only the passes that ran wrote their timestamps.
         let ts_rb = queries.map(|(set, resolve, read_back)| {
             enc.resolve_query_set(set, 0..n_ts, resolve, 0);
@@ -775,25 +814,11 @@ impl GpuRenderer {
         });
         self.ctx.queue.submit([enc.finish()]);
         self.radiance_size = (w, h);
-        let Some((hits_rb, rad_rb)) = readbacks else {
-            // The frame stays on the GPU: nothing is waited for or copied. The next frame
-            // reuses the records in the GPU's hit buffer under the conditions kept here.
-            self.times = None;
-            self.gi_captured = match (capture, &self.gi, &gi_work) {
-                (Some(bufs), Some(gi), Some(work)) => Some(gi.read_capture(&self.ctx, work, &bufs)?),
-                _ => None,
-            };
-            self.state.reused = 0;
-            self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
-            self.state.bvh = bvh;
-            self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
-            let now = self.ctx.traffic();
-            self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
-            return Ok(Frame { width: w, height: h, primary_rays: n as u64, on_device: true, ..Frame::default() });
+        self.stats = match stats_rb {
+            Some(rb) => read::<super::layout::GpuStats>(&self.ctx, rb)?.first().copied(),
+            None => None,
         };
-        let hits: Vec<GpuHit> = read(&self.ctx, hits_rb)?;
-        let rad: Vec<[f32; 4]> = read(&self.ctx, rad_rb)?;
-        self.times = match ts_rb {
+        let times = match ts_rb {
             Some(b) => {
                 let ts: Vec<u64> = read(&self.ctx, b)?;
                 let period = self.ctx.queue.get_timestamp_period() as f64 * 1e-6;
@@ -805,6 +830,38 @@ impl GpuRenderer {
             }
             None => None,
         };
+        let Some((hits_rb, rad_rb)) = readbacks else {
+            // The frame stays on the GPU: nothing is waited for or copied but what counting
+            // asked for. The next frame reuses the records in the GPU's hit buffer under the
+            // conditions kept here.
+            self.times = times;
+            self.gi_captured = match (capture, &self.gi, &gi_work) {
+                (Some(bufs), Some(gi), Some(work)) => Some(gi.read_capture(&self.ctx, work, &bufs)?),
+                _ => None,
+            };
+            self.state.reused = 0;
+            self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
+            self.state.bvh = bvh;
+            self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
+            let now = self.ctx.traffic();
+            self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
+            let st = self.stats.unwrap_or_default();
+            return Ok(Frame {
+                width: w,
+                height: h,
+                primary_rays: n as u64,
+                reused: st.reused as u64,
+                moved_only: st.moved_only as u64,
+                instances_traced: st.instances_traced as u64,
+                spheres_culled: st.spheres_culled as u64,
+                shadow_rays: st.shadow_rays as u64,
+                on_device: true,
+                ..Frame::default()
+            });
+        };
+        let hits: Vec<GpuHit> = read(&self.ctx, hits_rb)?;
+        let rad: Vec<[f32; 4]> = read(&self.ctx, rad_rb)?;
+        self.times = times;
 
         self.gi_captured = match (capture, &self.gi, &gi_work) {
             (Some(bufs), Some(gi), Some(work)) => Some(gi.read_capture(&self.ctx, work, &bufs)?),

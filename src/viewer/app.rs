@@ -40,7 +40,8 @@ impl App {
         let can_capture = self.gfx.as_ref().is_some_and(|g| g.config.usage.contains(wgpu::TextureUsages::COPY_SRC));
         let start = Instant::now();
         let session = self.session.as_mut().ok_or_else(|| ViewerError::Other("no renderer".into()))?;
-        session.set_read_back(self.ui.gpu_stats || (shoot && !can_capture) || self.gfx.is_none());
+        session.set_read_back(self.ui.read_all || (shoot && !can_capture) || self.gfx.is_none());
+        session.set_counting(self.ui.gpu_stats);
         let other = |e: crate::Error| ViewerError::Other(e.to_string());
         // GI knobs this device cannot run (a volume past its binding limit, texture levels on a
         // sparse volume) switch GI off with the reason in the panel instead of ending the demo.
@@ -76,7 +77,7 @@ impl App {
         // Out of the session while it is shown; handed back at the end for the next frame's
         // memory.
         let frame = session.take_frame().ok_or_else(|| ViewerError::Other("the renderer kept no frame".into()))?;
-        self.ui.on_device = frame.on_device;
+        self.ui.on_device = frame.on_device && !self.ui.gpu_stats;
         self.ui.eye_inside = if frame.on_device {
             crate::render::instances::eye_inside(&self.scene, camera.eye)
         } else {
@@ -114,7 +115,7 @@ impl App {
         if self.report.frames % 10 == 1 {
             if let Some(window) = self.window() {
                 let ms = self.times.last().copied().unwrap_or(0.0);
-                let reused = if frame.on_device {
+                let reused = if frame.on_device && !self.ui.gpu_stats {
                     "frame kept on the GPU".to_string()
                 } else {
                     format!("{:.0}% reused", 100.0 * frame.reused as f64 / frame.primary_rays.max(1) as f64)

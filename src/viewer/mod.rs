@@ -56,9 +56,11 @@ pub struct DemoOptions {
     pub car_parts: Option<CarParts>,
     /// Start with voxel-transformation GI on (it can be switched in the panel).
     pub gi: bool,
-    /// Start with GPU frames read back for the statistics (switchable in the panel; off,
-    /// GPU frames stay on the GPU).
+    /// Read every GPU frame back whole and present it through the host, as before frames
+    /// stayed on the GPU (for comparisons; off, the window draws the GPU's radiance buffer).
     pub gpu_read_back: bool,
+    /// Start with the GPU counting each frame's statistics (switchable in the panel).
+    pub gpu_stats: bool,
 }
 
 /// What the demo needs to re-stage the cars when their number changes.
@@ -257,13 +259,15 @@ pub fn run(
             eye_inside: false,
             gpu_ms: None,
             gpu_stats: false,
+            read_all: false,
             on_device: false,
             reset: false,
         },
     };
     app.ui.travel = app.cars.first().is_some_and(|c| c.travel);
     app.ui.gi_on = app.opts.gi;
-    app.ui.gpu_stats = app.opts.gpu_read_back;
+    app.ui.read_all = app.opts.gpu_read_back;
+    app.ui.gpu_stats = app.opts.gpu_stats;
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Other(e.to_string()))?;
     if let Some(e) = app.error {
         return Err(e);

@@ -30,10 +30,13 @@ pub(super) struct Ui {
     // Most rays hit at t = 0 last frame.
     pub(super) eye_inside: bool,
     pub(super) gpu_ms: Option<(f64, f64)>,
-    /// Read GPU frames back for the statistics and pass times (off: frames stay on the GPU
-    /// and are presented from its radiance buffer).
+    /// Count GPU frames' statistics on the GPU (32 bytes and the pass times read back a
+    /// frame; the frames still stay on the GPU).
     pub(super) gpu_stats: bool,
-    /// The last frame stayed on the GPU: no per-pixel statistics.
+    /// Read every GPU frame back whole (`--gpu-read-back`: the path before frames stayed on
+    /// the GPU, for comparisons).
+    pub(super) read_all: bool,
+    /// The last frame has no statistics (it stayed on the GPU and nothing was counted).
     pub(super) on_device: bool,
     pub(super) reset: bool,
 }
@@ -175,10 +178,10 @@ impl App {
                         }
                     }
                     if ui.backend == BackendKind::Gpu {
-                        ui_.checkbox(&mut ui.gpu_stats, "read GPU frames back (statistics, pass times)");
+                        ui_.checkbox(&mut ui.gpu_stats, "GPU statistics (counted on the GPU, 80 B read back)");
                     }
                     if ui.on_device {
-                        ui_.small("frames stay on the GPU and are drawn from its radiance buffer");
+                        ui_.small("frames stay on the GPU and are drawn from its radiance buffer; tick GPU statistics for the counts and pass times");
                     } else {
                         if let Some((tr, sh)) = ui.gpu_ms {
                             ui_.label(format!("GPU passes: trace {tr:.2} ms, shade {sh:.2} ms"));

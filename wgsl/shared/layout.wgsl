@@ -57,7 +57,8 @@ struct Frame {
     max_level: u32,
     moved: u32,
     bvh_nodes: u32,
-    pad0: u32,
+    // 1: the passes add up the frame's statistics in `stats`.
+    count: u32,
     pad1: u32,
 }
 

@@ -332,11 +332,15 @@ pub(crate) struct DemoArgs {
     /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     pub(crate) backend: voxray::backend::BackendKind,
-    /// GPU renderer: read every frame back for the panel's statistics and pass times (the
-    /// default keeps frames on the GPU and draws them from its radiance buffer; switchable in
-    /// the panel).
+    /// GPU renderer: read every frame back whole and present it through the host, as before
+    /// frames stayed on the GPU (for comparisons; the default draws the GPU's radiance
+    /// buffer directly).
     #[arg(long)]
     pub(crate) gpu_read_back: bool,
+    /// GPU renderer: count each frame's statistics on the GPU for the panel (32 bytes and the
+    /// pass times read back a frame; switchable in the panel).
+    #[arg(long)]
+    pub(crate) gpu_stats: bool,
 }
 
 #[derive(Args)]

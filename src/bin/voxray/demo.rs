@@ -23,6 +23,7 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         car_parts,
         gi: a.gi,
         gpu_read_back: a.gpu_read_back,
+        gpu_stats: a.gpu_stats,
     };
     let report = run(opts, st.scene, st.cars, Lights::default(), camera).map_err(demo_err)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
