@@ -95,6 +95,18 @@ fn car_parts() -> Vec<Arc<Svo>> {
     build_parts(&voxray::model::car::mesh(), Resolution::Depth(6)).unwrap()
 }
 
+/// The cars' street seen from down the road, `width` × `height` pixels.
+fn street_camera(width: u32, height: u32) -> Camera {
+    Camera {
+        eye: DVec3::new(0.0, 4.0, 28.0),
+        target: DVec3::new(0.0, 0.5, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 45.0,
+        width,
+        height,
+    }
+}
+
 fn scene(cars: usize) -> (Scene, Vec<Car>) {
     let mut scene = Scene::new(car_parts());
     let mut placed = vec![add_car(&mut scene, 0, DVec3::ZERO, 0.0, false).unwrap()];
@@ -145,14 +157,7 @@ fn compare_clip(cars: usize, frames: usize, orbit: f64, features: Features) {
     let lights = Lights::default();
     let mut cpu_hits = HitBuffer::new();
     let mut gpu = GpuRenderer::new(ctx);
-    let base = Camera {
-        eye: DVec3::new(0.0, 4.0, 28.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 160,
-        height: 100,
-    };
+    let base = street_camera(160, 100);
     for f in 0..frames {
         let t = f as f64 / 30.0;
         for (a, b) in cars_cpu.iter().zip(&cars_gpu) {
@@ -237,14 +242,7 @@ fn pools_split_across_two_bindings_render_the_same() {
 fn a_new_part_where_a_dropped_one_lived_is_uploaded_and_traced() {
     let Some(ctx) = context() else { return };
     let lights = Lights::default();
-    let cam = Camera {
-        eye: DVec3::new(0.0, 4.0, 28.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 96,
-        height: 60,
-    };
+    let cam = street_camera(96, 60);
     let parts = car_parts();
     let (body, door) = ((*parts[0]).clone(), (*parts[5]).clone());
     drop(parts);
@@ -313,14 +311,7 @@ fn device_errors_come_back_as_library_errors() {
     ctx.check().unwrap(); // reported once
                           // The device still renders afterwards.
     let (scene, _) = scene(0);
-    let cam = Camera {
-        eye: DVec3::new(0.0, 4.0, 28.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 32,
-        height: 20,
-    };
+    let cam = street_camera(32, 20);
     let lights = Lights::default();
     let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
     let mut gpu = GpuRenderer::new(Arc::new(ctx));
@@ -337,14 +328,7 @@ fn steady_gpu_frames_create_no_buffers() {
     let ctx = Arc::new(GpuContext::headless().unwrap());
     let (mut scene, cars) = scene(1);
     let lights = Lights::default();
-    let cam = Camera {
-        eye: DVec3::new(0.0, 4.0, 28.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 64,
-        height: 40,
-    };
+    let cam = street_camera(64, 40);
     let mut gpu = GpuRenderer::new(ctx.clone());
     let pixels = (cam.width * cam.height) as u64;
     for f in 0..6 {
@@ -382,14 +366,7 @@ fn frames_kept_on_the_gpu_read_nothing_back_and_reuse_the_same_hits() {
     let ctx = Arc::new(GpuContext::headless().unwrap());
     let (mut scene, cars) = scene(1);
     let lights = Lights::default();
-    let cam = Camera {
-        eye: DVec3::new(0.0, 4.0, 28.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 64,
-        height: 40,
-    };
+    let cam = street_camera(64, 40);
     let mut every = GpuRenderer::new(ctx.clone());
     let mut kept = GpuRenderer::new(ctx.clone());
     kept.set_read_back(false);
@@ -443,14 +420,7 @@ fn gpu_counters_equal_the_counts_of_the_read_back_records() {
     let (mut scene, cars) = scene(2);
     let lights = Lights::default();
     assert!(lights.sun.is_some());
-    let cam = Camera {
-        eye: DVec3::new(0.0, 4.0, 28.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 64,
-        height: 40,
-    };
+    let cam = street_camera(64, 40);
     let mut read = GpuRenderer::new(ctx.clone());
     read.set_counting(true);
     let mut kept = GpuRenderer::new(ctx.clone());

@@ -249,7 +249,7 @@ fn a_recycled_frame_renders_like_a_fresh_one() {
 #[test]
 fn eye_inside_matches_the_voxel_set() {
     use std::collections::HashSet;
-    use voxray::render::instances::eye_inside;
+    use voxray::render::instances::{eye_inside, prepare};
     use voxray::svo::Cube;
     use voxray::voxelize::VoxelGrid;
     let mut rng = voxray::rng::Rng::new(11);
@@ -278,7 +278,8 @@ fn eye_inside_matches_the_voxel_set() {
                 assert_eq!(svo.contains(unit), set.contains(&c), "{c:?}");
                 let obj = cube.min.as_dvec3() + DVec3::new(x as f64, y as f64, z as f64) * size + size * 0.5;
                 let world = w.transform_point3(obj);
-                assert_eq!(eye_inside(&scene, world), set.contains(&c), "{c:?} at {world}");
+                let found = eye_inside(&scene.parts, &prepare(&scene, world, true));
+                assert_eq!(found, set.contains(&c), "{c:?} at {world}");
                 inside += set.contains(&c) as u32;
             }
         }
@@ -286,5 +287,5 @@ fn eye_inside_matches_the_voxel_set() {
     assert!(inside > 100 && inside < cells * cells * cells - 100, "{inside} cells set");
     // Outside the cube: nothing.
     assert!(!svo.contains(DVec3::new(1.0, 0.5, 0.5)) && !svo.contains(DVec3::splat(-1e-9)));
-    assert!(!eye_inside(&scene, w.transform_point3(DVec3::new(50.0, 0.0, 0.0))));
+    assert!(!eye_inside(&scene.parts, &prepare(&scene, w.transform_point3(DVec3::new(50.0, 0.0, 0.0)), true)));
 }

@@ -13,12 +13,11 @@ use voxray::scene::{Camera, Lights, Scene};
 use voxray::session::Session;
 use voxray::voxelize::Resolution;
 
-/// The car, posed, with a camera and the default lights.
-#[cfg(feature = "gpu")]
-fn car_frame() -> (Scene, Camera, Lights) {
+/// The car (`driving` or parked), posed, with a camera and the default lights.
+fn car_frame(driving: bool) -> (Scene, Camera, Lights) {
     let parts = build_parts(&voxray::model::car::mesh(), Resolution::Depth(5)).unwrap();
     let mut scene = Scene::new(parts);
-    let car = add_car(&mut scene, 0, DVec3::ZERO, 0.0, true).unwrap();
+    let car = add_car(&mut scene, 0, DVec3::ZERO, 0.0, driving).unwrap();
     pose(&mut scene, &car, 0.5).unwrap();
     scene.update().unwrap();
     let cam = Camera {
@@ -34,20 +33,7 @@ fn car_frame() -> (Scene, Camera, Lights) {
 
 #[test]
 fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
-    let parts = build_parts(&voxray::model::car::mesh(), Resolution::Depth(5)).unwrap();
-    let mut scene = Scene::new(parts);
-    let car = add_car(&mut scene, 0, DVec3::ZERO, 0.0, false).unwrap();
-    pose(&mut scene, &car, 0.5).unwrap();
-    scene.update().unwrap();
-    let cam = Camera {
-        eye: DVec3::new(4.0, 3.0, 9.0),
-        target: DVec3::new(0.0, 0.5, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 45.0,
-        width: 48,
-        height: 32,
-    };
-    let lights = Lights::default();
+    let (scene, cam, lights) = car_frame(false);
     let features = Features::default();
     let opts = RenderOptions::default();
     let g = GiSettings { res: 32, ..GiSettings::default() };
@@ -105,7 +91,7 @@ fn a_gpu_session_keeps_frames_on_the_gpu_and_reads_the_image_on_request() {
         Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
         Err(_) => return,
     };
-    let (scene, cam, lights) = car_frame();
+    let (scene, cam, lights) = car_frame(true);
     let features = Features::default();
     let opts = RenderOptions::default();
     let mut kept = Session::new(Backend::Gpu(Box::new(GpuRenderer::new(ctx.clone()))), "GPU".into());

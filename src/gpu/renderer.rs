@@ -167,6 +167,9 @@ pub struct GpuRenderer {
     counting: bool,
     /// The last frame's statistics as the GPU added them up (when counting).
     pub stats: Option<super::layout::GpuStats>,
+    /// The last frame's eye lies inside a voxel ([`crate::render::instances::eye_inside`]),
+    /// for frames kept on the GPU, whose t values say so only on the GPU.
+    pub eye_inside: bool,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -274,6 +277,7 @@ impl GpuRenderer {
             radiance_size: (0, 0),
             counting: false,
             stats: None,
+            eye_inside: false,
         }
         .with_device_limit()
     }
@@ -845,6 +849,7 @@ impl GpuRenderer {
             self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
             let now = self.ctx.traffic();
             self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
+            self.eye_inside = crate::render::instances::eye_inside(&scene.parts, &prepared);
             let st = self.stats.unwrap_or_default();
             return Ok(Frame {
                 width: w,

@@ -110,26 +110,14 @@ pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
     (0..scene.instances().len()).map(one).collect()
 }
 
-/// Whether the point `eye` (world space) lies inside a voxel of some instance: every ray from
-/// there hits at t = 0 and the image is one colour. For callers without the frame's pixels
-/// (a GPU frame that stayed on the GPU); [`super::Frame::eye_inside_fraction`] measures the
-/// same from the pixels. Instances whose bounding sphere does not hold the eye cost a few
-/// multiplications.
-pub fn eye_inside(scene: &Scene, eye: DVec3) -> bool {
-    scene.instances().iter().enumerate().any(|(i, inst)| {
-        let Some(part) = scene.parts.get(inst.part) else { return false };
-        let cube = part.bounds;
-        let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
-        let w = scene.world(i);
-        let half = size * 0.5;
-        let centre = w.transform_point3(min + DVec3::splat(half));
-        let stretch = w.matrix3.x_axis.length() + w.matrix3.y_axis.length() + w.matrix3.z_axis.length();
-        // The cube lies within half its edge times the sum of the axis stretches of the centre.
-        if (eye - centre).length() > half * stretch * (1.0 + SPHERE_PAD) {
-            return false;
-        }
-        let inv = w.inverse();
-        inv.is_finite() && part.contains((inv.transform_point3(eye) - min) / size)
+/// Whether the eye (the camera-relative origin `prepared` was made for) lies inside a voxel
+/// of some instance: every ray from there hits at t = 0 and the image is one colour. For
+/// callers without the frame's pixels (a GPU frame kept on the GPU);
+/// [`super::Frame::eye_inside_fraction`] measures the same from the pixels. Only instances
+/// whose bounding sphere holds the eye are looked up.
+pub fn eye_inside(parts: &[std::sync::Arc<crate::svo::Svo>], prepared: &[Prepared]) -> bool {
+    prepared.iter().any(|p| {
+        p.centre.length() <= p.radius && parts.get(p.part).is_some_and(|svo| svo.contains(p.to_unit.point(DVec3::ZERO)))
     })
 }
 
