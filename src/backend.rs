@@ -155,13 +155,23 @@ impl Backend {
         }
     }
 
-    /// The layout, bricks (sparse) and bytes of the backend's own GI volume in the last frame
-    /// (None on the CPU or without GI).
+    /// The layout, brick pool (sparse; 0 dense) and bytes of the backend's own GI volume in
+    /// the last frame (None on the CPU or without GI).
     pub fn gi_volume(&self) -> Option<(crate::gi::Layout, u32, u64)> {
         match self {
             Backend::Cpu(_) => None,
             #[cfg(feature = "gpu")]
-            Backend::Gpu(g) => g.gi_stats.map(|s| (s.layout, s.bricks, s.bytes)),
+            Backend::Gpu(g) => g.gi_stats.map(|s| (s.layout, s.brick_capacity, s.bytes)),
+        }
+    }
+
+    /// Bricks the backend's own sparse GI volume allocated in the last frame, read back on
+    /// request (None on the CPU, without GI or for a dense volume).
+    pub fn gi_bricks(&mut self) -> Result<Option<u32>, crate::Error> {
+        match self {
+            Backend::Cpu(_) => Ok(None),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Ok(g.gi_bricks()?),
         }
     }
 

@@ -68,6 +68,12 @@ impl Session {
         &self.backend
     }
 
+    /// Bricks the last frame's sparse GPU GI volume allocated, read back on request (None on
+    /// the CPU, without GI or for a dense volume).
+    pub fn gi_bricks(&mut self) -> Result<Option<u32>, crate::Error> {
+        self.backend.gi_bricks()
+    }
+
     /// Sets the GI knobs for the following frames (None: GI off). Checked here; on an error
     /// GI is off.
     pub fn set_gi(&mut self, gi: Option<GiSettings>) -> Result<(), crate::Error> {

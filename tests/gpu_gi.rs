@@ -358,17 +358,32 @@ fn gpu_sparse_volume_equals_the_dense_one() {
     let room = room_scene(4).unwrap();
     let room_plan = FramePlan::new(&room, &cam, &lights, &Features::default(), None);
     gpu.render(&room, &voxray::model::room::camera(16, 12), &lights, &room_plan, &RenderOptions::default()).unwrap();
-    let small = gpu.gi_stats.expect("GI ran");
+    let small = gpu.gi_bricks().unwrap().expect("a sparse volume");
     gpu.set_gi(Some(s)).unwrap();
     let a = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
     let stats = gpu.gi_stats.expect("GI ran");
     assert_eq!((stats.layout, stats.reuse), (Layout::Sparse, GiReuse::Nothing));
-    assert!(stats.bricks > small.bricks && stats.bricks < 6 * 6 * 6, "{} bricks of 216", stats.bricks);
+    let bricks = gpu.gi_bricks().unwrap().expect("a sparse volume");
+    assert!(bricks > small && bricks < 6 * 6 * 6, "{bricks} bricks of 216");
+    assert!(stats.brick_capacity >= bricks, "a pool of {} for {bricks} bricks", stats.brick_capacity);
     let b = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
     assert_eq!(gpu.gi_stats.expect("GI ran").reuse, GiReuse::Levels);
     assert_eq!(a.radiance, b.radiance);
-    let (fresh, _) = gpu_frame(ctx, &scene, &cam, &lights, s);
+    let (fresh, _) = gpu_frame(ctx.clone(), &scene, &cam, &lights, s);
     assert_eq!(a.radiance, fresh.radiance);
+    // A pool whose bound may not be allocated is sized by the count read back: same image.
+    let mut counting = GpuRenderer::new(ctx);
+    counting.set_gi(Some(s)).unwrap();
+    counting.set_gi_brick_bound_limit(0);
+    let c = counting.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    let st = counting.gi_stats.expect("GI ran");
+    assert_eq!(st.bricks_counted, Some(bricks), "the count was read back");
+    assert_eq!(st.brick_capacity, (bricks + bricks / 4).max(8), "a quarter's slack over the count");
+    eprintln!(
+        "{bricks} bricks: a pool of {} from the bound, {} from the count",
+        stats.brick_capacity, st.brick_capacity
+    );
+    assert_eq!(c.radiance, a.radiance);
 }
 
 /// The level chain read from a 3D texture (rgba16float, hardware quadrilinear filtering)
@@ -524,10 +539,11 @@ fn gpu_revoxelization_marks_the_cells_the_cpu_voxelizer_marks() {
     assert!((tc - tg).abs() <= 1e-4 * tc && tc > 1000.0, "total occupancy CPU {tc} vs GPU {tg}");
 }
 
-/// GI frames of an animated clip create no buffers once warm (dense and sparse volumes): the
-/// jobs, uniforms and readback are kept and rewritten, and bind groups reused while the
-/// buffers they name stay. Each frame equals a fresh renderer's frame of the same pose, so
-/// nothing stale is bound.
+/// GI frames of an animated clip create no buffers once warm and, kept on the GPU, read
+/// nothing back (dense and sparse volumes: the sparse pool is sized from a bound and its brick
+/// count stays on the GPU): the jobs and uniforms are kept and rewritten, and bind groups
+/// reused while the buffers they name stay. Each frame equals a fresh renderer's frame of the
+/// same pose, so nothing stale is bound.
 #[test]
 fn gpu_gi_frames_of_an_animated_clip_create_no_buffers_and_match_fresh_frames() {
     let Some(ctx) = context() else { return };
@@ -541,23 +557,30 @@ fn gpu_gi_frames_of_an_animated_clip_create_no_buffers_and_match_fresh_frames() 
         let own = Arc::new(GpuContext::headless().unwrap());
         let mut gpu = GpuRenderer::new(own.clone());
         gpu.set_gi(Some(s)).unwrap();
+        gpu.set_read_back(false);
         for f in 0..6 {
             pose(&mut scene, &car, 0.2 + f as f64 / 30.0).unwrap();
             scene.update().unwrap();
             let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&gpu.state));
-            let frame = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+            gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
             let stats = gpu.gi_stats.expect("GI ran");
             assert_eq!(stats.reuse, GiReuse::Nothing, "{volume:?} frame {f}: the car moved");
-            let (created, _) = gpu.frame_traffic;
-            eprintln!("{volume:?} frame {f}: created {created} buffers, {} bricks", stats.bricks);
+            assert_eq!(stats.bricks_counted, None, "{volume:?} frame {f}: the brick count was read back");
+            let (created, read) = gpu.frame_traffic;
+            eprintln!(
+                "{volume:?} frame {f}: created {created} buffers, read {read} B, a pool of {} bricks",
+                stats.brick_capacity
+            );
+            assert_eq!(read, 0, "{volume:?} frame {f} read back");
             if f >= 2 {
                 assert_eq!(created, 0, "{volume:?} frame {f} created buffers");
             }
+            let image = gpu.read_image().unwrap();
             let mut fresh = GpuRenderer::new(ctx.clone());
             fresh.set_gi(Some(s)).unwrap();
             let plan0 = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
             let expected = fresh.render(&scene, &cam, &lights, &plan0, &RenderOptions::default()).unwrap();
-            assert_eq!(frame.radiance, expected.radiance, "{volume:?} frame {f}");
+            assert_eq!(image, expected.radiance, "{volume:?} frame {f}");
         }
     }
 }

@@ -228,6 +228,10 @@ fn wgsl_structs_match_rust() {
                 ("top_res", offset_of!(GpuGiFrame, top_res)),
                 ("tex_size", offset_of!(GpuGiFrame, tex_size)),
                 ("specular_cone", offset_of!(GpuGiFrame, specular_cone)),
+                ("bricks", offset_of!(GpuGiFrame, bricks)),
+                ("pad0", offset_of!(GpuGiFrame, pad0)),
+                ("pad1", offset_of!(GpuGiFrame, pad1)),
+                ("pad2", offset_of!(GpuGiFrame, pad2)),
             ],
         ),
         (

@@ -60,6 +60,7 @@ fn brick_levels_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x + gid.y * step.row_threads;
     let side = step.dst_res;
     let n = side * side * side;
+    // The pool is dispatched whole; step.bricks (copied in by the GPU) are allocated.
     if i >= step.bricks * n {
         return;
     }

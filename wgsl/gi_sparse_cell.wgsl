@@ -2,8 +2,9 @@
 // gi::sparse::SparseVolume::build: a top table of 8³-cell bricks (res / 8 per side). Three
 // dispatches, lock-free: splat_main with splat.mark = 1 marks every top cell a voxel writes,
 // alloc_main gives each marked cell the next brick from a counter, splat_main with
-// splat.mark = 0 adds each voxel into its brick's cells. The host reads the counter back between
-// alloc and accumulate to size the brick pool (gpu::gi).
+// splat.mark = 0 adds each voxel into its brick's cells. The host sizes the brick pool from a
+// bound on the bricks (gpu::gi::sparse) and the counter is copied into the uniforms of the passes
+// over bricks (the bound keeps every brick handed out within the pool).
 
 @group(0) @binding(0) var<storage, read> voxels: array<CacheVoxel>;
 @group(0) @binding(1) var<storage, read> jobs: array<GiJob>;

@@ -34,7 +34,9 @@ override GI_TEXTURE: bool = false;
 // The stored cell of this thread of a cell pass, or GI_EMPTY past the last.
 fn gi_thread_cell(gid: vec3<u32>) -> u32 {
     let i = gid.x + gid.y * gi.row_threads;
-    return select(GI_EMPTY, i, i < gi.cells);
+    // A sparse pool is dispatched whole; only its allocated bricks hold cells.
+    let n = select(gi.cells, min(gi.cells, gi.bricks * 512u), GI_SPARSE);
+    return select(GI_EMPTY, i, i < n);
 }
 
 // Grid coordinates of stored cell i.

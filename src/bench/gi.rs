@@ -220,8 +220,9 @@ fn scene_of(mesh: &Mesh, depth: u32) -> Result<Scene, crate::Error> {
 
 /// The dense and the sparse world volume on the box on the GPU (`--scenarios gi-volume
 /// --backends gpu`): per frame with the volume rebuilt, the GPU time of the GI passes and the
-/// shade pass (which holds the cones) from timestamp queries, plus, sparse, the wall-clock time
-/// of the brick count's submit and read; memory is all the GI buffers. A resolution whose
+/// shade pass (which holds the cones) from timestamp queries, plus, sparse where the pool is
+/// sized by the count read back, the wall-clock time of that submit and read; memory is all
+/// the GI buffers. A resolution whose
 /// buffers exceed the device's binding limit is left out, with a message.
 #[cfg(feature = "gpu")]
 pub fn layouts_gpu(
@@ -252,7 +253,10 @@ pub fn layouts_gpu(
             };
             let (times, st, timed) = (run.times, run.stats, run.timed);
             let mut r = layout_record(cfg, name, res, &times, st.bytes, scene.instances().len());
-            r.setting = if st.bricks > 0 { format!("{} bricks", st.bricks) } else { String::new() };
+            r.setting = match run.bricks {
+                Some(n) => format!("{n} bricks"),
+                None => String::new(),
+            };
             r.backend_kind = "gpu".into();
             r.backend = format!("{backend}{}", if timed { "" } else { " (wall clock)" });
             out.push(r);
@@ -264,7 +268,7 @@ pub fn layouts_gpu(
 /// What [`gpu_gi_frames`] measured.
 #[cfg(feature = "gpu")]
 struct GpuGiRun {
-    /// Per timed frame: GPU milliseconds of the GI and shade passes plus the brick count's
+    /// Per timed frame: GPU milliseconds of the GI and shade passes plus any brick count's
     /// read (wall clock of the frame where the adapter has no timestamps).
     times: Vec<f64>,
     /// Whether `times` came from timestamp queries.
@@ -273,6 +277,8 @@ struct GpuGiRun {
     frame: Frame,
     /// Its GI statistics.
     stats: crate::gpu::gi::GpuGiStats,
+    /// Bricks of its sparse volume (read back after the timed frames; None dense).
+    bricks: Option<u32>,
 }
 
 /// Renders `repeats` + 1 GPU frames with GI `s`, each rebuilding the volume; the first
@@ -301,7 +307,8 @@ fn gpu_gi_frames(
             timed &= gpu.times.is_some();
         }
         if k == repeats.max(1) {
-            return Ok(GpuGiRun { times, timed, frame, stats });
+            let bricks = gpu.gi_bricks()?;
+            return Ok(GpuGiRun { times, timed, frame, stats, bricks });
         }
     }
     Err(crate::gi::GiError::Settings("no GPU frame".into()).into())

@@ -364,10 +364,11 @@ with the volume stored densely or as 8³ bricks where voxels land; both give the
             md += "### GI: dense against sparse world volume (GPU)\n\n";
             md += "The same box on the GPU, the volume rebuilt every frame: GPU time of the GI passes \
 (transformation, injection, levels) and of the shade pass that traces the cones, from timestamp queries, \
-plus, sparse, the wall-clock time of submitting the mark and allocate passes and reading the brick count \
-back (the sparse volume's one synchronization). Memory is every GI buffer: the voxel caches, the \
-accumulation cells (40 bytes each), the level chain, and, sparse, the top tables and the brick pool's \
-slack. Dense and sparse give the same image bit for bit (`tests/gpu_gi.rs`); a resolution whose buffers \
+which include, sparse, the mark and allocate passes; where the bound on the bricks is too loose to size \
+the pool by (a room whose walls' box is the whole volume), also the wall-clock time of running those two \
+passes on their own and reading the brick count back. Memory is every GI buffer: the voxel caches, the \
+accumulation cells (40 bytes each), the level chain, and, sparse, the top tables and the brick pool (sized \
+by the bound or the count, with slack). Dense and sparse give the same image bit for bit (`tests/gpu_gi.rs`); a resolution whose buffers \
 exceed the device's storage-binding limit is missing.\n\n";
         }
         md += &provenance(&rs);

@@ -280,7 +280,8 @@ pub struct GpuGiFrame {
     pub tilt: f32,
     /// Longest cone (world units; f32::MAX for unbounded).
     pub max_distance: f32,
-    /// Stored finest cells (res³ dense; bricks × 512 sparse): the cell passes' threads.
+    /// Stored finest cells (res³ dense; the pool's bricks × 512 sparse): the cell passes'
+    /// threads.
     pub cells: u32,
     /// Threads per dispatch row of the cell passes (spread over y past 65 535 groups).
     pub row_threads: u32,
@@ -291,6 +292,15 @@ pub struct GpuGiFrame {
     /// 1: glossy hits trace the specular cone (`ConeSettings::specular_cone`); 0: their
     /// specular ambient term is the flat sky's.
     pub specular_cone: u32,
+    /// Sparse: bricks allocated (the cell passes' threads past `bricks` × 512 stop); the GPU
+    /// copies its count over what the host wrote.
+    pub bricks: u32,
+    /// Padding to 16 bytes.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
 }
 
 /// One step down the level chain. WGSL: `GiLevelStep`.

@@ -410,6 +410,24 @@ impl GpuRenderer {
         }
     }
 
+    /// Bricks the last frame's sparse GI volume allocated, read back from the GPU (None for
+    /// a dense volume or without GI). Frames never need it; tools and tests ask for it.
+    pub fn gi_bricks(&mut self) -> Result<Option<u32>, GpuError> {
+        match self.gi.as_mut() {
+            Some(gi) => gi.read_bricks(&self.ctx),
+            None => Ok(None),
+        }
+    }
+
+    /// Most bytes a sparse GI brick pool sized by its bound may take before the frame reads
+    /// the brick count back instead (256 MiB; tests lower it to run that path).
+    #[doc(hidden)]
+    pub fn set_gi_brick_bound_limit(&mut self, bytes: u64) {
+        if let Some(gi) = self.gi.as_mut() {
+            gi.unread_limit = bytes;
+        }
+    }
+
     /// The GI settings in use.
     pub fn gi_settings(&self) -> Option<&crate::gi::GiSettings> {
         self.gi_settings.as_ref()

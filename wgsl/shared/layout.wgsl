@@ -175,7 +175,8 @@ struct GiFrame {
     // Angle of the cone ring from the normal.
     tilt: f32,
     max_distance: f32,
-    // Stored finest cells (res³ dense; bricks x 512 sparse), the cell passes' threads.
+    // Stored finest cells (res³ dense; the pool's bricks x 512 sparse), the cell passes'
+    // threads.
     cells: u32,
     // Threads per dispatch row of the cell passes (spread over y past 65 535 groups).
     row_threads: u32,
@@ -185,6 +186,11 @@ struct GiFrame {
     tex_size: u32,
     // 1: glossy hits trace the specular cone; 0: their specular ambient is the flat sky's.
     specular_cone: u32,
+    // Sparse: bricks allocated (copied in by the GPU); threads past bricks x 512 stop.
+    bricks: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuGiLevelStep: one step down the level chain.

@@ -95,6 +95,11 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
         }
+        // The brick count is read back only for the GPU GI message, on the first frame.
+        let counted = match (&report.gi, f) {
+            (None, 0) => session.gi_bricks()?,
+            _ => None,
+        };
         let frame = session.last_frame().ok_or_else(|| usage("the renderer kept no frame"))?;
         if f == 0 && frame.eye_inside_fraction() > 0.5 {
             pb.suspend(|| {
@@ -124,10 +129,11 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             (Some(g), None, 0) => {
                 let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
                 let volume = match backend.gi_volume() {
-                    Some((voxray::gi::Layout::Sparse, bricks, bytes)) => {
+                    Some((voxray::gi::Layout::Sparse, pool, bytes)) => {
                         format!(
-                            "sparse {}³ volume ({bricks} bricks, {:.1} MiB of GI buffers)",
+                            "sparse {}³ volume ({} bricks in a pool of {pool}, {:.1} MiB of GI buffers)",
                             g.res,
+                            counted.map_or("?".to_string(), |n| n.to_string()),
                             bytes as f64 / 1048576.0
                         )
                     }

@@ -52,7 +52,7 @@ impl GpuGi {
         if vol.layout == Layout::Sparse {
             let brick_top: Vec<u32> = read(ctx, bufs.get(2).ok_or_else(missing)?)?;
             let counters: Vec<u32> = read(ctx, bufs.get(3).ok_or_else(missing)?)?;
-            let bricks = work.stats.bricks as usize;
+            let bricks = (counters.first().copied().unwrap_or(0) as usize).min(work.stats.brick_capacity as usize);
             let (res, tr) = (vol.res as usize, (vol.res / BRICK) as usize);
             // The finest cell (dense index) of cell k of brick level l's brick b.
             let dense_index = |l: usize, b: usize, k: usize| {

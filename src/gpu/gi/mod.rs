@@ -5,10 +5,11 @@
 //! once per part and uploaded once; each frame uploads only one job per instance (its matrices)
 //! and runs transform → inject → levels → cone-traced shading.
 //!
-//! The dense volume needs no readback. The sparse one reads back one number per rebuilt
-//! volume: the bricks its mark and allocate passes handed out, to size the brick pool before
-//! the voxels are accumulated into it (the pool grows with a quarter's slack, so it is
-//! reallocated only when the surfaces in the volume grow past it).
+//! Neither volume needs a readback. The sparse one sizes its brick pool from a bound on the
+//! bricks the moved voxels can touch, allocates them on the GPU within the frame and copies
+//! the count into the uniforms of the passes that need it (`sparse`); only a volume whose
+//! bound is too loose to allocate reads the count back (the pool then grows with a quarter's
+//! slack, so it is reallocated only when the surfaces in the volume grow past it).
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{GpuGiFrame, GpuGiJob, GpuGiLevelStep, GpuGiSplat};
@@ -35,7 +36,7 @@ mod volume;
 
 pub use capture::GiCapture;
 use frame::{bind_cached, GiFrameBuffers};
-use sparse::{sparse_bind, SparseTables};
+use sparse::{brick_bound, job_cells, sparse_bind, Allocation, CoordBox, SparseTables, BRICK_BYTES, UNREAD_LIMIT};
 use texture::{level_texture, LevelTexture};
 use volume::{level_step_bind_with, VolumeBuffers};
 
@@ -122,10 +123,13 @@ pub struct GpuGiStats {
     pub reuse: GiReuse,
     /// How the volume is stored.
     pub layout: Layout,
-    /// Bricks allocated (sparse; 0 for dense).
-    pub bricks: u32,
-    /// Sparse, volume rebuilt: wall-clock milliseconds of the mark and allocate passes'
-    /// submit and the brick count's read (outside the GI pass's timestamps; 0 otherwise).
+    /// Bricks the sparse pool holds (0 for dense): at least the bricks allocated.
+    pub brick_capacity: u32,
+    /// Bricks allocated, when this frame read the count back (a sparse volume whose bound
+    /// was too loose to size the pool by); [`GpuGi::read_bricks`] reads it on request.
+    pub bricks_counted: Option<u32>,
+    /// Sparse, volume rebuilt with the count read back: wall-clock milliseconds of that
+    /// extra submit and read (outside the GI pass's timestamps; 0 otherwise).
     pub bricks_ms: f64,
 }
 
@@ -134,6 +138,8 @@ struct Pool {
     voxels: wgpu::Buffer,
     /// (first voxel, count) per key.
     ranges: HashMap<(PartId, u32), (u32, u32)>,
+    /// The box of the voxels' integer coordinates per key (None: no voxels).
+    boxes: HashMap<(PartId, u32), Option<CoordBox>>,
 }
 
 /// One frame's GI work, ready to encode.
@@ -144,6 +150,10 @@ pub(crate) struct GiWork {
     cell_groups: (u32, u32),
     /// Sparse: the brick steps down the chain (8³ → 4³ → 2³ → top table) and their workgroups.
     brick_steps: Vec<(wgpu::BindGroup, (u32, u32))>,
+    /// Sparse, volume rebuilt: the mark and allocate passes to record first.
+    allocation: Option<Allocation>,
+    /// Sparse: the uniform buffers and byte offsets that receive the brick count.
+    count_to: Vec<(wgpu::Buffer, u64)>,
     /// Whether the chain is copied into the level texture after each levels pass (and the
     /// cones sample it there).
     pub texture: bool,
@@ -187,6 +197,8 @@ pub(crate) struct GpuGi {
     last: Option<(VolumeKey, Lights, (u32, ConeSettings))>,
     /// Per-frame inputs and bind groups kept between frames.
     kept: GiFrameBuffers,
+    /// Most bytes of a brick pool sized by the bound ([`UNREAD_LIMIT`] unless a test lowers it).
+    pub(crate) unread_limit: u64,
 }
 
 /// The tracer's GI entry points of one plan variant.
@@ -415,6 +427,7 @@ impl GpuGi {
             placeholder_ro: placeholder_of("gi sparse table placeholder"),
             last: None,
             kept: GiFrameBuffers::default(),
+            unread_limit: UNREAD_LIMIT,
         }
     }
 
@@ -431,13 +444,21 @@ impl GpuGi {
         }
         let mut all: Vec<CacheVoxel> = Vec::new();
         let mut ranges = HashMap::new();
+        let mut boxes = HashMap::new();
         for (p, (id, level)) in scene.parts.iter().zip(&keys) {
             let key = (id.clone(), *level);
             if ranges.contains_key(&key) {
                 continue;
             }
             let cache = self.caches.get(p, *level)?;
-            ranges.insert(key, (all.len() as u32, cache.voxels.len() as u32));
+            ranges.insert(key.clone(), (all.len() as u32, cache.voxels.len() as u32));
+            let coords = cache.voxels.iter().map(CacheVoxel::coord);
+            let b = coords.fold(None, |b: Option<CoordBox>, c| {
+                Some(b.map_or((c, c), |(lo, hi)| {
+                    ([0, 1, 2].map(|i| lo[i].min(c[i])), [0, 1, 2].map(|i| hi[i].max(c[i])))
+                }))
+            });
+            boxes.insert(key, b);
             all.extend_from_slice(&cache.voxels);
         }
         if all.len() >= u32::MAX as usize {
@@ -456,12 +477,13 @@ impl GpuGi {
             contents: bytemuck::cast_slice(&all),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        self.pool = Some(Pool { keys, voxels, ranges });
+        self.pool = Some(Pool { keys, voxels, ranges, boxes });
         Ok(())
     }
 
     /// Places this frame's volume, uploads what changed and the instances' jobs; for a sparse
-    /// volume to rebuild, also marks and allocates its bricks (one submit and a 4-byte read).
+    /// volume to rebuild, also sizes its brick pool (reading the count back only where the
+    /// bound on it is too loose).
     pub(crate) fn prepare(
         &mut self,
         ctx: &GpuContext,
@@ -489,15 +511,21 @@ impl GpuGi {
         self.upload_pool(ctx, scene, keys.clone())?;
         let pool = self.pool.as_ref().ok_or_else(|| GpuError::Device("GI voxel pool missing".into()))?;
         let mut jobs = Vec::new();
+        let mut cell_boxes = Vec::new();
         let mut threads = 0u64;
         for (i, inst) in scene.instances().iter().enumerate() {
             let key = &keys[inst.part];
             let range = pool.ranges[key];
             let cache = self.caches.get(&scene.parts[inst.part], key.1)?;
-            let job = transform_job(&scene.world(i), cache, &spec, range, threads)?;
-            if range.1 > 0 {
+            let world = scene.world(i);
+            let job = transform_job(&world, cache, &spec, range, threads)?;
+            if let (true, Some(Some(coords))) = (range.1 > 0, pool.boxes.get(key)) {
                 jobs.push(job);
                 threads += range.1 as u64;
+                if layout == Layout::Sparse {
+                    let (m, t) = grid_map(&world, cache.corner, cache.voxel_size, &spec);
+                    cell_boxes.push(job_cells(m, t, *coords));
+                }
             }
         }
         let (splat, splat_groups) = splat_dispatch(spec.res, jobs.len(), threads, s.filter)?;
@@ -515,37 +543,46 @@ impl GpuGi {
             wgpu::BufferUsages::STORAGE,
         )?;
         let voxels = pool.voxels.clone();
-        // The sparse volume's bricks: counted on the GPU when the volume is rebuilt, kept
-        // otherwise; the pool grows with a quarter's slack and shrinks when 4× too large.
-        let (mut capacity, mut bricks_ms) = (0, 0.0);
+        // The sparse volume's bricks: allocated on the GPU when the volume is rebuilt, kept
+        // otherwise. The pool is sized by the bound on what the moved voxels can touch, or,
+        // where that bound is too loose to allocate, by the count read back; it grows with a
+        // quarter's slack and shrinks when 4× too large.
+        let (mut capacity, mut bricks_ms, mut allocation) = (0, 0.0, None);
         if layout == Layout::Sparse {
             self.sparse_tables(ctx, spec.res)?;
-            let bricks = match (reuse, &self.sparse) {
-                (GiReuse::Nothing, _) => {
-                    let (n, ms) = self.allocate_bricks(ctx, &voxels, &jobs_buf, splat, splat_groups)?;
-                    bricks_ms = ms;
-                    n
-                }
-                (_, Some(t)) => t.bricks,
-                (_, None) => 0,
-            };
-            if let Some(t) = self.sparse.as_mut() {
-                t.bricks = bricks;
-            }
             // The slack stops where it alone would break the device's binding limit.
             let limit = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);
             let fit = (limit.saturating_sub(4) / (BRICK_CELLS as u64 * STRIDE as u64 * 4)).min(u32::MAX as u64) as u32;
-            let want = (bricks + bricks / 4).max(MIN_BRICKS).min(fit.max(bricks));
-            capacity = match &self.volume {
-                Some(v)
-                    if v.layout == Layout::Sparse
-                        && v.res == spec.res
-                        && v.capacity >= bricks
-                        && v.capacity <= 4 * want =>
-                {
-                    v.capacity
+            let want = |bricks: u32| (bricks + bricks / 4).max(MIN_BRICKS).min(fit.max(bricks));
+            let kept_capacity = self.volume.as_ref().filter(|v| v.layout == Layout::Sparse && v.res == spec.res);
+            let kept_capacity = kept_capacity.map(|v| v.capacity);
+            if kept_capacity.is_none() {
+                reuse = GiReuse::Nothing; // no bricks to keep
+            }
+            capacity = match (reuse, kept_capacity) {
+                (GiReuse::Nothing, _) | (_, None) => {
+                    let alloc = self.allocation(ctx, &voxels, &jobs_buf, splat, splat_groups)?;
+                    let bound = brick_bound(&cell_boxes, spec.res);
+                    let need = if bound <= fit && bound as u64 * BRICK_BYTES <= self.unread_limit {
+                        if let Some(t) = self.sparse.as_mut() {
+                            t.counted = None;
+                        }
+                        bound
+                    } else {
+                        let (n, ms) = self.count_bricks(ctx, &alloc)?;
+                        bricks_ms = ms;
+                        if let Some(t) = self.sparse.as_mut() {
+                            t.counted = Some(n);
+                        }
+                        n
+                    };
+                    allocation = Some(alloc);
+                    match kept_capacity {
+                        Some(c) if c >= need && c <= 4 * want(need) => c,
+                        _ => want(need),
+                    }
                 }
-                _ => want,
+                (_, Some(c)) => c,
             };
         }
         self.volume_buffers(ctx, layout, spec.res, capacity, texture)?;
@@ -557,11 +594,10 @@ impl GpuGi {
             _ => return Err(GpuError::Device("GI buffers missing".into())),
         };
         let tables = self.sparse.as_ref().filter(|_| layout == Layout::Sparse);
-        let bricks = tables.map_or(0, |t| t.bricks);
-        let cells = match layout {
-            Layout::Dense => (spec.res as u64).pow(3),
-            Layout::Sparse => bricks as u64 * BRICK_CELLS as u64,
-        };
+        // The passes over bricks are dispatched for the whole pool and stop at the count the
+        // GPU copies into their uniforms (`count_to`); the host writes the count it knows.
+        let bricks = tables.and_then(|t| t.counted).unwrap_or(0);
+        let cells = volume::stored_cells(layout, spec.res, capacity);
         if cells >= u32::MAX as u64 {
             return Err(GpuError::TooLarge { what: "the GI cell passes", size: cells, limit: u32::MAX as u64 });
         }
@@ -594,6 +630,8 @@ impl GpuGi {
             top_res: spec.res / BRICK,
             tex_size: vol.texture.as_ref().map_or(0, |t| t.size),
             specular_cone: cones.specular_cone as u32,
+            bricks,
+            ..Default::default()
         };
         let kept = &mut self.kept;
         let uniform = wgpu::BufferUsages::UNIFORM;
@@ -624,10 +662,14 @@ impl GpuGi {
         // Sparse: 8³ → 4³ → 2³ within each brick, then 2³ → the top table's level.
         kept.brick_steps.resize(BRICK_LEVELS, None);
         let mut brick_steps = Vec::new();
+        let mut count_to = Vec::new();
+        if tables.is_some() {
+            count_to.push((frame_buf.clone(), std::mem::offset_of!(GpuGiFrame, bricks) as u64));
+        }
         if let Some(t) = tables {
             for l in 1..=BRICK_LEVELS {
                 let side = BRICK >> l;
-                let (groups, row_threads) = flat_groups(bricks * side.pow(3));
+                let (groups, row_threads) = flat_groups(capacity * side.pow(3));
                 let step = GpuGiLevelStep {
                     src_offset: vol.offsets[l - 1],
                     src_res: BRICK >> (l - 1),
@@ -648,6 +690,7 @@ impl GpuGi {
                 let bind = bind_cached(&mut kept.binds, ("brick step", l), key, || {
                     level_step_bind_with(ctx, &self.brick_levels_pipe, &vol.levels, &ubuf, Some(&t.brick_top))
                 });
+                count_to.push((ubuf, std::mem::offset_of!(GpuGiLevelStep, bricks) as u64));
                 brick_steps.push((bind, groups));
             }
         }
@@ -702,7 +745,8 @@ impl GpuGi {
                 + vol.texture.as_ref().map_or(0, |t| (t.size as u64).pow(3) * 8 * 8 / 7),
             reuse,
             layout,
-            bricks,
+            brick_capacity: capacity,
+            bricks_counted: tables.and_then(|t| t.counted),
             bricks_ms,
         };
         self.last = Some((key, *lights, bounce_key));
@@ -711,6 +755,8 @@ impl GpuGi {
             splat_groups,
             cell_groups,
             brick_steps,
+            allocation,
+            count_to,
             texture,
             group1,
             spec,
@@ -731,6 +777,27 @@ impl GpuGi {
     ) -> Result<(), GpuError> {
         let vol = self.volume.as_ref().ok_or_else(|| GpuError::Device("GI volume missing".into()))?;
         let reuse = work.stats.reuse;
+        // A rebuilt sparse volume allocates its bricks first; the pair of passes shares the
+        // GI pass's timestamps (the first pass writes the start, the GI pass the end).
+        let mut timestamp_writes = timestamp_writes;
+        if let Some(alloc) = &work.allocation {
+            let ts = timestamp_writes.as_ref().map(|t| wgpu::ComputePassTimestampWrites {
+                query_set: t.query_set,
+                beginning_of_pass_write_index: t.beginning_of_pass_write_index,
+                end_of_pass_write_index: None,
+            });
+            self.record_allocation(enc, alloc, ts)?;
+            if let Some(t) = timestamp_writes.as_mut() {
+                t.beginning_of_pass_write_index = None;
+            }
+        }
+        if let Some(tables) = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse) {
+            // The uniforms were written with the count the host knows, if any: the GPU's own
+            // replaces it (every frame, since the host writes them every frame).
+            for (buf, offset) in &work.count_to {
+                enc.copy_buffer_to_buffer(&tables.counters, 0, buf, *offset, 4);
+            }
+        }
         if reuse == GiReuse::Nothing {
             enc.clear_buffer(&vol.accum, 0, None);
         }

@@ -1,7 +1,23 @@
-//! The sparse volume's top tables and the brick allocation (mark, allocate, one 4-byte read);
-//! the GPU side of `gi::sparse`.
+//! The sparse volume's top tables and the brick allocation (mark, allocate), the GPU side of
+//! `gi::sparse`.
+//!
+//! The pool is sized on the host from a bound that needs nothing from the GPU: the bricks
+//! that the instances' boxes of moved voxels cover (their union, one bit per top cell). The
+//! mark and allocate passes run in the frame's own command buffer, and the count they reach
+//! is copied on the GPU into the uniforms of the passes that loop over bricks (which are
+//! dispatched for the pool and stop at the count). Only a volume whose bound does not fit
+//! ([`UNREAD_LIMIT`]) runs the two passes once more on their own and reads the count back to
+//! size the pool exactly.
 
 use super::*;
+
+/// Most bytes a pool sized by the bound (not by a count read back) may take: past it the
+/// bound is too loose to allocate (a part whose box covers the whole volume) and the count
+/// is read.
+pub(super) const UNREAD_LIMIT: u64 = 256 << 20;
+
+/// Bytes of one brick in the pool: its accumulation cells and its three levels.
+pub(super) const BRICK_BYTES: u64 = BRICK_CELLS as u64 * STRIDE as u64 * 4 + (512 + 64 + 8) * 16;
 
 /// The sparse volume's tables, sized by the resolution alone.
 pub(super) struct SparseTables {
@@ -12,8 +28,8 @@ pub(super) struct SparseTables {
     pub(super) brick_top: wgpu::Buffer,
     /// Bricks allocated, weight outside (`OUT_FIX`).
     pub(super) counters: wgpu::Buffer,
-    /// Bricks allocated by the last mark and allocate passes.
-    pub(super) bricks: u32,
+    /// Bricks allocated by the last mark and allocate passes, when they were read back.
+    pub(super) counted: Option<u32>,
 }
 
 /// The bind group of the sparse passes.
@@ -38,6 +54,70 @@ pub(super) fn sparse_bind(
     })
 }
 
+/// An inclusive box of integer coordinates: (lowest, highest) per axis.
+pub(super) type CoordBox = ([u32; 3], [u32; 3]);
+
+/// The grid cells (inclusive, unclamped) that a cache's voxels with coordinates in `coords`
+/// (inclusive) can write when moved by the job map `(m, t)`: an affine map takes its extremes
+/// at the box's corners, the split filter writes the cell below and above, and one cell of
+/// margin on each side covers the GPU's f32 rounding of the map.
+pub(super) fn job_cells(m: DMat3, t: DVec3, coords: CoordBox) -> ([i64; 3], [i64; 3]) {
+    let (lo, hi) = coords;
+    let (mut gmin, mut gmax) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for k in 0..8 {
+        let c = DVec3::new(
+            if k & 1 == 0 { lo[0] } else { hi[0] } as f64,
+            if k & 2 == 0 { lo[1] } else { hi[1] } as f64,
+            if k & 4 == 0 { lo[2] } else { hi[2] } as f64,
+        );
+        let g = m * c + t;
+        gmin = gmin.min(g);
+        gmax = gmax.max(g);
+    }
+    // Non-finite maps are refused before (check_world); clamp so the casts stay defined.
+    let cell = |v: f64, d: f64| (v.floor() + d).clamp(-1e12, 1e12) as i64;
+    ([0, 1, 2].map(|i| cell(gmin[i], -1.0)), [0, 1, 2].map(|i| cell(gmax[i], 2.0)))
+}
+
+/// Bricks of a `res`³ volume that the cell boxes can touch: the union of the boxes' top
+/// cells (an upper bound on what the mark pass marks).
+pub(super) fn brick_bound(boxes: &[([i64; 3], [i64; 3])], res: u32) -> u32 {
+    let tr = (res / BRICK).max(1) as i64;
+    let mut marked = vec![0u64; (tr.pow(3) as usize).div_ceil(64)];
+    let mut count = 0u32;
+    for (lo, hi) in boxes {
+        let r = |i: usize| {
+            let a = lo[i].clamp(0, res as i64 - 1) / BRICK as i64;
+            let b = hi[i].clamp(0, res as i64 - 1) / BRICK as i64;
+            (a, b)
+        };
+        if (0..3).any(|i| hi[i] < 0 || lo[i] >= res as i64) {
+            continue; // wholly outside: its weight goes to the outside counter
+        }
+        let (x, y, z) = (r(0), r(1), r(2));
+        for k in z.0..=z.1 {
+            for j in y.0..=y.1 {
+                for i in x.0..=x.1 {
+                    let t = (i + tr * (j + tr * k)) as usize;
+                    if marked[t / 64] & (1 << (t % 64)) == 0 {
+                        marked[t / 64] |= 1 << (t % 64);
+                        count += 1;
+                    }
+                }
+            }
+        }
+    }
+    count
+}
+
+/// The sparse volume's allocation of one rebuilt frame, recorded into its command buffer.
+pub(super) struct Allocation {
+    /// The mark pass's bind group (the allocate pass shares it).
+    pub(super) bind: wgpu::BindGroup,
+    /// Workgroups of the mark pass (one thread per moved voxel).
+    pub(super) splat_groups: (u32, u32),
+}
+
 impl GpuGi {
     /// Allocates the sparse volume's top tables for `res` cells per side.
     pub(super) fn sparse_tables(&mut self, ctx: &GpuContext, res: u32) -> Result<(), GpuError> {
@@ -60,24 +140,21 @@ impl GpuGi {
             top: make("gi top table", top_cells * 4, copy),
             brick_top: make("gi brick top cells", top_cells * 4, copy),
             counters: make("gi sparse counters", 16, copy),
-            bricks: 0,
+            counted: None,
         });
         Ok(())
     }
 
-    /// Marks and allocates the sparse volume's bricks for `threads` moved voxels (submitted at
-    /// once) and reads back how many there are.
-    pub(super) fn allocate_bricks(
+    /// The mark pass's uniforms and bind group for this frame's moved voxels.
+    pub(super) fn allocation(
         &mut self,
         ctx: &GpuContext,
         voxels: &wgpu::Buffer,
         jobs: &wgpu::Buffer,
         splat: GpuGiSplat,
-        groups: (u32, u32),
-    ) -> Result<(u32, f64), GpuError> {
-        let t0 = std::time::Instant::now();
+        splat_groups: (u32, u32),
+    ) -> Result<Allocation, GpuError> {
         let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
-        let device = &ctx.device;
         let kept = &mut self.kept;
         let mark = GpuGiSplat { mark: 1, ..splat };
         let ubuf = GiFrameBuffers::write(
@@ -92,28 +169,64 @@ impl GpuGi {
         let bind = bind_cached(&mut kept.binds, ("mark", 0), key, || {
             sparse_bind(ctx, layout, [voxels, jobs, placeholder, &ubuf], tables)
         });
-        let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
+        Ok(Allocation { bind, splat_groups })
+    }
+
+    /// Records the mark and allocate passes: afterwards `counters[0]` holds the bricks and the
+    /// top table each marked cell's brick.
+    pub(super) fn record_allocation(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        alloc: &Allocation,
+        timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) -> Result<(), GpuError> {
+        let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
         enc.clear_buffer(&tables.top, 0, None);
         enc.clear_buffer(&tables.counters, 0, None);
-        {
-            let mut pass = enc
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("gi bricks"), timestamp_writes: None });
-            pass.set_bind_group(0, &bind, &[]);
-            if groups.0 > 0 {
-                pass.set_pipeline(&self.sparse_splat_pipe);
-                pass.dispatch_workgroups(groups.0, groups.1, 1);
-            }
-            let g = (tables.res / BRICK).div_ceil(4);
-            pass.set_pipeline(&self.sparse_alloc_pipe);
-            pass.dispatch_workgroups(g, g, g);
+        let mut pass =
+            enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("gi bricks"), timestamp_writes });
+        pass.set_bind_group(0, &alloc.bind, &[]);
+        if alloc.splat_groups.0 > 0 {
+            pass.set_pipeline(&self.sparse_splat_pipe);
+            pass.dispatch_workgroups(alloc.splat_groups.0, alloc.splat_groups.1, 1);
         }
+        let g = (tables.res / BRICK).div_ceil(4);
+        pass.set_pipeline(&self.sparse_alloc_pipe);
+        pass.dispatch_workgroups(g, g, g);
+        Ok(())
+    }
+
+    /// Runs the mark and allocate passes on their own and reads back how many bricks they
+    /// allocated (the volumes whose bound is too loose to size the pool by). Returns the count
+    /// and the wall-clock milliseconds of the submit and the read.
+    pub(super) fn count_bricks(&mut self, ctx: &GpuContext, alloc: &Allocation) -> Result<(u32, f64), GpuError> {
+        let t0 = std::time::Instant::now();
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
+        self.record_allocation(&mut enc, alloc, None)?;
+        let count = self.read_counter(ctx, enc)?;
+        Ok((count, t0.elapsed().as_secs_f64() * 1e3))
+    }
+
+    /// Bricks the last frame's volume holds, read back (None for a dense volume): for tools
+    /// and tests, the render path never needs it.
+    pub(crate) fn read_bricks(&mut self, ctx: &GpuContext) -> Result<Option<u32>, GpuError> {
+        if !self.volume.as_ref().is_some_and(|v| v.layout == Layout::Sparse) || self.sparse.is_none() {
+            return Ok(None);
+        }
+        let enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("gi bricks") });
+        self.read_counter(ctx, enc).map(Some)
+    }
+
+    /// Submits `enc` with a copy of the brick counter and reads it.
+    fn read_counter(&mut self, ctx: &GpuContext, mut enc: wgpu::CommandEncoder) -> Result<u32, GpuError> {
         let mappable = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-        ensure(ctx, &mut kept.brick_count, "gi brick count", 4, true, mappable);
+        ensure(ctx, &mut self.kept.brick_count, "gi brick count", 4, true, mappable);
+        let tables = self.sparse.as_ref().ok_or_else(|| GpuError::Device("GI top table missing".into()))?;
         let readback =
-            kept.brick_count.as_ref().ok_or_else(|| GpuError::Device("brick count buffer missing".into()))?;
+            self.kept.brick_count.as_ref().ok_or_else(|| GpuError::Device("brick count buffer missing".into()))?;
         enc.copy_buffer_to_buffer(&tables.counters, 0, readback, 0, 4);
         ctx.queue.submit([enc.finish()]);
         let count: Vec<u32> = read(ctx, readback)?;
-        Ok((count.first().copied().unwrap_or(0), t0.elapsed().as_secs_f64() * 1e3))
+        Ok(count.first().copied().unwrap_or(0))
     }
 }
