@@ -17,6 +17,9 @@
 @group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>>;
 // The top cell of each brick.
 @group(0) @binding(6) var<storage, read_write> brick_top: array<u32>;
+// Indirect workgroups (x, y, z) of the passes over bricks: the cell passes (one thread per
+// cell), then the brick steps to 4³, 2³ and the top level (one thread per coarser cell).
+@group(0) @binding(7) var<storage, read_write> dispatch_args: array<u32>;
 
 // GI_BRICK and GI_EMPTY come from the prelude (src/gpu/prelude.rs).
 
@@ -70,4 +73,25 @@ fn alloc_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let b = atomicAdd(&counters[0], 1u);
     atomicStore(&top[t], b);
     brick_top[b] = t;
+}
+
+// Workgroups of 64 threads for `threads` threads, spread over y past 65 535 groups: the rule
+// of gpu::gi::flat_groups, so a dispatch row holds the row_threads the host wrote whenever
+// the count needs more than one row (the pool is at least as large as the count).
+fn write_flat_args(k: u32, threads: u32) {
+    let groups = (threads + 63u) / 64u;
+    dispatch_args[3u * k] = min(groups, 65535u);
+    dispatch_args[3u * k + 1u] = (groups + 65534u) / 65535u;
+    dispatch_args[3u * k + 2u] = 1u;
+}
+
+// One thread, after alloc_main: the passes over bricks get workgroups for the bricks allocated.
+@compute @workgroup_size(1, 1, 1)
+fn dispatch_main() {
+    let bricks = atomicLoad(&counters[0]);
+    write_flat_args(0u, bricks * GI_BRICK * GI_BRICK * GI_BRICK);
+    for (var l = 1u; l <= GI_BRICK_LEVELS; l++) {
+        let side = GI_BRICK >> l;
+        write_flat_args(l, bricks * side * side * side);
+    }
 }

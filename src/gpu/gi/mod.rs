@@ -175,6 +175,8 @@ pub(crate) struct GpuGi {
     /// The sparse volume's mark/accumulate and allocate passes, and its brick level steps.
     sparse_splat_pipe: wgpu::ComputePipeline,
     sparse_alloc_pipe: wgpu::ComputePipeline,
+    /// Writes the indirect dispatches of the passes over bricks from the count.
+    sparse_dispatch_pipe: wgpu::ComputePipeline,
     sparse_layout: wgpu::BindGroupLayout,
     brick_levels_pipe: wgpu::ComputePipeline,
     sparse: Option<SparseTables>,
@@ -343,6 +345,7 @@ impl GpuGi {
                 gi_layout_entry(4, rw),
                 gi_layout_entry(5, rw),
                 gi_layout_entry(6, rw),
+                gi_layout_entry(7, rw),
             ],
         });
         let sparse_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -353,9 +356,10 @@ impl GpuGi {
         let mut sparse_pipes = make_with(
             "gi_sparse_cell.wgsl",
             sparse_transform_source(),
-            &["splat_main", "alloc_main"],
+            &["splat_main", "alloc_main", "dispatch_main"],
             Some(&sparse_pl),
         );
+        let sparse_dispatch_pipe = sparse_pipes.remove(2);
         let sparse_alloc_pipe = sparse_pipes.remove(1);
         let sparse_splat_pipe = sparse_pipes.remove(0);
         let group1_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -415,6 +419,7 @@ impl GpuGi {
             levels_pipe: make("gi_levels.wgsl", levels_source(), "levels_main"),
             sparse_splat_pipe,
             sparse_alloc_pipe,
+            sparse_dispatch_pipe,
             sparse_layout,
             brick_levels_pipe: make("gi_levels.wgsl", levels_source(), "brick_levels_main"),
             sparse: None,
@@ -820,19 +825,28 @@ impl GpuGi {
             pass.dispatch_workgroups(work.splat_groups.0, work.splat_groups.1, 1);
         }
         let groups = work.cell_groups;
+        // A sparse volume's passes over bricks take their workgroups from the GPU's count
+        // (`dispatch_main`), a dense one's from the host.
+        let indirect = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse).map(|t| &t.dispatch);
         let tracer = |pass: &mut wgpu::ComputePass, pipe: &wgpu::ComputePipeline| {
             if groups.0 > 0 {
                 pass.set_pipeline(pipe);
                 pass.set_bind_group(0, group0, &[]);
                 pass.set_bind_group(1, &work.group1, &[]);
-                pass.dispatch_workgroups(groups.0, groups.1, 1);
+                match indirect {
+                    Some(args) => pass.dispatch_workgroups_indirect(args, 0),
+                    None => pass.dispatch_workgroups(groups.0, groups.1, 1),
+                }
             }
         };
         let levels = |pass: &mut wgpu::ComputePass| {
-            for (step, g) in work.brick_steps.iter().filter(|(_, g)| g.0 > 0) {
+            for (l, (step, g)) in work.brick_steps.iter().enumerate().filter(|(_, (_, g))| g.0 > 0) {
                 pass.set_pipeline(&self.brick_levels_pipe);
                 pass.set_bind_group(0, step, &[]);
-                pass.dispatch_workgroups(g.0, g.1, 1);
+                match indirect {
+                    Some(args) => pass.dispatch_workgroups_indirect(args, 12 * (l as u64 + 1)),
+                    None => pass.dispatch_workgroups(g.0, g.1, 1),
+                }
             }
             pass.set_pipeline(&self.levels_pipe);
             let first = vol.resolutions.len() - vol.steps.len();

@@ -3,9 +3,9 @@
 //!
 //! The pool is sized on the host from a bound that needs nothing from the GPU: the bricks
 //! that the instances' boxes of moved voxels cover (their union, one bit per top cell). The
-//! mark and allocate passes run in the frame's own command buffer, and the count they reach
-//! is copied on the GPU into the uniforms of the passes that loop over bricks (which are
-//! dispatched for the pool and stop at the count). Only a volume whose bound does not fit
+//! mark and allocate passes run in the frame's own command buffer; the count they reach sets
+//! the workgroups of the passes that loop over bricks (indirect dispatches written on the
+//! GPU) and is copied into their uniforms, where threads past it stop. Only a volume whose bound does not fit
 //! ([`UNREAD_LIMIT`]) runs the two passes once more on their own and reads the count back to
 //! size the pool exactly.
 
@@ -28,6 +28,9 @@ pub(super) struct SparseTables {
     pub(super) brick_top: wgpu::Buffer,
     /// Bricks allocated, weight outside (`OUT_FIX`).
     pub(super) counters: wgpu::Buffer,
+    /// The indirect workgroups of the passes over bricks, from the count: the cell passes,
+    /// then the three brick steps (three words each).
+    pub(super) dispatch: wgpu::Buffer,
     /// Bricks allocated by the last mark and allocate passes, when they were read back.
     pub(super) counted: Option<u32>,
 }
@@ -50,6 +53,7 @@ pub(super) fn sparse_bind(
             wgpu::BindGroupEntry { binding: 4, resource: tables.top.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 5, resource: tables.counters.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 6, resource: tables.brick_top.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 7, resource: tables.dispatch.as_entire_binding() },
         ],
     })
 }
@@ -140,6 +144,7 @@ impl GpuGi {
             top: make("gi top table", top_cells * 4, copy),
             brick_top: make("gi brick top cells", top_cells * 4, copy),
             counters: make("gi sparse counters", 16, copy),
+            dispatch: make("gi sparse dispatch", 48, wgpu::BufferUsages::INDIRECT),
             counted: None,
         });
         Ok(())
@@ -193,6 +198,8 @@ impl GpuGi {
         let g = (tables.res / BRICK).div_ceil(4);
         pass.set_pipeline(&self.sparse_alloc_pipe);
         pass.dispatch_workgroups(g, g, g);
+        pass.set_pipeline(&self.sparse_dispatch_pipe);
+        pass.dispatch_workgroups(1, 1, 1);
         Ok(())
     }
 
