@@ -114,13 +114,15 @@ fn a_tiny_bench_writes_json_csv_charts_and_the_docs_section() {
     let gpu: Vec<_> = records.iter().filter(|r| r["backend_kind"] == "gpu").collect();
     assert_eq!(gpu.len(), 4);
     assert!(gpu.iter().all(|r| r["gpu_bytes"].as_u64().is_some_and(|b| b > 0)), "{gpu:?}");
-    // Host round trips are counted: every GPU frame still reads its records and image back.
-    assert!(gpu.iter().all(|r| r["gpu_read_back_per_frame"].as_f64().is_some_and(|b| b > 0.0)), "{gpu:?}");
+    // Host round trips are counted: timed GPU frames stay on the GPU and read back only their
+    // statistics and pass times (tens of bytes, not the 64×48 image's records).
+    let small = |b: f64| b > 0.0 && b < 1024.0;
+    assert!(gpu.iter().all(|r| r["gpu_read_back_per_frame"].as_f64().is_some_and(small)), "{gpu:?}");
     assert!(gpu.iter().all(|r| r["gpu_buffers_per_frame"].as_f64().is_some()), "{gpu:?}");
     let md = std::fs::read_to_string(d.join("docs/benchmarks.md")).unwrap();
     assert_eq!(md.matches("<!-- BEGIN GENERATED").count(), 1);
     assert!(md.contains("| gpu |"), "{md}");
-    assert!(md.contains("read back MiB/frame"), "{md}");
+    assert!(md.contains("read back per frame"), "{md}");
 }
 
 #[test]

@@ -131,7 +131,13 @@ pub struct Clip<'a> {
 }
 
 /// Renders a clip's warm-up and timed frames, timing each whole frame; returns the record
-/// (group, name and setting left for the caller) and the first timed frame.
+/// (group, name and setting left for the caller) and the frame of the first timed pose.
+///
+/// GPU frames stay on the GPU, as the demo's do: the GPU adds up each frame's statistics and
+/// only those and the pass times are read back (which also waits for the frame, so the wall
+/// time is the whole frame's). The picture returned is read back from the last warm-up frame,
+/// which renders the first timed frame's pose (from the first timed frame itself when there
+/// is no warm-up).
 pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
     let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
     let (mut traced, mut culled) = (0u64, 0u64);
@@ -142,7 +148,11 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
     let frames = clip.frames.max(1);
     // A clip starts afresh: nothing is reused from the session's frames before it.
     session.restart();
+    let gpu = session.backend().kind_name() == "gpu";
+    let picture_at = if gpu { clip.warmup.saturating_sub(1) } else { clip.warmup };
+    session.set_counting(gpu);
     for f in 0..clip.warmup + frames {
+        session.set_read_back(!gpu || f == picture_at);
         let start = Instant::now();
         // Warm-up frames replay the first timed frame's time, so the first timed frame is the
         // same picture whatever the warm-up (the depth sweep compares it with a reference).
@@ -178,12 +188,14 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
             traced += frame.instances_traced;
             culled += frame.spheres_culled;
             busy += secs;
-            if first.is_none() {
-                first = session.take_frame();
-            }
+        }
+        if f == picture_at {
+            first = session.take_frame();
         }
         plan = Some(report.plan);
     }
+    session.set_read_back(true);
+    session.set_counting(false);
     let (median_ms, p95_ms, min_ms) = summarize(&times);
     let pixels = (clip.camera.width * clip.camera.height) as f64 * frames as f64;
     let stats: Vec<_> = clip.scene.parts.iter().map(|p| p.stats()).collect();
