@@ -189,7 +189,7 @@ fn gi_sample(p: vec3<f32>, level: f32) -> vec4<f32> {
 }
 
 // cone::trace: one cone from a surface point; (radiance, opacity).
-fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -> vec4<f32> {
+fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -> vec4<f32> {
     let cell0 = gi.min_cell.w;
     let end = min(gi.max_distance, cell0 * f32(gi.res) * 1.75);
     let max_level = f32(max(i32(gi.levels) - 3, 0));
@@ -221,7 +221,7 @@ fn gi_cone(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) ->
 // what they do not see.
 fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     let sky = frame.sky.xyz;
-    let first = gi_cone(p, n, n, gi.spread);
+    let first = gi_trace(p, n, n, gi.spread);
     let ring = gi.cones - 1u;
     if ring == 0u {
         return first.xyz + sky * (1.0 - first.w);
@@ -240,7 +240,7 @@ fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     for (var k = 0u; k < ring; k++) {
         let phi = 6.28318530718 * f32(k) / f32(ring);
         let d = n * ct + (tx * cos(phi) + bx * sin(phi)) * st;
-        let r = gi_cone(p, n, d, gi.spread);
+        let r = gi_trace(p, n, d, gi.spread);
         ring_light += r.xyz + sky * (1.0 - r.w);
     }
     return (light + ring_light * ct) / (1.0 + f32(ring) * ct);
@@ -254,11 +254,11 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let h = hits[idx];
-    let albedo = albedo_of(h.albedo);
+    let albedo = albedo_linear(h.albedo);
     let n = vec3<f32>(h.nx, h.ny, h.nz);
     let p = ray_dir(gid.x, gid.y) * h.t;
     var ambient = albedo * gi_gather(p, n);
-    let ks = specular_of(h.material);
+    let ks = specular(h.material);
     if ks > 0.0 && gi.specular_cone == 0u {
         ambient += ks * frame.sky.xyz;
     } else if ks > 0.0 {
@@ -266,7 +266,7 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let r = reflect(ray_dir(gid.x, gid.y), n);
         let e = shininess_of(h.material);
         let spread = 2.0 * tan(acos(pow(0.5, 1.0 / max(e, 1.0))));
-        let sc = gi_cone(p, n, normalize(r), spread);
+        let sc = gi_trace(p, n, normalize(r), spread);
         ambient += ks * (sc.xyz + frame.sky.xyz * (1.0 - sc.w));
     }
     ambient = max(ambient, vec3<f32>(0.0));

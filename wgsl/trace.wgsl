@@ -378,7 +378,7 @@ fn hit_record(best: Nearest, d: vec3<f32>, how: u32) -> Hit {
         let inst = insts[best.inst];
         let to_world = mat3x3<f32>(inst.normal_x.xyz, inst.normal_y.xyz, inst.normal_z.xyz);
         // The rows were uploaded as columns of the transpose: n_world = M^-T n.
-        var n = normalize(decode_normal(best.tr.attr.normal) * to_world);
+        var n = normalize(decode_octahedral(best.tr.attr.normal) * to_world);
         var f = best.tr.face_normal * to_world;
         f = select(vec3<f32>(0.0), normalize(f), dot(f, f) > 0.0);
         if !(dot(n, n) > 0.5) {
@@ -460,7 +460,7 @@ fn sun_response(albedo: vec3<f32>, h: Hit, x: u32, y: u32) -> vec3<f32> {
     let n = vec3<f32>(h.nx, h.ny, h.nz);
     let cosv = dot(n, frame.sun_dir.xyz);
     var f = albedo * (cosv / 3.14159265);
-    let ks = specular_of(h.material);
+    let ks = specular(h.material);
     if ks > 0.0 {
         let e = shininess_of(h.material);
         let r = reflect(ray_dir(x, y), n);
@@ -524,8 +524,8 @@ fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let h = hits[idx];
-    let albedo = albedo_of(h.albedo);
+    let albedo = albedo_linear(h.albedo);
     // The sky is uniform: either lobe's ambient term is its reflectance times the sky.
-    let ambient = (albedo + vec3<f32>(specular_of(h.material))) * frame.sky.xyz;
+    let ambient = (albedo + vec3<f32>(specular(h.material))) * frame.sky.xyz;
     radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), 1.0);
 }

@@ -1,7 +1,9 @@
 // Decoding the packed attributes (voxray::svo::Attr): octahedral normals, sRGB albedo, the
-// emission scale and the specular lobe. Shared by the tracer and the GI passes.
+// emission scale and the specular lobe. Shared by the tracer and the GI passes. Each function
+// is named after its Rust twin (a method of Attr becomes a function of the packed word).
 
-fn decode_normal(v: u32) -> vec3<f32> {
+// svo::format::decode_octahedral (Attr::normal).
+fn decode_octahedral(v: u32) -> vec3<f32> {
     // Two 12-bit signed fields (Attr::normal); the top byte is the specular lobe.
     let x = max(f32(bitcast<i32>(v << 20u) >> 20u) / 2047.0, -1.0);
     let y = max(f32(bitcast<i32>(v << 8u) >> 20u) / 2047.0, -1.0);
@@ -15,22 +17,24 @@ fn decode_normal(v: u32) -> vec3<f32> {
     return select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
 }
 
-fn srgb_to_linear(c: u32) -> f32 {
+// svo::srgb8_to_linear.
+fn srgb8_to_linear(c: u32) -> f32 {
     let s = f32(c) / 255.0;
     return select(pow((s + 0.055) / 1.055, 2.4), s / 12.92, s <= 0.04045);
 }
 
-fn albedo_of(a: u32) -> vec3<f32> {
-    return vec3<f32>(srgb_to_linear(a & 0xFFu), srgb_to_linear((a >> 8u) & 0xFFu), srgb_to_linear((a >> 16u) & 0xFFu));
+// Attr::albedo_linear.
+fn albedo_linear(a: u32) -> vec3<f32> {
+    return vec3<f32>(srgb8_to_linear(a & 0xFFu), srgb8_to_linear((a >> 8u) & 0xFFu), srgb8_to_linear((a >> 16u) & 0xFFu));
 }
 
 // Attr::emission: emitted radiance = albedo * E / 16.
-fn emission_of(a: u32) -> vec3<f32> {
-    return albedo_of(a) * (f32(a >> 24u) / 16.0);
+fn emission(a: u32) -> vec3<f32> {
+    return albedo_linear(a) * (f32(a >> 24u) / 16.0);
 }
 
 // Attr::specular: reflectance (S/15)^2 from the normal word's bits 24-27.
-fn specular_of(normal_word: u32) -> f32 {
+fn specular(normal_word: u32) -> f32 {
     let s = f32((normal_word >> 24u) & 15u) / 15.0;
     return s * s;
 }
