@@ -30,6 +30,9 @@ pub struct Bvh {
     pub built_cost: f64,
     /// Frames this tree has been refitted for since it was built.
     pub refits: u32,
+    /// The same tree four children to a node with f32 boxes, for the searches' walks
+    /// (collapsed again whenever the boxes change).
+    pub wide: super::bvh_wide::WideBvh,
 }
 
 /// Build again once a refitted tree costs this many times what it cost when built.
@@ -89,6 +92,7 @@ impl Bvh {
             self.nodes[n].hi = hi;
         }
         self.refits += 1;
+        self.wide.refit(&self.nodes);
     }
 
     /// `previous` refitted to `spheres` when it covers as many and stays within
@@ -154,6 +158,7 @@ impl Bvh {
             stack.push((left + 1, mid, end));
         }
         bvh.built_cost = bvh.cost();
+        bvh.wide = super::bvh_wide::WideBvh::collapse(&bvh);
         bvh
     }
 }

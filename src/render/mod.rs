@@ -4,6 +4,7 @@
 pub mod beam;
 pub mod brdf;
 pub mod bvh;
+pub mod bvh_wide;
 pub mod cpu;
 pub mod hitbuffer;
 pub mod instances;

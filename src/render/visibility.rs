@@ -11,6 +11,7 @@
 //! The nearest hit wins; equal t goes to the lower instance index, in every mode.
 
 use super::bvh::{box_entry, Bvh};
+use super::bvh_wide::{WideRay, WideStack};
 use super::instances::{sphere_interval, Prepared};
 use crate::ray::UnitRay;
 use crate::svo::Svo;
@@ -205,6 +206,10 @@ pub fn nearest_work(
             if bvh.nodes.is_empty() {
                 return None;
             }
+            if bvh.wide.covers_origin(o) {
+                nearest_wide(fi, bvh, o, d, opts, work, &mut best);
+                return best;
+            }
             let inv = d.recip();
             // Median splits halve the items per level, so the tree is at most 32 deep and at
             // most one sibling per level waits: no allocation per ray.
@@ -261,6 +266,75 @@ pub fn nearest_work(
     }
     best
 }
+
+/// The BVH search of [`nearest_work`] over the four-wide f32 tree (the same answer: it only
+/// culls, never skipping a box the ray crosses): children nearer first, boxes entered beyond
+/// the best t skipped.
+fn nearest_wide(
+    fi: &FrameInstances,
+    bvh: &Bvh,
+    o: DVec3,
+    d: DVec3,
+    opts: &TraceOptions,
+    work: &mut Work,
+    best: &mut Option<InstanceHit>,
+) {
+    let bound = |best: &Option<InstanceHit>| best.map_or(opts.t_max, |b| b.hit.t);
+    let ray = WideRay::new(o, d);
+    let mut stack = WideStack::new();
+    stack.push((0, 0.0));
+    while let Some((n, entry)) = stack.pop() {
+        // The entry is a lower bound (the boxes are widened), so this skips only boxes
+        // wholly beyond the best hit.
+        if entry > bound(best) {
+            continue;
+        }
+        if n & LEAF_BIT != 0 {
+            // A leaf child: lane n % 4 of node n / 4.
+            let (w, k) = (((n & !LEAF_BIT) / 4) as usize, (n % 4) as usize);
+            let node = &bvh.wide.nodes[w];
+            let first = node.child[k] as usize;
+            for &i in &bvh.items[first..first + node.count[k] as usize] {
+                let i = i as usize;
+                let p = &fi.prepared[i];
+                let sphere = if beam_misses(fi, i) { None } else { sphere_interval(p.centre, p.radius, o, d) };
+                let Some((s0, _)) = sphere else {
+                    work.culled += 1;
+                    continue;
+                };
+                let t_max = bound(best);
+                if s0 > t_max as f64 {
+                    continue;
+                }
+                work.traced += 1;
+                if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
+                    keep(best, i, h);
+                }
+            }
+            continue;
+        }
+        let node = &bvh.wide.nodes[n as usize];
+        let (mut hit, t0) = ray.test(node, bound(best));
+        // Children nearer first, leaves and inner nodes alike (as the binary walk orders them).
+        let mut next = [(0u32, 0.0f32); 4];
+        let mut len = 0;
+        while hit != 0 {
+            let k = hit.trailing_zeros() as usize;
+            hit &= hit - 1;
+            let id = if node.count[k] == 0 { node.child[k] } else { LEAF_BIT | (n * 4 + k as u32) };
+            next[len] = (id, t0[k]);
+            len += 1;
+        }
+        // Push the farthest first so the nearest is popped first.
+        next[..len].sort_unstable_by(|a, b| b.1.total_cmp(&a.1));
+        for &c in &next[..len] {
+            stack.push(c);
+        }
+    }
+}
+
+/// Marks a wide-walk stack entry as a leaf child (node · 4 + lane) rather than a node.
+const LEAF_BIT: u32 = 1 << 31;
 
 /// The nearest hit along `o + t·d` among the instances `moved` that beats `(t, instance)`:
 /// the nearest hit among all the other instances (t = +∞ and instance −1 when they have
