@@ -1,0 +1,62 @@
+//! Where a crowd's frame goes: N driving cars (8 instances each) at 320×192, primary rays
+//! only, as the harness's instance sweep renders them, with the frame split into posing, the
+//! transform update and the render (which prepares the instances, refits the BVH, traces and
+//! shades). Prints the median of each over the timed frames. `voxray bench --scenarios
+//! instances` is the full comparison.
+//!
+//! `cargo run --release --example crowd [-- CARS [FRAMES]]` (default 10 000 cars, 20 frames).
+
+use std::sync::Arc;
+use std::time::Instant;
+use voxray::pipeline::{build_part, shared_resolution};
+use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+use voxray::scene::{Camera, Lights};
+use voxray::voxelize::{Resolution, VoxelizeOptions};
+
+fn main() -> Result<(), voxray::Error> {
+    let arg = |k: usize, default: usize| std::env::args().nth(k).and_then(|s| s.parse().ok()).unwrap_or(default);
+    let (cars, frames) = (arg(1, 10_000).clamp(1, 100_000), arg(2, 20).clamp(1, 1000));
+    let mesh = voxray::model::embedded::load_default_car()?;
+    let opts = VoxelizeOptions { resolution: shared_resolution(&mesh, Resolution::Depth(9))?, solid: false };
+    let parts = (0..mesh.parts.len())
+        .map(|i| build_part(&mesh, i, &opts, None, &|_, _| {}).map(|b| Arc::new(b.svo)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut st = voxray::scene::stage_cars(&parts, cars, true, false)?;
+    let camera = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 320, 192);
+    let lights = Lights::default();
+    let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
+    let mut kept = HitBuffer::new();
+    let mut times: [Vec<f64>; 4] = Default::default();
+    for f in 0..frames + 2 {
+        let t = f as f64 / 30.0;
+        let t0 = Instant::now();
+        voxray::scene::car::pose_all(&mut st.scene, &st.cars, t)?;
+        let t1 = Instant::now();
+        st.scene.update()?;
+        let t2 = Instant::now();
+        let plan = FramePlan::new(&st.scene, &camera, &lights, &features, None);
+        let frame = render(&st.scene, &camera, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {});
+        let t3 = Instant::now();
+        std::hint::black_box(frame);
+        if f >= 2 {
+            for (v, d) in times.iter_mut().zip([t1 - t0, t2 - t1, t3 - t2, t3 - t0]) {
+                v.push(d.as_secs_f64() * 1e3);
+            }
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let [pose, update, draw, total] = &mut times;
+    println!(
+        "{cars} cars ({} instances), 320×192, median of {frames} frames: pose {:.2} ms, update {:.2} ms, \
+         render {:.2} ms, frame {:.2} ms",
+        st.scene.instances().len(),
+        median(pose),
+        median(update),
+        median(draw),
+        median(total)
+    );
+    Ok(())
+}
