@@ -133,6 +133,9 @@ fn bad_bench_options_fail_clearly() {
         (&["--resolutions", "big"][..], "not WxH"),
         (&["--scenarios", "warp"][..], "unknown scenario"),
         (&["--sweep-cars", "0"][..], "car counts"),
+        (&["--gi-cars", "0", "--scenarios", "gi-scaling"][..], "--gi-cars 0: car counts"),
+        (&["--lod-levels", "99", "--scenarios", "depth"][..], "levels must be 1…20"),
+        (&["--lod-levels", "4", "--scenarios", "depth"][..], "4 levels deep"),
         (&["--frames", "0"][..], "frames"),
     ] {
         let o = Command::new(env!("CARGO_BIN_EXE_voxray"))

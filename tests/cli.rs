@@ -185,6 +185,17 @@ fn bad_input_gives_clear_errors() {
 
     let (code, _) = run(&["render", "--depth", "0"]);
     assert_eq!(code, Some(2), "clap rejects out-of-range depth");
+    // Count flags are bounded before anything starts: no hang starting 100 000 threads, no
+    // 12.8 TB allocation for 10¹² stability rays.
+    for (args, needle) in [
+        (&["--threads", "100000", "info", "x.svo"][..], "1..=1024"),
+        (&["--threads", "0", "info", "x.svo"][..], "1..=1024"),
+        (&["stability", "--rays", "1000000000000"][..], "1..=100000000"),
+    ] {
+        let (code, err) = run(args);
+        assert_eq!(code, Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
     let (code, err) = run(&[
         "render",
         "--obj",

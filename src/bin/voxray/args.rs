@@ -2,6 +2,13 @@
 
 use super::*;
 
+/// Most worker threads `--threads` takes: more than any machine this runs on has cores, and
+/// few enough that starting them cannot hang the process.
+pub(crate) const MAX_THREADS: u64 = 1024;
+
+/// Most rays `stability --rays` takes (about 1.3 GB of rays and answers).
+pub(crate) const MAX_STABILITY_RAYS: u64 = 100_000_000;
+
 #[derive(Parser)]
 #[command(
     name = "voxray",
@@ -13,9 +20,9 @@ embedded animated car (`voxray demo`); without a display, renders it to voxray.p
 pub(crate) struct Cli {
     #[command(subcommand)]
     pub(crate) cmd: Option<Cmd>,
-    /// Worker threads (default: one per core).
-    #[arg(long, global = true)]
-    pub(crate) threads: Option<usize>,
+    /// Worker threads, 1…1024 (default: one per core).
+    #[arg(long, global = true, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS))]
+    pub(crate) threads: Option<u64>,
 }
 
 #[derive(Subcommand)]
@@ -31,9 +38,10 @@ pub(crate) enum Cmd {
     },
     /// Run the numerical stability suite against the brute-force DDA oracle.
     Stability {
-        /// Rays in the random families (the adversarial families have fixed sizes).
-        #[arg(long, default_value_t = 1_000_000)]
-        rays: usize,
+        /// Rays in the random families, 1…100 000 000 (the adversarial families have fixed
+        /// sizes; each ray takes about 13 bytes while the suite runs).
+        #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..=MAX_STABILITY_RAYS))]
+        rays: u64,
         /// Also write the table, with the command that produced it, to this Markdown file.
         #[arg(long)]
         out: Option<PathBuf>,

@@ -77,6 +77,15 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     if let Some(&n) = a.sweep_cars.iter().find(|&&n| n == 0 || n > 100_000) {
         return Err(usage(&format!("--sweep-cars {n}: car counts must be 1…100000")));
     }
+    if let Some(&n) = a.gi_cars.iter().find(|&&n| n == 0 || n > 100_000) {
+        return Err(usage(&format!("--gi-cars {n}: car counts must be 1…100000")));
+    }
+    if let Some(&l) = a.lod_levels.iter().find(|&&l| l == 0 || l > voxray::svo::MAX_DEPTH) {
+        return Err(usage(&format!(
+            "--lod-levels {l}: levels must be 1…{} (and below the parts' depth)",
+            voxray::svo::MAX_DEPTH
+        )));
+    }
     let cfg = MatrixConfig {
         scenarios,
         warmup: a.warmup,
@@ -98,6 +107,13 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     merged_mesh.parts = vec![Part { name: "car (static)".into(), triangles: all }];
     let merged = build_parts(&merged_mesh, &a.source)?.remove(0);
     let car = CarModel { parts, merged };
+    let depth = car.parts.iter().map(|p| p.depth).max().unwrap_or(0);
+    if let Some(&l) = a.lod_levels.iter().find(|&&l| l >= depth && cfg.scenarios.contains(&Scenario::Depth)) {
+        return Err(usage(&format!(
+            "--lod-levels {l}: the car's parts are {depth} levels deep, so a level of detail must be 1…{}",
+            depth.saturating_sub(1)
+        )));
+    }
 
     let mut records: Vec<Record> = Vec::new();
     let mut kinds = a.backends.clone();

@@ -43,7 +43,7 @@ use voxelize::*;
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(n) = cli.threads {
-        if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
+        if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n as usize).build_global() {
             eprintln!("warning: could not set {n} threads: {e}");
         }
     }
@@ -52,7 +52,7 @@ fn main() -> ExitCode {
         Some(Cmd::Render(a)) => render_cmd(a),
         Some(Cmd::Voxelize(a)) => voxelize_cmd(a),
         Some(Cmd::Info { file }) => info_cmd(&file),
-        Some(Cmd::Stability { rays, out }) => stability_cmd(rays, out),
+        Some(Cmd::Stability { rays, out }) => stability_cmd(rays as usize, out),
         Some(Cmd::Bench(a)) => bench_cmd(a),
         Some(Cmd::Demo(a)) => demo_cmd(a),
         Some(Cmd::Model { name, out_dir }) => model_cmd(&name, out_dir.as_deref()),
