@@ -34,6 +34,9 @@ pub enum Error {
     #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] crate::gpu::GpuError),
+    /// Reading an input file with its size limit.
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     /// Reading an input file (camera/lights JSON).
     #[error("{path}: {source}")]
     Io {

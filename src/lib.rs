@@ -43,6 +43,7 @@ mod error;
 pub mod gi;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod input;
 pub mod mesh;
 pub mod model;
 pub mod oracle;

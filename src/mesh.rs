@@ -144,6 +144,9 @@ pub fn is_degenerate(p: &[Vec3; 3]) -> bool {
     !(cross > 1e-24 * scale * scale)
 }
 
+/// Most texels a `map_Kd` texture may have (4096², 192 MiB once loaded as linear RGB).
+pub const MAX_TEXTURE_TEXELS: u64 = 4096 * 4096;
+
 /// Why a mesh could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
@@ -161,6 +164,9 @@ pub enum MeshError {
         /// The error.
         source: std::io::Error,
     },
+    /// The file is larger than an OBJ/MTL file may be.
+    #[error(transparent)]
+    TooLarge(crate::input::InputError),
     /// Malformed OBJ/MTL content.
     #[error("{path}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
     Parse {
@@ -202,21 +208,25 @@ mod obj {
     /// Loads an OBJ file (with its MTL files and textures, relative to the OBJ's folder).
     pub fn load_obj(path: &Path) -> Result<Mesh, MeshError> {
         let label = path.display().to_string();
-        let text = std::fs::read(path).map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => MeshError::NotFound { path: label.clone() },
-            _ => MeshError::Io { path: label.clone(), source: e },
-        })?;
+        let text = crate::input::read_limited(path, crate::input::MAX_OBJ_BYTES, "an OBJ file").map_err(mesh_error)?;
         let text = String::from_utf8_lossy(&text);
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let read_mtl = |name: &Path| -> Result<String, MeshError> {
             let p = dir.join(name);
-            std::fs::read_to_string(&p).map_err(|e| match e.kind() {
-                std::io::ErrorKind::NotFound => MeshError::NotFound { path: p.display().to_string() },
-                _ => MeshError::Io { path: p.display().to_string(), source: e },
-            })
+            crate::input::read_text_limited(&p, crate::input::MAX_MTL_BYTES, "an MTL file").map_err(mesh_error)
         };
         load_obj_text(&text, &label, &stem, Some(&dir), &read_mtl)
+    }
+
+    /// The mesh error of a failed limited read.
+    fn mesh_error(e: crate::input::InputError) -> MeshError {
+        use crate::input::InputError;
+        match e {
+            InputError::NotFound { path } => MeshError::NotFound { path },
+            InputError::Io { path, source } => MeshError::Io { path, source },
+            e @ InputError::TooLarge { .. } => MeshError::TooLarge(e),
+        }
     }
 
     /// Loads OBJ text. `label` names the source in errors, `default_name` names parts that
@@ -373,6 +383,15 @@ mod obj {
 
     #[cfg(feature = "image-io")]
     fn load_texture(path: &Path) -> Result<Texture, String> {
+        // The header first: a small compressed file can decode to gigabytes.
+        let (w, h) = image::image_dimensions(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        if w as u64 * h as u64 > MAX_TEXTURE_TEXELS {
+            return Err(format!(
+                "{}: {w}×{h} texels, more than the {} a texture may have (12 bytes each once loaded); scale it down",
+                path.display(),
+                MAX_TEXTURE_TEXELS
+            ));
+        }
         let img = image::open(path).map_err(|e| format!("{}: {e}", path.display()))?.to_rgb32f();
         let (width, height) = img.dimensions();
         // 8-bit images are sRGB-encoded; to_rgb32f only rescales, so decode here.

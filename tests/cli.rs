@@ -183,6 +183,31 @@ fn bad_input_gives_clear_errors() {
     assert_eq!(code, Some(1));
     assert!(err.contains("truncated"), "{err}");
 
+    // Inputs are checked before they are read whole: a 12 GB file (sparse, no disk used) is
+    // refused by its magic number or its header's length, a device without end by the limit.
+    let big = d.join("big.svo");
+    let f = std::fs::File::create(&big).unwrap();
+    f.set_len(12 << 30).unwrap();
+    drop(f);
+    let (code, err) = run(&["info", s(&big)]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("magic"), "{err}");
+    let mut header = std::fs::read("tests/data/legacy-v2.svo").unwrap_or_default();
+    if header.len() >= 64 {
+        header.truncate(64);
+        let f = std::fs::OpenOptions::new().write(true).open(&big).unwrap();
+        std::os::unix::fs::FileExt::write_all_at(&f, &header, 0).unwrap();
+        let (code, err) = run(&["info", s(&big)]);
+        assert_eq!(code, Some(1));
+        assert!(err.contains("12884901888"), "the header's length against the file's: {err}");
+    }
+    std::fs::remove_file(&big).unwrap();
+    if Path::new("/dev/zero").exists() {
+        let (code, err) = run(&["render", "--obj", "/dev/zero", "--no-cache"]);
+        assert_eq!(code, Some(1));
+        assert!(err.contains("/dev/zero: larger than") && err.contains("an OBJ file"), "{err}");
+    }
+
     let (code, _) = run(&["render", "--depth", "0"]);
     assert_eq!(code, Some(2), "clap rejects out-of-range depth");
     // Count flags are bounded before anything starts: no hang starting 100 000 threads, no

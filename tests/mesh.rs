@@ -123,6 +123,22 @@ fn textures_are_sampled_at_the_triangle_uvs() {
     write(&d, "t.mtl", "newmtl tex\nKd 0.3 0.3 0.3\nmap_Kd missing.png\n");
     let m = load_obj(&p).unwrap();
     assert!(m.materials[0].texture.is_none() && m.warnings.len() == 1, "{:?}", m.warnings);
+    // So is one whose header claims 12000² texels (1.7 GB once loaded): refused from its
+    // header, before decoding (its image data is still the 4×1 one's).
+    let mut png = std::fs::read(d.join("t.png")).unwrap();
+    png[16..20].copy_from_slice(&12000u32.to_be_bytes());
+    png[20..24].copy_from_slice(&12000u32.to_be_bytes());
+    let crc = voxray::svo::io::crc32(&png[12..29]);
+    png[29..33].copy_from_slice(&crc.to_be_bytes());
+    std::fs::write(d.join("huge.png"), &png).unwrap();
+    write(&d, "t.mtl", "newmtl tex\nKd 0.3 0.3 0.3\nmap_Kd huge.png\n");
+    let m = load_obj(&p).unwrap();
+    assert!(m.materials[0].texture.is_none() && m.warnings.len() == 1, "{:?}", m.warnings);
+    assert!(
+        m.warnings[0].contains("12000×12000 texels") && m.warnings[0].contains("scale it down"),
+        "{:?}",
+        m.warnings
+    );
 }
 
 /// MTL `Ks` and `Ns` become the specular lobe, voxelized into the SVO's attributes; a `Ks`

@@ -102,12 +102,47 @@ pub fn save(svo: &Svo, path: &Path) -> Result<(), SvoFileError> {
     std::fs::rename(&tmp, path).map_err(io)
 }
 
-/// Reads and validates an SVO file.
+/// Reads and validates an SVO file. The header is read and checked first (magic number,
+/// version, and the length it implies against the file's), so a file that is not an `.svo`
+/// or does not match its header is refused without reading the rest.
 pub fn load(path: &Path) -> Result<Svo, SvoFileError> {
     let io = |source| SvoFileError::Io { path: path.display().to_string(), source };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
     let mut bytes = Vec::new();
-    std::fs::File::open(path).map_err(io)?.read_to_end(&mut bytes).map_err(io)?;
+    (&mut file).take((HEADER_LEN + 4) as u64).read_to_end(&mut bytes).map_err(io)?;
+    // What the header says the whole file must be; a short or foreign file fails here.
+    let expected = expected_length(&bytes, len)?;
+    bytes.reserve_exact((expected - bytes.len() as u64) as usize);
+    file.take(expected - bytes.len() as u64).read_to_end(&mut bytes).map_err(io)?;
     from_bytes(&bytes)
+}
+
+/// The file length the header at the start of `b` implies, checked against `actual` (the
+/// whole file's length): the magic number, the header's own length and the version first.
+fn expected_length(b: &[u8], actual: u64) -> Result<u64, SvoFileError> {
+    if b.len() < 8 || b[..8] != MAGIC {
+        return Err(SvoFileError::BadMagic);
+    }
+    if b.len() < HEADER_LEN + 4 || actual < (HEADER_LEN + 4) as u64 {
+        return Err(SvoFileError::Length { expected: (HEADER_LEN + 4) as u64, actual });
+    }
+    let version = u32_at(b, 8);
+    if !(1..=VERSION).contains(&version) {
+        return Err(SvoFileError::Version(version));
+    }
+    let (node_count, attr_count) = (u64_at(b, 40), u64_at(b, 48));
+    // Checked arithmetic: hostile counts must not overflow or trigger a huge allocation.
+    let node_bytes =
+        if version == VERSION { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
+    let expected = node_bytes
+        .zip(attr_count.checked_mul(8))
+        .and_then(|(n, a)| n.checked_add(a))
+        .and_then(|n| n.checked_add(HEADER_LEN as u64 + 4));
+    match expected {
+        Some(e) if e == actual => Ok(e),
+        _ => Err(SvoFileError::Length { expected: expected.unwrap_or(u64::MAX), actual }),
+    }
 }
 
 /// The format version in a file's header, if it is an `.svo` file at all.
@@ -129,28 +164,12 @@ fn f32_at(b: &[u8], o: usize) -> f32 {
 
 /// Parses and validates an SVO from bytes (any supported version).
 pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
-    if b.len() < 8 || b[..8] != MAGIC {
-        return Err(SvoFileError::BadMagic);
-    }
-    if b.len() < HEADER_LEN + 4 {
-        return Err(SvoFileError::Length { expected: (HEADER_LEN + 4) as u64, actual: b.len() as u64 });
-    }
+    expected_length(b, b.len() as u64)?;
     let version = u32_at(b, 8);
-    if !(1..=VERSION).contains(&version) {
-        return Err(SvoFileError::Version(version));
-    }
     let node_count = u64_at(b, 40);
     let attr_count = u64_at(b, 48);
-    // Checked arithmetic: hostile counts must not overflow or trigger a huge allocation.
     let node_bytes =
         if version == VERSION { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
-    let expected = node_bytes
-        .zip(attr_count.checked_mul(8))
-        .and_then(|(n, a)| n.checked_add(a))
-        .and_then(|n| n.checked_add(HEADER_LEN as u64 + 4));
-    if expected != Some(b.len() as u64) {
-        return Err(SvoFileError::Length { expected: expected.unwrap_or(u64::MAX), actual: b.len() as u64 });
-    }
     let body = b.len() - 4;
     let stored = u32_at(b, body);
     let computed = crc32(&b[..body]);

@@ -83,7 +83,7 @@ pub(crate) fn build_parts(mesh: &Mesh, src: &SourceArgs) -> Result<Vec<Arc<Svo>>
 }
 
 pub(crate) fn read_text(p: &Path) -> Result<String, Error> {
-    std::fs::read_to_string(p).map_err(|source| Error::Io { path: p.display().to_string(), source })
+    Ok(voxray::input::read_text_limited(p, voxray::input::MAX_JSON_BYTES, "a JSON input")?)
 }
 
 /// Loads the parts and places them: the default car animated (or merged into one static SVO),
