@@ -226,6 +226,19 @@ pub fn voxelize_in(
     let origin = bounds.min.as_dvec3();
     let voxel_area = (bounds.size as f64 / (1u64 << depth) as f64).powi(2);
     let ctx = Ctx { depth, scale, origin, voxel_area, materials };
+    // The area misses what a surface really touches: oblique surfaces cross up to √3 times
+    // as many voxels, surfaces on voxel boundaries touch both sides, needles cover voxels
+    // along their length with no area. Near the limit, count exactly (no memory) first.
+    if estimate > (MAX_VOXELS / 4) as f64 {
+        let counted = count_entries(&ctx, &part.triangles, MAX_VOXELS);
+        if counted > MAX_VOXELS {
+            return Err(VoxelizeError::TooManyVoxels {
+                part: part.name.clone(),
+                depth,
+                estimate: counted.div_ceil(1_000_000),
+            });
+        }
+    }
 
     const CHUNK: usize = 2048;
     let done = std::sync::atomic::AtomicUsize::new(0);
@@ -283,9 +296,37 @@ pub fn voxelize_in(
         return Err(VoxelizeError::EmptyPart(part.name.clone()));
     }
     if solid {
-        fill_solid(depth, &mut voxels);
+        fill_solid(depth, &mut voxels).map_err(|filled| VoxelizeError::TooManyVoxels {
+            part: part.name.clone(),
+            depth,
+            estimate: filled.div_ceil(1_000_000),
+        })?;
     }
     Ok(VoxelGrid { depth, bounds, voxels })
+}
+
+/// Voxels the triangles overlap, each counted once per triangle (the entries voxelizing
+/// them writes), counting stopped soon after `limit`.
+fn count_entries(ctx: &Ctx, triangles: &[crate::mesh::Triangle], limit: u64) -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let total = AtomicU64::new(0);
+    let run = |chunk: &[crate::mesh::Triangle]| {
+        for tri in chunk {
+            let so_far = total.load(Ordering::Relaxed);
+            if so_far > limit {
+                return;
+            }
+            total.fetch_add(ctx.count(tri, limit - so_far), Ordering::Relaxed);
+        }
+    };
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        triangles.par_chunks(256).for_each(run);
+    }
+    #[cfg(not(feature = "parallel"))]
+    triangles.chunks(256).for_each(run);
+    total.into_inner()
 }
 
 /// One triangle's contribution to one voxel (48 bytes: there are tens of millions of these
@@ -335,6 +376,49 @@ impl Ctx<'_> {
         }
         let normal = n.normalize();
         let mat = self.materials.get(tri.material as usize);
+        self.overlapped(&v, |c, bmin, bmax| {
+            let (area, centroid) = clip_area(&v, bmin, bmax);
+            // Only touching (zero clipped area): keep the voxel, with a tiny weight.
+            let area_obj = (area / (self.scale * self.scale)).max(1e-9 * self.voxel_area);
+            let albedo = mat.map_or(DVec3::splat(0.7), |m| {
+                let uv = tri.uvs.map(|uv| {
+                    let b = barycentric(&v, if area > 0.0 { centroid } else { (bmin + bmax) * 0.5 });
+                    uv[0].as_dvec2() * b.x + uv[1].as_dvec2() * b.y + uv[2].as_dvec2() * b.z
+                });
+                m.albedo_at(uv.map(|p: DVec2| p.as_vec2())).as_dvec3()
+            });
+            let w = area_obj as f32;
+            out.push(Entry {
+                code: morton_encode(c[0] as u32, c[1] as u32, c[2] as u32),
+                weight: w,
+                albedo_w: albedo.as_vec3() * w,
+                normal_w: normal.as_vec3() * w,
+                emission_w: mat.map_or(Vec3::ZERO, |m| m.emission) * w,
+                specular_w: mat.map_or(0.0, |m| m.specular) * w,
+                gloss_w: mat.map_or(0.0, |m| m.gloss()) * w,
+            });
+            true
+        });
+    }
+
+    /// How many voxels the triangle overlaps, counting stopped once past `limit`.
+    fn count(&self, tri: &crate::mesh::Triangle, limit: u64) -> u64 {
+        let v = tri.positions.map(|p| (p.as_dvec3() - self.origin) * self.scale);
+        if !((v[1] - v[0]).cross(v[2] - v[0]).length_squared() > 0.0) {
+            return 0;
+        }
+        let mut n = 0u64;
+        self.overlapped(&v, |_, _, _| {
+            n += 1;
+            n <= limit
+        });
+        n
+    }
+
+    /// Calls `leaf(coords, min, max)` for every voxel the grid-space triangle `v` overlaps,
+    /// descending from the root and testing each node box so only the triangle's own voxels
+    /// are visited; stops when `leaf` returns false.
+    fn overlapped(&self, v: &[DVec3; 3], mut leaf: impl FnMut([u64; 3], DVec3, DVec3) -> bool) {
         let n_cells = 1u64 << self.depth;
         let lo = v[0].min(v[1]).min(v[2]);
         let hi = v[0].max(v[1]).max(v[2]);
@@ -348,30 +432,13 @@ impl Ctx<'_> {
                 continue;
             }
             let half = DVec3::splat(size * 0.5);
-            if !tri_box_overlap(bmin + half, half, &v) {
+            if !tri_box_overlap(bmin + half, half, v) {
                 continue;
             }
             if level == self.depth {
-                let (area, centroid) = clip_area(&v, bmin, bmax);
-                // Only touching (zero clipped area): keep the voxel, with a tiny weight.
-                let area_obj = (area / (self.scale * self.scale)).max(1e-9 * self.voxel_area);
-                let albedo = mat.map_or(DVec3::splat(0.7), |m| {
-                    let uv = tri.uvs.map(|uv| {
-                        let b = barycentric(&v, if area > 0.0 { centroid } else { (bmin + bmax) * 0.5 });
-                        uv[0].as_dvec2() * b.x + uv[1].as_dvec2() * b.y + uv[2].as_dvec2() * b.z
-                    });
-                    m.albedo_at(uv.map(|p: DVec2| p.as_vec2())).as_dvec3()
-                });
-                let w = area_obj as f32;
-                out.push(Entry {
-                    code: morton_encode(c[0] as u32, c[1] as u32, c[2] as u32),
-                    weight: w,
-                    albedo_w: albedo.as_vec3() * w,
-                    normal_w: normal.as_vec3() * w,
-                    emission_w: mat.map_or(Vec3::ZERO, |m| m.emission) * w,
-                    specular_w: mat.map_or(0.0, |m| m.specular) * w,
-                    gloss_w: mat.map_or(0.0, |m| m.gloss()) * w,
-                });
+                if !leaf(c, bmin, bmax) {
+                    return;
+                }
                 continue;
             }
             for oct in 0..8u64 {
@@ -478,7 +545,7 @@ fn barycentric(v: &[DVec3; 3], p: DVec3) -> DVec3 {
 /// and adds every cell that is neither outside nor surface. Interior voxels take the attributes
 /// of the surface voxel below them in their z column, with a tiny weight so coarse levels keep
 /// the surface colour.
-fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) {
+fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) -> Result<(), u64> {
     let n = 1usize << depth;
     let idx = |x: usize, y: usize, z: usize| (z * n + y) * n + x;
     let mut surface = vec![false; n * n * n];
@@ -524,6 +591,12 @@ fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) {
             seed(x, y, z + 1, &mut outside, &mut stack)
         }
     }
+    // Refuse before writing the interior: a closed cube at depth 9 is 134 million voxels.
+    let inside = surface.iter().zip(&outside).filter(|(s, o)| !**s && !**o).count() as u64;
+    let filled = voxels.len() as u64 + inside;
+    if filled > MAX_VOXELS {
+        return Err(filled);
+    }
     let lookup = |code: u64, voxels: &[Voxel]| voxels.binary_search_by_key(&code, |v| v.code).ok().map(|i| voxels[i]);
     let mut interior = Vec::new();
     for y in 0..n {
@@ -544,11 +617,54 @@ fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) {
     }
     voxels.extend(interior);
     voxels.sort_by_key(|v| v.code);
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The exact count is what voxelizing writes, and it sees what the area misses: three
+    /// axis planes through the cube's centre lie on voxel boundaries and touch both sides
+    /// (twice the area estimate), a needle covers voxels along its length with no area.
+    #[test]
+    fn the_entry_count_is_exact_where_the_area_estimate_is_not() {
+        use crate::mesh::Triangle;
+        let tri = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| Triangle {
+            positions: [Vec3::from(a), Vec3::from(b), Vec3::from(c)],
+            uvs: None,
+            material: 0,
+        };
+        let mut planes = Vec::new();
+        for axis in 0..3 {
+            let p = |u: f32, v: f32| {
+                let mut q = [0.0f32; 3];
+                q[(axis + 1) % 3] = u;
+                q[(axis + 2) % 3] = v;
+                q
+            };
+            planes.push(tri(p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0)));
+            planes.push(tri(p(-1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)));
+        }
+        let needle = vec![tri([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0, 1.0 + 1e-6, 1.0])];
+        let bounds = Cube { min: Vec3::splat(-1.0), size: 2.0 };
+        let depth = 6;
+        let scale = (1u64 << depth) as f64 / 2.0;
+        let ctx =
+            Ctx { depth, scale, origin: bounds.min.as_dvec3(), voxel_area: (1.0 / scale).powi(2), materials: &[] };
+        for (name, tris, area) in [("planes", &planes, 12.0), ("needle", &needle, 0.0)] {
+            let mut entries = Vec::new();
+            for t in tris.iter() {
+                ctx.rasterize(t, &mut entries);
+            }
+            let counted = count_entries(&ctx, tris, u64::MAX);
+            assert_eq!(counted, entries.len() as u64, "{name}");
+            let estimate = area * scale * scale;
+            assert!(counted as f64 > 1.9 * estimate && counted > 60, "{name}: {counted} against {estimate}");
+        }
+        // Counting stops soon past the limit.
+        assert!(count_entries(&ctx, &planes, 100) < 200);
+    }
 
     #[test]
     fn clip_area_of_a_triangle_inside_is_its_area() {

@@ -208,6 +208,22 @@ fn bad_input_gives_clear_errors() {
         assert!(err.contains("/dev/zero: larger than") && err.contains("an OBJ file"), "{err}");
     }
 
+    // A solid fill is counted before its interior is written (a 12-triangle cube at depth 9
+    // would be 134 million voxels, 7.5 GB).
+    let (code, err) = run(&[
+        "voxelize",
+        "--obj",
+        "models/test/cube.obj",
+        "--solid",
+        "--depth",
+        "9",
+        "--out-dir",
+        s(&d),
+        "--no-cache",
+    ]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("about 135 million voxels (the limit is 60 million)"), "{err}");
+
     let (code, _) = run(&["render", "--depth", "0"]);
     assert_eq!(code, Some(2), "clap rejects out-of-range depth");
     // Count flags are bounded before anything starts: no hang starting 100 000 threads, no
