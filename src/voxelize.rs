@@ -121,6 +121,15 @@ pub enum VoxelizeError {
         /// Estimated voxels, in millions.
         estimate: u64,
     },
+    /// Counted exactly, the part's triangles overlap more than [`MAX_VOXELS`] voxels (the
+    /// count stops at the limit).
+    #[error("part '{part}' at depth {depth}: its triangles overlap more than {} million voxels, the limit (counted triangle by triangle); use a smaller --depth or a larger --voxel-size", MAX_VOXELS / 1_000_000)]
+    TooManyVoxelsCounted {
+        /// Part name.
+        part: String,
+        /// Grid depth asked for.
+        depth: u32,
+    },
     /// Non-finite vertex coordinates.
     #[error("part '{0}' has non-finite vertex coordinates")]
     NonFinite(String),
@@ -232,11 +241,7 @@ pub fn voxelize_in(
     if estimate > (MAX_VOXELS / 4) as f64 {
         let counted = count_entries(&ctx, &part.triangles, MAX_VOXELS);
         if counted > MAX_VOXELS {
-            return Err(VoxelizeError::TooManyVoxels {
-                part: part.name.clone(),
-                depth,
-                estimate: counted.div_ceil(1_000_000),
-            });
+            return Err(VoxelizeError::TooManyVoxelsCounted { part: part.name.clone(), depth });
         }
     }
 
