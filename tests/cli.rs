@@ -224,6 +224,24 @@ fn bad_input_gives_clear_errors() {
     assert_eq!(code, Some(1));
     assert!(err.contains("about 135 million voxels (the limit is 60 million)"), "{err}");
 
+    // A byte-order mark before JSON is not an error.
+    std::fs::write(d.join("bom.json"), "\u{feff}{\"sun\": null}").unwrap();
+    let (code, err) = run(&[
+        "render",
+        "--obj",
+        "models/test/cube.obj",
+        "--lights-json",
+        s(&d.join("bom.json")),
+        "--no-cache",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        s(&d.join("bom.png")),
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+
     let (code, _) = run(&["render", "--depth", "0"]);
     assert_eq!(code, Some(2), "clap rejects out-of-range depth");
     // Count flags are bounded before anything starts: no hang starting 100 000 threads, no
@@ -264,6 +282,16 @@ fn voxelize_and_info_round_trip() {
         let out = String::from_utf8_lossy(&o.stdout);
         assert!(o.status.success() && out.contains("valid") && out.contains("B/voxel"), "{out}");
     }
+    // Parts whose file names would collide each get a file, with a warning.
+    let obj = d.join("same.obj");
+    std::fs::write(&obj, "o a b\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no a_b\nv 2 0 0\nv 3 0 0\nv 2 1 0\nf 4 5 6\n")
+        .unwrap();
+    let out = d.join("same");
+    let o = voxray(&["voxelize", "--obj", s(&obj), "--depth", "4", "--out-dir", s(&out), "--no-cache"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(out.join("a_b.svo").exists() && out.join("a_b_2.svo").exists(), "{err}");
+    assert!(err.contains("writing this one as a_b_2.svo"), "{err}");
 }
 
 #[test]

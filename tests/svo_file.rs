@@ -104,6 +104,18 @@ fn hostile_headers_and_structures_are_refused() {
     b[28..32].copy_from_slice(&f32::NAN.to_le_bytes());
     reseal(&mut b);
     assert!(matches!(from_bytes(&b), Err(SvoFileError::Header(_))));
+    // Denormal and zero-like sizes, and bounds whose corner rounding exceeds a voxel.
+    for (min, size) in [(0.0f32, 1e-40f32), (0.0, f32::MIN_POSITIVE), (1e30, 1.0), (1e6, 1e-3)] {
+        let mut b = bytes.clone();
+        b[16..20].copy_from_slice(&min.to_le_bytes());
+        b[28..32].copy_from_slice(&size.to_le_bytes());
+        reseal(&mut b);
+        let e = from_bytes(&b).unwrap_err();
+        assert!(
+            matches!(e, SvoFileError::Header(_)) && e.to_string().contains("not representable"),
+            "{min} {size}: {e}"
+        );
+    }
     assert!(matches!(from_bytes(b"not an svo file at all"), Err(SvoFileError::BadMagic)));
     // Every corruption of a child mask that keeps the checksum valid must be caught by the
     // structural checks (the masks no longer describe the stored counts) or leave a tree that

@@ -130,7 +130,8 @@ impl Camera {
     /// Parses the camera JSON of DESIGN.md and validates it.
     #[cfg(feature = "json")]
     pub fn from_json(text: &str) -> Result<Camera, CameraError> {
-        let c: Camera = serde_json::from_str(text).map_err(|e| CameraError::Json(e.to_string()))?;
+        let c: Camera = serde_json::from_str(text.strip_prefix('\u{feff}').unwrap_or(text))
+            .map_err(|e| CameraError::Json(e.to_string()))?;
         c.validate()?;
         Ok(c)
     }

@@ -89,7 +89,8 @@ impl Lights {
     /// Parses the lights JSON of DESIGN.md and validates it.
     #[cfg(feature = "json")]
     pub fn from_json(text: &str) -> Result<Lights, LightsError> {
-        let l: Lights = serde_json::from_str(text).map_err(|e| LightsError::Json(e.to_string()))?;
+        let l: Lights = serde_json::from_str(text.strip_prefix('\u{feff}').unwrap_or(text))
+            .map_err(|e| LightsError::Json(e.to_string()))?;
         l.validated()
     }
 }

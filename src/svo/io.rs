@@ -185,6 +185,15 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     if !min.is_finite() || !size.is_finite() || size <= 0.0 {
         return Err(SvoFileError::Header(format!("bounds min {min:?} size {size} not finite and positive")));
     }
+    // A voxel must be a normal number and larger than the rounding of the stored corner, or
+    // the voxels' positions are not what the file says.
+    let voxel = size as f64 / (1u64 << depth) as f64;
+    let magnitude = min.abs().max((min + Vec3::splat(size)).abs()).max_element() as f64;
+    if !(voxel as f32).is_normal() || voxel < magnitude * f32::EPSILON as f64 {
+        return Err(SvoFileError::Header(format!(
+            "bounds min {min:?} size {size} at depth {depth}: voxels of {voxel:e} are not representable at coordinates of {magnitude:e} in f32"
+        )));
+    }
     let voxel_count = u64_at(b, 32);
     if node_count == 0 || attr_count == 0 {
         return Err(SvoFileError::Header("no root node".into()));
