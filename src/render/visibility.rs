@@ -225,21 +225,7 @@ pub fn nearest_work(
                 let node = bvh.nodes[n as usize];
                 if node.count > 0 {
                     for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
-                        let i = i as usize;
-                        let p = &fi.prepared[i];
-                        let sphere = if beam_misses(fi, i) { None } else { sphere_interval(p.centre, p.radius, o, d) };
-                        let Some((t0, _)) = sphere else {
-                            work.culled += 1;
-                            continue;
-                        };
-                        let t_max = bound(&best);
-                        if t0 > t_max as f64 {
-                            continue;
-                        }
-                        work.traced += 1;
-                        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
-                            keep(&mut best, i, h);
-                        }
+                        visit_item(fi, i as usize, o, d, opts, work, &mut best);
                     }
                 } else {
                     let t_max = bound(&best) as f64;
@@ -265,6 +251,34 @@ pub fn nearest_work(
         }
     }
     best
+}
+
+/// One BVH leaf item of a nearest-hit search: culled by the tile's beam or its sphere, skipped
+/// when its sphere starts beyond the best hit, traced up to the best hit otherwise.
+#[inline]
+fn visit_item(
+    fi: &FrameInstances,
+    i: usize,
+    o: DVec3,
+    d: DVec3,
+    opts: &TraceOptions,
+    work: &mut Work,
+    best: &mut Option<InstanceHit>,
+) {
+    let p = &fi.prepared[i];
+    let sphere = if beam_misses(fi, i) { None } else { sphere_interval(p.centre, p.radius, o, d) };
+    let Some((t0, _)) = sphere else {
+        work.culled += 1;
+        return;
+    };
+    let t_max = best.map_or(opts.t_max, |b| b.hit.t);
+    if t0 > t_max as f64 {
+        return;
+    }
+    work.traced += 1;
+    if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
+        keep(best, i, h);
+    }
 }
 
 /// The BVH search of [`nearest_work`] over the four-wide f32 tree (the same answer: it only
@@ -295,21 +309,7 @@ fn nearest_wide(
             let node = &bvh.wide.nodes[w];
             let first = node.child[k] as usize;
             for &i in &bvh.items[first..first + node.count[k] as usize] {
-                let i = i as usize;
-                let p = &fi.prepared[i];
-                let sphere = if beam_misses(fi, i) { None } else { sphere_interval(p.centre, p.radius, o, d) };
-                let Some((s0, _)) = sphere else {
-                    work.culled += 1;
-                    continue;
-                };
-                let t_max = bound(best);
-                if s0 > t_max as f64 {
-                    continue;
-                }
-                work.traced += 1;
-                if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
-                    keep(best, i, h);
-                }
+                visit_item(fi, i as usize, o, d, opts, work, best);
             }
             continue;
         }

@@ -522,15 +522,13 @@ impl GpuGi {
             let key = &keys[inst.part];
             let range = pool.ranges[key];
             let cache = self.caches.get(&scene.parts[inst.part], key.1)?;
-            let world = scene.world(i);
-            let job = transform_job(&world, cache, &spec, range, threads)?;
+            let job = transform_job(&scene.world(i), cache, &spec, range, threads)?;
             if let (true, Some(Some(coords))) = (range.1 > 0, pool.boxes.get(key)) {
+                if layout == Layout::Sparse {
+                    cell_boxes.push(job_cells(&job, *coords));
+                }
                 jobs.push(job);
                 threads += range.1 as u64;
-                if layout == Layout::Sparse {
-                    let (m, t) = grid_map(&world, cache.corner, cache.voxel_size, &spec);
-                    cell_boxes.push(job_cells(m, t, *coords));
-                }
             }
         }
         let (splat, splat_groups) = splat_dispatch(spec.res, jobs.len(), threads, s.filter)?;
@@ -564,30 +562,28 @@ impl GpuGi {
             if kept_capacity.is_none() {
                 reuse = GiReuse::Nothing; // no bricks to keep
             }
-            capacity = match (reuse, kept_capacity) {
-                (GiReuse::Nothing, _) | (_, None) => {
+            capacity = match kept_capacity.filter(|_| reuse != GiReuse::Nothing) {
+                Some(c) => c,
+                None => {
                     let alloc = self.allocation(ctx, &voxels, &jobs_buf, splat, splat_groups)?;
                     let bound = brick_bound(&cell_boxes, spec.res);
-                    let need = if bound <= fit && bound as u64 * BRICK_BYTES <= self.unread_limit {
-                        if let Some(t) = self.sparse.as_mut() {
-                            t.counted = None;
-                        }
-                        bound
+                    let counted = if bound <= fit && bound as u64 * BRICK_BYTES <= self.unread_limit {
+                        None
                     } else {
                         let (n, ms) = self.count_bricks(ctx, &alloc)?;
                         bricks_ms = ms;
-                        if let Some(t) = self.sparse.as_mut() {
-                            t.counted = Some(n);
-                        }
-                        n
+                        Some(n)
                     };
+                    if let Some(t) = self.sparse.as_mut() {
+                        t.counted = counted;
+                    }
                     allocation = Some(alloc);
+                    let need = counted.unwrap_or(bound);
                     match kept_capacity {
                         Some(c) if c >= need && c <= 4 * want(need) => c,
                         _ => want(need),
                     }
                 }
-                (_, Some(c)) => c,
             };
         }
         self.volume_buffers(ctx, layout, spec.res, capacity, texture)?;

@@ -62,25 +62,25 @@ pub(super) fn sparse_bind(
 pub(super) type CoordBox = ([u32; 3], [u32; 3]);
 
 /// The grid cells (inclusive, unclamped) that a cache's voxels with coordinates in `coords`
-/// (inclusive) can write when moved by the job map `(m, t)`: an affine map takes its extremes
-/// at the box's corners, the split filter writes the cell below and above, and one cell of
-/// margin on each side covers the GPU's f32 rounding of the map.
-pub(super) fn job_cells(m: DMat3, t: DVec3, coords: CoordBox) -> ([i64; 3], [i64; 3]) {
+/// (inclusive) can write when moved by `job` (its f32 rows, as the shader reads them): an
+/// affine map takes its extremes at the box's corners, the split filter writes the cell below
+/// and above, and one cell of margin on each side covers the shader's f32 arithmetic.
+pub(super) fn job_cells(job: &GpuGiJob, coords: CoordBox) -> ([i64; 3], [i64; 3]) {
     let (lo, hi) = coords;
-    let (mut gmin, mut gmax) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    let rows = [job.grid_x, job.grid_y, job.grid_z].map(|r| r.map(f64::from));
+    let (mut gmin, mut gmax) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for k in 0..8 {
-        let c = DVec3::new(
-            if k & 1 == 0 { lo[0] } else { hi[0] } as f64,
-            if k & 2 == 0 { lo[1] } else { hi[1] } as f64,
-            if k & 4 == 0 { lo[2] } else { hi[2] } as f64,
-        );
-        let g = m * c + t;
-        gmin = gmin.min(g);
-        gmax = gmax.max(g);
+        let c = [0, 1, 2].map(|i| if k & (1 << i) == 0 { lo[i] } else { hi[i] } as f64);
+        for (a, r) in rows.iter().enumerate() {
+            let g = r[0] * c[0] + r[1] * c[1] + r[2] * c[2] + r[3];
+            gmin[a] = gmin[a].min(g);
+            gmax[a] = gmax[a].max(g);
+        }
     }
-    // Non-finite maps are refused before (check_world); clamp so the casts stay defined.
-    let cell = |v: f64, d: f64| (v.floor() + d).clamp(-1e12, 1e12) as i64;
-    ([0, 1, 2].map(|i| cell(gmin[i], -1.0)), [0, 1, 2].map(|i| cell(gmax[i], 2.0)))
+    // Rows overflowed to ±∞ (absurd scales) bound nothing: the whole volume, then.
+    let cell =
+        |v: f64, d: f64, whole: i64| if v.is_finite() { (v.floor() + d).clamp(-1e12, 1e12) as i64 } else { whole };
+    ([0, 1, 2].map(|i| cell(gmin[i], -1.0, i64::MIN)), [0, 1, 2].map(|i| cell(gmax[i], 2.0, i64::MAX)))
 }
 
 /// Bricks of a `res`³ volume that the cell boxes can touch: the union of the boxes' top
