@@ -70,6 +70,8 @@ pub struct VoxelGrid {
     pub bounds: Cube,
     /// Occupied voxels, strictly increasing codes.
     pub voxels: Vec<Voxel>,
+    /// The part's emissive triangles (object coordinates), kept for direct lighting.
+    pub emitters: Vec<crate::svo::Emitter>,
 }
 
 impl VoxelGrid {
@@ -91,7 +93,7 @@ impl VoxelGrid {
                 weight: 1.0,
             })
             .collect();
-        VoxelGrid { depth, bounds, voxels }
+        VoxelGrid { depth, bounds, voxels, emitters: Vec::new() }
     }
     /// Integer coordinates of every voxel.
     pub fn coords(&self) -> impl Iterator<Item = [u32; 3]> + '_ {
@@ -105,6 +107,17 @@ pub enum VoxelizeError {
     /// No triangle, or all degenerate.
     #[error("part '{0}' has no non-degenerate triangle")]
     EmptyPart(String),
+    /// More emissive triangles than a part keeps for direct lighting.
+    #[error(
+        "part '{part}' has {count} emissive triangles; a part keeps at most {} (merge or simplify the emitters)",
+        crate::svo::emitter::MAX_EMITTERS
+    )]
+    TooManyEmitters {
+        /// The part.
+        part: String,
+        /// Its emissive triangles.
+        count: usize,
+    },
     /// Resolution out of range.
     #[error("invalid resolution: {0}")]
     Resolution(String),
@@ -307,7 +320,9 @@ pub fn voxelize_in(
             estimate: filled.div_ceil(1_000_000),
         })?;
     }
-    Ok(VoxelGrid { depth, bounds, voxels })
+    let emitters = crate::svo::emitter::emitters_of(part, materials)
+        .map_err(|count| VoxelizeError::TooManyEmitters { part: part.name.clone(), count })?;
+    Ok(VoxelGrid { depth, bounds, voxels, emitters })
 }
 
 /// Voxels the triangles overlap, each counted once per triangle (the entries voxelizing

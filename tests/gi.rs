@@ -172,6 +172,7 @@ fn injection_lights_cells_the_sun_sees_and_darkens_those_in_shadow() {
         sun: Some(Sun { to_sun: Vec3::Y, irradiance: Vec3::splat(pi) }),
         ambient: None,
         use_mtl_emitters: false,
+        ..Lights::default()
     };
     let inj = inject(&vol, &scene, &lights);
     assert!(inj.shadow_rays > 100);
@@ -191,7 +192,7 @@ fn injection_lights_cells_the_sun_sees_and_darkens_those_in_shadow() {
     assert_eq!(at(12, 12, 12), glam::Vec4::ZERO);
     assert!(inj.rgba.iter().all(|c| c.is_finite()));
     // No sun: nothing is injected (no emitters here), and no shadow rays are traced.
-    let dark = inject(&vol, &scene, &Lights { sun: None, ambient: None, use_mtl_emitters: false });
+    let dark = inject(&vol, &scene, &Lights { sun: None, ambient: None, use_mtl_emitters: false, ..Lights::default() });
     assert_eq!(dark.shadow_rays, 0);
     assert!(dark.rgba.iter().all(|c| c.truncate() == Vec3::ZERO));
 }
@@ -458,7 +459,7 @@ fn a_floor_under_an_open_sky_does_not_occlude_itself() {
     };
     let mats = vec![Material::new("white", Vec3::splat(0.8))];
     let sky = v(0.2, 0.3, 0.4);
-    let no_light = Lights { sun: None, ambient: None, use_mtl_emitters: false };
+    let no_light = Lights { sun: None, ambient: None, use_mtl_emitters: false, ..Lights::default() };
     for res in [32u32, 64, 128] {
         for filter in [Filter::Nearest, Filter::Split] {
             let spec = VolumeSpec::following(DVec3::new(0.013, 0.0, -0.007), 2.2, res).unwrap();

@@ -99,6 +99,7 @@ fn sparse_cells_and_chain_equal_the_dense_ones() {
             }),
             ambient: None,
             use_mtl_emitters: false,
+            ..voxray::scene::Lights::default()
         };
         let empty = Scene::new(vec![]);
         let dense_chain = levels::build(&inject(&dense, &empty, &lights));

@@ -224,7 +224,7 @@ fn pools_split_across_two_bindings_render_the_same() {
     // Lower the binding limit so the attribute pool (always the larger) splits about in half.
     let attrs: usize = scene_a.parts.iter().map(|p| p.attrs.len()).sum();
     let mut split = GpuRenderer::new(ctx.clone());
-    split.max_binding = (attrs as u64 * 8).div_ceil(2) + 8;
+    split.max_binding = (attrs as u64 * std::mem::size_of::<voxray::svo::Attr>() as u64).div_ceil(2) + 8;
     let b = split.render(&scene_a, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
     assert_ne!(split.splits().1, u32::MAX, "the attribute pool should have been split");
     assert_eq!(whole.splits(), (u32::MAX, u32::MAX));

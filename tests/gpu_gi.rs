@@ -314,7 +314,7 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     let e = gpu.set_gi(Some(sparse)).unwrap_err().to_string();
     assert!(e.contains("multiple of 8"), "{e}");
     // No lights at all: GI would add nothing, so it is skipped.
-    let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false };
+    let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false, ..Lights::default() };
     assert_eq!(dark.sky(), Vec3::ZERO);
     gpu.set_gi(Some(GiSettings { res: 16, ..Default::default() })).unwrap();
     gpu.render(&scene, &cam, &dark, &plan, &RenderOptions::default()).unwrap();

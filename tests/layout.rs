@@ -61,7 +61,15 @@ type RustStruct = (&'static str, usize, Vec<(&'static str, usize)>);
 #[test]
 fn wgsl_structs_match_rust() {
     let rust: Vec<RustStruct> = vec![
-        ("Attr", size_of::<Attr>(), vec![("albedo", offset_of!(Attr, albedo)), ("normal", offset_of!(Attr, normal))]),
+        (
+            "Attr",
+            size_of::<Attr>(),
+            vec![
+                ("albedo", offset_of!(Attr, albedo)),
+                ("normal", offset_of!(Attr, normal)),
+                ("emission", offset_of!(Attr, emission)),
+            ],
+        ),
         (
             "Part",
             size_of::<GpuPart>(),
@@ -131,6 +139,7 @@ fn wgsl_structs_match_rust() {
                 ("work", offset_of!(GpuHit, work)),
                 ("reused", offset_of!(GpuHit, reused)),
                 ("material", offset_of!(GpuHit, material)),
+                ("emission", offset_of!(GpuHit, emission)),
             ],
         ),
         (
@@ -172,7 +181,7 @@ fn wgsl_structs_match_rust() {
                 ("coord", offset_of!(CacheVoxel, coord)),
                 ("albedo", offset_of!(CacheVoxel, albedo)),
                 ("normal", offset_of!(CacheVoxel, normal)),
-                ("gloss", offset_of!(CacheVoxel, gloss)),
+                ("emission", offset_of!(CacheVoxel, emission)),
             ],
         ),
         (

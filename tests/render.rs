@@ -114,6 +114,7 @@ fn shadows_fall_where_the_occluder_blocks_the_sun() {
         sun: Some(Sun { to_sun: Vec3::new(1.0, 1.0, 0.0).normalize(), irradiance: Vec3::splat(irr) }),
         ambient: Some(Ambient { radiance: Vec3::splat(0.1) }),
         use_mtl_emitters: false,
+        ..Lights::default()
     };
     let cam = top_down(64);
     let f = frame(&parts, &cam, &lights, Features::default());

@@ -6,7 +6,7 @@ use glam::{DVec3, Vec3};
 use voxray::oracle::{dda, Contact, VoxelSet};
 use voxray::ray::UnitRay;
 use voxray::rng::Rng;
-use voxray::svo::io::{crc32, from_bytes, to_bytes, validate, SvoFileError, HEADER_LEN};
+use voxray::svo::io::{crc32, from_bytes, to_bytes, validate, SvoFileError, HEADER_LEN, HEADER_LEN_4};
 use voxray::svo::{self, Cube, Svo};
 use voxray::traverse::{trace_unit, TraceOptions};
 use voxray::voxelize::VoxelGrid;
@@ -120,7 +120,7 @@ fn hostile_headers_and_structures_are_refused() {
     // Every corruption of a child mask that keeps the checksum valid must be caught by the
     // structural checks (the masks no longer describe the stored counts) or leave a tree that
     // still validates.
-    let caught = corruptions_caught(&bytes, HEADER_LEN..HEADER_LEN + s.masks.len(), 2000, 9);
+    let caught = corruptions_caught(&bytes, HEADER_LEN_4..HEADER_LEN_4 + s.masks.len(), 2000, 9);
     assert!(caught > 1000, "only {caught} of 2000 structural corruptions detected");
 }
 
@@ -217,14 +217,36 @@ fn fixture(name: &str) -> Vec<u8> {
 }
 
 /// A version 2 file (Laine–Karras descriptors, attribute bases, depth-first layout) loads as
-/// exactly the tree the current builder makes from the same voxels; so does a version 1 file
-/// (snorm16 normals), up to the re-encoded normals.
+/// exactly the tree the current builder makes from the same voxels, except that its emission
+/// was a multiple of the albedo (version 4 keeps the emitted colour itself): the same voxels
+/// emit, with the radiance the old scale gave. So does a version 1 file (snorm16 normals), up
+/// to the re-encoded normals.
 #[test]
 fn version_1_and_2_files_are_converted() {
     let want = svo::build(&legacy_grid()).unwrap();
     let v2 = fixture("legacy-v2.svo");
     assert_eq!(u32::from_le_bytes(v2[8..12].try_into().unwrap()), 2);
-    assert_eq!(from_bytes(&v2).unwrap(), want);
+    let got = from_bytes(&v2).unwrap();
+    let strip = |t: &svo::Svo| svo::Svo {
+        attrs: t.attrs.iter().map(|a| svo::Attr { emission: 0, ..*a }).collect(),
+        ..t.clone()
+    };
+    assert_eq!(strip(&got), strip(&want));
+    let mut emissive = 0;
+    for (old, new) in got.attrs.iter().zip(&want.attrs) {
+        // The old scale multiplied the albedo: a black emitter emitted nothing.
+        assert!(!old.is_emissive() || new.is_emissive());
+        assert!(old.is_emissive() || !new.is_emissive() || old.albedo_linear().max_element() < 0.01);
+        if old.is_emissive() {
+            emissive += 1;
+            // The old scale: the luminance ratio to the albedo, in sixteenths.
+            let (e, a) = (old.emission(), old.albedo_linear());
+            let k = e.dot(a) / a.dot(a);
+            // Within RGB9E5's step (1/256 of the largest channel at worst).
+            assert!((e - a * k).abs().max_element() <= e.max_element() / 256.0, "{e} is not a multiple of {a}");
+        }
+    }
+    assert!(emissive > 0);
 
     let v1 = from_bytes(&fixture("legacy-v1.svo")).unwrap();
     assert_eq!((&v1.masks, &v1.links, v1.voxel_count), (&want.masks, &want.links, want.voxel_count));
@@ -238,4 +260,34 @@ fn version_1_and_2_files_are_converted() {
     let nodes = u64::from_le_bytes(v2[40..48].try_into().unwrap()) as usize;
     let caught = corruptions_caught(&v2, HEADER_LEN..HEADER_LEN + 8 * nodes, 1000, 11);
     assert!(caught > 500, "only {caught} of 1000 corrupted descriptors detected");
+}
+
+/// Version 4 keeps a part's emissive triangles and RGB emission through a file, and refuses a
+/// file whose emitter is degenerate or negative.
+#[test]
+fn emitters_and_rgb_emission_round_trip() {
+    let (mut s, _) = random_svo(5, 300, 21);
+    s.emitters = vec![
+        svo::Emitter { vertices: [Vec3::ZERO, Vec3::X, Vec3::Y], emission: Vec3::new(17.0, 12.0, 4.0) },
+        svo::Emitter { vertices: [Vec3::Z, Vec3::ONE, Vec3::X], emission: Vec3::new(0.0, 0.0, 900.0) },
+    ];
+    s.attrs[3] = svo::Attr::pack(Vec3::splat(0.78), Vec3::Y, Vec3::new(17.0, 12.0, 4.0));
+    let bytes = to_bytes(&s);
+    let back = from_bytes(&bytes).unwrap();
+    assert_eq!(back, s);
+    assert!((back.attrs[3].emission() - Vec3::new(17.0, 12.0, 4.0)).abs().max_element() < 0.04);
+    // The last emitter's first corner x, set to NaN, and its emission's red, set negative.
+    let at = bytes.len() - 4 - 48;
+    for (offset, v) in [(0usize, f32::NAN), (36, -1.0)] {
+        let mut b = bytes.clone();
+        b[at + offset..at + offset + 4].copy_from_slice(&v.to_le_bytes());
+        reseal(&mut b);
+        let e = from_bytes(&b).unwrap_err();
+        assert!(e.to_string().contains("emissive triangle 1"), "{e}");
+    }
+    // A collapsed triangle (second corner on the first).
+    let mut b = bytes.clone();
+    b[at + 12..at + 24].copy_from_slice(&bytes[at..at + 12]);
+    reseal(&mut b);
+    assert!(from_bytes(&b).is_err());
 }

@@ -391,6 +391,7 @@ fn hit_record(best: Nearest, d: vec3<f32>, how: u32) -> Hit {
         h.instance = i32(best.inst);
         h.albedo = best.tr.attr.albedo;
         h.material = best.tr.attr.normal;
+        h.emission = best.tr.attr.emission;
         h.voxel = inst.stretch_size / f32(1u << best.tr.level);
         h.nx = n.x; h.ny = n.y; h.nz = n.z;
         h.fx = f.x; h.fy = f.y; h.fz = f.z;
@@ -495,7 +496,7 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
         }
     }
     if frame.sky.w > 0.0 {
-        c += albedo * (f32(h.albedo >> 24u) / 16.0);
+        c += emission(h.emission);
     }
     return c;
 }

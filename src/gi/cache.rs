@@ -1,7 +1,7 @@
 //! Voxel caches: a part's voxels as a flat list, built once at load time with the same
 //! voxelizer as the SVOs. Coordinates are integers relative to the part's cube corner, packed
 //! 10 bits per axis (so a cache is at most 1024 voxels per side — GI voxels are coarse); the
-//! attributes reuse the SVO's packed albedo/emission and octahedral normal words.
+//! attributes are the SVO's packed albedo, normal and emission words.
 
 use crate::mesh::{Material, Part};
 use crate::svo::format::morton_decode;
@@ -21,12 +21,12 @@ pub const MAX_CACHE_DEPTH: u32 = COORD_BITS;
 pub struct CacheVoxel {
     /// x | y << 10 | z << 20, relative to the cube corner.
     pub coord: u32,
-    /// Albedo and emission word, as [`Attr::albedo`].
+    /// Albedo word, as [`Attr::albedo`].
     pub albedo: u32,
     /// Octahedral normal and specular lobe, as [`Attr::normal`].
     pub normal: u32,
-    /// Glossiness in [0, 1] ([`Attr::gloss`], decoded: Phong exponent `2^(10 g)`).
-    pub gloss: f32,
+    /// Emitted radiance (RGB9E5), as [`Attr::emission`].
+    pub emission: u32,
 }
 
 impl CacheVoxel {
@@ -37,7 +37,7 @@ impl CacheVoxel {
     }
     /// The packed attributes.
     pub fn attr(&self) -> Attr {
-        Attr { albedo: self.albedo, normal: self.normal }
+        Attr { albedo: self.albedo, normal: self.normal, emission: self.emission }
     }
 }
 
@@ -81,7 +81,7 @@ impl VoxelCache {
                     coord: x | (y << COORD_BITS) | (z << (2 * COORD_BITS)),
                     albedo: a.albedo,
                     normal: a.normal,
-                    gloss: a.gloss(),
+                    emission: a.emission,
                 }
             })
             .collect();
@@ -117,7 +117,7 @@ impl VoxelCache {
                 coord: c[0] | (c[1] << COORD_BITS) | (c[2] << (2 * COORD_BITS)),
                 albedo: a.albedo,
                 normal: a.normal,
-                gloss: a.gloss(),
+                emission: a.emission,
             })
             .collect();
         Ok(VoxelCache { corner: svo.bounds.min, voxel_size: svo.bounds.voxel_size(level), depth: level, voxels })

@@ -1,10 +1,13 @@
 //! Light injection: the light each occupied world cell sends out, from the sun (N·L × albedo
 //! / π × irradiance, visible only if a shadow ray through the SVO instances escapes) and from
-//! MTL emitters. Stored with the cell's opacity (occupancy clamped to 1) and premultiplied by
+//! MTL emitters: sampled as area lights with shadow rays when they are lights (their own
+//! glow then stays out of the volume, since every shaded point samples it directly), or
+//! their emitted radiance itself when they are not sampled. Stored with the cell's opacity (occupancy clamped to 1) and premultiplied by
 //! it, ready for the level chain and front-to-back cone accumulation.
 
 use super::volume::{Volume, VolumeSpec};
 use crate::render::bvh::Bvh;
+use crate::render::emitters::{emitter_light, EmitterTable};
 use crate::render::instances::prepare;
 use crate::render::visibility::{occluded, FrameInstances};
 use crate::scene::{Lights, Scene};
@@ -89,6 +92,8 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let mut rgba = vec![Vec4::ZERO; cells.cell_count()];
     let mut shadow_rays = 0u64;
+    let samples = lights.emitter_sampling();
+    let emitters = if samples > 0 { EmitterTable::new(scene, eye) } else { EmitterTable::default() };
     for (i, out) in rgba.iter_mut().enumerate() {
         let cell = cells.sums(i);
         let occ = cell.occupancy;
@@ -105,16 +110,35 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<
                 shadow_rays += 1;
                 // Start one cell off the surface so the cell's own voxels do not shadow it.
                 let start = cell.centre + n.as_dvec3() * spec.cell - eye;
-                if !occluded(&fi, start, sun.to_sun.as_dvec3(), search) {
+                if !occluded(&fi, start, sun.to_sun.as_dvec3(), f64::INFINITY, search) {
                     radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
                 }
             }
         }
-        if lights.use_mtl_emitters {
+        if !emitters.is_empty() && n.length_squared() > 1e-6 {
+            let n = n.normalize();
+            let at = cell.centre - eye;
+            let start = at + n.as_dvec3() * spec.cell;
+            // Keyed by the cell's place in the grid, so dense and sparse volumes (whose stored
+            // order differs) draw the same points.
+            let key = cell_key(spec, cell.centre);
+            radiance += emitter_light(&emitters, samples, key, at, start, n, -n, albedo, 0.0, 1.0, &mut |o, d, len| {
+                shadow_rays += 1;
+                !occluded(&fi, o, d, len, search)
+            });
+        } else if lights.use_mtl_emitters && samples == 0 {
             radiance += cell.emission / occ;
         }
         let alpha = occ.min(1.0);
         *out = (radiance * alpha).extend(alpha);
     }
     (rgba, shadow_rays)
+}
+
+/// The random-number key of the cell centred at `centre`: its grid index x + res·(y + res·z)
+/// (WGSL: `gi_cell_key`).
+pub fn cell_key(spec: VolumeSpec, centre: DVec3) -> u32 {
+    let c = ((centre - spec.min) / spec.cell).floor();
+    let r = spec.res as u64;
+    (c.x as u64 + r * (c.y as u64 + r * c.z as u64)) as u32
 }

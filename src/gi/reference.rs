@@ -159,7 +159,7 @@ impl<'a> PathTracer<'a> {
         if let Some(sun) = self.lights.sun {
             if r.normal.dot(sun.to_sun) > 0.0 {
                 rays += 1;
-                if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), self.search) {
+                if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY, self.search) {
                     let shininess = brdf::shininess_of_gloss(r.attr.gloss());
                     let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
                     out +=

@@ -149,6 +149,8 @@ pub struct GpuHit {
     pub reused: u32,
     /// Normal word of the voxel's attributes (its top byte is the specular lobe).
     pub material: u32,
+    /// Emission word of the voxel's attributes (RGB9E5).
+    pub emission: u32,
 }
 
 /// A moved instance's sphere and pixel rectangle. WGSL: `MovedSphere`.

@@ -901,7 +901,7 @@ impl GpuRenderer {
                         instance: g.instance,
                         normal: Vec3::new(g.nx, g.ny, g.nz),
                         face_normal: Vec3::new(g.fx, g.fy, g.fz),
-                        attr: Attr { albedo: g.albedo, normal: g.material },
+                        attr: Attr { albedo: g.albedo, normal: g.material, emission: g.emission },
                         voxel: g.voxel,
                     }
                 }

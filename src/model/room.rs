@@ -29,7 +29,7 @@ pub const HALF: f32 = 1.0;
 pub const SKYLIGHT: ([f32; 2], [f32; 2]) = ([-0.45, 0.75], [-0.7, 0.4]);
 
 /// A rectangle (corners in order around it) facing the room's centre.
-fn inward(b: &mut Builder, q: [Vec3; 4], mat: &'static str) {
+pub(crate) fn inward(b: &mut Builder, q: [Vec3; 4], mat: &'static str) {
     let centre = Vec3::new(0.0, HALF, 0.0);
     let normal = (q[2] - q[0]).cross(q[3] - q[1]);
     let mid = (q[0] + q[1] + q[2] + q[3]) * 0.25;
@@ -115,6 +115,7 @@ pub fn lights() -> Lights {
         sun: Some(Sun { to_sun: Vec3::new(0.75, 1.0, 0.15).normalize(), irradiance: Vec3::new(7.0, 6.8, 6.3) }),
         ambient: Some(Ambient { radiance: Vec3::new(0.25, 0.3, 0.38) }),
         use_mtl_emitters: false,
+        ..Lights::default()
     }
 }
 
@@ -150,7 +151,7 @@ pub fn files() -> Vec<(String, String)> {
 
 /// Drops the header lines of a later object's OBJ text and offsets its face indices by the
 /// vertices already written in `before`.
-fn shift_faces(text: &str, before: &str) -> String {
+pub(crate) fn shift_faces(text: &str, before: &str) -> String {
     let base = before.lines().filter(|l| l.starts_with("v ")).count();
     let mut out = String::new();
     for line in text.lines() {

@@ -1,10 +1,11 @@
 //! The CPU renderer, in two passes like the GPU's: **trace** finds each pixel's primary hit
 //! (or reuses it from the hit buffer), **shade** lights it with the sun (with a shadow ray),
-//! the sky and MTL emitters. Rays start at the camera in camera-relative f64 coordinates.
+//! the sky and MTL emitters (glowing, and as area lights sampled with shadow rays). Rays start at the camera in camera-relative f64 coordinates.
 
 use super::beam::TILE;
 use super::brdf;
 use super::bvh::Bvh;
+use super::emitters::{emitter_light, EmitterTable};
 use super::hitbuffer::{HitBuffer, HitRecord};
 use super::instances::{prepare, Prepared};
 use super::plan::FramePlan;
@@ -219,16 +220,42 @@ pub struct AmbientLight<'a> {
 }
 
 /// The light a hit receives besides the ambient term (WGSL's `direct_light`): the sun, when
-/// the surface faces it and `visible(start, to_sun)` says its shadow ray from `start` is
-/// free, then the hit's own emission. `d` is the primary ray's unit direction.
-fn direct_light(r: &HitRecord, d: DVec3, lights: &Lights, visible: &dyn Fn(DVec3, DVec3) -> bool) -> Vec3 {
+/// the surface faces it and its shadow ray is free, the emitters' light sampled at `key`'s
+/// points ([`emitter_light`]), then the hit's own emission. `visible(start, direction,
+/// distance)` says whether a shadow ray gets through; `d` is the primary ray's unit
+/// direction.
+fn direct_light(
+    r: &HitRecord,
+    d: DVec3,
+    lights: &Lights,
+    emitters: &EmitterTable,
+    key: u32,
+    visible: &mut dyn FnMut(DVec3, DVec3, f64) -> bool,
+) -> Vec3 {
     let mut c = Vec3::ZERO;
+    let at = d * r.t as f64;
+    let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
+    let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
     if let Some(sun) = lights.sun {
-        if r.normal.dot(sun.to_sun) > 0.0 && visible(leave(r, d * r.t as f64), sun.to_sun.as_dvec3()) {
-            let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
-            let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
+        if r.normal.dot(sun.to_sun) > 0.0 && visible(leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY) {
             c += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun) * sun.irradiance;
         }
+    }
+    let samples = lights.emitter_sampling();
+    if samples > 0 {
+        c += emitter_light(
+            emitters,
+            samples,
+            key,
+            at,
+            leave(r, at),
+            r.normal,
+            d.as_vec3(),
+            albedo,
+            ks,
+            shininess,
+            visible,
+        );
     }
     if lights.use_mtl_emitters {
         c += r.attr.emission();
@@ -322,6 +349,9 @@ pub fn render_lit(
         tile & (1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize)) == 0
     };
     let sky = lights.sky();
+    // Emitters light the frame when there are any and they are sampled.
+    let emitters =
+        if lights.emitter_sampling() > 0 { EmitterTable::new(scene, camera.eye) } else { EmitterTable::default() };
     let shadow_rays = AtomicU64::new(0);
     let shade_reused = AtomicU64::new(0);
     let n = w * h;
@@ -331,6 +361,9 @@ pub fn render_lit(
             && prev.radiance.len() == n
             && prev.lit_by_gi == ambient.is_some()
             && ambient.is_none_or(|a| a.unchanged)
+            // Emitter samples reach anywhere: a kept colour would need all their shadow rays
+            // checked against the moved instances (not built: such frames shade afresh).
+            && emitters.is_empty()
     });
     let mut f = Frame {
         primary_rays: n as u64,
@@ -385,12 +418,12 @@ pub fn render_lit(
                 None => (albedo + Vec3::splat(ks)) * sky,
             };
             let d = camera.ray_dir(&basis, x as u32, y as u32);
-            let radiance = direct_light(r, d, lights, &|start, to_sun| {
+            let radiance = direct_light(r, d, lights, &emitters, k as u32, &mut |start, dir, t_max| {
                 if !plan.shadows {
                     return true;
                 }
                 shadow_rays.fetch_add(1, Ordering::Relaxed);
-                !occluded(&fi, start, to_sun, search)
+                !occluded(&fi, start, dir, t_max, search)
             });
             *out = ambient_term + radiance;
         }

@@ -43,7 +43,7 @@ impl HitRecord {
         instance: -1,
         normal: Vec3::ZERO,
         face_normal: Vec3::ZERO,
-        attr: Attr { albedo: 0, normal: 0 },
+        attr: Attr { albedo: 0, normal: 0, emission: 0 },
         voxel: 0.0,
     };
 }

@@ -6,6 +6,7 @@ pub mod brdf;
 pub mod bvh;
 pub mod bvh_wide;
 pub mod cpu;
+pub mod emitters;
 pub mod hitbuffer;
 pub mod instances;
 pub mod output;

@@ -145,10 +145,12 @@ impl FramePlan {
             _ => "hit_buffer: on (camera static)".into(),
         });
         let sun = lights.sun.is_some_and(|s| s.irradiance.max_element() > 0.0);
-        let shadows = features.shadows && sun;
-        reasons.push(match (features.shadows, sun) {
+        // Emitters are lights when they are sampled and some part has an emissive triangle.
+        let emitters = lights.emitter_sampling() > 0 && scene.parts.iter().any(|p| !p.emitters.is_empty());
+        let shadows = features.shadows && (sun || emitters);
+        reasons.push(match (features.shadows, sun || emitters) {
             (false, _) => "shadows: off (switched off)".into(),
-            (true, false) => "shadows: off (no sun)".into(),
+            (true, false) => "shadows: off (no sun, no sampled emitter)".into(),
             _ => "shadows: on".into(),
         });
         let beams = features.beams && n <= super::beam::MAX_INSTANCES;

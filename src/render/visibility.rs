@@ -378,9 +378,10 @@ pub fn nearest_moved(
     best
 }
 
-/// Whether anything blocks `o + t·d` for t in (0, ∞) (shadow rays): any hit ends the search.
-pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search) -> bool {
-    let opts = TraceOptions::default();
+/// Whether anything blocks `o + t·d` for t in (0, `t_max`] (shadow rays; `d` unit length, so
+/// `t_max` is a distance; ∞ for the sun): any hit ends the search.
+pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, t_max: f64, search: Search) -> bool {
+    let opts = TraceOptions { t_max: t_max as f32, ..TraceOptions::default() };
     match (search, fi.bvh) {
         (Search::Plain, _) => (0..fi.prepared.len()).any(|i| trace_one(fi, i, o, d, &opts).is_some()),
         (Search::Bvh, Some(bvh)) if !bvh.nodes.is_empty() => {
@@ -389,7 +390,7 @@ pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search) -> bool
             stack.push(0);
             while let Some(n) = stack.pop() {
                 let node = bvh.nodes[n as usize];
-                if box_entry(node.lo, node.hi, o, inv, f64::INFINITY).is_none() {
+                if box_entry(node.lo, node.hi, o, inv, t_max).is_none() {
                     continue;
                 }
                 if node.count == 0 {
@@ -399,7 +400,7 @@ pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search) -> bool
                 }
                 for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
                     let p = &fi.prepared[i as usize];
-                    if sphere_interval(p.centre, p.radius, o, d).is_some()
+                    if sphere_interval(p.centre, p.radius, o, d).is_some_and(|(t0, _)| t0 <= t_max)
                         && trace_one(fi, i as usize, o, d, &opts).is_some()
                     {
                         return true;
@@ -409,7 +410,8 @@ pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, search: Search) -> bool
             false
         }
         _ => fi.prepared.iter().enumerate().any(|(i, p)| {
-            sphere_interval(p.centre, p.radius, o, d).is_some() && trace_one(fi, i, o, d, &opts).is_some()
+            sphere_interval(p.centre, p.radius, o, d).is_some_and(|(t0, _)| t0 <= t_max)
+                && trace_one(fi, i, o, d, &opts).is_some()
         }),
     }
 }

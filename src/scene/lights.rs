@@ -31,9 +31,25 @@ pub struct Lights {
     /// The sky, if any.
     #[cfg_attr(feature = "json", serde(default))]
     pub ambient: Option<Ambient>,
-    /// Whether MTL `Ke` makes surfaces emissive.
+    /// Whether MTL `Ke` makes surfaces emissive: they glow, and light the scene as area
+    /// lights ([`crate::render::emitters`]).
     #[cfg_attr(feature = "json", serde(default))]
     pub use_mtl_emitters: bool,
+    /// Points sampled on the emitters per shaded pixel (and per GI cell), each with a shadow
+    /// ray: more give smoother soft shadows. 0: emitters glow and reach other surfaces only
+    /// through GI's cones (as before emitters were lights).
+    #[cfg_attr(feature = "json", serde(default = "default_emitter_samples"))]
+    pub emitter_samples: u32,
+}
+
+/// Default [`Lights::emitter_samples`].
+pub const DEFAULT_EMITTER_SAMPLES: u32 = 4;
+/// Largest accepted [`Lights::emitter_samples`].
+pub const MAX_EMITTER_SAMPLES: u32 = 1024;
+
+#[cfg(feature = "json")]
+fn default_emitter_samples() -> u32 {
+    DEFAULT_EMITTER_SAMPLES
 }
 
 impl Default for Lights {
@@ -43,6 +59,7 @@ impl Default for Lights {
             sun: Some(Sun { to_sun: Vec3::new(0.55, 0.8, -0.35).normalize(), irradiance: Vec3::new(3.2, 3.0, 2.7) }),
             ambient: Some(Ambient { radiance: Vec3::new(0.22, 0.27, 0.34) }),
             use_mtl_emitters: false,
+            emitter_samples: DEFAULT_EMITTER_SAMPLES,
         }
     }
 }
@@ -50,6 +67,9 @@ impl Default for Lights {
 /// Why lights are unusable.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum LightsError {
+    /// Too many emitter samples.
+    #[error("lights: emitter_samples must be at most {MAX_EMITTER_SAMPLES}, got {0}")]
+    Samples(u32),
     /// A value is negative, NaN or infinite.
     #[error("lights: {0} must be finite and non-negative")]
     Value(&'static str),
@@ -78,7 +98,19 @@ impl Lights {
                 return Err(LightsError::Value("ambient.radiance"));
             }
         }
+        if self.emitter_samples > MAX_EMITTER_SAMPLES {
+            return Err(LightsError::Samples(self.emitter_samples));
+        }
         Ok(self)
+    }
+
+    /// Light samples per point on the emitters, when they are lights (0 otherwise).
+    pub fn emitter_sampling(&self) -> u32 {
+        if self.use_mtl_emitters {
+            self.emitter_samples
+        } else {
+            0
+        }
     }
 
     /// Sky radiance (zero without an ambient light).

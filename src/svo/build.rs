@@ -187,5 +187,6 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
         level_start,
         attrs,
         voxel_count: grid.voxels.len() as u64,
+        emitters: grid.emitters.clone(),
     })
 }

@@ -10,38 +10,67 @@ use glam::{DVec3, Vec3};
 /// the parametric traversal (k / 2^level) stay exactly representable in the unit cube.
 pub const MAX_DEPTH: u32 = 20;
 
-/// Per-node attributes: albedo (sRGB-encoded RGBA8), an octahedral-encoded unit normal and
-/// the specular lobe ([`crate::render::brdf`]).
+/// Per-node attributes: albedo (sRGB-encoded RGB8), an octahedral-encoded unit normal, the
+/// specular lobe ([`crate::render::brdf`]) and the emitted radiance as its own RGB.
 ///
 /// Must be kept in sync with `struct Attr` in `wgsl/shared/layout.wgsl` (the GPU path).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct Attr {
-    /// R in the low byte, then G, B, E: RGB the sRGB-encoded albedo, E the emission scale
-    /// (emitted radiance = albedo · E / 16; 0 = not emissive).
+    /// R in the low byte, then G, B: the sRGB-encoded albedo; the top byte is zero (format 3
+    /// kept an emission scale there).
     pub albedo: u32,
     /// Octahedral normal, x in bits 0–11 and y in bits 12–23 (both 12-bit signed, /2047:
     /// at most 0.063° off), then the specular reflectance `ks = (S/15)²` in bits 24–27 and the
     /// glossiness `G/15` in bits 28–31 (S = 0: no specular lobe).
     pub normal: u32,
+    /// Emitted radiance (MTL `Ke`, linear RGB) in the shared-exponent RGB9E5 encoding
+    /// ([`encode_rgb9e5`]): up to [`MAX_EMISSION`], 9 significant bits; 0 = not emissive.
+    pub emission: u32,
+}
+
+/// Largest emitted radiance an [`Attr`] holds per channel (RGB9E5's largest value).
+pub const MAX_EMISSION: f32 = 65408.0;
+
+/// Encodes non-negative linear RGB in RGB9E5: three 9-bit mantissas (R in bits 0–8, G 9–17,
+/// B 18–26) sharing a 5-bit exponent (bits 27–31, bias 15), so each channel is
+/// `mantissa · 2^(exponent − 24)`. Values are clamped to [0, [`MAX_EMISSION`]]; NaN becomes 0.
+/// The largest channel keeps a relative error under 1/1024.
+pub fn encode_rgb9e5(c: Vec3) -> u32 {
+    let clamp = |v: f32| if v.is_finite() || v == f32::INFINITY { v.clamp(0.0, MAX_EMISSION) } else { 0.0 };
+    let c = Vec3::new(clamp(c.x), clamp(c.y), clamp(c.z));
+    let max = c.max_element();
+    if max < f32::MIN_POSITIVE {
+        return 0;
+    }
+    // Shared exponent from the largest channel, as the EXT_texture_shared_exponent rule.
+    let mut e = (max.log2().floor() as i32).max(-16) + 16;
+    let scale = |e: i32| (2.0f64).powi(e - 24);
+    if (max as f64 / scale(e) + 0.5).floor() >= 512.0 {
+        e += 1;
+    }
+    let e = e.clamp(0, 31);
+    let q = |v: f32| ((v as f64 / scale(e) + 0.5).floor() as u32).min(511);
+    q(c.x) | (q(c.y) << 9) | (q(c.z) << 18) | ((e as u32) << 27)
+}
+
+/// Decodes [`encode_rgb9e5`] (exact: a 9-bit integer times a power of two).
+pub fn decode_rgb9e5(v: u32) -> Vec3 {
+    let scale = f32::from_bits((((v >> 27) + 127 - 24) & 0xFF) << 23);
+    let m = |s: u32| ((v >> s) & 511) as f32 * scale;
+    Vec3::new(m(0), m(9), m(18))
 }
 
 impl Attr {
     /// Packs a linear albedo (clamped to [0, 1]), a normal (normalized here; zero stays a
-    /// valid encoding of +Z so that decoding never yields NaN) and an emitted radiance, stored
-    /// as a multiple of the albedo (its luminance ratio, in steps of 1/16 up to 15.9).
+    /// valid encoding of +Z so that decoding never yields NaN) and an emitted radiance
+    /// (RGB9E5, independent of the albedo).
     pub fn pack(albedo_linear: Vec3, normal: Vec3, emission: Vec3) -> Self {
         let c = if albedo_linear.is_finite() { albedo_linear.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::splat(0.5) };
         let r = linear_to_srgb8(c.x) as u32;
         let g = linear_to_srgb8(c.y) as u32;
         let b = linear_to_srgb8(c.z) as u32;
-        let lum = |v: Vec3| v.dot(Vec3::new(0.2126, 0.7152, 0.0722));
-        let e = if emission.is_finite() && lum(emission) > 0.0 {
-            (lum(emission) / lum(c).max(1e-3) * 16.0).round().clamp(1.0, 255.0) as u32
-        } else {
-            0
-        };
-        Attr { albedo: r | (g << 8) | (b << 16) | (e << 24), normal: encode_octahedral(normal) }
+        Attr { albedo: r | (g << 8) | (b << 16), normal: encode_octahedral(normal), emission: encode_rgb9e5(emission) }
     }
     /// [`Attr::pack`] with a specular lobe: reflectance `ks` in [0, 1] (four bits on a square
     /// scale, so small values such as paint's 0.04 keep two significant steps) and glossiness
@@ -58,7 +87,13 @@ impl Attr {
         let x = ((normal & 0xFFFF) as u16 as i16 as f32 / 32767.0).max(-1.0);
         let y = ((normal >> 16) as u16 as i16 as f32 / 32767.0).max(-1.0);
         let n = decode_octahedral_xy(x, y);
-        Attr { albedo, normal: encode_octahedral(n) }
+        Self::from_version3(albedo, encode_octahedral(n))
+    }
+    /// The attributes of an `.svo` version 1–3 file: their albedo word's top byte E scaled
+    /// the albedo (emitted radiance = albedo · E / 16); it becomes the RGB emission word.
+    pub fn from_version3(albedo: u32, normal: u32) -> Self {
+        let rgb = Attr { albedo: albedo & 0xFF_FFFF, normal, emission: 0 };
+        Attr { emission: encode_rgb9e5(rgb.albedo_linear() * ((albedo >> 24) as f32 / 16.0)), ..rgb }
     }
     /// Specular reflectance in [0, 1] (0: diffuse only).
     pub fn specular(self) -> f32 {
@@ -75,7 +110,11 @@ impl Attr {
     }
     /// Emitted radiance (linear RGB).
     pub fn emission(self) -> Vec3 {
-        self.albedo_linear() * ((self.albedo >> 24) as f32 / 16.0)
+        decode_rgb9e5(self.emission)
+    }
+    /// Whether the node emits light.
+    pub fn is_emissive(self) -> bool {
+        self.emission != 0
     }
     /// Linear albedo in [0, 1].
     pub fn albedo_linear(self) -> Vec3 {
@@ -209,6 +248,8 @@ pub struct Svo {
     pub attrs: Vec<Attr>,
     /// Number of leaf voxels.
     pub voxel_count: u64,
+    /// Emissive triangles of the part (object coordinates), for direct lighting.
+    pub emitters: Vec<super::Emitter>,
 }
 
 /// Size and memory figures of an [`Svo`].
@@ -397,8 +438,39 @@ mod tests {
         }
         assert!(Attr::pack(Vec3::ONE, Vec3::ZERO, Vec3::ZERO).normal().is_finite());
         assert!(Attr::pack(Vec3::ONE, Vec3::NAN, Vec3::NAN).normal().is_finite());
-        let e = Attr::pack(Vec3::new(0.9, 0.9, 0.8), Vec3::Z, Vec3::new(3.6, 3.6, 3.2)).emission();
-        assert!((e - Vec3::new(3.6, 3.6, 3.2)).abs().max_element() < 0.2, "{e}");
+        // Emission is its own colour: a grey panel glowing orange keeps its orange.
+        let e = Attr::pack(Vec3::splat(0.78), Vec3::Z, Vec3::new(17.0, 12.0, 4.0)).emission();
+        assert!((e - Vec3::new(17.0, 12.0, 4.0)).abs().max_element() < 17.0 / 512.0, "{e}");
+    }
+
+    /// RGB9E5 against a direct evaluation of its definition: every decoded channel is the
+    /// nearest multiple of the shared step, over values from 1e-6 to the maximum.
+    #[test]
+    fn rgb9e5_round_trip() {
+        let mut rng = crate::rng::Rng::new(11);
+        for _ in 0..20000 {
+            let max = 10f32.powf(rng.f32() * 10.8 - 6.0).min(MAX_EMISSION);
+            let c = Vec3::new(max, max * rng.f32(), max * rng.f32() * rng.f32());
+            let w = encode_rgb9e5(c);
+            let d = decode_rgb9e5(w);
+            // The step the shared exponent chose; it must be the finest that holds the largest
+            // channel in nine bits.
+            let step = 2f32.powi((w >> 27) as i32 - 24);
+            assert!(c.max_element() >= 255.5 * step || w >> 27 == 0, "{c}: exponent too large");
+            for k in 0..3 {
+                assert!((d[k] - c[k]).abs() <= step * 0.5 * 1.0001 + 1e-30, "{c} -> {d} (step {step})");
+            }
+        }
+        assert_eq!(encode_rgb9e5(Vec3::ZERO), 0);
+        assert_eq!(encode_rgb9e5(Vec3::new(f32::NAN, -1.0, 0.0)), 0);
+        assert_eq!(decode_rgb9e5(encode_rgb9e5(Vec3::splat(1e9))), Vec3::splat(MAX_EMISSION));
+        assert_eq!(decode_rgb9e5(encode_rgb9e5(Vec3::new(1.0, 0.5, 0.25))), Vec3::new(1.0, 0.5, 0.25));
+        // Format 3's albedo-scaled emission converts to the same radiance.
+        let old = Attr::pack(Vec3::new(0.7, 0.2, 0.1), Vec3::Z, Vec3::ZERO);
+        let v3 = Attr::from_version3(old.albedo | (40 << 24), old.normal);
+        let want = old.albedo_linear() * 2.5;
+        assert!((v3.emission() - want).abs().max_element() <= want.max_element() / 512.0, "{}", v3.emission());
+        assert_eq!(v3.albedo, old.albedo);
     }
 
     /// The specular lobe shares the normal word without disturbing the normal, and a version

@@ -1,10 +1,12 @@
-//! The `.svo` file format: a fixed header, the child masks, the attribute array, and a CRC-32
-//! over everything before it. Links are not stored: loading derives them from the masks, so
+//! The `.svo` file format: a fixed header, the child masks, the attribute array, the
+//! emissive triangles, and a CRC-32 over everything before it. Links are not stored: loading derives them from the masks, so
 //! no stored pointer can be wrong, and checks that the masks describe exactly the stored
 //! node, voxel and attribute counts. A corrupted or hostile file gives a typed error instead
 //! of a panic or an endless loop. Versions 1 and 2 (Laine–Karras descriptors with far
-//! pointers) are converted on load. The byte layout is documented in `docs/svo-format.md`.
+//! pointers) and 3 (emission as a multiple of the albedo, no emitter list) are converted on
+//! load. The byte layout is documented in `docs/svo-format.md`.
 
+use super::emitter::{Emitter, MAX_EMITTERS};
 use super::format::{Attr, Cube, Svo, MAX_DEPTH};
 use glam::Vec3;
 use std::io::{Read, Write};
@@ -12,12 +14,34 @@ use std::path::Path;
 
 /// File magic: the first eight bytes of every `.svo` file.
 pub const MAGIC: [u8; 8] = *b"VOXRSVO\0";
-/// Current format version (3: masks level by level, links derived on load). Versions 1
-/// (descriptors, snorm16 normals, no specular lobe) and 2 (descriptors) are still read and
-/// converted.
-pub const VERSION: u32 = 3;
-/// Header length in bytes.
+/// Current format version (4: masks level by level, links derived on load, 12-byte
+/// attributes with RGB emission, the emissive triangles). Versions 1 (descriptors, snorm16
+/// normals, no specular lobe), 2 (descriptors) and 3 (8-byte attributes, emission a multiple
+/// of the albedo) are still read and converted.
+pub const VERSION: u32 = 4;
+/// Header length in bytes of versions 1–3; version 4 adds the emitter count ([`HEADER_LEN_4`]).
 pub const HEADER_LEN: usize = 56;
+/// Header length in bytes of version 4.
+pub const HEADER_LEN_4: usize = 64;
+/// Bytes per emissive triangle in a version 4 file (nine corner and three radiance f32).
+pub const EMITTER_BYTES: usize = 48;
+
+/// Header length of a version.
+fn header_len(version: u32) -> usize {
+    if version >= 4 {
+        HEADER_LEN_4
+    } else {
+        HEADER_LEN
+    }
+}
+/// Bytes per attribute record of a version.
+fn attr_bytes(version: u32) -> u64 {
+    if version >= 4 {
+        12
+    } else {
+        8
+    }
+}
 
 /// Why an `.svo` file could not be read or written.
 #[derive(Debug, thiserror::Error)]
@@ -68,7 +92,8 @@ pub enum SvoFileError {
 /// Serializes an SVO to bytes.
 pub fn to_bytes(svo: &Svo) -> Vec<u8> {
     let masks = svo.masks.len().next_multiple_of(4);
-    let mut b = Vec::with_capacity(HEADER_LEN + masks + 8 * svo.attrs.len() + 4);
+    let mut b =
+        Vec::with_capacity(HEADER_LEN_4 + masks + 12 * svo.attrs.len() + EMITTER_BYTES * svo.emitters.len() + 4);
     b.extend_from_slice(&MAGIC);
     b.extend_from_slice(&VERSION.to_le_bytes());
     b.extend_from_slice(&svo.depth.to_le_bytes());
@@ -78,12 +103,21 @@ pub fn to_bytes(svo: &Svo) -> Vec<u8> {
     b.extend_from_slice(&svo.voxel_count.to_le_bytes());
     b.extend_from_slice(&(svo.masks.len() as u64).to_le_bytes());
     b.extend_from_slice(&(svo.attrs.len() as u64).to_le_bytes());
-    debug_assert_eq!(b.len(), HEADER_LEN);
+    b.extend_from_slice(&(svo.emitters.len() as u64).to_le_bytes());
+    debug_assert_eq!(b.len(), HEADER_LEN_4);
     b.extend_from_slice(&svo.masks);
-    b.resize(HEADER_LEN + masks, 0);
+    b.resize(HEADER_LEN_4 + masks, 0);
     for a in &svo.attrs {
         b.extend_from_slice(&a.albedo.to_le_bytes());
         b.extend_from_slice(&a.normal.to_le_bytes());
+        b.extend_from_slice(&a.emission.to_le_bytes());
+    }
+    for e in &svo.emitters {
+        for v in e.vertices.iter().chain([&e.emission]) {
+            for c in v.to_array() {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
     }
     let crc = crc32(&b);
     b.extend_from_slice(&crc.to_le_bytes());
@@ -110,7 +144,7 @@ pub fn load(path: &Path) -> Result<Svo, SvoFileError> {
     let mut file = std::fs::File::open(path).map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
     let mut bytes = Vec::new();
-    (&mut file).take((HEADER_LEN + 4) as u64).read_to_end(&mut bytes).map_err(io)?;
+    (&mut file).take((HEADER_LEN_4 + 4) as u64).read_to_end(&mut bytes).map_err(io)?;
     // What the header says the whole file must be; a short or foreign file fails here.
     let expected = expected_length(&bytes, len)?;
     bytes.reserve_exact((expected - bytes.len() as u64) as usize);
@@ -131,14 +165,20 @@ fn expected_length(b: &[u8], actual: u64) -> Result<u64, SvoFileError> {
     if !(1..=VERSION).contains(&version) {
         return Err(SvoFileError::Version(version));
     }
+    let head = header_len(version);
+    if b.len() < head + 4 || actual < (head + 4) as u64 {
+        return Err(SvoFileError::Length { expected: (head + 4) as u64, actual });
+    }
     let (node_count, attr_count) = (u64_at(b, 40), u64_at(b, 48));
+    let emitter_count = if version >= 4 { u64_at(b, 56) } else { 0 };
     // Checked arithmetic: hostile counts must not overflow or trigger a huge allocation.
-    let node_bytes =
-        if version == VERSION { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
+    let node_bytes = if version >= 3 { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
     let expected = node_bytes
-        .zip(attr_count.checked_mul(8))
+        .zip(attr_count.checked_mul(attr_bytes(version)))
         .and_then(|(n, a)| n.checked_add(a))
-        .and_then(|n| n.checked_add(HEADER_LEN as u64 + 4));
+        .zip(emitter_count.checked_mul(EMITTER_BYTES as u64))
+        .and_then(|(n, e)| n.checked_add(e))
+        .and_then(|n| n.checked_add(head as u64 + 4));
     match expected {
         Some(e) if e == actual => Ok(e),
         _ => Err(SvoFileError::Length { expected: expected.unwrap_or(u64::MAX), actual }),
@@ -168,8 +208,9 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
     let version = u32_at(b, 8);
     let node_count = u64_at(b, 40);
     let attr_count = u64_at(b, 48);
-    let node_bytes =
-        if version == VERSION { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
+    let emitter_count = if version >= 4 { u64_at(b, 56) } else { 0 };
+    let head = header_len(version);
+    let node_bytes = if version >= 3 { node_count.checked_next_multiple_of(4) } else { node_count.checked_mul(8) };
     let body = b.len() - 4;
     let stored = u32_at(b, body);
     let computed = crc32(&b[..body]);
@@ -199,27 +240,53 @@ pub fn from_bytes(b: &[u8]) -> Result<Svo, SvoFileError> {
         return Err(SvoFileError::Header("no root node".into()));
     }
     let bounds = Cube { min, size };
-    let attrs_at = HEADER_LEN + node_bytes.unwrap_or(0) as usize;
+    let attrs_at = head + node_bytes.unwrap_or(0) as usize;
+    let stride = attr_bytes(version) as usize;
     let attrs: Vec<Attr> = (0..attr_count as usize)
         .map(|k| {
-            let (albedo, normal) = (u32_at(b, attrs_at + 8 * k), u32_at(b, attrs_at + 8 * k + 4));
-            if version == 1 {
-                Attr::from_version1(albedo, normal)
-            } else {
-                Attr { albedo, normal }
+            let at = attrs_at + stride * k;
+            let (albedo, normal) = (u32_at(b, at), u32_at(b, at + 4));
+            match version {
+                1 => Attr::from_version1(albedo, normal),
+                2 | 3 => Attr::from_version3(albedo, normal),
+                _ => Attr { albedo, normal, emission: u32_at(b, at + 8) },
             }
         })
         .collect();
+    if version >= 4 {
+        if let Some((k, _)) = attrs.iter().enumerate().find(|(_, a)| a.albedo >> 24 != 0) {
+            return Err(SvoFileError::Node { slot: k, reason: "attribute's reserved albedo byte is not zero".into() });
+        }
+    }
+    if emitter_count > MAX_EMITTERS as u64 {
+        return Err(SvoFileError::Header(format!("{emitter_count} emissive triangles; at most {MAX_EMITTERS}")));
+    }
+    let emitters_at = attrs_at + stride * attr_count as usize;
+    let mut emitters = Vec::with_capacity(emitter_count as usize);
+    for k in 0..emitter_count as usize {
+        let v = |j: usize| {
+            let at = emitters_at + EMITTER_BYTES * k + 12 * j;
+            Vec3::new(f32_at(b, at), f32_at(b, at + 4), f32_at(b, at + 8))
+        };
+        let e = Emitter { vertices: [v(0), v(1), v(2)], emission: v(3) };
+        let finite = e.vertices.iter().all(|p| p.is_finite()) && e.emission.is_finite();
+        if !finite || e.emission.min_element() < 0.0 || !(e.area() > 0.0) {
+            return Err(SvoFileError::Header(format!(
+                "emissive triangle {k} is degenerate or has a negative or non-finite value"
+            )));
+        }
+        emitters.push(e);
+    }
     if version < 3 {
         let nodes = (0..node_count as usize)
             .map(|k| legacy::Node(u32_at(b, HEADER_LEN + 8 * k), u32_at(b, HEADER_LEN + 8 * k + 4)));
         return legacy::convert(bounds, depth, &nodes.collect::<Vec<_>>(), &attrs, voxel_count);
     }
-    let masks = b[HEADER_LEN..HEADER_LEN + node_count as usize].to_vec();
-    if b[HEADER_LEN + node_count as usize..attrs_at].iter().any(|&p| p != 0) {
+    let masks = b[head..head + node_count as usize].to_vec();
+    if b[head + node_count as usize..attrs_at].iter().any(|&p| p != 0) {
         return Err(SvoFileError::Header("padding after the masks is not zero".into()));
     }
-    from_masks(bounds, depth, masks, attrs, voxel_count)
+    Ok(Svo { emitters, ..from_masks(bounds, depth, masks, attrs, voxel_count)? })
 }
 
 /// Assembles an SVO from its masks (node order) and attributes, deriving the links and level
@@ -277,7 +344,7 @@ pub fn from_masks(
             n + voxel_count
         )));
     }
-    Ok(Svo { bounds, depth, masks, links, level_start, attrs, voxel_count })
+    Ok(Svo { bounds, depth, masks, links, level_start, attrs, voxel_count, emitters: Vec::new() })
 }
 
 /// Checks an in-memory SVO: its links and level starts must be the ones its masks imply

@@ -58,6 +58,7 @@ mod tests {
                 level_start: vec![0],
                 attrs: vec![crate::svo::Attr::default()],
                 voxel_count: 0,
+                emitters: Vec::new(),
             })
         };
         let a = svo();

@@ -1,5 +1,5 @@
 // Decoding the packed attributes (voxray::svo::Attr): octahedral normals, sRGB albedo, the
-// emission scale and the specular lobe. Shared by the tracer and the GI passes. Each function
+// RGB9E5 emission and the specular lobe. Shared by the tracer and the GI passes. Each function
 // is named after its Rust twin (a method of Attr becomes a function of the packed word).
 
 // svo::format::decode_octahedral (Attr::normal).
@@ -28,9 +28,16 @@ fn albedo_linear(a: u32) -> vec3<f32> {
     return vec3<f32>(srgb8_to_linear(a & 0xFFu), srgb8_to_linear((a >> 8u) & 0xFFu), srgb8_to_linear((a >> 16u) & 0xFFu));
 }
 
-// Attr::emission: emitted radiance = albedo * E / 16.
-fn emission(a: u32) -> vec3<f32> {
-    return albedo_linear(a) * (f32(a >> 24u) / 16.0);
+// svo::format::decode_rgb9e5 (Attr::emission): three 9-bit mantissas times 2^(E - 24),
+// exact in f32 on both sides.
+fn decode_rgb9e5(v: u32) -> vec3<f32> {
+    let scale = bitcast<f32>((((v >> 27u) + 103u) & 0xFFu) << 23u);
+    return vec3<f32>(f32(v & 511u), f32((v >> 9u) & 511u), f32((v >> 18u) & 511u)) * scale;
+}
+
+// Attr::emission.
+fn emission(emission_word: u32) -> vec3<f32> {
+    return decode_rgb9e5(emission_word);
 }
 
 // Attr::specular: reflectance (S/15)^2 from the normal word's bits 24-27.

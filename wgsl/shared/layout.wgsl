@@ -3,11 +3,13 @@
 
 // Mirrors voxray::svo::Attr: attributes of one node or voxel.
 struct Attr {
-    // R, G, B sRGB-encoded albedo, then E: emitted radiance = albedo * E / 16.
+    // R, G, B sRGB-encoded albedo; the top byte is zero.
     albedo: u32,
     // Octahedral unit normal, x in bits 0-11, y in bits 12-23 (12-bit signed, /2047), then
     // the specular reflectance (S/15)^2 in bits 24-27 and the glossiness G/15 in bits 28-31.
     normal: u32,
+    // Emitted radiance, RGB9E5 (svo::format::encode_rgb9e5).
+    emission: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuPart: where one part's SVO lives in the pools.
@@ -87,6 +89,8 @@ struct Hit {
     reused: u32,
     // Normal word of the voxel's attributes (Attr::normal: the top byte is the specular lobe).
     material: u32,
+    // Emission word of the voxel's attributes (Attr::emission, RGB9E5).
+    emission: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuSphere: a moved instance's old or new sphere and the
@@ -123,7 +127,7 @@ struct CacheVoxel {
     coord: u32,
     albedo: u32,
     normal: u32,
-    gloss: f32,
+    emission: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuGiJob: one instance's cache moved into the GI volume.

@@ -54,8 +54,9 @@ pub(crate) enum Cmd {
     Demo(DemoArgs),
     /// Regenerate a built-in model's files.
     Model {
-        /// Which model: `car` (the default car) or `box` (the coloured-wall box of the GI tests).
-        #[arg(value_parser = ["car", "box"])]
+        /// Which model: `car` (the default car), `box` (the coloured-wall box of the GI tests)
+        /// or `panel-room` (a closed room lit only by an emissive ceiling panel).
+        #[arg(value_parser = ["car", "box", "panel-room"])]
         name: String,
         /// Output folder (default: models/NAME).
         #[arg(long)]

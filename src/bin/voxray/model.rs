@@ -5,7 +5,11 @@ use super::*;
 pub(crate) fn model_cmd(model: &str, out_dir: Option<&Path>) -> Result<(), Error> {
     let out_dir = out_dir.map_or_else(|| Path::new("models").join(model), Path::to_path_buf);
     std::fs::create_dir_all(&out_dir).map_err(|source| Error::Io { path: out_dir.display().to_string(), source })?;
-    let files = if model == "box" { voxray::model::room::files() } else { voxray::model::car::files() };
+    let files = match model {
+        "box" => voxray::model::room::files(),
+        "panel-room" => voxray::model::panel_room::files(),
+        _ => voxray::model::car::files(),
+    };
     for (name, text) in files {
         let p = out_dir.join(&name);
         std::fs::write(&p, text).map_err(|source| Error::Io { path: p.display().to_string(), source })?;
