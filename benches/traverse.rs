@@ -40,7 +40,12 @@ fn car_primary_rays(c: &mut Criterion) {
     }
     let camera = Camera::framing(lo, hi, 1280, 768);
     // Primary rays only: no sun (so no shadow rays), ambient shading.
-    let lights = Lights { sun: None, ambient: Some(Ambient { radiance: glam::Vec3::ONE }), use_mtl_emitters: false };
+    let lights = Lights {
+        sun: None,
+        ambient: Some(Ambient { radiance: glam::Vec3::ONE }),
+        use_mtl_emitters: false,
+        ..Lights::default()
+    };
     let plan = FramePlan::new(&scene, &camera, &lights, &Features { shadows: false, ..Features::NONE }, None);
 
     // The car merged into one part, as the peers scenario traces it.
