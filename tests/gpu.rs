@@ -457,3 +457,32 @@ fn gpu_counters_equal_the_counts_of_the_read_back_records() {
     }
     assert!(moved_only > 0, "the clip has moved-only pixels");
 }
+
+/// The emissive-panel room lit by its panel alone: the GPU samples the same points on the
+/// emitters (same table, same random numbers) with the same shadow rays as the CPU, so the
+/// soft-shadowed image agrees up to f32 rounding.
+#[test]
+fn emitters_light_the_panel_room_as_on_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let mesh = voxray::model::panel_room::mesh();
+    let parts = build_parts(&mesh, Resolution::Depth(7)).unwrap();
+    let mut scene = Scene::new(parts);
+    for part in 0..scene.parts.len() {
+        scene.add(voxray::scene::Instance { part, parent: None, local: voxray::scene::Transform::IDENTITY }).unwrap();
+    }
+    scene.update().unwrap();
+    let cam = voxray::model::panel_room::camera(96, 72);
+    let lights = voxray::model::panel_room::lights();
+    let features = Features { beams: false, ..Features::default() };
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
+    assert!(plan.shadows);
+    let c = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let mut gpu = GpuRenderer::new(ctx);
+    gpu.set_counting(true);
+    let g = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    let lit = c.radiance.iter().filter(|r| r.max_element() > 0.05).count();
+    assert!(lit > c.radiance.len() / 2, "the panel should light most of the room ({lit} pixels)");
+    assert_close(&c, &g, "panel room");
+    let rays = (c.shadow_rays as f64, g.shadow_rays as f64);
+    assert!((rays.0 - rays.1).abs() <= 0.002 * rays.0 + 16.0, "shadow rays: CPU {} GPU {}", rays.0, rays.1);
+}

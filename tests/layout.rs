@@ -115,6 +115,21 @@ fn wgsl_structs_match_rust() {
                 ("bvh_nodes", offset_of!(GpuFrame, bvh_nodes)),
                 ("count", offset_of!(GpuFrame, count)),
                 ("pad1", offset_of!(GpuFrame, pad1)),
+                ("emitters", offset_of!(GpuFrame, emitters)),
+                ("emitter_samples", offset_of!(GpuFrame, emitter_samples)),
+                ("pad2", offset_of!(GpuFrame, pad2)),
+                ("pad3", offset_of!(GpuFrame, pad3)),
+            ],
+        ),
+        (
+            "Emitter",
+            size_of::<GpuEmitter>(),
+            vec![
+                ("a", offset_of!(GpuEmitter, a)),
+                ("e1", offset_of!(GpuEmitter, e1)),
+                ("e2", offset_of!(GpuEmitter, e2)),
+                ("normal", offset_of!(GpuEmitter, normal)),
+                ("emission", offset_of!(GpuEmitter, emission)),
             ],
         ),
         (

@@ -104,12 +104,20 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let cell = gi.min_cell.w;
             // One cell off the surface so the cell's own voxels do not shadow it.
             let start = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * cell + nn * cell;
-            if !occluded(start, frame.sun_dir.xyz) {
+            if !occluded(start, frame.sun_dir.xyz, BIG) {
                 radiance += albedo * frame.sun_irradiance.xyz * (cosv / 3.14159265);
             }
         }
     }
-    if frame.sky.w > 0.0 {
+    if frame.emitters > 0u && frame.emitter_samples > 0u && dot(n, n) > 1e-6 {
+        // gi::inject::inject_cells: the emitters sampled from the cell, keyed by its place in
+        // the grid (gi::inject::cell_key).
+        let nn = normalize(n);
+        let cell = gi.min_cell.w;
+        let c = gi_cell_coord(i);
+        let at = gi.min_cell.xyz + (vec3<f32>(c) + 0.5) * cell;
+        radiance += emitter_light(c.x + gi.res * (c.y + gi.res * c.z), at, at + nn * cell, nn, -nn, albedo, 0u);
+    } else if frame.sky.w > 0.0 && frame.emitter_samples == 0u {
         let e = vec3<f32>(f32(gi_accum[base + 7u]), f32(gi_accum[base + 8u]), f32(gi_accum[base + 9u]));
         radiance += e / (EMIT_FIX * occ);
     }

@@ -23,6 +23,8 @@ override SHADOWS: bool = true;
 @group(0) @binding(B_ATTRS_HI) var<storage, read> attrs_hi: array<Attr>;
 // The frame's statistics (GpuStats), added up when frame.count is 1.
 @group(0) @binding(B_STATS) var<storage, read_write> stats: array<atomic<u32>>;
+// The frame's emissive triangles (render::emitters), frame.emitters rows.
+@group(0) @binding(B_EMITTERS) var<storage, read> emitters: array<Emitter>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;
@@ -248,14 +250,14 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
 }
 
 // visibility::occluded: any hit ends the search.
-fn occluded(o: vec3<f32>, d: vec3<f32>) -> bool {
+fn occluded(o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
     // With the instance BVH: walk it (any order will do for an any-hit query). A full stack
     // falls through to the sphere loop below, which gives the same answer.
     if SEARCH == 3u && frame.bvh_nodes > 0u {
         var stack: array<u32, 64>;
         var sp = 0u;
         var overflow = false;
-        if box_entry(bvh[0].lo.xyz, bvh[0].hi.xyz, o, d, BIG) < BIG {
+        if box_entry(bvh[0].lo.xyz, bvh[0].hi.xyz, o, d, t_max) < BIG {
             stack[0] = 0u;
             sp = 1u;
         }
@@ -268,13 +270,13 @@ fn occluded(o: vec3<f32>, d: vec3<f32>) -> bool {
                 for (var k = first; k < first + count; k++) {
                     let i = bvh_items[k];
                     let s = inst_sphere(i, o, d);
-                    if s.x <= s.y && trace_one(i, o, d, BIG).hit {
+                    if s.x <= s.y && s.x <= t_max && trace_one(i, o, d, t_max).hit {
                         return true;
                     }
                 }
             } else {
                 for (var c = first; c < first + 2u; c++) {
-                    if box_entry(bvh[c].lo.xyz, bvh[c].hi.xyz, o, d, BIG) < BIG {
+                    if box_entry(bvh[c].lo.xyz, bvh[c].hi.xyz, o, d, t_max) < BIG {
                         if sp == 64u {
                             overflow = true;
                         } else {
@@ -292,11 +294,11 @@ fn occluded(o: vec3<f32>, d: vec3<f32>) -> bool {
     for (var i = 0u; i < frame.instances; i++) {
         if SEARCH != 0u {
             let s = inst_sphere(i, o, d);
-            if s.x > s.y {
+            if s.x > s.y || s.x > t_max {
                 continue;
             }
         }
-        if trace_one(i, o, d, BIG).hit {
+        if trace_one(i, o, d, t_max).hit {
             return true;
         }
     }
@@ -473,8 +475,104 @@ fn sun_response(albedo: vec3<f32>, h: Hit, x: u32, y: u32) -> vec3<f32> {
     return f;
 }
 
-// The light a hit receives besides the ambient term: the sun (with its shadow ray) and the
-// hit's own emission.
+// render::emitters::pcg_hash.
+fn pcg_hash(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// render::emitters::light_random.
+fn light_random(key: u32, sample: u32) -> vec3<f32> {
+    var h = pcg_hash(key ^ pcg_hash(sample + 0x51ED270Bu));
+    var u = vec3<f32>(0.0);
+    for (var k = 0u; k < 3u; k++) {
+        h = pcg_hash(h);
+        u[k] = f32(h >> 8u) / 16777216.0;
+    }
+    return u;
+}
+
+// brdf::sun_response for light arriving from unit direction l, the lobe from the normal
+// word `material` (0: diffuse only).
+fn light_response(albedo: vec3<f32>, material: u32, n: vec3<f32>, d: vec3<f32>, l: vec3<f32>) -> vec3<f32> {
+    let cosv = dot(n, l);
+    if cosv <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    var f = albedo * (cosv / 3.14159265);
+    let ks = specular(material);
+    if ks > 0.0 {
+        let e = shininess_of(material);
+        let cos_a = min(dot(reflect(d, n), l), 1.0);
+        if cos_a > 0.0 {
+            f += vec3<f32>(ks * (e + 2.0) / 6.28318530718 * pow(cos_a, e) * cosv);
+        }
+    }
+    return f;
+}
+
+// render::emitters::emitter_light: the emitters' light reflected towards the viewer at `at`
+// (camera-relative), from frame.emitter_samples points picked by power and area, each with a
+// shadow ray from `start` that ends short of the emitter's own voxels.
+fn emitter_light(key: u32, at: vec3<f32>, start: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
+    let count = frame.emitters;
+    let samples = frame.emitter_samples;
+    if count == 0u || samples == 0u {
+        return vec3<f32>(0.0);
+    }
+    var sum = vec3<f32>(0.0);
+    for (var s = 0u; s < samples; s++) {
+        let u = light_random(key, s);
+        // The first row whose cumulative fraction exceeds u.x (EmitterTable::sample).
+        var lo = 0u;
+        var hi = count;
+        while lo < hi {
+            let mid = (lo + hi) / 2u;
+            if emitters[mid].e2.w <= u.x {
+                lo = mid + 1u;
+            } else {
+                hi = mid;
+            }
+        }
+        let e = emitters[min(lo, count - 1u)];
+        let su = sqrt(u.y);
+        let p = e.a.xyz + e.e1.xyz * (su * (1.0 - u.z)) + e.e2.xyz * (su * u.z);
+        let to = p - at;
+        let dist2 = dot(to, to);
+        if !(dist2 > 0.0) {
+            continue;
+        }
+        let wi = to / sqrt(dist2);
+        let cos_light = -dot(e.normal.xyz, wi);
+        if cos_light <= 0.0 || dot(n, wi) <= 0.0 {
+            continue;
+        }
+        let response = light_response(albedo, material, n, d, wi);
+        if all(response == vec3<f32>(0.0)) {
+            continue;
+        }
+        let ray = p + e.normal.xyz * e.a.w - start;
+        let len = length(ray);
+        if !(len > 0.0) {
+            continue;
+        }
+        if SHADOWS {
+            if frame.count != 0u {
+                atomicAdd(&stats[STAT_SHADOW_RAYS], 1u);
+            }
+            if occluded(start, ray / len, len) {
+                continue;
+            }
+        }
+        let pdf_area = e.normal.w / e.e1.w;
+        sum += response * e.emission.xyz * (cos_light / (dist2 * pdf_area));
+    }
+    return sum / f32(samples);
+}
+
+// The light a hit receives besides the ambient term: the sun (with its shadow ray), the
+// emitters' light (emitter_light) and the hit's own emission.
 fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
     var c = vec3<f32>(0.0);
     let n = vec3<f32>(h.nx, h.ny, h.nz);
@@ -488,12 +586,18 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
                 }
                 let d = ray_dir(x, y);
                 let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
-                visible = !occluded(start, frame.sun_dir.xyz);
+                visible = !occluded(start, frame.sun_dir.xyz, BIG);
             }
             if visible {
                 c += sun_response(albedo, h, x, y) * frame.sun_irradiance.xyz;
             }
         }
+    }
+    if frame.emitter_samples > 0u {
+        let d = ray_dir(x, y);
+        let at = d * h.t;
+        let start = at + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
+        c += emitter_light(y * frame.width + x, at, start, n, d, albedo, h.material);
     }
     if frame.sky.w > 0.0 {
         c += emission(h.emission);

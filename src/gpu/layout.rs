@@ -87,6 +87,31 @@ pub struct GpuFrame {
     pub count: u32,
     /// Padding.
     pub pad1: u32,
+    /// Rows of the emitter buffer ([`GpuEmitter`]).
+    pub emitters: u32,
+    /// Light samples per shaded point on the emitters ([`crate::scene::Lights::emitter_sampling`]).
+    pub emitter_samples: u32,
+    /// Padding.
+    pub pad2: u32,
+    /// Padding.
+    pub pad3: u32,
+}
+
+/// One emissive triangle of the frame, camera-relative ([`crate::render::emitters::WorldEmitter`]
+/// with its place in the power distribution). WGSL: `Emitter`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuEmitter {
+    /// First corner; w: how far short of a sample its shadow rays end.
+    pub a: [f32; 4],
+    /// Second corner minus the first; w: area.
+    pub e1: [f32; 4],
+    /// Third corner minus the first; w: cumulative power fraction up to this row.
+    pub e2: [f32; 4],
+    /// Unit normal of the lit side; w: probability of picking this row.
+    pub normal: [f32; 4],
+    /// Emitted radiance; w unused.
+    pub emission: [f32; 4],
 }
 
 /// The frame's statistics as the trace and shade passes add them up (atomics), when

@@ -31,6 +31,8 @@ pub mod binding {
     pub const ATTRS_HI: u32 = 11;
     /// Tracer group 0: `stats`.
     pub const STATS: u32 = 12;
+    /// Tracer group 0: `emitters`.
+    pub const EMITTERS: u32 = 13;
     /// Tracer group 1 (GI): `gi_accum`.
     pub const GI_ACCUM: u32 = 0;
     /// Tracer group 1 (GI): `gi_levels`.
@@ -50,7 +52,7 @@ pub mod binding {
     /// Tracer group 1 (GI): `gi_sampler`.
     pub const GI_SAMPLER: u32 = 8;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 22] = [
+    pub const ALL: [(&str, u32); 23] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -64,6 +66,7 @@ pub mod binding {
         ("B_NODES_HI", NODES_HI),
         ("B_ATTRS_HI", ATTRS_HI),
         ("B_STATS", STATS),
+        ("B_EMITTERS", EMITTERS),
         ("B_GI_ACCUM", GI_ACCUM),
         ("B_GI_LEVELS", GI_LEVELS),
         ("B_GI_FRAME", GI_FRAME),

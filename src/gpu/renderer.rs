@@ -93,6 +93,7 @@ struct FrameBuffers {
     bvh: Option<wgpu::Buffer>,
     items: Option<wgpu::Buffer>,
     moved: Option<wgpu::Buffer>,
+    emitters: Option<wgpu::Buffer>,
     radiance: Option<wgpu::Buffer>,
     hits_read: Option<wgpu::Buffer>,
     radiance_read: Option<wgpu::Buffer>,
@@ -241,6 +242,7 @@ impl GpuRenderer {
                 (b::NODES_HI, true),
                 (b::ATTRS_HI, true),
                 (b::STATS, false),
+                (b::EMITTERS, true),
             ]
             .iter()
             .map(|&(b, r)| storage(b, r)),
@@ -586,6 +588,8 @@ impl GpuRenderer {
                 .collect()
         });
         let items: Vec<u32> = bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
+        let emitter_samples = lights.emitter_sampling();
+        let emitters = if emitter_samples > 0 { gpu_emitters(scene, camera.eye) } else { Vec::new() };
         let basis = camera.basis();
         let counting = self.counting;
         let frame = GpuFrame {
@@ -606,6 +610,10 @@ impl GpuRenderer {
             bvh_nodes: bvh_nodes.len() as u32,
             count: counting as u32,
             pad1: 0,
+            emitters: emitters.len() as u32,
+            emitter_samples,
+            pad2: 0,
+            pad3: 0,
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
         if !self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
@@ -657,7 +665,7 @@ impl GpuRenderer {
         }
         let kept = &mut self.kept;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 5] = [
+        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 6] = [
             (&mut kept.insts, "instances", bytemuck::cast_slice(&nonempty(&insts)).to_vec(), storage),
             (
                 &mut kept.frame,
@@ -668,6 +676,7 @@ impl GpuRenderer {
             (&mut kept.bvh, "bvh", bytemuck::cast_slice(&nonempty(&bvh_nodes)).to_vec(), storage),
             (&mut kept.items, "bvh items", bytemuck::cast_slice(&nonempty(&items)).to_vec(), storage),
             (&mut kept.moved, "moved", bytemuck::cast_slice(&nonempty(&moved)).to_vec(), storage),
+            (&mut kept.emitters, "emitters", bytemuck::cast_slice(&nonempty(&emitters)).to_vec(), storage),
         ];
         let mut replaced = false;
         for (slot, label, bytes, usage) in inputs {
@@ -705,6 +714,7 @@ impl GpuRenderer {
             kept.radiance.as_ref().ok_or_else(missing)?,
         );
         let stats_buf = kept.stats.as_ref().ok_or_else(missing)?;
+        let emitter_buf = kept.emitters.as_ref().ok_or_else(missing)?;
         let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
         let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
         use super::prelude::binding as b;
@@ -726,6 +736,7 @@ impl GpuRenderer {
                     wgpu::BindGroupEntry { binding: b::NODES_HI, resource: pools.nodes_hi.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::ATTRS_HI, resource: pools.attrs_hi.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::STATS, resource: stats_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::EMITTERS, resource: emitter_buf.as_entire_binding() },
                 ],
             })
         });
@@ -743,6 +754,7 @@ impl GpuRenderer {
             moved_buf,
             radiance_buf,
             stats_buf,
+            emitter_buf,
         ]
         .iter()
         .map(|b| b.size())
@@ -907,9 +919,14 @@ impl GpuRenderer {
                 }
             })
             .collect();
-        let shadow_rays = match lights.sun.filter(|_| plan.shadows) {
-            Some(sun) => records.iter().filter(|r| r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0).count() as u64,
-            None => 0,
+        // Counted by the passes when counting is on; otherwise the sun's (one per pixel facing
+        // it), which leaves out the emitters' rays.
+        let shadow_rays = match (self.stats, lights.sun.filter(|_| plan.shadows)) {
+            (Some(st), _) => st.shadow_rays as u64,
+            (None, Some(sun)) => {
+                records.iter().filter(|r| r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0).count() as u64
+            }
+            (None, None) => 0,
         };
         let f = Frame {
             width: w,
@@ -942,6 +959,28 @@ impl GpuRenderer {
         self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
         Ok(f)
     }
+}
+
+/// The frame's emitter rows ([`crate::render::emitters::EmitterTable`] made for the eye).
+fn gpu_emitters(scene: &Scene, eye: glam::DVec3) -> Vec<GpuEmitter> {
+    let table = crate::render::emitters::EmitterTable::new(scene, eye);
+    let mut before = 0.0;
+    table
+        .emitters
+        .iter()
+        .zip(&table.cdf)
+        .map(|(e, &c)| {
+            let p = c - before;
+            before = c;
+            GpuEmitter {
+                a: f4(e.a, e.margin),
+                e1: f4(e.e1, e.area),
+                e2: f4(e.e2, c),
+                normal: f4(e.normal, p),
+                emission: [e.emission.x, e.emission.y, e.emission.z, 0.0],
+            }
+        })
+        .collect()
 }
 
 fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {

@@ -62,6 +62,23 @@ struct Frame {
     // 1: the passes add up the frame's statistics in `stats`.
     count: u32,
     pad1: u32,
+    // Rows of `emitters`, and light samples per shaded point on them.
+    emitters: u32,
+    emitter_samples: u32,
+    pad2: u32,
+    pad3: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuEmitter: one emissive triangle, camera-relative.
+struct Emitter {
+    // First corner; w: how far short of a sample shadow rays end.
+    a: vec4<f32>,
+    // Edges from the first corner; e1.w: area, e2.w: cumulative power fraction.
+    e1: vec4<f32>,
+    e2: vec4<f32>,
+    // Unit normal of the lit side; w: probability of picking this row.
+    normal: vec4<f32>,
+    emission: vec4<f32>,
 }
 
 // Mirrors voxray::gpu::layout::GpuBvhNode: lo.w / hi.w hold first / count as bits.
