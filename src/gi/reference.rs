@@ -2,18 +2,21 @@
 //! and lights as the renderer (DESIGN.md's units), the renderer's two-sided surface model
 //! ([`crate::render::brdf`]: Lambertian plus an optional Phong lobe), the sun by next-event
 //! estimation with a shadow ray at every vertex, the uniform sky when a path escapes, MTL
-//! emitters when a path hits them. Unbiased: each bounce samples the surface model (lobe by
+//! emitters by next-event estimation too when they are sampled as lights (one point on them
+//! per vertex, drawn as [`crate::render::emitters`] does; a path that then hits an emitter
+//! does not count its glow again), else when a path hits them. Unbiased: each bounce samples the surface model (lobe by
 //! reflectance, then cosine- or lobe-weighted) and, when the bounce count is unlimited,
 //! Russian roulette ends paths. Progressive: each [`PathTracer::pass`]
 //! adds one sample per pixel and [`PathTracer::frame`] is the estimate so far.
 //!
 //! Primary rays go through pixel centres, exactly as the renderer's, so the reference and a
-//! GI frame share every primary hit and differ only in the light they gather; the direct
-//! light at the primary hit is deterministic and computed once.
+//! GI frame share every primary hit and differ only in the light they gather; the sun's and
+//! the glow's light at the primary hit is deterministic and computed once.
 
 use crate::render::brdf;
 use crate::render::bvh::Bvh;
 use crate::render::cpu::{hit_record, leave, par_map};
+use crate::render::emitters::{emitter_light, EmitterTable};
 use crate::render::hitbuffer::HitRecord;
 use crate::render::instances::{prepare, Prepared};
 use crate::render::visibility::{nearest, occluded, FrameInstances, Search};
@@ -83,6 +86,8 @@ pub struct PathTracer<'a> {
     search: Search,
     /// Primary hits, one per pixel.
     records: Vec<HitRecord>,
+    /// The emitters as lights (empty when they are not sampled).
+    emitters: EmitterTable,
     /// Camera-relative primary hit points.
     points: Vec<DVec3>,
     /// Deterministic part of each pixel: emission and sun at the primary hit, or the sky.
@@ -114,6 +119,11 @@ impl<'a> PathTracer<'a> {
             bvh,
             search,
             records: Vec::new(),
+            emitters: if lights.emitter_sampling() > 0 {
+                EmitterTable::new(scene, camera.eye)
+            } else {
+                EmitterTable::default()
+            },
             points: Vec::new(),
             direct: Vec::new(),
             sum: Vec::new(),
@@ -133,7 +143,7 @@ impl<'a> PathTracer<'a> {
                 Some(h) => {
                     let r = hit_record(scene, &pt.prepared, &h, d);
                     let at = d * r.t as f64;
-                    let (light, rays) = pt.surface_light(&fi, &r, at, d);
+                    let (light, rays) = pt.surface_light(&fi, &r, at, d, true);
                     (r, at, light, 1 + rays)
                 }
             }
@@ -152,9 +162,12 @@ impl<'a> PathTracer<'a> {
 
     /// Light leaving a surface towards the viewer (looking along `d`) that does not depend on
     /// other surfaces: its emission and the sun (when visible). Returns it and the shadow rays
-    /// traced.
-    fn surface_light(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3, d: DVec3) -> (Vec3, u64) {
-        let mut out = if self.lights.use_mtl_emitters { r.attr.emission() } else { Vec3::ZERO };
+    /// traced. When the emitters are sampled as lights ([`Self::emitter_sample`]), a path
+    /// that reaches one after a bounce must not count its glow again: only the eye's own hit
+    /// (`seen_by_eye`) shows it.
+    fn surface_light(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3, d: DVec3, seen_by_eye: bool) -> (Vec3, u64) {
+        let glow = self.lights.use_mtl_emitters && (seen_by_eye || self.emitters.is_empty());
+        let mut out = if glow { r.attr.emission() } else { Vec3::ZERO };
         let mut rays = 0;
         if let Some(sun) = self.lights.sun {
             if r.normal.dot(sun.to_sun) > 0.0 {
@@ -170,15 +183,43 @@ impl<'a> PathTracer<'a> {
         (out, rays)
     }
 
-    /// One estimate of the indirect light leaving primary hit `k` towards the eye (the surface
-    /// model sampled at every vertex), and the rays it traced.
+    /// One sample of the emitters' light reflected at hit `r` (at `at`, seen along `d`), with
+    /// fresh random numbers, and the shadow rays it traced.
+    fn emitter_sample(&self, fi: &FrameInstances, r: &HitRecord, at: DVec3, d: DVec3, rng: &mut Rng) -> (DVec3, u64) {
+        if self.emitters.is_empty() {
+            return (DVec3::ZERO, 0);
+        }
+        let mut rays = 0;
+        let shininess = brdf::shininess_of_gloss(r.attr.gloss());
+        let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
+        let light = emitter_light(
+            &self.emitters,
+            1,
+            rng.next_u64() as u32,
+            at,
+            leave(r, at),
+            r.normal,
+            d.as_vec3(),
+            albedo,
+            ks,
+            shininess,
+            &mut |o, dir, len| {
+                rays += 1;
+                !occluded(fi, o, dir, len, self.search)
+            },
+        );
+        (light.as_dvec3(), rays)
+    }
+
+    /// One estimate of the light leaving primary hit `k` towards the eye that depends on
+    /// other surfaces (the surface model sampled at every vertex, the emitters sampled at
+    /// every vertex, the primary one included), and the rays it traced.
     fn indirect(&self, fi: &FrameInstances, k: usize, rng: &mut Rng) -> (DVec3, u64) {
         let mut r = self.records[k];
         let mut at = self.points[k];
         let mut d = at.normalize();
         let mut beta = DVec3::ONE;
-        let mut light = DVec3::ZERO;
-        let mut rays = 0u64;
+        let (mut light, mut rays) = self.emitter_sample(fi, &r, at, d, rng);
         let mut bounce = 1u32;
         loop {
             if self.settings.bounces.is_some_and(|b| bounce > b) {
@@ -200,9 +241,10 @@ impl<'a> PathTracer<'a> {
             };
             r = hit_record(self.scene, &self.prepared, &h, d);
             at = from + d * r.t as f64;
-            let (l, shadow) = self.surface_light(fi, &r, at, d);
-            rays += shadow;
-            light += beta * l.as_dvec3();
+            let (l, shadow) = self.surface_light(fi, &r, at, d, false);
+            let (e, emitter_rays) = self.emitter_sample(fi, &r, at, d, rng);
+            rays += shadow + emitter_rays;
+            light += beta * (l.as_dvec3() + e);
             if self.settings.bounces.is_none() && bounce >= ROULETTE_AFTER {
                 let keep = beta.max_element().clamp(0.05, 0.95);
                 if rng.f64() >= keep {
