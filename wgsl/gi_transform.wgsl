@@ -17,7 +17,7 @@ fn splat_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let c = vec4<f32>(f32(v.coord & m), f32((v.coord >> 10u) & m), f32((v.coord >> 20u) & m), 1.0);
     let g = vec3<f32>(dot(job.grid_x, c), dot(job.grid_y, c), dot(job.grid_z, c));
     let albedo = albedo_linear(v.albedo);
-    let e = emission(v.emission);
+    let e = min(emission(v.emission), vec3<f32>(GI_MAX_EMISSION));
     let on = decode_octahedral(v.normal);
     var n = vec3<f32>(dot(job.normal_x.xyz, on), dot(job.normal_y.xyz, on), dot(job.normal_z.xyz, on));
     n = select(vec3<f32>(0.0), normalize(n), dot(n, n) > 0.0);

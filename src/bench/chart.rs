@@ -86,7 +86,7 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
     register_font();
     std::fs::create_dir_all(dir).map_err(|e| ChartError { path: dir.display().to_string(), msg: e.to_string() })?;
     let mut out = Vec::new();
-    let jobs: [(&str, &str, Drawer); 7] = [
+    let jobs: [(&str, &str, Drawer); 8] = [
         ("paper", "bench-paper.png", paper),
         ("instances", "bench-instances.png", instances),
         ("resolution", "bench-resolution.png", resolution),
@@ -94,6 +94,7 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
         ("peers", "bench-peers.png", peers),
         ("gi-scaling", "bench-gi-scaling.png", gi_scaling),
         ("gi-accuracy", "accuracy-gi.png", gi_accuracy),
+        ("gi-accuracy", "accuracy-gi-panel.png", gi_accuracy_panel),
     ];
     for (group, file, draw) in jobs {
         let rs: Vec<&Record> = records.iter().filter(|r| r.group == group).collect();
@@ -328,11 +329,27 @@ fn gi_scaling(rs: &[&Record], path: &Path) -> Res<()> {
 }
 
 /// Error against run time: one line per knob, each point labelled with its setting.
+/// Prefix of the accuracy records measured on the emissive-panel room.
+const PANEL: &str = "panel room: ";
+
 fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
-    let mut knobs: Vec<&str> = Vec::new();
-    for r in rs.iter().filter(|r| !r.name.starts_with("reference") && r.name != "no GI (flat sky term)") {
-        if !knobs.contains(&r.name.as_str()) {
-            knobs.push(&r.name);
+    let rs: Vec<&Record> = rs.iter().copied().filter(|r| !r.name.starts_with(PANEL)).collect();
+    accuracy_chart(&rs, "", path, "GI error against run time (box scene; bounces against the all-bounce reference)")
+}
+
+fn gi_accuracy_panel(rs: &[&Record], path: &Path) -> Res<()> {
+    let rs: Vec<&Record> = rs.iter().copied().filter(|r| r.name.starts_with(PANEL)).collect();
+    let title = "GI error against run time (emissive-panel room; light samples: whole frame)";
+    accuracy_chart(&rs, PANEL, path, title)
+}
+
+/// Every knob of the accuracy records `rs` (names after `prefix`) as a curve.
+fn accuracy_chart(rs: &[&Record], prefix: &str, path: &Path, title: &str) -> Res<()> {
+    let knob = |r: &Record| r.name.strip_prefix(prefix).unwrap_or(&r.name).to_string();
+    let mut knobs: Vec<String> = Vec::new();
+    for r in rs.iter().filter(|r| !knob(r).starts_with("reference") && knob(r) != "no GI (flat sky term)") {
+        if !knobs.contains(&knob(r)) {
+            knobs.push(knob(r));
         }
     }
     let series: Vec<Series> = knobs
@@ -340,19 +357,13 @@ fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
         .map(|k| {
             let p = rs
                 .iter()
-                .filter(|r| r.name == *k)
+                .filter(|r| knob(r) == *k)
                 .filter_map(|r| r.error.and_then(|e| e.flip).map(|f| (r.median_ms, f, format!(" {}", r.setting))))
                 .collect();
             (k.to_string(), p)
         })
         .collect();
-    lines(
-        path,
-        "GI error against run time (box scene; bounces against the all-bounce reference)",
-        ("GI time per frame (ms)", "mean FLIP vs path-traced reference"),
-        &series,
-        false,
-    )
+    lines(path, title, ("GI time per frame (ms)", "mean FLIP vs path-traced reference"), &series, false)
 }
 
 fn resolution(rs: &[&Record], path: &Path) -> Res<()> {

@@ -453,27 +453,107 @@ fn accuracy_record(
     }
 }
 
-/// Sweeps the GI knobs on the box against its one-bounce path-traced reference.
+/// The emissive-panel room as a scene ([`crate::model::panel_room`]), voxelized at `depth`.
+pub fn panel_room_scene(depth: u32) -> Result<Scene, crate::Error> {
+    scene_of(&crate::model::panel_room::mesh(), depth)
+}
+
+/// Sweeps the GI knobs against the one-bounce path-traced reference on the box (sun and sky
+/// through its skylight) and on the emissive-panel room (lit by its panel alone, rows named
+/// "panel room: …", with the light samples per pixel as one more knob).
 pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
-    let scene = room_scene(cfg.depth)?;
-    let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
-    let lights = crate::model::room::lights();
-    let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
+    let mut out = accuracy_on(
+        "",
+        &room_scene(cfg.depth)?,
+        &crate::model::room::camera(cfg.size.0, cfg.size.1),
+        &crate::model::room::lights(),
+        cfg,
+        progress,
+    )?;
+    let panel = panel_room_scene(cfg.depth)?;
+    let camera = crate::model::panel_room::camera(cfg.size.0, cfg.size.1);
+    let lights = crate::model::panel_room::lights();
+    out.extend(accuracy_on("panel room: ", &panel, &camera, &lights, cfg, progress)?);
+    // Light samples: the whole frame's time (they are drawn by the shading and injection).
+    let reference = one_bounce_reference(&panel, &camera, &lights, cfg)?.0;
+    let plan = FramePlan::new(&panel, &camera, &lights, &Features::default(), None);
+    for samples in [1u32, 4, 16] {
+        progress(&format!("gi-accuracy: panel room, {samples} light samples"));
+        let lights = crate::scene::Lights { emitter_samples: samples, ..lights };
+        let mut caches = GiCaches::new();
+        let mut times = Vec::new();
+        let mut last = None;
+        for k in 0..cfg.repeats.max(1) + 1 {
+            caches.forget_last_frame();
+            let t0 = Instant::now();
+            let (f, _) = render_with_gi(
+                &panel,
+                &camera,
+                &lights,
+                &plan,
+                &RenderOptions::default(),
+                None,
+                &GiSettings::default(),
+                &mut caches,
+                &|_, _| {},
+            )?;
+            if k > 0 {
+                times.push(t0.elapsed().as_secs_f64() * 1e3);
+            }
+            last = Some(f);
+        }
+        let frame = last.ok_or_else(|| crate::gi::GiError::Settings("no frame".into()))?;
+        let error = compare_to(&frame, &reference)?;
+        let mut rec = accuracy_record(
+            cfg,
+            panel.instances().len(),
+            "panel room: light samples (whole frame ms)",
+            format!("{samples}"),
+            samples as f64,
+            summarize(&times).0,
+            error,
+        );
+        rec.frames = cfg.repeats.max(1);
+        out.push(rec);
+    }
+    Ok(out)
+}
+
+/// The one-bounce path-traced reference of a scene, and its milliseconds.
+fn one_bounce_reference(
+    scene: &Scene,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    cfg: &AccuracyConfig,
+) -> Result<(Frame, f64), crate::Error> {
     let t0 = Instant::now();
-    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
-    let base_ms = t0.elapsed().as_secs_f64() * 1e3;
-    progress(&format!("gi-accuracy: reference, {} spp", cfg.spp));
-    let t0 = Instant::now();
-    let mut pt =
-        PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 })
-            .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+    let mut pt = PathTracer::new(scene, camera, lights, ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 })
+        .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
     pt.run(&mut |_, _| {});
-    let reference = pt.frame();
-    let ref_ms = t0.elapsed().as_secs_f64() * 1e3;
+    Ok((pt.frame(), t0.elapsed().as_secs_f64() * 1e3))
+}
+
+/// [`accuracy`] on one scene; `label` starts every record's name.
+fn accuracy_on(
+    label: &str,
+    scene: &Scene,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    cfg: &AccuracyConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
+    let (scene, camera, lights) = (scene, *camera, *lights);
+    let plan = FramePlan::new(scene, &camera, &lights, &Features::default(), None);
+    let t0 = Instant::now();
+    let base = render(scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let base_ms = t0.elapsed().as_secs_f64() * 1e3;
+    progress(&format!("gi-accuracy: {label}reference, {} spp", cfg.spp));
+    let (reference, ref_ms) = one_bounce_reference(scene, &camera, &lights, cfg)?;
     let mut out = Vec::new();
     let instances = scene.instances().len();
     let mut push = |name: &str, setting: String, x: f64, ms: f64, frame: &Frame| -> Result<(), crate::Error> {
-        out.push(accuracy_record(cfg, instances, name, setting, x, ms, compare_to(frame, &reference)?));
+        let name = format!("{label}{name}");
+        out.push(accuracy_record(cfg, instances, &name, setting, x, ms, compare_to(frame, &reference)?));
         Ok(())
     };
     push("no GI (flat sky term)", "renderer only".into(), 0.0, base_ms, &base)?;
@@ -481,17 +561,17 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     let default = GiSettings::default();
     for &res in &cfg.resolutions {
         progress(&format!("gi-accuracy: {res}³"));
-        let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &GiSettings { res, ..default }, cfg.repeats)?;
+        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { res, ..default }, cfg.repeats)?;
         push("volume resolution", format!("{res}³"), res as f64, ms, &f)?;
     }
     for &cones in &cfg.cones {
         progress(&format!("gi-accuracy: {cones} cones"));
         let s = GiSettings { cones: crate::gi::ConeSettings { diffuse_cones: cones, ..default.cones }, ..default };
-        let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &s, cfg.repeats)?;
+        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
         push("diffuse cones", format!("{cones}"), cones as f64, ms, &f)?;
     }
     for filter in [Filter::Nearest, Filter::Split] {
-        let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &GiSettings { filter, ..default }, cfg.repeats)?;
+        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { filter, ..default }, cfg.repeats)?;
         push("filter", format!("{filter:?}").to_lowercase(), if filter == Filter::Split { 1.0 } else { 0.0 }, ms, &f)?;
     }
     if !cfg.bounces.is_empty() {
@@ -500,20 +580,21 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
         progress(&format!("gi-accuracy: all-bounce reference, {} spp", cfg.spp));
         let t0 = Instant::now();
         let mut pt =
-            PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: None, seed: 2 })
+            PathTracer::new(scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: None, seed: 2 })
                 .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
         pt.run(&mut |_, _| {});
         let all = pt.frame();
         let all_ms = t0.elapsed().as_secs_f64() * 1e3;
         let setting = format!("{} spp, all bounces", cfg.spp);
         let error = compare_to(&all, &all)?;
-        out.push(accuracy_record(cfg, instances, "reference (all bounces)", setting, cfg.spp as f64, all_ms, error));
+        let name = format!("{label}reference (all bounces)");
+        out.push(accuracy_record(cfg, instances, &name, setting, cfg.spp as f64, all_ms, error));
         for &bounces in &cfg.bounces {
             progress(&format!("gi-accuracy: {bounces} bounces"));
-            let (ms, f) = gi_frame(&scene, &camera, &lights, &plan, &GiSettings { bounces, ..default }, cfg.repeats)?;
+            let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { bounces, ..default }, cfg.repeats)?;
             let error = compare_to(&f, &all)?;
-            let name = "bounces (vs all-bounce reference)";
-            out.push(accuracy_record(cfg, instances, name, format!("{bounces}"), bounces as f64, ms, error));
+            let name = format!("{label}bounces (vs all-bounce reference)");
+            out.push(accuracy_record(cfg, instances, &name, format!("{bounces}"), bounces as f64, ms, error));
         }
     }
     Ok(out)

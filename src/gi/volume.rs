@@ -8,6 +8,12 @@ use super::cache::VoxelCache;
 use crate::voxelize::VoxelGrid;
 use glam::{DAffine3, DMat3, DVec3, Vec3};
 
+/// Emitted radiance a voxel brings into the GI volume, per channel, at most. Emitters sampled
+/// as lights ([`crate::render::emitters`]) do not enter the volume at all; this bounds the
+/// glow of unsampled ones, which the GPU sums in 32-bit fixed point at 1/4096
+/// (`gpu::gi::EMIT_FIX`): 1024 leaves room for 512 voxels' full weight in one cell.
+pub const GI_MAX_EMISSION: f32 = 1024.0;
+
 /// Largest dense volume per side (512³ cells × 28 bytes = 3.5 GiB); finer coverage needs the
 /// sparse volume.
 pub const MAX_DENSE_RES: u32 = 512;
@@ -187,7 +193,7 @@ pub fn for_each_target(
         let moved = MovedVoxel {
             albedo: attr.albedo_linear(),
             normal: (normal_m * attr.normal().as_dvec3()).normalize_or_zero().as_vec3(),
-            emission: attr.emission(),
+            emission: attr.emission().min(Vec3::splat(GI_MAX_EMISSION)),
         };
         match filter {
             Filter::Nearest => {
@@ -293,7 +299,7 @@ impl Volume {
             self.occupancy[i] += 1.0;
             self.albedo[i] += v.albedo;
             self.normal[i] += n;
-            self.emission[i] += v.emission;
+            self.emission[i] += v.emission.min(Vec3::splat(GI_MAX_EMISSION));
         }
         Ok(())
     }

@@ -149,7 +149,9 @@ impl GpuVolumePasses {
             for t in &p.triangles {
                 let m = mesh.materials.get(t.material as usize);
                 let a = m.map_or(glam::Vec3::splat(0.7), |m| m.albedo);
-                let e = m.map_or(glam::Vec3::ZERO, |m| m.emission);
+                let e = m
+                    .map_or(glam::Vec3::ZERO, |m| m.emission)
+                    .min(glam::Vec3::splat(crate::gi::volume::GI_MAX_EMISSION));
                 let v = |k: usize, w: f32| [t.positions[k].x, t.positions[k].y, t.positions[k].z, w];
                 tris.push(GpuGiTri { a: v(0, a.x), b: v(1, a.y), c: v(2, a.z), emission: [e.x, e.y, e.z, 0.0] });
             }

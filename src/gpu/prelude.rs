@@ -91,6 +91,7 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("MOVED_SEARCH_MAX", "u32", u(crate::render::hitbuffer::MOVED_SEARCH_MAX as u64)),
         ("FIX", "f32", f(super::gi::FIX as f32)),
         ("EMIT_FIX", "f32", f(super::gi::EMIT_FIX as f32)),
+        ("GI_MAX_EMISSION", "f32", f(crate::gi::volume::GI_MAX_EMISSION)),
         ("OUT_FIX", "f32", f(super::gi::OUT_FIX as f32)),
         ("STRIDE", "u32", u(super::gi::STRIDE as u64)),
         ("GI_BRICK", "u32", u(crate::gi::sparse::BRICK as u64)),

@@ -53,6 +53,12 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     camera.height = a.height.unwrap_or(camera.height);
     camera.validate()?;
     let t_setup = t0.elapsed();
+    let emitters: usize = st.scene.parts.iter().map(|p| p.emitters.len()).sum();
+    if emitters > 0 && !a.source.obj.is_empty() && !lights.use_mtl_emitters {
+        eprintln!(
+            "note: the model has {emitters} emissive triangles (MTL Ke); they light nothing unless the lights JSON sets \"use_mtl_emitters\": true"
+        );
+    }
 
     if a.reference {
         return reference_cmd(&a, &st, &camera, &lights, t_setup);

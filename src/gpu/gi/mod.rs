@@ -44,7 +44,7 @@ use volume::{level_step_bind_with, VolumeBuffers};
 /// the WGSL side is `wgsl/shared/gi_fixed.wgsl`.
 pub const FIX: f64 = 65536.0;
 
-/// Fixed-point scale of weighted emission (up to 16× the albedo).
+/// Fixed-point scale of weighted emission (each voxel's at most [`crate::gi::volume::GI_MAX_EMISSION`]).
 pub const EMIT_FIX: f64 = 4096.0;
 
 /// Fixed-point scale of the weight that fell outside the volume.
