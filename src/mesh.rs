@@ -348,6 +348,20 @@ mod obj {
         if !emission.is_finite() || emission.min_element() < 0.0 {
             return Err(bad("Ke"));
         }
+        if emission.max_element() > crate::svo::MAX_EMISSION {
+            return Err(MeshError::Parse {
+                path: format!("material '{}'", m.name),
+                line: None,
+                message: format!(
+                    "Ke {emission} is above the largest emitted radiance a voxel holds ({}); scale the scene's lights down",
+                    crate::svo::MAX_EMISSION
+                ),
+            });
+        }
+        if albedo.max_element() > 1.0 {
+            // A surface cannot reflect more than it receives; the voxel stores at most 1.
+            warnings.push(format!("material '{}': Kd {albedo} above 1 is stored as {}", m.name, albedo.min(Vec3::ONE)));
+        }
         let ks = m.specular.map_or(Vec3::ZERO, Vec3::from);
         if !ks.is_finite() || ks.min_element() < 0.0 {
             return Err(bad("Ks"));

@@ -166,9 +166,14 @@ fn specular_materials_reach_the_voxels() {
     let m = load_obj(&p).unwrap();
     assert!((m.materials[0].specular - 0.2).abs() < 1e-5, "{}", m.materials[0].specular);
     assert!(m.warnings.len() == 1 && m.warnings[0].contains("Ks"), "{:?}", m.warnings);
-    for (mtl, field) in [("Ks -1 0 0", "Ks"), ("Ns -5", "Ns"), ("Ks nan 0 0", "Ks")] {
+    for (mtl, field) in [("Ks -1 0 0", "Ks"), ("Ns -5", "Ns"), ("Ks nan 0 0", "Ks"), ("Ke 1e5 0 0", "Ke")] {
         write(&d, "g.mtl", &format!("newmtl g\nKd 0.5 0.5 0.5\n{mtl}\n"));
         let e = load_obj(&p).unwrap_err().to_string();
         assert!(e.contains(field), "{mtl}: {e}");
     }
+    // Kd above 1 is stored as 1, and the user is told; a bright Ke of its own colour is kept.
+    write(&d, "g.mtl", "newmtl g\nKd 1.5 0.5 0.5\nKe 17 12 4\n");
+    let m = load_obj(&p).unwrap();
+    assert!(m.warnings.len() == 1 && m.warnings[0].contains("Kd"), "{:?}", m.warnings);
+    assert_eq!(m.materials[0].emission, Vec3::new(17.0, 12.0, 4.0));
 }

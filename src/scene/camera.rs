@@ -12,6 +12,7 @@ pub const MAX_PIXELS: u64 = 1 << 26;
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "json", serde(deny_unknown_fields))]
 pub struct Camera {
     /// Eye position.
     pub eye: DVec3,
@@ -164,5 +165,15 @@ mod tests {
         assert_eq!(Camera { width: 0, ..ok }.validate(), Err(CameraError::Size(0, 4)));
         assert_eq!(Camera { width: 16384, height: 16384, ..ok }.validate(), Err(CameraError::Size(16384, 16384)));
         assert_eq!(Camera { eye: DVec3::NAN, ..ok }.validate(), Err(CameraError::NonFinite("eye")));
+    }
+
+    /// A misspelt field is refused with its name instead of being ignored.
+    #[cfg(feature = "json")]
+    #[test]
+    fn unknown_json_fields_are_refused() {
+        let text = r#"{"eye":[0,0,0],"target":[0,0,1],"up":[0,1,0],"vfov_deg":60,"width":4,"height":4,"fov":30}"#;
+        let e = Camera::from_json(text).unwrap_err().to_string();
+        assert!(e.contains("fov"), "{e}");
+        assert!(Camera::from_json(&text.replace(r#","fov":30"#, "")).is_ok());
     }
 }

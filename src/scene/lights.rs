@@ -6,6 +6,7 @@ use glam::Vec3;
 /// A distant light.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "json", serde(deny_unknown_fields))]
 pub struct Sun {
     /// Direction towards the sun (normalized on validation).
     pub to_sun: Vec3,
@@ -16,6 +17,7 @@ pub struct Sun {
 /// Uniform sky.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "json", serde(deny_unknown_fields))]
 pub struct Ambient {
     /// Radiance of the sky (linear RGB).
     pub radiance: Vec3,
@@ -24,6 +26,7 @@ pub struct Ambient {
 /// All lights of a scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "json", serde(deny_unknown_fields))]
 pub struct Lights {
     /// The sun, if any.
     #[cfg_attr(feature = "json", serde(default))]
@@ -124,5 +127,28 @@ impl Lights {
         let l: Lights = serde_json::from_str(text.strip_prefix('\u{feff}').unwrap_or(text))
             .map_err(|e| LightsError::Json(e.to_string()))?;
         l.validated()
+    }
+}
+
+#[cfg(all(test, feature = "json"))]
+mod tests {
+    use super::*;
+
+    /// A misspelt field is an error that names it, not a silently ignored light; omitted fields
+    /// take their defaults; emitter samples are bounded.
+    #[test]
+    fn json_fields_are_checked() {
+        let e = Lights::from_json(r#"{"use_mtl_emiters": true}"#).unwrap_err().to_string();
+        assert!(e.contains("use_mtl_emiters"), "{e}");
+        let e = Lights::from_json(r#"{"sun": {"to_sun": [0, 1, 0], "irradiance": [1, 1, 1], "power": 3}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("power"), "{e}");
+        let l = Lights::from_json(r#"{"use_mtl_emitters": true}"#).unwrap();
+        assert_eq!((l.sun, l.ambient, l.emitter_samples), (None, None, DEFAULT_EMITTER_SAMPLES));
+        assert_eq!(l.emitter_sampling(), DEFAULT_EMITTER_SAMPLES);
+        assert_eq!(Lights::from_json(r#"{"emitter_samples": 2}"#).unwrap().emitter_sampling(), 0);
+        assert!(matches!(Lights::from_json(r#"{"emitter_samples": 5000}"#), Err(LightsError::Samples(5000))));
+        assert!(Lights::from_json(r#"{"emitter_samples": -1}"#).is_err());
     }
 }
