@@ -58,7 +58,7 @@ fn camera(eye: DVec3, dir: DVec3) -> Camera {
 }
 
 fn panel_lights(samples: u32) -> Lights {
-    Lights { sun: None, ambient: None, use_mtl_emitters: true, emitter_samples: samples }
+    Lights { sun: None, ambient: None, use_mtl_emitters: true, emitter_samples: samples, ..Lights::default() }
 }
 
 fn mean(f: &Frame) -> Vec3 {
@@ -136,4 +136,54 @@ fn the_panel_glows_in_its_own_colour() {
     assert!(f.instance.iter().all(|&i| i == 1));
     let got = mean(&f);
     assert!((got - KE).abs().max_element() < 0.1, "panel radiance {got}, Ke {KE}");
+}
+
+/// A point light over the floor: radiance albedo/π · I/h² (the inverse-square law); a spot
+/// aimed at the floor gives the same inside its inner cone and nothing beyond its outer one;
+/// several suns add up.
+#[test]
+fn point_spot_and_extra_suns_follow_their_closed_forms() {
+    let parts = parts(false);
+    let s = scene(&parts[..1]);
+    let eye = DVec3::new(0.6, 0.9, 0.0);
+    let cam = camera(eye, (DVec3::ZERO - eye).normalize());
+    let intensity = Vec3::new(3.0, 2.0, 1.0);
+    let dark = Lights { sun: None, ambient: None, use_mtl_emitters: false, ..Lights::default() };
+    let point = voxray::scene::lights::PointLight { position: DVec3::new(0.0, 1.0, 0.0), intensity };
+    let lit = Lights { points: vec![point], ..dark.clone() }.validated().unwrap();
+    let got = mean(&frame(&s, &cam, &lit));
+    // The floor's surface lies within a voxel (1/64) of y = 0.
+    let want = intensity * 0.8 / std::f32::consts::PI;
+    assert!(((got - want) / want).abs().max_element() < 0.04, "point light: {got} against {want}");
+    // The reference path tracer lights its primary hits the same way (nothing else to bounce
+    // off here).
+    let settings = voxray::gi::ReferenceSettings { spp: 4, bounces: None, seed: 5 };
+    let r = mean(&voxray::gi::path_trace(&s, &cam, &lit, settings, &mut |_, _| {}).unwrap());
+    assert!((r - got).abs().max_element() < 1e-4 * got.max_element(), "reference {r} against {got}");
+    let spot = |inner: f32, outer: f32, direction: Vec3| voxray::scene::lights::SpotLight {
+        position: DVec3::new(0.0, 1.0, 0.0),
+        direction,
+        intensity,
+        inner_deg: inner,
+        outer_deg: outer,
+    };
+    let on_axis = Lights { spots: vec![spot(10.0, 20.0, -Vec3::Y)], ..dark.clone() }.validated().unwrap();
+    let g = mean(&frame(&s, &cam, &on_axis));
+    assert!((g - got).abs().max_element() < 1e-5 * got.max_element(), "spot on axis {g} against point {got}");
+    // Aimed 45° away from the floor's centre: beyond a 20° outer cone.
+    let away = Lights { spots: vec![spot(10.0, 20.0, Vec3::new(1.0, -1.0, 0.0))], ..dark.clone() }.validated().unwrap();
+    assert_eq!(mean(&frame(&s, &cam, &away)), Vec3::ZERO);
+    // Two extra suns straight down: twice one.
+    let sun = voxray::scene::Sun { to_sun: Vec3::Y, irradiance: Vec3::ONE };
+    let one = mean(&frame(&s, &cam, &Lights { suns: vec![sun], ..dark.clone() }.validated().unwrap()));
+    let two = mean(&frame(&s, &cam, &Lights { suns: vec![sun, sun], ..dark.clone() }.validated().unwrap()));
+    // Within the 8-bit sRGB albedo's step.
+    assert!((one - Vec3::splat(0.8 / std::f32::consts::PI)).abs().max_element() < 2e-3, "{one}");
+    assert!((two - 2.0 * one).abs().max_element() < 1e-5, "{two} against {one}");
+    // Bad lights are refused with the field named.
+    let e = Lights { spots: vec![spot(30.0, 20.0, -Vec3::Y)], ..dark.clone() }.validated().unwrap_err();
+    assert!(e.to_string().contains("spots[0]"), "{e}");
+    let nan = voxray::scene::lights::PointLight { position: DVec3::NAN, intensity };
+    let e = Lights { points: vec![nan], ..dark }.validated().unwrap_err();
+    assert!(e.to_string().contains("points[0].position"), "{e}");
 }

@@ -486,3 +486,45 @@ fn emitters_light_the_panel_room_as_on_the_cpu() {
     let rays = (c.shadow_rays as f64, g.shadow_rays as f64);
     assert!((rays.0 - rays.1).abs() <= 0.002 * rays.0 + 16.0, "shadow rays: CPU {} GPU {}", rays.0, rays.1);
 }
+
+/// Extra suns, a point and a spot on the GPU against the CPU (the panel room, its panel and
+/// the added lights together).
+#[test]
+fn points_spots_and_extra_suns_light_the_gpu_frame_as_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let mesh = voxray::model::panel_room::mesh();
+    let parts = build_parts(&mesh, Resolution::Depth(7)).unwrap();
+    let mut scene = Scene::new(parts);
+    for part in 0..scene.parts.len() {
+        scene.add(voxray::scene::Instance { part, parent: None, local: voxray::scene::Transform::IDENTITY }).unwrap();
+    }
+    scene.update().unwrap();
+    let cam = voxray::model::panel_room::camera(96, 72);
+    let lights = Lights {
+        suns: vec![voxray::scene::Sun { to_sun: glam::Vec3::new(0.2, 1.0, 0.1), irradiance: glam::Vec3::splat(2.0) }],
+        points: vec![voxray::scene::lights::PointLight {
+            position: DVec3::new(0.5, 1.5, -0.2),
+            intensity: glam::Vec3::new(0.5, 0.8, 1.0),
+        }],
+        spots: vec![voxray::scene::lights::SpotLight {
+            position: DVec3::new(-0.6, 1.8, 0.5),
+            direction: glam::Vec3::new(0.3, -1.0, -0.4),
+            intensity: glam::Vec3::new(2.0, 0.5, 0.2),
+            inner_deg: 15.0,
+            outer_deg: 35.0,
+        }],
+        emitter_samples: 2,
+        ..voxray::model::panel_room::lights()
+    }
+    .validated()
+    .unwrap();
+    let features = Features { beams: false, ..Features::default() };
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
+    let c = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let mut gpu = GpuRenderer::new(ctx);
+    gpu.set_counting(true);
+    let g = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    assert_close(&c, &g, "panel room with a sun, a point and a spot");
+    let rays = (c.shadow_rays as f64, g.shadow_rays as f64);
+    assert!((rays.0 - rays.1).abs() <= 0.002 * rays.0 + 16.0, "shadow rays: CPU {} GPU {}", rays.0, rays.1);
+}

@@ -229,7 +229,7 @@ fn images_agree(
     lights: &Lights,
     s: GiSettings,
 ) -> (Frame, Frame, voxray::gpu::gi::GpuGiStats) {
-    let (cam, lights) = (*cam, *lights);
+    let (cam, lights) = (*cam, lights.clone());
     let plan = FramePlan::new(scene, &cam, &lights, &Features::default(), None);
     let flat = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).radiance;
     let opts = RenderOptions::default();
@@ -610,5 +610,23 @@ fn gpu_gi_with_emitters_matches_the_cpu() {
     scene.update().unwrap();
     let cam = voxray::model::panel_room::camera(64, 48);
     let lights = voxray::model::panel_room::lights();
-    images_agree(ctx, &scene, &cam, &lights, GiSettings { res: 32, ..Default::default() });
+    images_agree(ctx.clone(), &scene, &cam, &lights, GiSettings { res: 32, ..Default::default() });
+    // A point and a spot besides the panel: injected into the cells the same way.
+    let more = Lights {
+        points: vec![voxray::scene::lights::PointLight {
+            position: glam::DVec3::new(0.5, 1.5, -0.2),
+            intensity: Vec3::new(0.5, 0.8, 1.0),
+        }],
+        spots: vec![voxray::scene::lights::SpotLight {
+            position: glam::DVec3::new(-0.6, 1.8, 0.5),
+            direction: Vec3::new(0.3, -1.0, -0.4),
+            intensity: Vec3::new(2.0, 0.5, 0.2),
+            inner_deg: 15.0,
+            outer_deg: 35.0,
+        }],
+        ..lights
+    }
+    .validated()
+    .unwrap();
+    images_agree(ctx, &scene, &cam, &more, GiSettings { res: 32, ..Default::default() });
 }

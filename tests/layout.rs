@@ -117,9 +117,14 @@ fn wgsl_structs_match_rust() {
                 ("pad1", offset_of!(GpuFrame, pad1)),
                 ("emitters", offset_of!(GpuFrame, emitters)),
                 ("emitter_samples", offset_of!(GpuFrame, emitter_samples)),
-                ("pad2", offset_of!(GpuFrame, pad2)),
+                ("lights", offset_of!(GpuFrame, lights)),
                 ("pad3", offset_of!(GpuFrame, pad3)),
             ],
+        ),
+        (
+            "Light",
+            size_of::<GpuLight>(),
+            vec![("a", offset_of!(GpuLight, a)), ("b", offset_of!(GpuLight, b)), ("c", offset_of!(GpuLight, c))],
         ),
         (
             "Emitter",

@@ -109,6 +109,21 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
     }
+    if frame.lights > 0u && dot(n, n) > 1e-6 {
+        // gi::inject::inject_cells: the other suns, points and spots.
+        let nn = normalize(n);
+        let cell = gi.min_cell.w;
+        let at = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * cell;
+        for (var k = 0u; k < frame.lights; k++) {
+            let inc = incident(k, at);
+            let cosv = dot(nn, inc.to_light);
+            if max(inc.irradiance.x, max(inc.irradiance.y, inc.irradiance.z)) > 0.0 && cosv > 0.0 {
+                if !occluded(at + nn * cell, inc.to_light, inc.distance) {
+                    radiance += albedo * inc.irradiance * (cosv / 3.14159265);
+                }
+            }
+        }
+    }
     if frame.emitters > 0u && frame.emitter_samples > 0u && dot(n, n) > 1e-6 {
         // gi::inject::inject_cells: the emitters sampled from the cell, keyed by its place in
         // the grid (gi::inject::cell_key).

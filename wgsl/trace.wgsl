@@ -25,6 +25,8 @@ override SHADOWS: bool = true;
 @group(0) @binding(B_STATS) var<storage, read_write> stats: array<atomic<u32>>;
 // The frame's emissive triangles (render::emitters), frame.emitters rows.
 @group(0) @binding(B_EMITTERS) var<storage, read> emitters: array<Emitter>;
+// The suns, points and spots besides the frame's sun, frame.lights rows.
+@group(0) @binding(B_LIGHTS) var<storage, read> lights: array<Light>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;
@@ -475,6 +477,57 @@ fn sun_response(albedo: vec3<f32>, h: Hit, x: u32, y: u32) -> vec3<f32> {
     return f;
 }
 
+// scene::lights::spot_falloff: 1 within the inner cone, smoothstep of the cosine to 0 at the
+// outer one.
+fn spot_falloff(li: Light, out: vec3<f32>) -> f32 {
+    let c = dot(li.c.xyz, out);
+    let ci = li.b.w;
+    let co = li.c.w;
+    if c >= ci {
+        return 1.0;
+    }
+    if c <= co || ci <= co {
+        return 0.0;
+    }
+    let x = (c - co) / (ci - co);
+    return x * x * (3.0 - 2.0 * x);
+}
+
+// scene::lights::Incident.
+struct Incident {
+    to_light: vec3<f32>,
+    distance: f32,
+    irradiance: vec3<f32>,
+}
+
+// scene::lights::Lights::incident_extra for light k at camera-relative `at` (a light that
+// gives nothing there has zero irradiance).
+fn incident(k: u32, at: vec3<f32>) -> Incident {
+    let li = lights[k];
+    var inc: Incident;
+    inc.to_light = vec3<f32>(0.0, 0.0, 1.0);
+    inc.distance = 0.0;
+    inc.irradiance = vec3<f32>(0.0);
+    if li.a.w == 0.0 {
+        inc.to_light = li.a.xyz;
+        inc.distance = BIG;
+        inc.irradiance = li.b.xyz;
+        return inc;
+    }
+    let to = li.a.xyz - at;
+    let d2 = dot(to, to);
+    if !(d2 > 0.0) {
+        return inc;
+    }
+    inc.distance = sqrt(d2);
+    inc.to_light = to / inc.distance;
+    inc.irradiance = li.b.xyz / d2;
+    if li.a.w == 2.0 {
+        inc.irradiance *= spot_falloff(li, -inc.to_light);
+    }
+    return inc;
+}
+
 // render::emitters::pcg_hash.
 fn pcg_hash(v: u32) -> u32 {
     let state = v * 747796405u + 2891336453u;
@@ -591,6 +644,24 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
             if visible {
                 c += sun_response(albedo, h, x, y) * frame.sun_irradiance.xyz;
             }
+        }
+    }
+    for (var k = 0u; k < frame.lights; k++) {
+        let d = ray_dir(x, y);
+        let inc = incident(k, d * h.t);
+        if !(max(inc.irradiance.x, max(inc.irradiance.y, inc.irradiance.z)) > 0.0) || dot(n, inc.to_light) <= 0.0 {
+            continue;
+        }
+        var visible = true;
+        if SHADOWS {
+            if frame.count != 0u {
+                atomicAdd(&stats[STAT_SHADOW_RAYS], 1u);
+            }
+            let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
+            visible = !occluded(start, inc.to_light, inc.distance);
+        }
+        if visible {
+            c += light_response(albedo, h.material, n, d, inc.to_light) * inc.irradiance;
         }
     }
     if frame.emitter_samples > 0u {

@@ -479,7 +479,7 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     let plan = FramePlan::new(&panel, &camera, &lights, &Features::default(), None);
     for samples in [1u32, 4, 16] {
         progress(&format!("gi-accuracy: panel room, {samples} light samples"));
-        let lights = crate::scene::Lights { emitter_samples: samples, ..lights };
+        let lights = crate::scene::Lights { emitter_samples: samples, ..lights.clone() };
         let mut caches = GiCaches::new();
         let mut times = Vec::new();
         let mut last = None;
@@ -542,7 +542,7 @@ fn accuracy_on(
     cfg: &AccuracyConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<Record>, crate::Error> {
-    let (scene, camera, lights) = (scene, *camera, *lights);
+    let (scene, camera, lights) = (scene, *camera, lights.clone());
     let plan = FramePlan::new(scene, &camera, &lights, &Features::default(), None);
     let t0 = Instant::now();
     let base = render(scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});

@@ -115,6 +115,20 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<
                 }
             }
         }
+        if lights.has_extra() && n.length_squared() > 1e-6 {
+            // The other suns, points and spots, each with a shadow ray from the same start.
+            let n = n.normalize();
+            let start = cell.centre + n.as_dvec3() * spec.cell - eye;
+            for inc in lights.incident_extra(cell.centre) {
+                let cos = n.dot(inc.to_light.as_vec3());
+                if cos > 0.0 {
+                    shadow_rays += 1;
+                    if !occluded(&fi, start, inc.to_light, inc.distance, search) {
+                        radiance += albedo * inc.irradiance * (cos / std::f32::consts::PI);
+                    }
+                }
+            }
+        }
         if !emitters.is_empty() && n.length_squared() > 1e-6 {
             let n = n.normalize();
             let at = cell.centre - eye;

@@ -88,6 +88,8 @@ pub struct PathTracer<'a> {
     records: Vec<HitRecord>,
     /// The emitters as lights (empty when they are not sampled).
     emitters: EmitterTable,
+    /// The camera's eye (hit points are relative to it).
+    eye: DVec3,
     /// Camera-relative primary hit points.
     points: Vec<DVec3>,
     /// Deterministic part of each pixel: emission and sun at the primary hit, or the sky.
@@ -113,12 +115,13 @@ impl<'a> PathTracer<'a> {
         let (bvh, search) = Bvh::when_worthwhile(&prepared);
         let mut pt = PathTracer {
             scene,
-            lights: *lights,
+            lights: lights.clone(),
             settings,
             prepared,
             bvh,
             search,
             records: Vec::new(),
+            eye: camera.eye,
             emitters: if lights.emitter_sampling() > 0 {
                 EmitterTable::new(scene, camera.eye)
             } else {
@@ -177,6 +180,17 @@ impl<'a> PathTracer<'a> {
                     let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
                     out +=
                         brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun) * sun.irradiance;
+                }
+            }
+        }
+        for inc in self.lights.incident_extra(self.eye + at) {
+            let l = inc.to_light.as_vec3();
+            if r.normal.dot(l) > 0.0 {
+                rays += 1;
+                if !occluded(fi, leave(r, at), inc.to_light, inc.distance, self.search) {
+                    let shininess = brdf::shininess_of_gloss(r.attr.gloss());
+                    let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
+                    out += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), l) * inc.irradiance;
                 }
             }
         }

@@ -546,7 +546,7 @@ pub fn prepare_light(
     let t4 = Instant::now();
     // The pixels' light is the last frame's only when the chain and the cones are.
     stats.reuse_pixels = stats.reuse == GiReuse::Levels && same_cones;
-    caches.last = Some(LastVolume { key, lights: *lights, bounces: bounce_key, cones, volume: vol, chain });
+    caches.last = Some(LastVolume { key, lights: lights.clone(), bounces: bounce_key, cones, volume: vol, chain });
     let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
     stats.caches_ms = ms(t0, t1);
     stats.transform_ms = ms(t1, t2);

@@ -91,10 +91,24 @@ pub struct GpuFrame {
     pub emitters: u32,
     /// Light samples per shaded point on the emitters ([`crate::scene::Lights::emitter_sampling`]).
     pub emitter_samples: u32,
-    /// Padding.
-    pub pad2: u32,
+    /// Rows of the light buffer ([`GpuLight`]: the suns, points and spots besides the sun).
+    pub lights: u32,
     /// Padding.
     pub pad3: u32,
+}
+
+/// A sun, point or spot light besides the frame's sun ([`crate::scene::Lights::suns`],
+/// `points`, `spots`). WGSL: `Light`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuLight {
+    /// Sun: direction towards it; point and spot: camera-relative position. w: 0 sun, 1
+    /// point, 2 spot.
+    pub a: [f32; 4],
+    /// Irradiance (sun) or intensity; w: cosine of a spot's inner angle.
+    pub b: [f32; 4],
+    /// A spot's unit direction; w: cosine of its outer angle.
+    pub c: [f32; 4],
 }
 
 /// One emissive triangle of the frame, camera-relative ([`crate::render::emitters::WorldEmitter`]

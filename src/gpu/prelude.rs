@@ -33,6 +33,8 @@ pub mod binding {
     pub const STATS: u32 = 12;
     /// Tracer group 0: `emitters`.
     pub const EMITTERS: u32 = 13;
+    /// Tracer group 0: `lights`.
+    pub const LIGHTS: u32 = 14;
     /// Tracer group 1 (GI): `gi_accum`.
     pub const GI_ACCUM: u32 = 0;
     /// Tracer group 1 (GI): `gi_levels`.
@@ -52,7 +54,7 @@ pub mod binding {
     /// Tracer group 1 (GI): `gi_sampler`.
     pub const GI_SAMPLER: u32 = 8;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 23] = [
+    pub const ALL: [(&str, u32); 24] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -67,6 +69,7 @@ pub mod binding {
         ("B_ATTRS_HI", ATTRS_HI),
         ("B_STATS", STATS),
         ("B_EMITTERS", EMITTERS),
+        ("B_LIGHTS", LIGHTS),
         ("B_GI_ACCUM", GI_ACCUM),
         ("B_GI_LEVELS", GI_LEVELS),
         ("B_GI_FRAME", GI_FRAME),

@@ -94,6 +94,7 @@ struct FrameBuffers {
     items: Option<wgpu::Buffer>,
     moved: Option<wgpu::Buffer>,
     emitters: Option<wgpu::Buffer>,
+    lights: Option<wgpu::Buffer>,
     radiance: Option<wgpu::Buffer>,
     hits_read: Option<wgpu::Buffer>,
     radiance_read: Option<wgpu::Buffer>,
@@ -243,6 +244,7 @@ impl GpuRenderer {
                 (b::ATTRS_HI, true),
                 (b::STATS, false),
                 (b::EMITTERS, true),
+                (b::LIGHTS, true),
             ]
             .iter()
             .map(|&(b, r)| storage(b, r)),
@@ -590,6 +592,7 @@ impl GpuRenderer {
         let items: Vec<u32> = bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
         let emitter_samples = lights.emitter_sampling();
         let emitters = if emitter_samples > 0 { gpu_emitters(scene, camera.eye) } else { Vec::new() };
+        let extra_lights = gpu_lights(lights, camera.eye);
         let basis = camera.basis();
         let counting = self.counting;
         let frame = GpuFrame {
@@ -612,7 +615,7 @@ impl GpuRenderer {
             pad1: 0,
             emitters: emitters.len() as u32,
             emitter_samples,
-            pad2: 0,
+            lights: extra_lights.len() as u32,
             pad3: 0,
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
@@ -636,7 +639,7 @@ impl GpuRenderer {
         self.pipelines(search, plan.shadows);
         // GI runs where there is light (FramePlan: GI off or no lights at all → skipped; with
         // only the sky the cones still give ambient occlusion).
-        let lit = lights.sun.is_some() || lights.use_mtl_emitters || lights.sky() != Vec3::ZERO;
+        let lit = lights.sun.is_some() || lights.has_extra() || lights.use_mtl_emitters || lights.sky() != Vec3::ZERO;
         let gi_work = match (&self.gi_settings, lit) {
             (Some(settings), true) => {
                 let settings = *settings;
@@ -665,7 +668,7 @@ impl GpuRenderer {
         }
         let kept = &mut self.kept;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 6] = [
+        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 7] = [
             (&mut kept.insts, "instances", bytemuck::cast_slice(&nonempty(&insts)).to_vec(), storage),
             (
                 &mut kept.frame,
@@ -677,6 +680,7 @@ impl GpuRenderer {
             (&mut kept.items, "bvh items", bytemuck::cast_slice(&nonempty(&items)).to_vec(), storage),
             (&mut kept.moved, "moved", bytemuck::cast_slice(&nonempty(&moved)).to_vec(), storage),
             (&mut kept.emitters, "emitters", bytemuck::cast_slice(&nonempty(&emitters)).to_vec(), storage),
+            (&mut kept.lights, "lights", bytemuck::cast_slice(&nonempty(&extra_lights)).to_vec(), storage),
         ];
         let mut replaced = false;
         for (slot, label, bytes, usage) in inputs {
@@ -715,6 +719,7 @@ impl GpuRenderer {
         );
         let stats_buf = kept.stats.as_ref().ok_or_else(missing)?;
         let emitter_buf = kept.emitters.as_ref().ok_or_else(missing)?;
+        let light_buf = kept.lights.as_ref().ok_or_else(missing)?;
         let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
         let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
         use super::prelude::binding as b;
@@ -737,6 +742,7 @@ impl GpuRenderer {
                     wgpu::BindGroupEntry { binding: b::ATTRS_HI, resource: pools.attrs_hi.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::STATS, resource: stats_buf.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::EMITTERS, resource: emitter_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::LIGHTS, resource: light_buf.as_entire_binding() },
                 ],
             })
         });
@@ -755,6 +761,7 @@ impl GpuRenderer {
             radiance_buf,
             stats_buf,
             emitter_buf,
+            light_buf,
         ]
         .iter()
         .map(|b| b.size())
@@ -959,6 +966,20 @@ impl GpuRenderer {
         self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
         Ok(f)
     }
+}
+
+/// The frame's suns, points and spots besides the sun, camera-relative.
+fn gpu_lights(lights: &Lights, eye: glam::DVec3) -> Vec<GpuLight> {
+    let v = |v: Vec3, w: f32| [v.x, v.y, v.z, w];
+    let suns = lights.suns.iter().map(|s| GpuLight { a: v(s.to_sun, 0.0), b: v(s.irradiance, 0.0), c: [0.0; 4] });
+    let points =
+        lights.points.iter().map(|p| GpuLight { a: f4(p.position - eye, 1.0), b: v(p.intensity, 0.0), c: [0.0; 4] });
+    let spots = lights.spots.iter().map(|s| GpuLight {
+        a: f4(s.position - eye, 2.0),
+        b: v(s.intensity, s.inner_deg.to_radians().cos()),
+        c: v(s.direction, s.outer_deg.to_radians().cos()),
+    });
+    suns.chain(points).chain(spots).collect()
 }
 
 /// The frame's emitter rows ([`crate::render::emitters::EmitterTable`] made for the eye).

@@ -220,12 +220,13 @@ pub struct AmbientLight<'a> {
 }
 
 /// The light a hit receives besides the ambient term (WGSL's `direct_light`): the sun, when
-/// the surface faces it and its shadow ray is free, the emitters' light sampled at `key`'s
-/// points ([`emitter_light`]), then the hit's own emission. `visible(start, direction,
-/// distance)` says whether a shadow ray gets through; `d` is the primary ray's unit
-/// direction.
+/// the surface faces it and its shadow ray is free, the other suns, points and spots the same
+/// way, the emitters' light sampled at `key`'s points ([`emitter_light`]), then the hit's own
+/// emission. `visible(start, direction, distance)` says whether a shadow ray gets through;
+/// `d` is the primary ray's unit direction from the camera at `eye`.
 fn direct_light(
     r: &HitRecord,
+    eye: DVec3,
     d: DVec3,
     lights: &Lights,
     emitters: &EmitterTable,
@@ -239,6 +240,14 @@ fn direct_light(
     if let Some(sun) = lights.sun {
         if r.normal.dot(sun.to_sun) > 0.0 && visible(leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY) {
             c += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun) * sun.irradiance;
+        }
+    }
+    if lights.has_extra() {
+        for inc in lights.incident_extra(eye + at) {
+            let l = inc.to_light.as_vec3();
+            if r.normal.dot(l) > 0.0 && visible(leave(r, at), inc.to_light, inc.distance) {
+                c += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), l) * inc.irradiance;
+            }
         }
     }
     let samples = lights.emitter_sampling();
@@ -361,9 +370,11 @@ pub fn render_lit(
             && prev.radiance.len() == n
             && prev.lit_by_gi == ambient.is_some()
             && ambient.is_none_or(|a| a.unchanged)
-            // Emitter samples reach anywhere: a kept colour would need all their shadow rays
-            // checked against the moved instances (not built: such frames shade afresh).
+            // Emitter samples and extra lights reach anywhere: a kept colour would need all
+            // their shadow rays checked against the moved instances (not built: such frames
+            // shade afresh).
             && emitters.is_empty()
+            && !lights.has_extra()
     });
     let mut f = Frame {
         primary_rays: n as u64,
@@ -418,7 +429,7 @@ pub fn render_lit(
                 None => (albedo + Vec3::splat(ks)) * sky,
             };
             let d = camera.ray_dir(&basis, x as u32, y as u32);
-            let radiance = direct_light(r, d, lights, &emitters, k as u32, &mut |start, dir, t_max| {
+            let radiance = direct_light(r, camera.eye, d, lights, &emitters, k as u32, &mut |start, dir, t_max| {
                 if !plan.shadows {
                     return true;
                 }

@@ -197,7 +197,7 @@ impl HitBuffer {
 
     /// Keeps a frame's colours and what they were lit by, for [`Reuse::shading_valid`].
     pub fn keep_shading(&mut self, lights: &Lights, shadows: bool, radiance: &[Vec3]) {
-        self.lights = Some(*lights);
+        self.lights = Some(lights.clone());
         self.shadows = shadows;
         self.radiance.clear();
         self.radiance.extend_from_slice(radiance);

@@ -144,7 +144,7 @@ impl FramePlan {
             (true, true, false) => "hit_buffer: off (camera moved)".into(),
             _ => "hit_buffer: on (camera static)".into(),
         });
-        let sun = lights.sun.is_some_and(|s| s.irradiance.max_element() > 0.0);
+        let sun = lights.has_direct();
         // Emitters are lights when they are sampled and some part has an emissive triangle.
         let emitters = lights.emitter_sampling() > 0 && scene.parts.iter().any(|p| !p.emitters.is_empty());
         let shadows = features.shadows && (sun || emitters);

@@ -65,8 +65,19 @@ struct Frame {
     // Rows of `emitters`, and light samples per shaded point on them.
     emitters: u32,
     emitter_samples: u32,
-    pad2: u32,
+    // Rows of `lights` (suns, points and spots besides the sun).
+    lights: u32,
     pad3: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuLight: a sun (a.w = 0), point (1) or spot (2).
+struct Light {
+    // Direction towards a sun, or a camera-relative position.
+    a: vec4<f32>,
+    // Irradiance or intensity; w: cosine of a spot's inner angle.
+    b: vec4<f32>,
+    // A spot's direction; w: cosine of its outer angle.
+    c: vec4<f32>,
 }
 
 // Mirrors voxray::gpu::layout::GpuEmitter: one emissive triangle, camera-relative.

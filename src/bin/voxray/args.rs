@@ -97,7 +97,7 @@ pub(crate) struct RenderArgs {
     /// Camera JSON (eye, target, up, vfov_deg, width, height). Default: a three-quarter view framing the scene.
     #[arg(long)]
     pub(crate) camera_json: Option<PathBuf>,
-    /// Lights JSON (sun, ambient, use_mtl_emitters, emitter_samples). Default: afternoon sun and a pale sky.
+    /// Lights JSON (sun, ambient, use_mtl_emitters, emitter_samples, suns, points, spots; docs/lights.md). Default: afternoon sun and a pale sky.
     #[arg(long)]
     pub(crate) lights_json: Option<PathBuf>,
     /// Image width (overrides the camera JSON).

@@ -62,7 +62,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
 
     let sampled = lights.emitter_sampling() > 0 && emitters > 0;
     let glowing = lights.use_mtl_emitters && st.scene.parts.iter().any(|p| p.attrs.iter().any(|a| a.is_emissive()));
-    if lights.sun.is_none_or(|s| s.irradiance == glam::Vec3::ZERO) && lights.sky() == glam::Vec3::ZERO && !sampled {
+    if !lights.has_direct() && lights.sky() == glam::Vec3::ZERO && !sampled {
         eprintln!(
             "note: the lights give no light (no sun, no sky, no sampled emitter): the image is black{}",
             if glowing { " except where emitters glow" } else { "" }

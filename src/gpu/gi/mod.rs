@@ -750,7 +750,7 @@ impl GpuGi {
             bricks_counted: tables.and_then(|t| t.counted),
             bricks_ms,
         };
-        self.last = Some((key, *lights, bounce_key));
+        self.last = Some((key, lights.clone(), bounce_key));
         Ok(GiWork {
             splat_bind,
             splat_groups,
