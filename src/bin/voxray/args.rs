@@ -324,6 +324,9 @@ pub(crate) struct DemoArgs {
     /// Write the last frame (and each P press) to this PNG.
     #[arg(long)]
     pub(crate) screenshot: Option<PathBuf>,
+    /// Lights JSON (as `render --lights-json`; docs/lights.md). Default: afternoon sun and a pale sky.
+    #[arg(long)]
+    pub(crate) lights_json: Option<PathBuf>,
     /// Cars, each on its own figure-eight.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub(crate) cars: u32,
