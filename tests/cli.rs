@@ -178,6 +178,33 @@ fn bad_input_gives_clear_errors() {
     assert_eq!(code, Some(1));
     assert!(err.contains("broken.json") && err.contains("lights JSON"), "{err}");
 
+    // Silent mistakes are named: a misspelt light, lights that give none, a level of detail
+    // below every part, a GI volume smaller than a speck, emitters left off.
+    std::fs::write(d.join("typo.json"), r#"{"sunn": {}}"#).unwrap();
+    let (code, err) =
+        run(&["render", "--obj", "models/test/cube.obj", "--lights-json", s(&d.join("typo.json")), "--no-cache"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("unknown field `sunn`"), "{err}");
+    std::fs::write(d.join("none.json"), "{}").unwrap();
+    let out = s(&d.join("quiet.png")).to_string();
+    let small = ["--width", "16", "--height", "12", "--backend", "cpu", "--no-cache", "--out", &out];
+    let (code, err) = run(&[
+        &["render", "--obj", "models/test/cube.obj", "--lights-json", s(&d.join("none.json")), "--lod", "20"][..],
+        &small[..],
+    ]
+    .concat());
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("the lights give no light") && err.contains("--lod 20 is at or below"), "{err}");
+    let (code, err) =
+        run(&[&["render", "--obj", "models/test/cube.obj", "--gi", "--gi-extent", "1e-30"][..], &small[..]].concat());
+    // (This once overflowed an integer cell number in the level chain's sampling.)
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("--gi-extent 1e-30 is under a thousandth") && err.contains("into 0 of"), "{err}");
+    let (code, err) =
+        run(&[&["render", "--obj", "models/test/cube.obj", "--gi", "--gi-extent", "1e-3"][..], &small[..]].concat());
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("--gi-extent 1e-3 is under a thousandth"), "{err}");
+
     std::fs::write(d.join("junk.svo"), b"VOXRSVO\0 truncated").unwrap();
     let (code, err) = run(&["info", s(&d.join("junk.svo"))]);
     assert_eq!(code, Some(1));

@@ -4,6 +4,7 @@
 //! premultiplied radiance scales with the same clamp so the colour stays the children's mean.
 
 use super::inject::Injected;
+use super::volume::grid_i64;
 use glam::{DVec3, Vec4};
 
 /// One level of the chain.
@@ -67,7 +68,7 @@ pub fn trilinear_with(min: DVec3, cell: f64, res: u32, p: DVec3, mut fetch: impl
     let mut out = Vec4::ZERO;
     for k in 0..8 {
         let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-        let c = [base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz];
+        let c = [grid_i64(base.x) + dx, grid_i64(base.y) + dy, grid_i64(base.z) + dz];
         if c.iter().any(|&v| v < 0 || v >= r) {
             continue;
         }

@@ -125,6 +125,14 @@ impl VolumeSpec {
         if !(min.is_finite() && cell.is_finite() && cell > 0.0) {
             return Err(GiError::Placement { cell, min });
         }
+        // Cells must stay apart in f64 at the volume's coordinates (and far from overflowing
+        // the integer cell numbers): a smaller cell would put every voxel in one cell or none.
+        let magnitude = min.abs().max(min + DVec3::splat(cell * res as f64)).abs().max_element();
+        if cell < magnitude * 1e-12 {
+            return Err(GiError::Settings(format!(
+                "volume cells of {cell:e} cannot be told apart at coordinates of {magnitude:e}: use a larger extent"
+            )));
+        }
         Ok(VolumeSpec { res, min, cell })
     }
 
@@ -198,7 +206,7 @@ pub fn for_each_target(
         match filter {
             Filter::Nearest => {
                 let c = (g + DVec3::splat(0.5)).floor();
-                f([c.x as i64, c.y as i64, c.z as i64], 1.0, &moved);
+                f([grid_i64(c.x), grid_i64(c.y), grid_i64(c.z)], 1.0, &moved);
             }
             Filter::Split => {
                 let base = g.floor();
@@ -209,7 +217,7 @@ pub fn for_each_target(
                         * if dy == 1 { fr.y } else { 1.0 - fr.y }
                         * if dz == 1 { fr.z } else { 1.0 - fr.z };
                     if w != 0.0 {
-                        f([base.x as i64 + dx, base.y as i64 + dy, base.z as i64 + dz], w, &moved);
+                        f([grid_i64(base.x) + dx, grid_i64(base.y) + dy, grid_i64(base.z) + dz], w, &moved);
                     }
                 }
             }
@@ -333,5 +341,43 @@ impl Volume {
         } else {
             Vec3::ZERO
         }
+    }
+}
+
+/// A grid coordinate (already floored) as a cell number: values far outside any grid (and
+/// NaN) become numbers far outside too, without the overflow a plain `as i64` plus an offset
+/// would risk.
+#[inline]
+pub fn grid_i64(v: f64) -> i64 {
+    if (-4.0..=4.0e9).contains(&v) {
+        v as i64
+    } else if v > 0.0 {
+        i64::MAX / 4
+    } else {
+        i64::MIN / 4
+    }
+}
+
+#[cfg(test)]
+mod precision_tests {
+    use super::*;
+    use glam::Vec4;
+
+    /// Far coordinates with cells too small to tell apart are refused; a tiny volume near the
+    /// origin is fine; grid numbers never overflow, whatever the point.
+    #[test]
+    fn cells_must_be_resolvable_and_numbers_bounded() {
+        let far = VolumeSpec::following(DVec3::splat(1e9), 1e-6, 128);
+        assert!(far.unwrap_err().to_string().contains("cannot be told apart"));
+        assert!(VolumeSpec::following(DVec3::splat(1e6), 4.0, 128).is_ok());
+        assert!(VolumeSpec::following(DVec3::ZERO, 1e-30, 128).is_ok());
+        for v in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e300, -1e300, 6e31] {
+            let c = grid_i64(v);
+            assert!(c.checked_add(1).is_some() && !(0..1 << 20).contains(&c), "{v} -> {c}");
+        }
+        assert_eq!((grid_i64(3.0), grid_i64(-1.0)), (3, -1));
+        // The level chain samples a point far outside a tiny volume without overflowing.
+        let s = super::super::levels::trilinear_with(DVec3::ZERO, 1e-33, 4, DVec3::splat(0.5), |_| Vec4::ONE);
+        assert_eq!(s, Vec4::ZERO);
     }
 }

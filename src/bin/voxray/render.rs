@@ -60,6 +60,18 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         );
     }
 
+    let deepest = st.scene.parts.iter().map(|p| p.depth).max().unwrap_or(0);
+    if let Some(lod) = a.lod.filter(|&l| l >= deepest) {
+        eprintln!(
+            "note: --lod {lod} is at or below the deepest part's depth ({deepest}): every part renders at full detail"
+        );
+    }
+    let size = (st.bounds.1 - st.bounds.0).max_element();
+    if let Some(extent) = a.gi_extent.filter(|&e| a.gi && e < size * 1e-3) {
+        eprintln!(
+            "note: --gi-extent {extent:e} is under a thousandth of the scene's size ({size:.3}): the GI volume holds almost none of it, so GI adds next to nothing"
+        );
+    }
     let sampled = lights.emitter_sampling() > 0 && emitters > 0;
     let glowing = lights.use_mtl_emitters && st.scene.parts.iter().any(|p| p.attrs.iter().any(|a| a.is_emissive()));
     if !lights.has_direct() && lights.sky() == glam::Vec3::ZERO && !sampled {
