@@ -464,13 +464,7 @@ fn gpu_counters_equal_the_counts_of_the_read_back_records() {
 #[test]
 fn emitters_light_the_panel_room_as_on_the_cpu() {
     let Some(ctx) = context() else { return };
-    let mesh = voxray::model::panel_room::mesh();
-    let parts = build_parts(&mesh, Resolution::Depth(7)).unwrap();
-    let mut scene = Scene::new(parts);
-    for part in 0..scene.parts.len() {
-        scene.add(voxray::scene::Instance { part, parent: None, local: voxray::scene::Transform::IDENTITY }).unwrap();
-    }
-    scene.update().unwrap();
+    let scene = voxray::bench::gi::panel_room_scene(7).unwrap();
     let cam = voxray::model::panel_room::camera(96, 72);
     let lights = voxray::model::panel_room::lights();
     let features = Features { beams: false, ..Features::default() };
@@ -492,13 +486,7 @@ fn emitters_light_the_panel_room_as_on_the_cpu() {
 #[test]
 fn points_spots_and_extra_suns_light_the_gpu_frame_as_the_cpu() {
     let Some(ctx) = context() else { return };
-    let mesh = voxray::model::panel_room::mesh();
-    let parts = build_parts(&mesh, Resolution::Depth(7)).unwrap();
-    let mut scene = Scene::new(parts);
-    for part in 0..scene.parts.len() {
-        scene.add(voxray::scene::Instance { part, parent: None, local: voxray::scene::Transform::IDENTITY }).unwrap();
-    }
-    scene.update().unwrap();
+    let scene = voxray::bench::gi::panel_room_scene(7).unwrap();
     let cam = voxray::model::panel_room::camera(96, 72);
     let lights = Lights {
         suns: vec![voxray::scene::Sun { to_sun: glam::Vec3::new(0.2, 1.0, 0.1), irradiance: glam::Vec3::splat(2.0) }],

@@ -601,13 +601,7 @@ fn gpu_gi_frames_of_an_animated_clip_create_no_buffers_and_match_fresh_frames() 
 #[test]
 fn gpu_gi_with_emitters_matches_the_cpu() {
     let Some(ctx) = context() else { return };
-    let mesh = voxray::model::panel_room::mesh();
-    let parts = voxray::pipeline::build_parts(&mesh, voxray::voxelize::Resolution::Depth(6)).unwrap();
-    let mut scene = Scene::new(parts);
-    for part in 0..scene.parts.len() {
-        scene.add(voxray::scene::Instance { part, parent: None, local: voxray::scene::Transform::IDENTITY }).unwrap();
-    }
-    scene.update().unwrap();
+    let scene = voxray::bench::gi::panel_room_scene(6).unwrap();
     let cam = voxray::model::panel_room::camera(64, 48);
     let lights = voxray::model::panel_room::lights();
     images_agree(ctx.clone(), &scene, &cam, &lights, GiSettings { res: 32, ..Default::default() });
