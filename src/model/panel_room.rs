@@ -9,7 +9,7 @@ use super::room::{inward, shift_faces, HALF};
 use super::shapes::Builder;
 use crate::mesh::Mesh;
 use crate::scene::{Camera, Lights};
-use glam::{Affine3A, Quat, Vec3};
+use glam::Vec3;
 
 /// The room's materials: the box's three and the panel.
 pub const MATERIALS: &[MtlMaterial] = &[
@@ -46,22 +46,9 @@ pub fn build() -> Vec<(&'static str, Builder)> {
     let (p, y) = (PANEL_HALF, top - PANEL_DROP);
     let mut panel = Builder::default();
     panel.quad(v(-p, y, -p), v(p, y, -p), v(p, y, p), v(-p, y, p), "panel");
-    let block = |size: Vec3, turn_deg: f32, at: Vec3| {
-        let mut b = Builder::default();
-        let m = Affine3A::from_scale_rotation_translation(
-            size,
-            Quat::from_rotation_y(turn_deg.to_radians()),
-            at + Vec3::Y * (size.y * 0.5),
-        );
-        b.cube(m, "white");
-        b
-    };
-    vec![
-        ("room", room),
-        ("panel", panel),
-        ("tall_block", block(Vec3::new(0.55, 1.2, 0.55), 20.0, Vec3::new(-0.35, 0.0, -0.4))),
-        ("short_block", block(Vec3::new(0.55, 0.55, 0.55), -18.0, Vec3::new(0.4, 0.0, 0.25))),
-    ]
+    let mut parts = vec![("room", room), ("panel", panel)];
+    parts.extend(super::room::blocks());
+    parts
 }
 
 /// The room as an in-memory mesh.

@@ -60,6 +60,13 @@ pub fn build() -> Vec<(&'static str, Builder)> {
     ceiling(&mut room, x1, h, -h, h);
     ceiling(&mut room, x0, x1, -h, z0);
     ceiling(&mut room, x0, x1, z1, h);
+    let mut parts = vec![("room", room)];
+    parts.extend(blocks());
+    parts
+}
+
+/// The two white blocks standing on the floor, as parts (shared with the panel room).
+pub(crate) fn blocks() -> [(&'static str, Builder); 2] {
     let block = |size: Vec3, turn_deg: f32, at: Vec3| {
         let mut b = Builder::default();
         let m = Affine3A::from_scale_rotation_translation(
@@ -70,8 +77,7 @@ pub fn build() -> Vec<(&'static str, Builder)> {
         b.cube(m, "white");
         b
     };
-    vec![
-        ("room", room),
+    [
         ("tall_block", block(Vec3::new(0.55, 1.2, 0.55), 20.0, Vec3::new(-0.35, 0.0, -0.4))),
         ("short_block", block(Vec3::new(0.55, 0.55, 0.55), -18.0, Vec3::new(0.4, 0.0, 0.25))),
     ]
