@@ -5,6 +5,8 @@
 use glam::{Vec2, Vec3};
 use std::sync::Arc;
 
+pub mod polygon;
+
 /// A diffuse texture in linear RGB.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Texture {
@@ -242,7 +244,8 @@ mod obj {
         prescan(text, label)?;
         let mut mtl_error: std::cell::RefCell<Option<MeshError>> = Default::default();
         let opts =
-            tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
+            // Faces are triangulated here (ear clipping), not by tobj's fan.
+            tobj::LoadOptions { triangulate: false, single_index: false, ignore_points: true, ignore_lines: true };
         let (models, materials) = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |p| {
             let src = match read_mtl(p) {
                 Ok(s) => s,
@@ -271,6 +274,7 @@ mod obj {
         let default_mat = mesh.materials.len() as u32;
         mesh.materials.push(Material::new("default", Vec3::splat(0.7)));
 
+        let mut fanned = 0usize;
         for model in &models {
             let name = if model.name.is_empty() || model.name == "unnamed_object" {
                 default_name.to_string()
@@ -292,18 +296,36 @@ mod obj {
                 Vec3::new(m.positions[i], m.positions[i + 1], m.positions[i + 2])
             };
             let has_uv = !m.texcoords.is_empty() && m.texcoord_indices.len() == m.indices.len();
-            for (f, tri) in m.indices.chunks_exact(3).enumerate() {
-                let positions = [pos(tri[0]), pos(tri[1]), pos(tri[2])];
-                if is_degenerate(&positions) {
-                    mesh.degenerate_skipped += 1;
-                    continue;
+            // Vertex counts of the faces (none listed: all triangles).
+            let arities = if m.face_arities.is_empty() { vec![3; m.indices.len() / 3] } else { m.face_arities.clone() };
+            let mut start = 0usize;
+            for arity in arities {
+                let end = (start + arity as usize).min(m.indices.len());
+                let face = &m.indices[start..end];
+                let corners: Vec<Vec3> = face.iter().map(|&i| pos(i)).collect();
+                let split = polygon::triangulate(&corners);
+                fanned += split.fanned as usize;
+                for [a, b, c] in split.triangles {
+                    let positions = [corners[a], corners[b], corners[c]];
+                    if is_degenerate(&positions) {
+                        mesh.degenerate_skipped += 1;
+                        continue;
+                    }
+                    let uvs = has_uv.then(|| {
+                        let ti = [start + a, start + b, start + c].map(|k| m.texcoord_indices[k]);
+                        ti.map_or_uv(&m.texcoords)
+                    });
+                    mesh.parts[idx].triangles.push(Triangle { positions, uvs, material });
                 }
-                let uvs = has_uv.then(|| {
-                    let ti = &m.texcoord_indices[f * 3..f * 3 + 3];
-                    ti.map_or_uv(&m.texcoords)
-                });
-                mesh.parts[idx].triangles.push(Triangle { positions, uvs, material });
+                start = end;
             }
+        }
+        if fanned > 0 {
+            mesh.warnings.push(format!(
+                "{label}: {fanned} polygon face(s) cross themselves, are flat as a line or have more than {} vertices; \
+                 they were split as a fan from their first corner, which may cover notches",
+                polygon::MAX_EAR_CLIPPED
+            ));
         }
         mesh.parts.retain(|p| {
             if p.triangles.is_empty() {
@@ -320,7 +342,7 @@ mod obj {
     trait UvLookup {
         fn map_or_uv(&self, texcoords: &[f32]) -> [Vec2; 3];
     }
-    impl UvLookup for [u32] {
+    impl UvLookup for [u32; 3] {
         fn map_or_uv(&self, tc: &[f32]) -> [Vec2; 3] {
             let at = |i: u32| {
                 let i = i as usize * 2;

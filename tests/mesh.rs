@@ -177,3 +177,48 @@ fn specular_materials_reach_the_voxels() {
     assert!(m.warnings.len() == 1 && m.warnings[0].contains("Kd"), "{:?}", m.warnings);
     assert_eq!(m.materials[0].emission, Vec3::new(17.0, 12.0, 4.0));
 }
+
+/// A concave face keeps its notch: the face starts at the corner from which a fan would
+/// cover the notch (the fan's triangles add up to 22 where the face has area 10), and every
+/// corner's texture coordinate goes with it. A face that crosses itself is split too, with a
+/// warning.
+#[test]
+fn concave_faces_keep_their_notches() {
+    let d = tmp("concave");
+    let p = write(
+        &d,
+        "notch.obj",
+        "v 0 0 0\nv 4 0 0\nv 4 4 0\nv 2 1 0\nv 0 4 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0.5 0.25\nvt 0 1\n\
+         f 3/3 4/4 5/5 1/1 2/2\n",
+    );
+    let m = load_obj(&p).unwrap();
+    assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    let tris = &m.parts[0].triangles;
+    assert_eq!(tris.len(), 3);
+    let area: f32 = tris
+        .iter()
+        .map(|t| (t.positions[1] - t.positions[0]).cross(t.positions[2] - t.positions[0]).length() / 2.0)
+        .sum();
+    assert!((area - 10.0).abs() < 1e-4, "area {area}");
+    for t in tris {
+        // The face's winding (+z) and each corner's own uv (u = x/4, v = y/4).
+        assert!((t.positions[1] - t.positions[0]).cross(t.positions[2] - t.positions[0]).z > 0.0);
+        for (pos, uv) in t.positions.iter().zip(t.uvs.expect("uvs")) {
+            assert_eq!(uv, Vec2::new(pos.x / 4.0, pos.y / 4.0));
+        }
+    }
+    // No voxel in the notch (around (2, 3)), voxels beside it.
+    let opts = VoxelizeOptions { resolution: Resolution::Depth(5), solid: false };
+    let g = voxelize(&m.parts[0], &m.materials, &opts, &|_, _| {}).unwrap();
+    let size = g.bounds.size / 32.0;
+    let centres: Vec<Vec3> =
+        g.coords().map(|c| g.bounds.min + (Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) + 0.5) * size).collect();
+    let near = |x: f32, y: f32| centres.iter().any(|c| (c.x - x).abs() < size && (c.y - y).abs() < size);
+    assert!(!near(2.0, 3.0), "the notch is filled");
+    assert!(near(2.0, 0.5) && near(0.5, 3.0) && near(3.5, 3.0));
+
+    let bow = write(&d, "bow.obj", "v 0 0 0\nv 2 2 0\nv 2 0 0\nv 0 2 0\nf 1 2 3 4\n");
+    let m = load_obj(&bow).unwrap();
+    assert_eq!(m.parts[0].triangles.len(), 2);
+    assert!(m.warnings.iter().any(|w| w.contains("cross themselves")), "{:?}", m.warnings);
+}
