@@ -9,7 +9,7 @@ use crate::voxelize::{Resolution, VoxelizeOptions};
 use std::path::PathBuf;
 
 /// Bump when the voxelizer or builder changes what they produce for the same input.
-pub const BUILDER_VERSION: u32 = 1;
+pub const BUILDER_VERSION: u32 = 2;
 
 /// A folder of cached `.svo` files.
 #[derive(Clone, Debug)]

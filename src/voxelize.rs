@@ -57,7 +57,8 @@ pub struct Voxel {
     pub specular: f32,
     /// Area-weighted mean glossiness ([`crate::mesh::Material::gloss`]).
     pub gloss: f32,
-    /// Surface area inside the voxel (object units²); tiny for voxels only touched.
+    /// Surface area inside the voxel, in voxel faces (area ÷ one face's area, so independent
+    /// of the model's scale); tiny for voxels only touched.
     pub weight: f32,
 }
 
@@ -246,8 +247,7 @@ pub fn voxelize_in(
         });
     }
     let origin = bounds.min.as_dvec3();
-    let voxel_area = (bounds.size as f64 / (1u64 << depth) as f64).powi(2);
-    let ctx = Ctx { depth, scale, origin, voxel_area, materials };
+    let ctx = Ctx { depth, scale, origin, materials };
     // The area misses what a surface really touches: oblique surfaces cross up to √3 times
     // as many voxels, surfaces on voxel boundaries touch both sides, needles cover voxels
     // along their length with no area. Near the limit, count exactly (no memory) first.
@@ -381,7 +381,6 @@ struct Ctx<'a> {
     depth: u32,
     scale: f64,
     origin: DVec3,
-    voxel_area: f64,
     materials: &'a [Material],
 }
 
@@ -398,8 +397,11 @@ impl Ctx<'_> {
         let mat = self.materials.get(tri.material as usize);
         self.overlapped(&v, |c, bmin, bmax| {
             let (area, centroid) = clip_area(&v, bmin, bmax);
-            // Only touching (zero clipped area): keep the voxel, with a tiny weight.
-            let area_obj = (area / (self.scale * self.scale)).max(1e-9 * self.voxel_area);
+            // The weight is the clipped area in voxel faces (the grid's unit), so it does not
+            // depend on the model's scale: in object units² a model of 10⁻⁸ units weighs
+            // ~10⁻²² and one of 10³⁸ overflows f32, and both lost their normals. Only touching
+            // (zero clipped area): keep the voxel, with a tiny weight.
+            let area_w = area.max(1e-9);
             let albedo = mat.map_or(DVec3::splat(0.7), |m| {
                 let uv = tri.uvs.map(|uv| {
                     let b = barycentric(&v, if area > 0.0 { centroid } else { (bmin + bmax) * 0.5 });
@@ -407,7 +409,7 @@ impl Ctx<'_> {
                 });
                 m.albedo_at(uv.map(|p: DVec2| p.as_vec2())).as_dvec3()
             });
-            let w = area_obj as f32;
+            let w = area_w as f32;
             out.push(Entry {
                 code: morton_encode(c[0] as u32, c[1] as u32, c[2] as u32),
                 weight: w,
@@ -670,8 +672,7 @@ mod tests {
         let bounds = Cube { min: Vec3::splat(-1.0), size: 2.0 };
         let depth = 6;
         let scale = (1u64 << depth) as f64 / 2.0;
-        let ctx =
-            Ctx { depth, scale, origin: bounds.min.as_dvec3(), voxel_area: (1.0 / scale).powi(2), materials: &[] };
+        let ctx = Ctx { depth, scale, origin: bounds.min.as_dvec3(), materials: &[] };
         for (name, tris, area) in [("planes", &planes, 12.0), ("needle", &needle, 0.0)] {
             let mut entries = Vec::new();
             for t in tris.iter() {

@@ -190,6 +190,40 @@ fn far_from_the_origin_renders_like_at_the_origin() {
     assert!(same as f64 >= 0.97 * a.instance.len() as f64, "{same} of {} pixels agree", a.instance.len());
 }
 
+/// A tetrahedron of 10⁻⁸, 1, 10¹⁹ and 10³⁸ units, each framed by the default camera, gives
+/// the same picture: the framing and the voxels' normals do not depend on the model's scale
+/// (in object units² the normals' weights underflowed at 10⁻⁸ and overflowed at 10³⁸, and
+/// the framing gave up below a micrometre and above 10³⁸/√3).
+#[test]
+fn tiny_and_huge_models_render_like_unit_ones() {
+    let image = |s: f32| {
+        let v = [Vec3::ZERO, Vec3::X * s, Vec3::Y * s, Vec3::Z * s];
+        let tri = |a: usize, b: usize, c: usize| Triangle { positions: [v[a], v[b], v[c]], uvs: None, material: 0 };
+        let part = Part { name: "t".into(), triangles: vec![tri(0, 1, 2), tri(0, 1, 3), tri(0, 2, 3), tri(1, 2, 3)] };
+        let mats = [Material::new("grey", Vec3::splat(0.5))];
+        let opts = VoxelizeOptions { resolution: Resolution::Depth(6), solid: false };
+        let svo = svo::build(&voxelize(&part, &mats, &opts, &|_, _| {}).unwrap()).unwrap();
+        let s = scene(&[svo]);
+        let (lo, hi) = s.bounds();
+        let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 64, 48);
+        let plan = FramePlan::new(&s, &cam, &Lights::default(), &Features::default(), None);
+        render(&s, &cam, &Lights::default(), &plan, &RenderOptions::default(), None, &|_, _| {})
+    };
+    let unit = image(1.0);
+    let covered = unit.instance.iter().filter(|&&i| i >= 0).count();
+    assert!(covered > 64 * 48 / 10, "the model covers {covered} pixels");
+    for s in [1e-8, 1e19, 1e38] {
+        let f = image(s);
+        let same =
+            unit.radiance.iter().zip(&f.radiance).filter(|(a, b)| (**a - **b).abs().max_element() < 1e-3).count();
+        assert!(
+            same as f64 >= 0.9 * unit.radiance.len() as f64,
+            "scale {s}: {same} of {} pixels agree",
+            f.radiance.len()
+        );
+    }
+}
+
 #[test]
 fn absurd_resolutions_are_refused_before_allocating() {
     let mesh =

@@ -85,7 +85,9 @@ fn voxel_weights_add_up_to_the_triangle_area() {
             &|_, _| {},
         )
         .unwrap();
-        let sum: f64 = g.voxels.iter().map(|v| v.weight as f64).sum();
+        // Weights are in voxel faces.
+        let face = (g.bounds.size as f64 / 64.0).powi(2);
+        let sum: f64 = g.voxels.iter().map(|v| v.weight as f64 * face).sum();
         assert!((sum - area).abs() <= 1e-4 * area, "sum {sum} area {area}");
     }
 }

@@ -74,8 +74,12 @@ impl Camera {
     /// A camera looking at a bounding box from direction `from` (towards the eye), framed to
     /// fit it.
     pub fn framing_from(lo: Vec3, hi: Vec3, width: u32, height: u32, from: DVec3) -> Camera {
-        let centre = ((lo + hi) * 0.5).as_dvec3();
-        let radius = ((hi - lo).length() as f64 * 0.5).max(1e-6);
+        // In f64: the box of a model at 10³⁸ units has an f32 diagonal of +∞, and one of
+        // 10⁻⁸ units must not be framed as if it were a micrometre wide.
+        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+        let centre = (lo + hi) * 0.5;
+        // A box of one point still gets a view (relative to where it lies, or of 10⁻³⁰).
+        let radius = ((hi - lo).length() * 0.5).max(centre.length() * 1e-7).max(1e-30);
         let vfov_deg: f64 = 30.0;
         let aspect = width as f64 / height.max(1) as f64;
         let half = (vfov_deg.to_radians() * 0.5).tan() * aspect.min(1.0);
