@@ -71,7 +71,9 @@ fn car_primary_rays(c: &mut Criterion) {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
         g.bench_function(format!("{threads}_threads"), |b| {
             b.iter(|| {
-                pool.install(|| render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}))
+                pool.install(|| {
+                    render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap()
+                })
             })
         });
     }

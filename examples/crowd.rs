@@ -35,7 +35,8 @@ fn main() -> Result<(), voxray::Error> {
         st.scene.update()?;
         let t2 = Instant::now();
         let plan = FramePlan::new(&st.scene, &camera, &lights, &features, None);
-        let frame = render(&st.scene, &camera, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {});
+        let frame =
+            render(&st.scene, &camera, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {}).unwrap();
         let t3 = Instant::now();
         std::hint::black_box(frame);
         if f >= 2 {

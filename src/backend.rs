@@ -59,10 +59,7 @@ impl Backend {
                 Err(e) => Err(e.into()),
             },
             #[cfg(not(feature = "gpu"))]
-            BackendKind::Gpu => Err(crate::Error::Io {
-                path: "backend".into(),
-                source: std::io::Error::other("this build has no GPU support (feature `gpu`)"),
-            }),
+            BackendKind::Gpu => Err(crate::Error::NoGpuSupport),
             #[cfg(not(feature = "gpu"))]
             BackendKind::Auto => Ok((Backend::Cpu(Box::default()), "CPU (built without the `gpu` feature)".into())),
         }
@@ -112,7 +109,7 @@ impl Backend {
         progress: &(dyn Fn(u32, u32) + Sync),
     ) -> Result<Frame, crate::Error> {
         match self {
-            Backend::Cpu(h) => Ok(render(scene, camera, lights, plan, opts, Some(h), progress)),
+            Backend::Cpu(h) => Ok(render(scene, camera, lights, plan, opts, Some(h), progress)?),
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => Ok(g.render(scene, camera, lights, plan, opts)?),
         }

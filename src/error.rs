@@ -45,4 +45,17 @@ pub enum Error {
         /// The error.
         source: std::io::Error,
     },
+    /// A car staged from other than its eight parts.
+    #[error("a car has 8 parts ({}), got {got}", crate::model::car::PART_NAMES.join(", "))]
+    CarParts {
+        /// The parts given.
+        got: usize,
+    },
+    /// The GPU backend was asked of a build without it.
+    #[error("this build has no GPU support (the `gpu` feature)")]
+    NoGpuSupport,
+    /// The interactive window.
+    #[cfg(feature = "viewer")]
+    #[error(transparent)]
+    Viewer(#[from] crate::viewer::ViewerError),
 }

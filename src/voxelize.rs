@@ -126,7 +126,7 @@ pub enum VoxelizeError {
     #[error("solid fill supports depth ≤ {SOLID_MAX_DEPTH}, asked for {0} (use a surface voxelization or a coarser voxel size)")]
     SolidTooDeep(u32),
     /// The part would produce more than [`MAX_VOXELS`] voxels.
-    #[error("part '{part}' at depth {depth} would have about {estimate} million voxels (the limit is {} million); use a smaller --depth or a larger --voxel-size", MAX_VOXELS / 1_000_000)]
+    #[error("part '{part}' at depth {depth} would have about {estimate} million voxels (the limit is {} million); use a smaller depth or a larger voxel size", MAX_VOXELS / 1_000_000)]
     TooManyVoxels {
         /// Part name.
         part: String,
@@ -137,7 +137,7 @@ pub enum VoxelizeError {
     },
     /// Counted exactly, the part's triangles overlap more than [`MAX_VOXELS`] voxels (the
     /// count stops at the limit).
-    #[error("part '{part}' at depth {depth}: its triangles overlap more than {} million voxels, the limit (counted triangle by triangle); use a smaller --depth or a larger --voxel-size", MAX_VOXELS / 1_000_000)]
+    #[error("part '{part}' at depth {depth}: its triangles overlap more than {} million voxels, the limit (counted triangle by triangle); use a smaller depth or a larger voxel size", MAX_VOXELS / 1_000_000)]
     TooManyVoxelsCounted {
         /// Part name.
         part: String,

@@ -13,7 +13,7 @@ fn gi_approaches_the_path_traced_box_as_resolution_and_cones_rise() {
     let camera = voxray::model::room::camera(64, 48);
     let lights = voxray::model::room::lights();
     let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
-    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     let mut pt =
         PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: 128, bounces: Some(1), seed: 3 }).unwrap();
     pt.run(&mut |_, _| {});
@@ -109,7 +109,7 @@ fn the_specular_cone_moves_glossy_surfaces_towards_the_reference() {
     let camera = voxray::model::room::camera(64, 48);
     let lights = voxray::model::room::lights();
     let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
-    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     assert!(base.specular.iter().any(|&ks| ks > 0.2), "the white surfaces are glossy");
     let mut pt =
         PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: 128, bounces: Some(1), seed: 4 }).unwrap();

@@ -59,7 +59,7 @@ fn clip(scene: &mut Scene, cars: &[Car], features: Features, frames: usize, orbi
             let q = DQuat::from_rotation_y((orbit_deg_per_s * t).to_radians());
             let cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
             let plan = FramePlan::new(scene, &cam, &lights, &features, (f > 0).then_some(&hits));
-            render(scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {})
+            render(scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap()
         })
         .collect()
 }
@@ -249,7 +249,7 @@ fn a_car_a_million_units_away_renders_like_one_at_the_origin() {
             ..base
         };
         let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
-        render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {})
+        render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap()
     };
     let a = render_at(DVec3::ZERO);
     let b = render_at(DVec3::new(1e6, 0.0, -1e6));
@@ -299,7 +299,7 @@ fn singular_and_nan_transforms_are_refused_and_leave_no_nan() {
     let cam = camera();
     let lights = Lights::default();
     let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
-    let f = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let f = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     assert!(f.radiance.iter().all(|r| r.is_finite()) && f.t.iter().all(|t| !t.is_nan()));
 }
 
@@ -404,11 +404,11 @@ fn changing_the_level_of_detail_invalidates_the_hit_buffer() {
     let coarse = RenderOptions { max_level: 2 };
     let mut hits = HitBuffer::new();
     let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
-    render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+    render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
     // Same camera, nothing moved, but a coarser level: nothing may be reused.
     let plan = FramePlan::new(&scene, &cam, &lights, &features, Some(&hits));
     assert!(plan.hit_buffer);
-    let second = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {});
+    let second = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {}).unwrap();
     let fresh = render(
         &scene,
         &cam,
@@ -417,13 +417,14 @@ fn changing_the_level_of_detail_invalidates_the_hit_buffer() {
         &coarse,
         None,
         &|_, _| {},
-    );
+    )
+    .unwrap();
     assert_eq!(second.reused, 0);
     assert_eq!(second.t, fresh.t);
     assert_eq!(second.instance, fresh.instance);
     // And at the same level again, everything is reused.
     let plan = FramePlan::new(&scene, &cam, &lights, &features, Some(&hits));
-    let third = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {});
+    let third = render(&scene, &cam, &lights, &plan, &coarse, Some(&mut hits), &|_, _| {}).unwrap();
     assert_eq!(third.reused, third.primary_rays);
 }
 
@@ -442,9 +443,10 @@ fn the_refitted_bvh_gives_the_plain_answers() {
         scene.update().unwrap();
         let plan = FramePlan::new(&scene, &camera(), &lights, &features, None);
         assert!(plan.bvh);
-        let fast = render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+        let fast =
+            render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
         let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
-        let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+        let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
         assert_same_hits(&[fast], &[slow]);
     }
     assert_eq!(hits.bvh_builds, 1, "driving cars refit the first tree");
@@ -460,9 +462,10 @@ fn the_refitted_bvh_gives_the_plain_answers() {
     }
     scene.update().unwrap();
     let plan = FramePlan::new(&scene, &camera(), &lights, &features, None);
-    let fast = render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+    let fast =
+        render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
     let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
-    let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+    let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     assert_same_hits(&[fast], &[slow]);
     // Refitted or rebuilt (src/render/bvh.rs tests the rule), the answers are the plain ones.
     assert!(hits.bvh_builds <= 2);
@@ -486,9 +489,10 @@ fn kept_colours_follow_moving_shadows() {
         voxray::scene::car::pose_all(&mut st.scene, &st.cars, f as f64 * 0.2).unwrap();
         st.scene.update().unwrap();
         let plan = FramePlan::new(&st.scene, &cam, &lights, &Features::default(), (f > 0).then_some(&hits));
-        let fast = render(&st.scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+        let fast =
+            render(&st.scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
         let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
-        let slow = render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+        let slow = render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
         assert_same_hits(std::slice::from_ref(&fast), &[slow]);
         let ground = st.scene.instances().len() as i32 - 1;
         kept_on_ground +=
@@ -521,9 +525,10 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
             }
             let plan = FramePlan::new(&scene, &camera(), &lights, &Features::default(), (f > 0).then_some(&hits));
             let fast =
-                render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {});
+                render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {})
+                    .unwrap();
             let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
-            let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {});
+            let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
             assert_same_hits(std::slice::from_ref(&fast), &[slow]);
             moved_only += fast.moved_only;
             if f == 2 {

@@ -250,6 +250,8 @@ fn bad_input_gives_clear_errors() {
     ]);
     assert_eq!(code, Some(1));
     assert!(err.contains("about 135 million voxels (the limit is 60 million)"), "{err}");
+    // The library's message, then the flags that change it.
+    assert!(err.contains("hint: use a smaller --depth or a larger --voxel-size"), "{err}");
 
     // A byte-order mark before JSON is not an error.
     std::fs::write(d.join("bom.json"), "\u{feff}{\"sun\": null}").unwrap();

@@ -49,7 +49,7 @@ fn scene(parts: &[Svo]) -> Scene {
 fn frame(s: &Scene, cam: &Camera, lights: &Lights) -> Frame {
     let plan = FramePlan::new(s, cam, lights, &Features::default(), None);
     assert!(plan.shadows || lights.emitter_sampling() == 0, "emitters need shadow rays");
-    render(s, cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {})
+    render(s, cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap()
 }
 
 /// Looking along `dir` from `eye` with a narrow field, so the centre pixels see one spot.

@@ -414,7 +414,7 @@ fn gi_bleeds_a_red_wall_onto_a_white_floor_and_leaves_the_sky_alone() {
         ..Lights::default()
     };
     let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
-    let plain = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let plain = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     let s = GiSettings { res: 64, extent: Some(12.0), ..GiSettings::default() };
     let mut caches = voxray::gi::GiCaches::new();
     let opts = RenderOptions::default();
@@ -549,7 +549,7 @@ fn cpu_gi_keeps_colours_only_where_the_light_was_kept() {
                         .unwrap();
                 (f, Some(st))
             }
-            None => (render(&scene, &cam, &lights, &plan, &opts, Some(hits), &|_, _| {}), None),
+            None => (render(&scene, &cam, &lights, &plan, &opts, Some(hits), &|_, _| {}).unwrap(), None),
         }
     };
     let s = GiSettings { res: 32, ..Default::default() };
@@ -580,6 +580,7 @@ fn cpu_gi_keeps_colours_only_where_the_light_was_kept() {
         &opts,
         None,
         &|_, _| {},
-    );
+    )
+    .unwrap();
     assert_eq!(d.radiance, plain.radiance);
 }

@@ -130,7 +130,7 @@ fn sparse_gi_renders_the_dense_image() {
     let camera = voxray::model::room::camera(48, 36);
     let lights = voxray::model::room::lights();
     let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
-    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let base = render(&scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     for bounces in [1, 3] {
         let s = |volume| GiSettings { res: 64, bounces, volume, ..GiSettings::default() };
         let (_, dense) = gi_frame(&scene, &camera, &lights, &plan, &s(VolumeChoice::Dense), 1).unwrap();

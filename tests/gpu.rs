@@ -171,7 +171,8 @@ fn compare_clip(cars: usize, frames: usize, orbit: f64, features: Features) {
         let plan_cpu = FramePlan::new(&s_cpu, &cam, &lights, &features, (f > 0).then_some(&cpu_hits));
         let plan_gpu = FramePlan::new(&s_gpu, &cam, &lights, &features, (f > 0).then_some(&gpu.state));
         assert_eq!(plan_cpu, plan_gpu);
-        let c = render(&s_cpu, &cam, &lights, &plan_cpu, &RenderOptions::default(), Some(&mut cpu_hits), &|_, _| {});
+        let c = render(&s_cpu, &cam, &lights, &plan_cpu, &RenderOptions::default(), Some(&mut cpu_hits), &|_, _| {})
+            .unwrap();
         let g = gpu.render(&s_gpu, &cam, &lights, &plan_gpu, &RenderOptions::default()).unwrap();
         assert_close(&c, &g, &format!("{cars} driving cars, frame {f}, plan {:?}", plan_gpu.search()));
         if plan_gpu.hit_buffer && orbit == 0.0 {
@@ -274,7 +275,7 @@ fn a_new_part_where_a_dropped_one_lived_is_uploaded_and_traced() {
     let s = alone(second);
     let plan = FramePlan::new(&s, &cam, &lights, &Features { beams: false, ..Features::default() }, None);
     let g = gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
-    let c = render(&s, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let c = render(&s, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     assert!(c.instance.iter().any(|&i| i >= 0), "the door should be in view");
     assert_close(&c, &g, "a new part after a dropped one");
 }
@@ -470,7 +471,7 @@ fn emitters_light_the_panel_room_as_on_the_cpu() {
     let features = Features { beams: false, ..Features::default() };
     let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
     assert!(plan.shadows);
-    let c = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let c = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     let mut gpu = GpuRenderer::new(ctx);
     gpu.set_counting(true);
     let g = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
@@ -508,7 +509,7 @@ fn points_spots_and_extra_suns_light_the_gpu_frame_as_the_cpu() {
     .unwrap();
     let features = Features { beams: false, ..Features::default() };
     let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
-    let c = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let c = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
     let mut gpu = GpuRenderer::new(ctx);
     gpu.set_counting(true);
     let g = gpu.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();

@@ -231,7 +231,7 @@ fn images_agree(
 ) -> (Frame, Frame, voxray::gpu::gi::GpuGiStats) {
     let (cam, lights) = (*cam, lights.clone());
     let plan = FramePlan::new(scene, &cam, &lights, &Features::default(), None);
-    let flat = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).radiance;
+    let flat = render(scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap().radiance;
     let opts = RenderOptions::default();
     let mut caches = GiCaches::new();
     let (cpu, _) =
@@ -421,7 +421,7 @@ fn gpu_texture_levels_match_the_buffer_levels() {
             f
         };
         let (buf, tex) = (frame(LevelStore::Buffer), frame(LevelStore::Texture));
-        let flat = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+        let flat = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
         let n = buf.radiance.len() as f32;
         let mean = buf.radiance.iter().map(|c| c.element_sum()).sum::<f32>() / n;
         let diff = |a: &Frame, b: &Frame| {

@@ -44,7 +44,7 @@ fn scene(parts: &[Svo]) -> Scene {
 fn frame(parts: &[Svo], cam: &Camera, lights: &Lights, features: Features) -> Frame {
     let s = scene(parts);
     let plan = FramePlan::new(&s, cam, lights, &features, None);
-    render(&s, cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {})
+    render(&s, cam, lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap()
 }
 
 fn top_down(width: u32) -> Camera {
@@ -207,7 +207,7 @@ fn tiny_and_huge_models_render_like_unit_ones() {
         let (lo, hi) = s.bounds();
         let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 64, 48);
         let plan = FramePlan::new(&s, &cam, &Lights::default(), &Features::default(), None);
-        render(&s, &cam, &Lights::default(), &plan, &RenderOptions::default(), None, &|_, _| {})
+        render(&s, &cam, &Lights::default(), &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap()
     };
     let unit = image(1.0);
     let covered = unit.instance.iter().filter(|&&i| i >= 0).count();
@@ -235,7 +235,35 @@ fn absurd_resolutions_are_refused_before_allocating() {
         &|_, _| {},
     );
     let msg = e.unwrap_err().to_string();
-    assert!(msg.contains("million voxels") && msg.contains("--depth"), "{msg}");
+    // The library says what to change in its own terms; the CLI adds its flags.
+    assert!(msg.contains("million voxels") && msg.contains("smaller depth") && !msg.contains("--"), "{msg}");
+}
+
+/// The library's render refuses a camera that cannot make an image (zero or absurd sizes,
+/// NaN, a zero field of view) with the camera's typed error, before allocating anything:
+/// a width of 0 used to panic in the pixel loop.
+#[test]
+fn render_refuses_bad_cameras() {
+    let parts = build(vec![quad("q", 0.0, 1.0)], 1.0 / 16.0);
+    let s = scene(&parts);
+    let good = top_down(16);
+    let lights = Lights::default();
+    let plan = FramePlan::new(&s, &good, &lights, &Features::default(), None);
+    assert!(render(&s, &good, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).is_ok());
+    let bad = [
+        Camera { width: 0, ..good },
+        Camera { height: 0, ..good },
+        Camera { width: 1 << 20, height: 1 << 20, ..good },
+        Camera { eye: DVec3::NAN, ..good },
+        Camera { vfov_deg: 0.0, ..good },
+        Camera { target: good.eye, ..good },
+    ];
+    for cam in bad {
+        match render(&s, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}) {
+            Err(e) => assert_eq!(Some(e), cam.validate().err()),
+            Ok(_) => panic!("rendered with {cam:?}"),
+        }
+    }
 }
 
 /// An eye inside a voxel gives a flat image (every ray hits at t = 0); the frame says so, so
@@ -266,7 +294,7 @@ fn a_recycled_frame_renders_like_a_fresh_one() {
     let mut hits = voxray::render::HitBuffer::new();
     let render_with = |cam: &Camera, hits: &mut voxray::render::HitBuffer| {
         let plan = FramePlan::new(&s, cam, &lights, &Features::default(), None);
-        render(&s, cam, &lights, &plan, &RenderOptions::default(), Some(hits), &|_, _| {})
+        render(&s, cam, &lights, &plan, &RenderOptions::default(), Some(hits), &|_, _| {}).unwrap()
     };
     let first = render_with(&near, &mut hits);
     assert!(first.instance.iter().filter(|&&i| i >= 0).count() > first.instance.len() / 2);

@@ -75,7 +75,7 @@ fn a_session_frame_is_the_plan_the_render_and_gi_done_by_hand() {
     let third = session.frame(&scene, &cam, &lights, &features, &opts, &|_, _| {}).unwrap();
     assert!(!third.plan.hit_buffer && third.gi.is_none() && third.gi_reuse.is_none() && third.plan.gi.is_none());
     let plain = FramePlan::new(&scene, &cam, &lights, &features, None);
-    let c = render(&scene, &cam, &lights, &plain, &opts, None, &|_, _| {});
+    let c = render(&scene, &cam, &lights, &plain, &opts, None, &|_, _| {}).unwrap();
     assert_eq!(session.last_frame(), Some(&c));
 }
 

@@ -545,7 +545,7 @@ fn accuracy_on(
     let (scene, camera, lights) = (scene, *camera, lights.clone());
     let plan = FramePlan::new(scene, &camera, &lights, &Features::default(), None);
     let t0 = Instant::now();
-    let base = render(scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {});
+    let base = render(scene, &camera, &lights, &plan, &RenderOptions::default(), None, &|_, _| {})?;
     let base_ms = t0.elapsed().as_secs_f64() * 1e3;
     progress(&format!("gi-accuracy: {label}reference, {} spp", cfg.spp));
     let (reference, ref_ms) = one_bounce_reference(scene, &camera, &lights, cfg)?;

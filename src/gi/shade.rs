@@ -604,7 +604,7 @@ pub fn render_with_gi(
     let term = caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
     let ambient = crate::render::AmbientLight { term: &term, unchanged: stats.reuse_pixels };
     let (frame, cones_ms) =
-        crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress);
+        crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress)?;
     stats.cones_ms = cones_ms;
     Ok((frame, stats))
 }

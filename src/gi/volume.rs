@@ -94,6 +94,9 @@ pub enum GiError {
     /// A world matrix with NaN/∞ or a singular linear part.
     #[error("instance transform is not finite and invertible: {0:?}")]
     Transform(DAffine3),
+    /// The camera of the frame.
+    #[error(transparent)]
+    Camera(#[from] crate::scene::CameraError),
 }
 
 /// Checks that a world matrix can move voxels: finite, with an invertible linear part (the

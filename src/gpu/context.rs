@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
     /// No adapter on the allowed backends.
-    #[error("no GPU adapter found on Vulkan/Metal/DX12 ({0}); on Linux without a GPU install Mesa's software Vulkan driver (Debian: mesa-vulkan-drivers), or use --backend cpu")]
+    #[error("no GPU adapter found on Vulkan/Metal/DX12 ({0}); on Linux without a GPU install Mesa's software Vulkan driver (Debian: mesa-vulkan-drivers), or use the CPU backend")]
     NoAdapter(String),
     /// Device creation failed.
     #[error("GPU device: {0}")]
@@ -34,11 +34,14 @@ pub enum GpuError {
     #[error("GPU validation error: {0}")]
     Validation(String),
     /// The device ran out of memory.
-    #[error("GPU out of memory: {0}; lower the resolution or --gi-res, or use --backend cpu")]
+    #[error("GPU out of memory: {0}; lower the image or GI volume resolution, or use the CPU backend")]
     OutOfMemory(String),
     /// The device was lost (driver reset, GPU removed); a new context is needed.
     #[error("GPU device lost: {0}")]
     Lost(String),
+    /// The camera of the frame.
+    #[error(transparent)]
+    Camera(#[from] crate::scene::CameraError),
 }
 
 /// A wgpu error as the library's.
@@ -53,7 +56,7 @@ fn library_error(e: wgpu::Error) -> GpuError {
 /// What a user can do about a GI buffer too large for the device.
 fn hint(what: &str) -> &'static str {
     if what.starts_with("the GI") {
-        ": lower --gi-res (a dense volume: or use --gi-volume sparse, which stores only the bricks voxels land in), or run GI on the CPU with --backend cpu"
+        ": lower the GI volume's resolution (a dense volume: or use the sparse volume, which stores only the bricks voxels land in), or run GI on the CPU backend"
     } else {
         ""
     }

@@ -552,6 +552,8 @@ impl GpuRenderer {
         plan: &FramePlan,
         opts: &RenderOptions,
     ) -> Result<Frame, GpuError> {
+        // Before anything is sized by it (width · height is a u32 product below).
+        camera.validate()?;
         let traffic = self.ctx.traffic();
         self.upload_parts(&scene.parts)?;
         let (w, h) = (camera.width, camera.height);

@@ -11,7 +11,7 @@ use super::instances::{prepare, Prepared};
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
-use crate::scene::{Camera, Lights, Scene};
+use crate::scene::{Camera, CameraError, Lights, Scene};
 use crate::traverse::TraceOptions;
 use glam::{DVec3, Vec3};
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
@@ -274,7 +274,8 @@ fn direct_light(
 
 /// Renders one frame of `scene` as `plan` says. With a hit buffer, pixels are reused where
 /// the plan allows it and the buffer is refreshed for the next frame. `progress(rows, of)` is
-/// called as rows finish (both passes count). The ambient term is the flat sky.
+/// called as rows finish (both passes count). The ambient term is the flat sky. A camera that
+/// [`Camera::validate`] refuses is refused here, before anything is allocated.
 pub fn render(
     scene: &Scene,
     camera: &Camera,
@@ -283,8 +284,8 @@ pub fn render(
     opts: &RenderOptions,
     hits: Option<&mut HitBuffer>,
     progress: &(dyn Fn(u32, u32) + Sync),
-) -> Frame {
-    render_lit(scene, camera, lights, plan, opts, hits, None, progress).0
+) -> Result<Frame, CameraError> {
+    Ok(render_lit(scene, camera, lights, plan, opts, hits, None, progress)?.0)
 }
 
 /// [`render`] with the ambient term from `ambient` instead of the flat sky; also returns the
@@ -302,7 +303,8 @@ pub fn render_lit(
     hits: Option<&mut HitBuffer>,
     ambient: Option<&AmbientLight>,
     progress: &(dyn Fn(u32, u32) + Sync),
-) -> (Frame, f64) {
+) -> Result<(Frame, f64), CameraError> {
+    camera.validate()?;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
     let prepared = prepare(scene, camera.eye, plan.transform);
@@ -456,5 +458,5 @@ pub fn render_lit(
         }
         b.bvh = bvh;
     }
-    (f, ambient_ms)
+    Ok((f, ambient_ms))
 }

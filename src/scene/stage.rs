@@ -23,13 +23,7 @@ pub struct Staged {
 /// turning). `with_ground`: a 1 m checkered ground under everything the cars can reach.
 pub fn stage_cars(car_parts: &[Arc<Svo>], n: usize, travel: bool, with_ground: bool) -> Result<Staged, crate::Error> {
     if car_parts.len() != 8 {
-        return Err(crate::Error::Io {
-            path: "car".into(),
-            source: std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                format!("a car has 8 parts, got {}", car_parts.len()),
-            ),
-        });
+        return Err(crate::Error::CarParts { got: car_parts.len() });
     }
     let mut scene = Scene::new(car_parts.to_vec());
     let mut cars = Vec::with_capacity(n);

@@ -3,13 +3,12 @@
 use super::*;
 
 pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
-    use voxray::viewer::{check_display, run, CarParts, DemoOptions, ViewerError};
-    let demo_err = |e: ViewerError| Error::Io { path: "demo".into(), source: std::io::Error::other(e.to_string()) };
+    use voxray::viewer::{check_display, run, CarParts, DemoOptions};
     let lights = match &a.lights_json {
         Some(p) => Lights::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
         None => Lights::default(),
     };
-    check_display().map_err(demo_err)?;
+    check_display()?;
     let st = stage(&a.source, a.cars, a.in_place, false, !a.no_ground)?;
     let (lo, hi) = if st.cars.is_empty() || a.in_place { st.cars_bounds() } else { st.bounds };
     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
@@ -29,7 +28,7 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         gpu_read_back: a.gpu_read_back,
         gpu_stats: a.gpu_stats,
     };
-    let report = run(opts, st.scene, st.cars, lights, camera).map_err(demo_err)?;
+    let report = run(opts, st.scene, st.cars, lights, camera)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
     if let Some(line) = report.gpu_steady_state() {
         println!("{line}");

@@ -61,8 +61,28 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
+            if let Some(h) = hint(&e) {
+                eprintln!("hint: {h}");
+            }
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The command-line flags that fix an error the library describes in its own terms.
+fn hint(e: &Error) -> Option<&'static str> {
+    use voxray::voxelize::VoxelizeError;
+    match e {
+        Error::Voxelize(VoxelizeError::TooManyVoxels { .. } | VoxelizeError::TooManyVoxelsCounted { .. }) => {
+            Some("use a smaller --depth or a larger --voxel-size")
+        }
+        #[cfg(feature = "gpu")]
+        Error::Gpu(voxray::gpu::GpuError::NoAdapter(_)) => Some("--backend cpu renders on the CPU"),
+        #[cfg(feature = "gpu")]
+        Error::Gpu(voxray::gpu::GpuError::OutOfMemory(_) | voxray::gpu::GpuError::TooLarge { .. }) => {
+            Some("lower --width/--height or --gi-res, try --gi-volume sparse, or use --backend cpu")
+        }
+        _ => None,
     }
 }
 
