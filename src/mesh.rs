@@ -241,7 +241,7 @@ mod obj {
         texture_dir: Option<&Path>,
         read_mtl: &dyn Fn(&Path) -> Result<String, MeshError>,
     ) -> Result<Mesh, MeshError> {
-        prescan(text, label)?;
+        let usemtl = prescan(text, label)?;
         let mut mtl_error: std::cell::RefCell<Option<MeshError>> = Default::default();
         let opts =
             // Faces are triangulated here (ear clipping), not by tobj's fan.
@@ -254,6 +254,10 @@ mod obj {
                     return Err(tobj::LoadError::OpenFileFailed);
                 }
             };
+            if let Err(e) = prescan_mtl(&src, &p.display().to_string()) {
+                mtl_error.borrow_mut().get_or_insert(e);
+                return Err(tobj::LoadError::MaterialParseError);
+            }
             tobj::load_mtl_buf(&mut src.as_bytes()).inspect_err(|e| {
                 mtl_error.borrow_mut().get_or_insert(MeshError::Parse {
                     path: p.display().to_string(),
@@ -270,6 +274,13 @@ mod obj {
         let mut mesh = Mesh::default();
         for m in &materials {
             mesh.materials.push(convert_material(m, texture_dir, &mut mesh.warnings)?);
+        }
+        for (line, name) in usemtl {
+            if !mesh.materials.iter().any(|m| m.name == name) {
+                mesh.warnings.push(format!(
+                    "{label}:{line}: usemtl '{name}' names no material of the MTL files; its faces use the default grey"
+                ));
+            }
         }
         let default_mat = mesh.materials.len() as u32;
         mesh.materials.push(Material::new("default", Vec3::splat(0.7)));
@@ -452,9 +463,12 @@ mod obj {
 
     /// Checks vertex and face lines before tobj sees them, so errors carry a line number and
     /// the object name (tobj reports neither).
-    fn prescan(text: &str, label: &str) -> Result<(), MeshError> {
+    /// Checks the OBJ text line by line (so errors carry line numbers, which tobj's do not)
+    /// and returns the `usemtl` names with their lines.
+    fn prescan(text: &str, label: &str) -> Result<Vec<(usize, String)>, MeshError> {
         let mut object = String::from("(none)");
-        let (mut nv, mut nvt) = (0i64, 0i64);
+        let (mut nv, mut nvt, mut nvn) = (0i64, 0i64, 0i64);
+        let mut usemtl: Vec<(usize, String)> = Vec::new();
         for (i, raw) in text.lines().enumerate() {
             let line = i + 1;
             let l = raw.trim();
@@ -462,6 +476,19 @@ mod obj {
             let parse_err = |message: String| MeshError::Parse { path: label.into(), line: Some(line), message };
             match it.next() {
                 Some("o") | Some("g") => object = it.collect::<Vec<_>>().join(" "),
+                Some("usemtl") => {
+                    let name = it.collect::<Vec<_>>().join(" ");
+                    if !usemtl.iter().any(|(_, n)| *n == name) {
+                        usemtl.push((line, name));
+                    }
+                }
+                Some("vn") => {
+                    let vals: Vec<&str> = it.take(3).collect();
+                    if vals.len() < 3 || vals.iter().any(|v| !v.parse::<f32>().is_ok_and(f32::is_finite)) {
+                        return Err(parse_err(format!("'vn' needs 3 finite numbers: {l}")));
+                    }
+                    nvn += 1
+                }
                 Some(kw @ ("v" | "vt")) => {
                     let want = if kw == "v" { 3 } else { 1 };
                     let vals: Vec<&str> = it.collect();
@@ -492,7 +519,7 @@ mod obj {
                     }
                     for v in verts {
                         let mut refs = v.split('/');
-                        for (k, count) in [(0, nv), (1, nvt)] {
+                        for (k, count) in [(0, nv), (1, nvt), (2, nvn)] {
                             let Some(s) = refs.next() else { break };
                             if s.is_empty() && k > 0 {
                                 continue;
@@ -503,13 +530,42 @@ mod obj {
                             if !ok {
                                 return Err(parse_err(format!(
                                     "vertex reference '{v}' out of range ({count} {} declared so far): {l}",
-                                    if k == 0 { "vertices" } else { "texture coordinates" }
+                                    ["vertices", "texture coordinates", "normals"][k]
                                 )));
                             }
                         }
                     }
                 }
                 _ => {}
+            }
+        }
+        Ok(usemtl)
+    }
+
+    /// Checks MTL text line by line: the numbers of the statements voxray reads must parse
+    /// and be finite (tobj's MTL errors name no line).
+    fn prescan_mtl(text: &str, label: &str) -> Result<(), MeshError> {
+        for (i, raw) in text.lines().enumerate() {
+            let l = raw.trim();
+            let mut it = l.split_whitespace();
+            let Some(kw) = it.next() else { continue };
+            // tobj reads three numbers of a colour (and panicked on fewer) and one of a scalar.
+            let want = match kw {
+                "Ka" | "Kd" | "Ks" | "Ke" | "Tf" => 3,
+                "Ns" | "Ni" | "d" | "Tr" | "illum" => 1,
+                _ => continue,
+            };
+            let err = |message: String| MeshError::Parse { path: label.into(), line: Some(i + 1), message };
+            let vals: Vec<&str> = it.take(want).collect();
+            if vals.len() < want {
+                let what = if want == 3 { "3 numbers (r g b)" } else { "a number" };
+                return Err(err(format!("'{kw}' needs {what}: {l}")));
+            }
+            for v in vals {
+                let x: f32 = v.parse().map_err(|_| err(format!("'{v}' is not a number: {l}")))?;
+                if !x.is_finite() {
+                    return Err(err(format!("'{v}' is not finite: {l}")));
+                }
             }
         }
         Ok(())

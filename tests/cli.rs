@@ -298,6 +298,45 @@ fn bad_input_gives_clear_errors() {
     ]);
     assert_eq!(code, Some(1));
     assert!(err.contains("unknown image format"), "{err}");
+
+    // Each flag gets its own message, and every scenario is listed.
+    for (args, needle) in [
+        (&["render", "--fps", "0"][..], "--fps 0: frames per second must be a positive number"),
+        (&["render", "--time", "inf"][..], "--time inf: the clip time must be a finite number"),
+        (&["render", "--orbit", "NaN"][..], "--orbit NaN: the camera's turn must be a finite number"),
+        (
+            &["bench", "--scenarios", "gi-scaling", "--gi-res", "3"][..],
+            "--gi-res 3: the GI scenarios' volume needs a power of two",
+        ),
+        (
+            &["bench", "--scenarios", "bogus"][..],
+            "paper, instances, resolution, depth, peers, gi-scaling, gi-volume, gi-accuracy",
+        ),
+    ] {
+        let (code, err) = run(args);
+        assert_eq!(code, Some(1), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+    // An AOV folder that cannot be made is refused before rendering: no image is written.
+    std::fs::write(d.join("a_file"), "").unwrap();
+    let image = d.join("never.png");
+    let (code, err) = run(&[
+        "render",
+        "--obj",
+        "models/test/cube.obj",
+        "--aov-dir",
+        s(&d.join("a_file").join("aovs")),
+        "--out",
+        s(&image),
+        "--no-cache",
+        "--width",
+        "8",
+        "--height",
+        "8",
+    ]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("a_file/aovs"), "{err}");
+    assert!(!image.exists(), "rendered before checking the AOV folder");
 }
 
 #[test]

@@ -52,6 +52,8 @@ fn parse_errors_carry_line_numbers() {
         ("v 0 0 0\nv 1 0 0\nf 1 2\n", 3, "at least 3"),
         ("v 0 0\n", 1, "needs 3"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", 4, "out of range"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//2\n", 5, "out of range (1 normals"),
+        ("v 0 0 0\nvn 0 nan 1\n", 2, "'vn' needs 3 finite numbers"),
     ];
     for (i, (text, line, what)) in cases.iter().enumerate() {
         let p = write(&d, &format!("bad{i}.obj"), text);
@@ -60,6 +62,30 @@ fn parse_errors_carry_line_numbers() {
         assert!(matches!(e, MeshError::Parse { line: Some(l), .. } if l == *line), "case {i}: {msg}");
         assert!(msg.contains(what) && msg.contains(&format!("bad{i}.obj:{line}")), "case {i}: {msg}");
     }
+    // MTL errors name their file and line too; tobj panicked on a colour of fewer than three
+    // numbers.
+    let obj = write(&d, "m.obj", "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n");
+    for (i, (mtl, what)) in [
+        ("newmtl m\nKd 0.5\n", "'Kd' needs 3 numbers"),
+        ("newmtl m\nKd 1 1 1\nNs\n", "'Ns' needs a number"),
+        ("newmtl m\nKe 1 x 1\n", "'x' is not a number"),
+        ("newmtl m\nKs 1 inf 1\n", "'inf' is not finite"),
+    ]
+    .iter()
+    .enumerate()
+    {
+        write(&d, "m.mtl", mtl);
+        let e = load_obj(&obj).unwrap_err();
+        let msg = e.to_string();
+        let line = mtl.lines().count();
+        assert!(matches!(e, MeshError::Parse { line: Some(l), .. } if l == line), "MTL case {i}: {msg}");
+        assert!(msg.contains(what) && msg.contains(&format!("m.mtl:{line}")), "MTL case {i}: {msg}");
+    }
+    // A usemtl naming no material is a warning with its line, not a silent grey.
+    write(&d, "m.mtl", "newmtl m\nKd 1 0 0\n");
+    let p = write(&d, "u.obj", "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl nothere\nf 1 2 3\n");
+    let m = load_obj(&p).unwrap();
+    assert!(m.warnings.iter().any(|w| w.contains("u.obj:5: usemtl 'nothere' names no material")), "{:?}", m.warnings);
 }
 
 #[test]

@@ -33,7 +33,9 @@ impl std::str::FromStr for Scenario {
             "instances" => Ok(Scenario::Instances),
             "resolution" => Ok(Scenario::Resolution),
             "depth" | "lod" => Ok(Scenario::Depth),
-            other => Err(format!("unknown scenario '{other}' (use paper, instances, resolution, depth)")),
+            other => Err(format!(
+                "unknown scenario '{other}' (the scenarios: paper, instances, resolution, depth, peers, gi-scaling, gi-volume, gi-accuracy)"
+            )),
         }
     }
 }

@@ -80,6 +80,13 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     if let Some(&n) = a.gi_cars.iter().find(|&&n| n == 0 || n > 100_000) {
         return Err(usage(&format!("--gi-cars {n}: car counts must be 1…100000")));
     }
+    if !(a.gi_res.is_power_of_two() && (1..=voxray::gi::volume::MAX_DENSE_RES).contains(&a.gi_res)) {
+        return Err(usage(&format!(
+            "--gi-res {}: the GI scenarios' volume needs a power of two from 1 to {} cells per side",
+            a.gi_res,
+            voxray::gi::volume::MAX_DENSE_RES
+        )));
+    }
     if let Some(&l) = a.lod_levels.iter().find(|&&l| l == 0 || l > voxray::svo::MAX_DEPTH) {
         return Err(usage(&format!(
             "--lod-levels {l}: levels must be 1…{} (and below the parts' depth)",

@@ -21,8 +21,21 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     if is_gif && a.frames < 2 {
         return Err(usage("a .gif output needs --frames 2 or more"));
     }
-    if !(a.fps.is_finite() && a.fps > 0.0 && a.time.is_finite() && a.orbit.is_finite()) {
-        return Err(usage("--fps must be positive; --time and --orbit finite"));
+    if !(a.fps.is_finite() && a.fps > 0.0) {
+        return Err(usage(&format!("--fps {}: frames per second must be a positive number", a.fps)));
+    }
+    if !a.time.is_finite() {
+        return Err(usage(&format!("--time {}: the clip time must be a finite number of seconds", a.time)));
+    }
+    if !a.orbit.is_finite() {
+        return Err(usage(&format!(
+            "--orbit {}: the camera's turn must be a finite number of degrees per second",
+            a.orbit
+        )));
+    }
+    // Where the AOVs go is checked before rendering, not after.
+    if let Some(dir) = &a.aov_dir {
+        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
     }
     let lights = match &a.lights_json {
         Some(p) => Lights::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
