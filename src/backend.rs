@@ -84,6 +84,8 @@ impl Backend {
 
     /// The frame plan for the next frame (`first`: no previous frame to reuse).
     pub fn plan(&self, scene: &Scene, camera: &Camera, lights: &Lights, features: &Features, first: bool) -> FramePlan {
+        // Without the `gpu` feature the match has one arm.
+        #[cfg_attr(not(feature = "gpu"), allow(clippy::infallible_destructuring_match))]
         let prev = match self {
             Backend::Cpu(h) => h,
             #[cfg(feature = "gpu")]
