@@ -45,6 +45,9 @@ pub enum Error {
         /// The error.
         source: std::io::Error,
     },
+    /// A large allocation the memory budget refused.
+    #[error(transparent)]
+    Memory(#[from] crate::memory::MemoryError),
     /// A car staged from other than its eight parts.
     #[error("a car has 8 parts ({}), got {got}", crate::model::car::PART_NAMES.join(", "))]
     CarParts {

@@ -44,6 +44,7 @@ pub mod gi;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod input;
+pub mod memory;
 pub mod mesh;
 pub mod model;
 pub mod oracle;

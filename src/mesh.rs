@@ -272,8 +272,10 @@ mod obj {
         }
         let materials = materials.unwrap_or_default();
         let mut mesh = Mesh::default();
+        // Bytes of the textures loaded so far (they stay in memory together).
+        let mut texture_bytes = 0u64;
         for m in &materials {
-            mesh.materials.push(convert_material(m, texture_dir, &mut mesh.warnings)?);
+            mesh.materials.push(convert_material(m, texture_dir, &mut mesh.warnings, &mut texture_bytes)?);
         }
         for (line, name) in usemtl {
             if !mesh.materials.iter().any(|m| m.name == name) {
@@ -367,6 +369,7 @@ mod obj {
         m: &tobj::Material,
         dir: Option<&Path>,
         warnings: &mut Vec<String>,
+        texture_bytes: &mut u64,
     ) -> Result<Material, MeshError> {
         let albedo = m.diffuse.map_or(Vec3::splat(0.7), Vec3::from);
         let emission = m.emissive.map_or(Vec3::ZERO, Vec3::from);
@@ -419,7 +422,7 @@ mod obj {
             match dir {
                 None => warnings
                     .push(format!("material '{}': texture '{tex}' not loaded (no folder to resolve it)", m.name)),
-                Some(d) => match load_texture(&d.join(tex)) {
+                Some(d) => match load_texture(&d.join(tex), texture_bytes) {
                     Ok(t) => out.texture = Some(Arc::new(t)),
                     Err(e) => warnings.push(format!("material '{}': texture ignored, using Kd: {e}", m.name)),
                 },
@@ -429,7 +432,7 @@ mod obj {
     }
 
     #[cfg(feature = "image-io")]
-    fn load_texture(path: &Path) -> Result<Texture, String> {
+    fn load_texture(path: &Path, loaded: &mut u64) -> Result<Texture, String> {
         // The header first: a small compressed file can decode to gigabytes.
         let (w, h) = image::image_dimensions(path).map_err(|e| format!("{}: {e}", path.display()))?;
         if w as u64 * h as u64 > MAX_TEXTURE_TEXELS {
@@ -439,6 +442,16 @@ mod obj {
                 MAX_TEXTURE_TEXELS
             ));
         }
+        // Decoding holds the file's texels, their f32 copy and the linear ones (28 bytes a
+        // texel); the textures before this one stay (12 bytes a texel).
+        let texels = w as u64 * h as u64;
+        crate::memory::check(
+            &format!("{}: {w}×{h} texels after {} of textures", path.display(), crate::memory::size(*loaded)),
+            *loaded + texels * 28,
+            "scale the textures down or raise the memory budget",
+        )
+        .map_err(|e| e.to_string())?;
+        *loaded += texels * 12;
         let img = image::open(path).map_err(|e| format!("{}: {e}", path.display()))?.to_rgb32f();
         let (width, height) = img.dimensions();
         // 8-bit images are sRGB-encoded; to_rgb32f only rescales, so decode here.
@@ -457,7 +470,7 @@ mod obj {
     }
 
     #[cfg(not(feature = "image-io"))]
-    fn load_texture(path: &Path) -> Result<Texture, String> {
+    fn load_texture(path: &Path, _: &mut u64) -> Result<Texture, String> {
         Err(format!("{}: built without the `image-io` feature", path.display()))
     }
 

@@ -147,6 +147,9 @@ pub enum VoxelizeError {
     /// Non-finite vertex coordinates.
     #[error("part '{0}' has non-finite vertex coordinates")]
     NonFinite(String),
+    /// The memory budget refused the voxels.
+    #[error(transparent)]
+    Memory(#[from] crate::memory::MemoryError),
 }
 
 /// The cube and depth a part is voxelized into: the part's bounding box grown to a cube
@@ -246,16 +249,25 @@ pub fn voxelize_in(
             estimate: (estimate / 1e6).round() as u64,
         });
     }
+    // The memory budget may allow fewer voxels than the fixed limit.
+    let per_voxel = crate::memory::VOXELIZE_BYTES_PER_VOXEL;
+    let limit = MAX_VOXELS.min(crate::memory::budget() / per_voxel);
+    let what = |voxels: f64| {
+        format!("voxelizing part '{}' at depth {depth} (about {:.1} million voxels)", part.name, voxels / 1e6)
+    };
+    const ADVICE: &str = "use a smaller depth or a larger voxel size, or raise the memory budget";
+    crate::memory::check(&what(estimate), estimate as u64 * per_voxel, ADVICE)?;
     let origin = bounds.min.as_dvec3();
     let ctx = Ctx { depth, scale, origin, materials };
     // The area misses what a surface really touches: oblique surfaces cross up to √3 times
     // as many voxels, surfaces on voxel boundaries touch both sides, needles cover voxels
     // along their length with no area. Near the limit, count exactly (no memory) first.
-    if estimate > (MAX_VOXELS / 4) as f64 {
+    if estimate > (limit / 4) as f64 {
         let counted = count_entries(&ctx, &part.triangles, MAX_VOXELS);
         if counted > MAX_VOXELS {
             return Err(VoxelizeError::TooManyVoxelsCounted { part: part.name.clone(), depth });
         }
+        crate::memory::check(&what(counted as f64), counted * per_voxel, ADVICE)?;
     }
 
     const CHUNK: usize = 2048;
@@ -314,10 +326,15 @@ pub fn voxelize_in(
         return Err(VoxelizeError::EmptyPart(part.name.clone()));
     }
     if solid {
-        fill_solid(depth, &mut voxels).map_err(|filled| VoxelizeError::TooManyVoxels {
-            part: part.name.clone(),
-            depth,
-            estimate: filled.div_ceil(1_000_000),
+        fill_solid(depth, &mut voxels, limit).map_err(|filled| {
+            let too_many =
+                VoxelizeError::TooManyVoxels { part: part.name.clone(), depth, estimate: filled.div_ceil(1_000_000) };
+            // Within the fixed limit, it is the budget that refused.
+            match filled > MAX_VOXELS {
+                true => too_many,
+                false => crate::memory::check(&what(filled as f64), filled * per_voxel, ADVICE)
+                    .map_or_else(VoxelizeError::from, |_| too_many),
+            }
         })?;
     }
     let emitters = crate::svo::emitter::emitters_of(part, materials)
@@ -567,7 +584,7 @@ fn barycentric(v: &[DVec3; 3], p: DVec3) -> DVec3 {
 /// and adds every cell that is neither outside nor surface. Interior voxels take the attributes
 /// of the surface voxel below them in their z column, with a tiny weight so coarse levels keep
 /// the surface colour.
-fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) -> Result<(), u64> {
+fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>, limit: u64) -> Result<(), u64> {
     let n = 1usize << depth;
     let idx = |x: usize, y: usize, z: usize| (z * n + y) * n + x;
     let mut surface = vec![false; n * n * n];
@@ -616,7 +633,7 @@ fn fill_solid(depth: u32, voxels: &mut Vec<Voxel>) -> Result<(), u64> {
     // Refuse before writing the interior: a closed cube at depth 9 is 134 million voxels.
     let inside = surface.iter().zip(&outside).filter(|(s, o)| !**s && !**o).count() as u64;
     let filled = voxels.len() as u64 + inside;
-    if filled > MAX_VOXELS {
+    if filled > limit {
         return Err(filled);
     }
     let lookup = |code: u64, voxels: &[Voxel]| voxels.binary_search_by_key(&code, |v| v.code).ok().map(|i| voxels[i]);

@@ -339,6 +339,79 @@ fn bad_input_gives_clear_errors() {
     assert!(!image.exists(), "rendered before checking the AOV folder");
 }
 
+/// The memory budget refuses, before allocating and with what to change, voxelization, frames,
+/// GIF clips and GI volumes that need more than it; by default it follows `ulimit -v`, so a
+/// capped process gets the error instead of an out-of-memory abort.
+#[test]
+fn memory_budget_refuses_before_allocating() {
+    let d = tmp("budget");
+    let run = |args: &[&str]| {
+        let o = voxray(args);
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    let cube = ["--obj", "models/test/cube.obj", "--no-cache", "--backend", "cpu"];
+    let out = |name: &str| d.join(name).to_str().unwrap().to_string();
+    let cases: Vec<(Vec<String>, &str, Option<String>)> = vec![
+        (
+            ["--memory-budget", "64M", "voxelize", "--depth", "10", "--out-dir", &out("v")]
+                .iter()
+                .map(|s| s.to_string())
+                .chain(cube[..3].iter().map(|s| s.to_string()))
+                .collect(),
+            "voxelizing part 'cube' at depth 10 (about 6.3 million voxels) needs about 960.0 MiB, more than the memory budget of 64.0 MiB",
+            None,
+        ),
+        (
+            ["--memory-budget", "300M", "render", "--depth", "4", "--width", "2048", "--height", "2048", "--out", &out("big.png")]
+                .iter()
+                .chain(cube.iter())
+                .map(|s| s.to_string())
+                .collect(),
+            "rendering 2048×2048 needs about 640.0 MiB, more than the memory budget of 300.0 MiB",
+            Some(out("big.png")),
+        ),
+        (
+            ["--memory-budget", "100M", "render", "--depth", "4", "--width", "256", "--height", "256", "--frames", "500", "--out", &out("clip.gif")]
+                .iter()
+                .chain(cube.iter())
+                .map(|s| s.to_string())
+                .collect(),
+            "into a GIF of 500 frames needs about 135.0 MiB",
+            Some(out("clip.gif")),
+        ),
+        (
+            ["--memory-budget", "100M", "render", "--depth", "4", "--width", "32", "--height", "32", "--gi", "--gi-res", "512", "--gi-volume", "dense", "--out", &out("gi.png")]
+                .iter()
+                .chain(cube.iter())
+                .map(|s| s.to_string())
+                .collect(),
+            "a dense GI volume of 512³ cells and its level chain needs about",
+            Some(out("gi.png")),
+        ),
+    ];
+    for (args, needle, file) in cases {
+        let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
+        let (code, err) = run(&args);
+        assert_eq!(code, Some(1), "{args:?}: {err}");
+        assert!(err.contains(needle) && err.contains("memory budget"), "{args:?}: {err}");
+        if let Some(f) = file {
+            assert!(!Path::new(&f).exists(), "{f} written");
+        }
+    }
+    // Under an address-space cap of 3 GB, without --memory-budget: the default budget follows
+    // the cap, and a 13 GB frame is refused with a message instead of aborting.
+    let exe = env!("CARGO_BIN_EXE_voxray");
+    let script = format!(
+        "ulimit -v 3000000 && exec '{exe}' render --obj models/test/cube.obj --no-cache --backend cpu --depth 4 \
+         --width 16384 --height 4096 --out '{}'",
+        out("capped.png")
+    );
+    let o = std::process::Command::new("bash").args(["-c", &script]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("rendering 16384×4096 needs about 10.0 GiB, more than the memory budget of 2.1 GiB"), "{err}");
+}
+
 #[test]
 fn voxelize_and_info_round_trip() {
     let d = tmp("vox");

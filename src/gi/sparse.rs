@@ -94,6 +94,11 @@ impl SparseVolume {
             brick_top.push(t as u32);
         }
         let n = brick_top.len() * BRICK_CELLS;
+        crate::memory::check(
+            &format!("a sparse GI volume of {} bricks ({n} cells) and its level chain", brick_top.len()),
+            n as u64 * super::volume::VOLUME_BYTES_PER_CELL,
+            "lower the GI resolution or raise the memory budget",
+        )?;
         let mut vol = SparseVolume {
             spec,
             top_res,

@@ -97,7 +97,15 @@ pub enum GiError {
     /// The camera of the frame.
     #[error(transparent)]
     Camera(#[from] crate::scene::CameraError),
+    /// The memory budget refused the volume.
+    #[error(transparent)]
+    Memory(#[from] crate::memory::MemoryError),
 }
+
+/// Bytes per cell of a volume with its level chain: the accumulation cell
+/// ([`super::sparse::CELL_BYTES`]) and an RGBA f32 texel per cell of every level (8/7 of the
+/// finest's count).
+pub const VOLUME_BYTES_PER_CELL: u64 = super::sparse::CELL_BYTES + 16 * 8 / 7 + 1;
 
 /// Checks that a world matrix can move voxels: finite, with an invertible linear part (the
 /// normals move by its inverse transpose).
@@ -127,6 +135,13 @@ impl VolumeSpec {
         }
         if !(min.is_finite() && cell.is_finite() && cell > 0.0) {
             return Err(GiError::Placement { cell, min });
+        }
+        if layout == Layout::Dense {
+            crate::memory::check(
+                &format!("a dense GI volume of {res}³ cells and its level chain"),
+                (res as u64).pow(3) * VOLUME_BYTES_PER_CELL,
+                "lower the GI resolution, use the sparse volume, or raise the memory budget",
+            )?;
         }
         // Cells must stay apart in f64 at the volume's coordinates (and far from overflowing
         // the integer cell numbers): a smaller cell would put every voxel in one cell or none.

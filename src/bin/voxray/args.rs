@@ -23,6 +23,11 @@ pub(crate) struct Cli {
     /// Worker threads, 1…1024 (default: one per core).
     #[arg(long, global = true, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS))]
     pub(crate) threads: Option<u64>,
+    /// Memory the large allocations may take together (voxels, frames, AOVs, the reference,
+    /// GIF frames, GI volumes), e.g. 512M or 4G; an input that needs more is refused before
+    /// allocating (default: 3/4 of the machine's memory or of `ulimit -v`).
+    #[arg(long, global = true, value_parser = voxray::memory::parse_size)]
+    pub(crate) memory_budget: Option<u64>,
 }
 
 #[derive(Subcommand)]

@@ -47,6 +47,9 @@ fn main() -> ExitCode {
             eprintln!("warning: could not set {n} threads: {e}");
         }
     }
+    if let Some(b) = cli.memory_budget {
+        voxray::memory::set_budget(b);
+    }
     let result = match cli.cmd {
         None => default_cmd(),
         Some(Cmd::Render(a)) => render_cmd(a),

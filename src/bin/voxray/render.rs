@@ -93,6 +93,23 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             if glowing { " except where emitters glow" } else { "" }
         );
     }
+    // The frames, their AOVs, the reference's sums and every GIF frame, before any is made.
+    let pixels = camera.width as u64 * camera.height as u64;
+    let mut need = pixels * voxray::memory::FRAME_BYTES_PER_PIXEL;
+    if a.reference {
+        need += pixels * voxray::memory::REFERENCE_BYTES_PER_PIXEL;
+    }
+    if is_gif {
+        need += pixels * 4 * a.frames as u64;
+    }
+    let what = format!(
+        "rendering {}×{}{}{}",
+        camera.width,
+        camera.height,
+        if a.reference { " with the path-traced reference" } else { "" },
+        if is_gif { format!(" into a GIF of {} frames", a.frames) } else { String::new() }
+    );
+    voxray::memory::check(&what, need, "lower --width/--height (or --frames of a GIF), or raise --memory-budget")?;
     if a.reference {
         return reference_cmd(&a, &st, &camera, &lights, t_setup);
     }
