@@ -54,7 +54,7 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
         u => return Err(format!("'{s}': unknown unit '{u}' (use K, M, G or T)")),
     };
     let bytes = v * mult;
-    if !(bytes.is_finite() && bytes >= 1.0 && bytes < 1.8e19) {
+    if !(1.0..1.8e19).contains(&bytes) {
         return Err(format!("'{s}' is not a usable memory size"));
     }
     Ok(bytes as u64)
