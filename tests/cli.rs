@@ -196,6 +196,10 @@ fn bad_input_gives_clear_errors() {
     assert_eq!(code, Some(0), "{err}");
     assert!(err.contains("the lights give no light") && err.contains("--lod 20 is at or below"), "{err}");
     let (code, err) =
+        run(&[&["render", "--obj", "models/test/cube.obj", "--voxel-size", "50"][..], &small[..]].concat());
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("--voxel-size 50 is larger than part 'cube'"), "{err}");
+    let (code, err) =
         run(&[&["render", "--obj", "models/test/cube.obj", "--gi", "--gi-extent", "1e-30"][..], &small[..]].concat());
     // (This once overflowed an integer cell number in the level chain's sampling.)
     assert_eq!(code, Some(0), "{err}");

@@ -43,6 +43,21 @@ pub(crate) fn build_parts(mesh: &Mesh, src: &SourceArgs) -> Result<Vec<Arc<Svo>>
         None => Resolution::Depth(src.depth),
     };
     let opts = VoxelizeOptions { resolution: shared_resolution(mesh, res)?, solid: src.solid };
+    if let Some(v) = src.voxel_size {
+        // Not an error (a blocky stand-in can be wanted), but rarely what was meant.
+        for p in &mesh.parts {
+            let corners = p.triangles.iter().flat_map(|t| t.positions);
+            let (lo, hi) =
+                corners.fold((glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY), |(lo, hi), c| (lo.min(c), hi.max(c)));
+            let extent = (hi.as_dvec3() - lo.as_dvec3()).max_element();
+            if v as f64 > extent {
+                eprintln!(
+                    "warning: --voxel-size {v} is larger than part '{}' ({extent} across): it becomes a few voxels of {v}",
+                    p.name
+                );
+            }
+        }
+    }
     let cache = if src.no_cache {
         None
     } else {
