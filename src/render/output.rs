@@ -35,10 +35,45 @@ pub fn srgb8(frame: &Frame) -> Vec<u8> {
     frame.radiance.iter().flat_map(|c| [linear_to_srgb8(c.x), linear_to_srgb8(c.y), linear_to_srgb8(c.z)]).collect()
 }
 
-/// Writes the frame as PNG or EXR, chosen by the extension.
+/// Writes a file through a temporary sibling that is renamed over `path` once complete, so an
+/// interrupted or failed write (Ctrl-C, a full disk) never leaves a truncated file where an
+/// earlier one was. The temporary name keeps the extension (encoders choose by it).
+fn replace_atomically<E>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), E>,
+    io: impl Fn(std::io::Error) -> E,
+) -> Result<(), E> {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let ext = path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.partial-{}{ext}", std::process::id()));
+    match write(&tmp) {
+        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            io(e)
+        }),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Writes the frame as PNG or EXR, chosen by the extension (replacing an earlier file only
+/// once the new one is complete).
 #[cfg(feature = "image-io")]
 pub fn write_image(frame: &Frame, path: &Path) -> Result<(), OutputError> {
     let label = path.display().to_string();
+    replace_atomically(
+        path,
+        |tmp| encode_image(frame, tmp, &label),
+        |source| OutputError::Io { path: label.clone(), source },
+    )
+}
+
+#[cfg(feature = "image-io")]
+fn encode_image(frame: &Frame, path: &Path, label: &str) -> Result<(), OutputError> {
+    // Errors name the file asked for, not the temporary one.
+    let label = label.to_string();
     let enc = |e: image::ImageError| OutputError::Encode { path: label.clone(), message: e.to_string() };
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("png") => image::RgbImage::from_raw(frame.width, frame.height, srgb8(frame))
@@ -59,20 +94,42 @@ pub fn write_image(frame: &Frame, path: &Path) -> Result<(), OutputError> {
 /// Writes an animated GIF from 8-bit sRGB RGB frames (looping).
 #[cfg(feature = "image-io")]
 pub fn write_gif(path: &Path, width: u32, height: u32, fps: f64, frames: Vec<Vec<u8>>) -> Result<(), OutputError> {
-    use image::codecs::gif::{GifEncoder, Repeat};
     let label = path.display().to_string();
+    replace_atomically(
+        path,
+        |tmp| encode_gif(tmp, &label, width, height, fps, frames),
+        |source| OutputError::Io { path: label.clone(), source },
+    )
+}
+
+#[cfg(feature = "image-io")]
+fn encode_gif(
+    path: &Path,
+    label: &str,
+    width: u32,
+    height: u32,
+    fps: f64,
+    frames: Vec<Vec<u8>>,
+) -> Result<(), OutputError> {
+    use image::codecs::gif::{GifEncoder, Repeat};
+    let label = label.to_string();
     let enc = |e: image::ImageError| OutputError::Encode { path: label.clone(), message: e.to_string() };
     let file = std::fs::File::create(path).map_err(|source| OutputError::Io { path: label.clone(), source })?;
-    let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
-    encoder.set_repeat(Repeat::Infinite).map_err(enc)?;
-    let delay = image::Delay::from_numer_denom_ms((1000.0 / fps).round().max(10.0) as u32, 1);
-    for rgb in frames {
-        let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
-        let img = image::RgbaImage::from_raw(width, height, rgba)
-            .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?;
-        encoder.encode_frame(image::Frame::from_parts(img, 0, 0, delay)).map_err(enc)?;
+    let mut out = std::io::BufWriter::new(file);
+    {
+        let mut encoder = GifEncoder::new_with_speed(&mut out, 10);
+        encoder.set_repeat(Repeat::Infinite).map_err(enc)?;
+        let delay = image::Delay::from_numer_denom_ms((1000.0 / fps).round().max(10.0) as u32, 1);
+        for rgb in frames {
+            let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+            let img = image::RgbaImage::from_raw(width, height, rgba)
+                .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?;
+            encoder.encode_frame(image::Frame::from_parts(img, 0, 0, delay)).map_err(enc)?;
+        }
+        // Dropping the encoder writes the GIF trailer.
     }
-    Ok(())
+    // Every byte reaches the file, or the error is reported, before it is renamed into place.
+    std::io::Write::flush(&mut out).map_err(|source| OutputError::Io { path: label.clone(), source })
 }
 
 /// Writes `t.npy`, `instance.npy` and `normal.npy` into `dir` (created if missing).
@@ -91,8 +148,13 @@ pub fn write_aovs(frame: &Frame, dir: &Path) -> Result<(), OutputError> {
     write_npy(&dir.join("normal.npy"), "<f4", &[h, w, 3], &n).map_err(io(&dir.join("normal.npy")))
 }
 
-/// Writes one array in NumPy's `.npy` format (version 1.0, C order).
+/// Writes one array in NumPy's `.npy` format (version 1.0, C order), replacing an earlier
+/// file only once the new one is complete.
 pub fn write_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std::io::Result<()> {
+    replace_atomically(path, |tmp| encode_npy(tmp, descr, shape, data), |e| e)
+}
+
+fn encode_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std::io::Result<()> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
     let shape_s = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
     let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_s}, }}");
@@ -106,4 +168,35 @@ pub fn write_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std:
     f.write_all(header.as_bytes())?;
     f.write_all(data)?;
     f.flush()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A write that fails half-way leaves the earlier file as it was and no temporary file;
+    /// one that succeeds replaces it whole.
+    #[test]
+    fn files_are_replaced_only_when_complete() {
+        let dir = std::env::temp_dir().join(format!("voxray-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.npy");
+        write_npy(&path, "<f4", &[1], &1.0f32.to_le_bytes()).unwrap();
+        let before = std::fs::read(&path).unwrap();
+        let failed: std::io::Result<()> = replace_atomically(
+            &path,
+            |tmp| {
+                std::fs::write(tmp, b"half a file")?;
+                Err(std::io::Error::other("disk full"))
+            },
+            |e| e,
+        );
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+        write_npy(&path, "<f4", &[2], &[0u8; 8]).unwrap();
+        assert_ne!(std::fs::read(&path).unwrap(), before);
+        let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, [std::ffi::OsString::from("t.npy")], "temporary files left behind");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
