@@ -392,6 +392,14 @@ fn memory_budget_refuses_before_allocating() {
             "a dense GI volume of 512³ cells and its level chain needs about",
             Some(out("gi.png")),
         ),
+        (
+            ["--memory-budget", "100M", "bench", "--resolutions", "320x192,4096x4096", "--no-docs", "--out-dir", &out("bench")]
+                .iter()
+                .map(|s| s.to_string())
+                .collect(),
+            "benchmark frames of 4096×4096 needs about 2.5 GiB",
+            Some(out("bench")),
+        ),
     ];
     for (args, needle, file) in cases {
         let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();

@@ -74,6 +74,15 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             return Err(usage("image sizes must be 1…16384"));
         }
     }
+    // The largest frame any scenario renders, before anything is built.
+    let sizes = resolutions.iter().copied().chain([(a.width, a.height), (a.sweep_width, a.sweep_height)]);
+    if let Some((w, h)) = sizes.max_by_key(|&(w, h)| w as u64 * h as u64) {
+        voxray::memory::check(
+            &format!("benchmark frames of {w}×{h}"),
+            w as u64 * h as u64 * voxray::memory::FRAME_BYTES_PER_PIXEL,
+            "lower --width/--height or --resolutions, or raise --memory-budget",
+        )?;
+    }
     if let Some(&n) = a.sweep_cars.iter().find(|&&n| n == 0 || n > 100_000) {
         return Err(usage(&format!("--sweep-cars {n}: car counts must be 1…100000")));
     }
