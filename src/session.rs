@@ -87,6 +87,12 @@ impl Session {
         Ok(())
     }
 
+    /// Has `hook` told what the CPU's GI passes are doing before a frame's pixels
+    /// ([`crate::gi::GiCaches::on_stage`]).
+    pub fn on_gi_stage(&mut self, hook: impl Fn(&str) + Send + Sync + 'static) {
+        self.gi_caches.on_stage(hook);
+    }
+
     /// The GI knobs in use (None: GI off).
     pub fn gi(&self) -> Option<&GiSettings> {
         self.gi.as_ref()

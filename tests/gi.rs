@@ -584,3 +584,40 @@ fn cpu_gi_keeps_colours_only_where_the_light_was_kept() {
     .unwrap();
     assert_eq!(d.radiance, plain.radiance);
 }
+
+/// The CPU's GI passes tell a progress hook what they are doing, bounce by bounce, before the
+/// pixels (on a large volume they take long enough to need it); a frame that reuses the whole
+/// light says nothing.
+#[test]
+fn gi_passes_report_their_stages() {
+    use std::sync::{Arc, Mutex};
+    use voxray::render::{Features, FramePlan, RenderOptions};
+    let scene = voxray::bench::gi::room_scene(5).unwrap();
+    let lights = voxray::model::room::lights();
+    let cam = voxray::model::room::camera(16, 12);
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let s = voxray::gi::GiSettings { res: 32, bounces: 3, ..Default::default() };
+    let heard = Arc::new(Mutex::new(Vec::<String>::new()));
+    let mut caches = voxray::gi::GiCaches::new();
+    let h = heard.clone();
+    caches.on_stage(move |what| h.lock().unwrap().push(what.to_string()));
+    let frame = |caches: &mut voxray::gi::GiCaches| {
+        voxray::gi::render_with_gi(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &s, caches, &|_, _| {})
+            .unwrap()
+    };
+    let (_, stats) = frame(&mut caches);
+    let stages = heard.lock().unwrap().clone();
+    let occupied = stats.occupied;
+    assert_eq!(
+        stages,
+        [
+            format!("GI: moving {} instances' voxels into the volume", scene.instances().len()),
+            format!("GI: injecting light into {occupied} cells"),
+            format!("GI: bounce 2 of 3 over {occupied} cells"),
+            format!("GI: bounce 3 of 3 over {occupied} cells"),
+        ]
+    );
+    heard.lock().unwrap().clear();
+    frame(&mut caches);
+    assert!(heard.lock().unwrap().is_empty(), "a static frame reran passes: {:?}", heard.lock().unwrap());
+}

@@ -28,7 +28,12 @@ pub struct GiCaches {
     built: HashMap<(PartId, u32), VoxelCache>,
     // The last frame's volume and level chain, with what they were made from.
     last: Option<LastVolume>,
+    // Hears what the light's passes are doing (see `on_stage`).
+    stage: Option<StageHook>,
 }
+
+/// What [`GiCaches::on_stage`] keeps.
+type StageHook = Box<dyn Fn(&str) + Send + Sync>;
 
 struct LastVolume {
     key: VolumeKey,
@@ -281,6 +286,19 @@ impl GiCaches {
         Self::default()
     }
 
+    /// Has `hook` told what [`prepare_light`] is doing as it goes ("injecting light into 2 M
+    /// cells", "bounce 2 of 3 over 2 M cells"): on a large volume these passes take long
+    /// before the first pixel, and a progress bar can show them.
+    pub fn on_stage(&mut self, hook: impl Fn(&str) + Send + Sync + 'static) {
+        self.stage = Some(Box::new(hook));
+    }
+
+    fn stage(&self, what: &str) {
+        if let Some(h) = &self.stage {
+            h(what);
+        }
+    }
+
     /// Forgets the last frame's volume and level chain (keeping the parts' caches), so the
     /// next frame runs every GI pass: for timing the whole pass, or to free the memory.
     pub fn forget_last_frame(&mut self) {
@@ -490,6 +508,7 @@ pub fn prepare_light(
     let (vol, kept_chain) = match last {
         Some(l) if stats.reuse != GiReuse::Nothing => (l.volume, (stats.reuse == GiReuse::Levels).then_some(l.chain)),
         _ => {
+            caches.stage(&format!("GI: moving {} instances' voxels into the volume", scene.instances().len()));
             let vol = match layout {
                 Layout::Dense => {
                     let mut vol = Volume::new(spec);
@@ -524,6 +543,7 @@ pub fn prepare_light(
     let (chain, t3) = match kept_chain {
         Some(chain) => (chain, Instant::now()),
         None => {
+            caches.stage(&format!("GI: injecting light into {} cells", stats.occupied));
             let (direct, _shadow_rays) = match &vol {
                 WorldVolume::Dense(v) => inject_cells(v, scene, lights),
                 WorldVolume::Sparse(v) => inject_cells(v, scene, lights),
@@ -533,7 +553,8 @@ pub fn prepare_light(
             // of MiB).
             let chain = if s.bounces > 1 {
                 let mut chain = vol.chain(direct.clone());
-                for _ in 1..s.bounces {
+                for b in 1..s.bounces {
+                    caches.stage(&format!("GI: bounce {} of {} over {} cells", b + 1, s.bounces, stats.occupied));
                     chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones));
                 }
                 chain

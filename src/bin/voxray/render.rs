@@ -136,6 +136,9 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let mut gif_frames = Vec::new();
     let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
     let pb = if a.frames > 1 { bar(a.frames as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
+    // GI's passes before the pixels can take minutes on a large volume: show which is running.
+    let stage_bar = pb.clone();
+    session.on_gi_stage(move |what| stage_bar.set_message(what.to_string()));
     for f in 0..a.frames {
         let start = Instant::now();
         let t = a.time + f as f64 / a.fps;
