@@ -602,8 +602,18 @@ fn gi_passes_report_their_stages() {
     let h = heard.clone();
     caches.on_stage(move |what| h.lock().unwrap().push(what.to_string()));
     let frame = |caches: &mut voxray::gi::GiCaches| {
-        voxray::gi::render_with_gi(&scene, &cam, &lights, &plan, &RenderOptions::default(), None, &s, caches, &|_, _| {})
-            .unwrap()
+        voxray::gi::render_with_gi(
+            &scene,
+            &cam,
+            &lights,
+            &plan,
+            &RenderOptions::default(),
+            None,
+            &s,
+            caches,
+            &|_, _| {},
+        )
+        .unwrap()
     };
     let (_, stats) = frame(&mut caches);
     let stages = heard.lock().unwrap().clone();

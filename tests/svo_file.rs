@@ -95,7 +95,16 @@ fn hostile_headers_and_structures_are_refused() {
     let mut b = bytes.clone();
     b[8] = 9;
     reseal(&mut b);
-    assert!(matches!(from_bytes(&b), Err(SvoFileError::Version(9))));
+    let e = from_bytes(&b).unwrap_err();
+    assert!(matches!(e, SvoFileError::Version(9)));
+    assert!(
+        e.to_string().contains("reads versions 1 to 4") && e.to_string().contains("a newer voxray wrote it"),
+        "{e}"
+    );
+    b[8] = 0;
+    reseal(&mut b);
+    let e = from_bytes(&b).unwrap_err();
+    assert!(e.to_string().contains("no voxray writes version 0"), "{e}");
     let mut b = bytes.clone();
     b[12..16].copy_from_slice(&40u32.to_le_bytes());
     reseal(&mut b);

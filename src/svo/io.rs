@@ -58,7 +58,7 @@ pub enum SvoFileError {
     #[error("not a voxray .svo file (bad magic)")]
     BadMagic,
     /// Written by a newer or unknown version.
-    #[error("unsupported .svo version {0} (this build reads version {VERSION})")]
+    #[error("unsupported .svo version {0}: this build reads versions 1 to {VERSION} (older ones are converted as they load){why}", why = version_hint(*.0))]
     Version(u32),
     /// File shorter or longer than its header says.
     #[error("file is {actual} bytes but its header describes {expected} bytes (truncated or padded)")]
@@ -87,6 +87,15 @@ pub enum SvoFileError {
         /// What is wrong.
         reason: String,
     },
+}
+
+/// Why a file has a version this build does not read.
+fn version_hint(v: u32) -> &'static str {
+    if v > VERSION {
+        "; a newer voxray wrote it, or it is damaged"
+    } else {
+        "; no voxray writes version 0, so the file is damaged"
+    }
 }
 
 /// Serializes an SVO to bytes.
