@@ -277,67 +277,43 @@ fn bad_input_gives_clear_errors() {
 
     let (code, _) = run(&["render", "--depth", "0"]);
     assert_eq!(code, Some(2), "clap rejects out-of-range depth");
-    // Count flags are bounded before anything starts: no hang starting 100 000 threads, no
-    // 12.8 TB allocation for 10¹² stability rays.
-    for (args, needle) in [
-        (&["--threads", "100000", "info", "x.svo"][..], "1..=1024"),
-        (&["--threads", "0", "info", "x.svo"][..], "1..=1024"),
-        (&["stability", "--rays", "1000000000000"][..], "1..=100000000"),
-    ] {
-        let (code, err) = run(args);
-        assert_eq!(code, Some(2), "{args:?}: {err}");
-        assert!(err.contains(needle), "{args:?}: {err}");
-    }
-    let (code, err) = run(&[
-        "render",
-        "--obj",
-        "models/test/cube.obj",
-        "--out",
-        s(&d.join("x.bmp")),
-        "--no-cache",
-        "--width",
-        "8",
-        "--height",
-        "8",
-    ]);
-    assert_eq!(code, Some(1));
-    assert!(err.contains("unknown image format"), "{err}");
-
-    // Each flag gets its own message, and every scenario is listed.
-    for (args, needle) in [
-        (&["render", "--fps", "0"][..], "--fps 0: frames per second must be a positive number"),
-        (&["render", "--time", "inf"][..], "--time inf: the clip time must be a finite number"),
-        (&["render", "--orbit", "NaN"][..], "--orbit NaN: the camera's turn must be a finite number"),
+    // Count flags are bounded before anything starts (clap's exit code 2): no hang starting
+    // 100 000 threads, no 12.8 TB allocation for 10¹² stability rays. Each other bad flag gets
+    // its own message, and every scenario is listed (exit code 1).
+    for (args, want, needle) in [
+        (&["--threads", "100000", "info", "x.svo"][..], 2, "1..=1024"),
+        (&["--threads", "0", "info", "x.svo"][..], 2, "1..=1024"),
+        (&["stability", "--rays", "1000000000000"][..], 2, "1..=100000000"),
+        (&["render", "--fps", "0"][..], 1, "--fps 0: frames per second must be a positive number"),
+        (&["render", "--time", "inf"][..], 1, "--time inf: the clip time must be a finite number"),
+        (&["render", "--orbit", "NaN"][..], 1, "--orbit NaN: the camera's turn must be a finite number"),
         (
             &["bench", "--scenarios", "gi-scaling", "--gi-res", "3"][..],
+            1,
             "--gi-res 3: the GI scenarios' volume needs a power of two",
         ),
         (
             &["bench", "--scenarios", "bogus"][..],
+            1,
             "paper, instances, resolution, depth, peers, gi-scaling, gi-volume, gi-accuracy",
         ),
     ] {
         let (code, err) = run(args);
-        assert_eq!(code, Some(1), "{args:?}: {err}");
+        assert_eq!(code, Some(want), "{args:?}: {err}");
         assert!(err.contains(needle), "{args:?}: {err}");
     }
+    // The cube rendered at 8×8 with `extra` flags.
+    let tiny = |extra: &[&str]| {
+        let base = ["render", "--obj", "models/test/cube.obj", "--no-cache", "--width", "8", "--height", "8"];
+        run(&[&base[..], extra].concat())
+    };
+    let (code, err) = tiny(&["--out", s(&d.join("x.bmp"))]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("unknown image format"), "{err}");
     // An AOV folder that cannot be made is refused before rendering: no image is written.
     std::fs::write(d.join("a_file"), "").unwrap();
     let image = d.join("never.png");
-    let (code, err) = run(&[
-        "render",
-        "--obj",
-        "models/test/cube.obj",
-        "--aov-dir",
-        s(&d.join("a_file").join("aovs")),
-        "--out",
-        s(&image),
-        "--no-cache",
-        "--width",
-        "8",
-        "--height",
-        "8",
-    ]);
+    let (code, err) = tiny(&["--aov-dir", s(&d.join("a_file").join("aovs")), "--out", s(&image)]);
     assert_eq!(code, Some(1));
     assert!(err.contains("a_file/aovs"), "{err}");
     assert!(!image.exists(), "rendered before checking the AOV folder");
