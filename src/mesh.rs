@@ -474,10 +474,9 @@ mod obj {
         Err(format!("{}: built without the `image-io` feature", path.display()))
     }
 
-    /// Checks vertex and face lines before tobj sees them, so errors carry a line number and
-    /// the object name (tobj reports neither).
-    /// Checks the OBJ text line by line (so errors carry line numbers, which tobj's do not)
-    /// and returns the `usemtl` names with their lines.
+    /// Checks vertex, normal and face lines before tobj sees them, so errors carry a line
+    /// number and the object name (tobj reports neither), and returns the `usemtl` names with
+    /// the line of their first use.
     fn prescan(text: &str, label: &str) -> Result<Vec<(usize, String)>, MeshError> {
         let mut object = String::from("(none)");
         let (mut nv, mut nvt, mut nvn) = (0i64, 0i64, 0i64);

@@ -327,13 +327,14 @@ pub fn voxelize_in(
     }
     if solid {
         fill_solid(depth, &mut voxels, limit).map_err(|filled| {
-            let too_many =
-                VoxelizeError::TooManyVoxels { part: part.name.clone(), depth, estimate: filled.div_ceil(1_000_000) };
             // Within the fixed limit, it is the budget that refused.
-            match filled > MAX_VOXELS {
-                true => too_many,
-                false => crate::memory::check(&what(filled as f64), filled * per_voxel, ADVICE)
-                    .map_or_else(VoxelizeError::from, |_| too_many),
+            match crate::memory::check(&what(filled as f64), filled * per_voxel, ADVICE) {
+                Err(e) if filled <= MAX_VOXELS => e.into(),
+                _ => VoxelizeError::TooManyVoxels {
+                    part: part.name.clone(),
+                    depth,
+                    estimate: filled.div_ceil(1_000_000),
+                },
             }
         })?;
     }
