@@ -8,10 +8,16 @@
 //! limit (`ulimit -v`). Estimates are of what the data structures really hold, peak
 //! included, not of what the input file weighs.
 
+use std::cell::Cell;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// 0: not set, use [`default_budget`].
 static BUDGET: AtomicU64 = AtomicU64::new(0);
+
+thread_local! {
+    /// This thread's own budget ([`with_budget`]); 0: the process's.
+    static THREAD_BUDGET: Cell<u64> = const { Cell::new(0) };
+}
 
 /// A large allocation the budget refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -65,12 +71,27 @@ pub fn set_budget(bytes: u64) {
     BUDGET.store(bytes, Ordering::Relaxed);
 }
 
-/// The budget in bytes.
+/// The budget in bytes: the calling thread's own ([`with_budget`]) or the process's.
 pub fn budget() -> u64 {
-    match BUDGET.load(Ordering::Relaxed) {
-        0 => default_budget(),
-        b => b,
+    match (THREAD_BUDGET.with(Cell::get), BUDGET.load(Ordering::Relaxed)) {
+        (0, 0) => default_budget(),
+        (0, b) | (b, _) => b,
     }
+}
+
+/// Runs `work` with the calling thread's budget set to `bytes`, other threads keeping the
+/// process's: jobs side by side in one process, each under its own limit. The checks run on
+/// the thread that asks for the memory, before worker threads start, so they see it.
+pub fn with_budget<T>(bytes: u64, work: impl FnOnce() -> T) -> T {
+    /// Puts the previous budget back, also when `work` panics.
+    struct Restore(u64);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            THREAD_BUDGET.with(|b| b.set(self.0));
+        }
+    }
+    let _restore = Restore(THREAD_BUDGET.with(|b| b.replace(bytes)));
+    work()
 }
 
 /// Three quarters of the smaller of physical memory and the address-space limit (8 GiB
@@ -156,5 +177,17 @@ mod tests {
             "a frame needs about 3.0 MiB, more than the memory budget of 1.0 MiB; lower the resolution"
         );
         assert!(default_budget() >= 1 << 20);
+    }
+
+    #[test]
+    fn a_thread_budget_applies_to_its_thread_only() {
+        let outer = budget();
+        let (inner, other) = with_budget(4096, || {
+            let other = std::thread::spawn(budget).join().unwrap_or(0);
+            (budget(), other)
+        });
+        assert_eq!((inner, other, budget()), (4096, outer, outer));
+        assert!(with_budget(4096, || check("x", 5000, "")).is_err());
+        assert!(check("x", 5000, "").is_ok());
     }
 }

@@ -280,6 +280,23 @@ fn a_new_part_where_a_dropped_one_lived_is_uploaded_and_traced() {
     assert_close(&c, &g, "a new part after a dropped one");
 }
 
+/// The GPU's image-sized buffers go through the memory budget: a frame that needs more is
+/// refused before any buffer is created, and the same renderer draws it under a larger one.
+#[test]
+fn gpu_frames_respect_the_memory_budget() {
+    let Some(ctx) = context() else { return };
+    let (s, _) = scene(1);
+    let (lights, cam) = (Lights::default(), street_camera(256, 160));
+    let plan = FramePlan::new(&s, &cam, &lights, &Features::default(), None);
+    let mut gpu = GpuRenderer::new(ctx.clone());
+    let e = voxray::memory::with_budget(1 << 20, || gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()))
+        .unwrap_err();
+    assert!(matches!(e, GpuError::Memory(_)), "{e}");
+    assert!(e.to_string().contains("a 256×160 frame on the GPU needs about"), "{e}");
+    let ok = voxray::memory::with_budget(64 << 20, || gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()));
+    assert!(ok.is_ok_and(|f| f.instance.iter().any(|&i| i >= 0)));
+}
+
 #[test]
 fn device_errors_come_back_as_library_errors() {
     if context().is_none() {

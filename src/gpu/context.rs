@@ -42,6 +42,9 @@ pub enum GpuError {
     /// The camera of the frame.
     #[error(transparent)]
     Camera(#[from] crate::scene::CameraError),
+    /// Buffers the memory budget refused (before they were created).
+    #[error(transparent)]
+    Memory(#[from] crate::memory::MemoryError),
 }
 
 /// A wgpu error as the library's.
@@ -210,6 +213,16 @@ impl GpuContext {
     /// One line naming the adapter.
     pub fn describe(&self) -> String {
         format!("{} ({:?}, {:?}, {})", self.info.name, self.info.backend, self.info.device_type, self.info.driver_info)
+    }
+
+    /// Checks buffers of `bytes` in all for `what` against the memory budget before they are
+    /// created: on software and integrated GPUs device memory is the machine's memory, and a
+    /// discrete GPU's own limit is caught after the fact as [`GpuError::OutOfMemory`].
+    pub fn check_memory(&self, what: impl FnOnce() -> String, bytes: u64, advice: &str) -> Result<(), GpuError> {
+        if bytes > crate::memory::budget() {
+            crate::memory::check(&what(), bytes, advice)?;
+        }
+        Ok(())
     }
 
     /// Checks a storage binding's size against the device limit.

@@ -621,6 +621,13 @@ impl GpuRenderer {
             pad3: 0,
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
+        // The image-sized buffers: hits and radiance, and their host copies when read back.
+        let per_pixel = (std::mem::size_of::<GpuHit>() + 16) as u64 * if self.read_back { 2 } else { 1 };
+        self.ctx.check_memory(
+            || format!("a {w}×{h} frame on the GPU"),
+            n as u64 * per_pixel,
+            "lower the resolution or raise the memory budget",
+        )?;
         if !self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
             let buf = self.ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("hits"),

@@ -85,6 +85,10 @@ fn hint(e: &Error) -> Option<&'static str> {
         Error::Gpu(voxray::gpu::GpuError::OutOfMemory(_) | voxray::gpu::GpuError::TooLarge { .. }) => {
             Some("lower --width/--height or --gi-res, try --gi-volume sparse, or use --backend cpu")
         }
+        #[cfg(feature = "gpu")]
+        Error::Gpu(voxray::gpu::GpuError::Memory(_)) => {
+            Some("lower --width/--height or --gi-res, try --gi-volume sparse, or raise --memory-budget")
+        }
         _ => None,
     }
 }

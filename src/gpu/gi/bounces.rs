@@ -13,6 +13,12 @@ impl GpuGi {
         };
         let size = stored_cells(vol.layout, vol.res, vol.capacity) * 16;
         ctx.check_binding("the GI bounce volume", size)?;
+        let held = vol.accum.size() + vol.levels.size();
+        ctx.check_memory(
+            || format!("the GPU GI volume of {}³ cells with a second bounce", vol.res),
+            held + 2 * size,
+            "lower the GI resolution or the bounces, or raise the memory budget",
+        )?;
         let make = |label| {
             ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some(label),

@@ -114,6 +114,13 @@ impl GpuGi {
             return Err(GiError::Resolution(res).into());
         }
         ctx.check_binding("the GI level chain", total * 16)?;
+        // The level texture, where used: the whole volume in rgba16float with its mips.
+        let texture_bytes = if texture { (res.next_power_of_two() as u64).pow(3) * 8 * 8 / 7 } else { 0 };
+        ctx.check_memory(
+            || format!("the GPU GI volume of {res}³ cells ({layout:?}) and its level chain"),
+            accum_size + total * 16 + texture_bytes,
+            "lower the GI resolution, use the sparse volume, or raise the memory budget",
+        )?;
         let accum = ctx.buffer(&wgpu::BufferDescriptor {
             label: Some("gi accumulation"),
             size: accum_size,
