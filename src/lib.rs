@@ -48,6 +48,7 @@ pub mod memory;
 pub mod mesh;
 pub mod model;
 pub mod oracle;
+pub mod partial;
 pub mod pipeline;
 pub mod ray;
 pub mod render;

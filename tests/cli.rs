@@ -400,6 +400,39 @@ fn memory_budget_refuses_before_allocating() {
     assert!(err.contains("rendering 16384×4096 needs about 10.0 GiB, more than the memory budget of 2.1 GiB"), "{err}");
 }
 
+/// Ctrl-C during a clip: exit code 130 with a message; every frame on disk is complete and no
+/// temporary file is left beside them.
+#[test]
+fn ctrl_c_stops_a_clip_leaving_only_complete_frames() {
+    let d = tmp("interrupt");
+    let out = d.join("clip.png");
+    let child = Command::new(env!("CARGO_BIN_EXE_voxray"))
+        .args(["render", "--obj", "models/test/cube.obj", "--no-cache", "--backend", "cpu", "--depth", "5"])
+        .args(["--width", "192", "--height", "128", "--frames", "5000", "--out", s(&out)])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run voxray");
+    let started = std::time::Instant::now();
+    while !d.join("clip_0003.png").exists() && started.elapsed().as_secs() < 120 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill");
+    assert!(kill.success());
+    let o = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(err.contains("voxray: interrupted") && err.contains("files already written are complete"), "{err}");
+    let names: Vec<String> =
+        std::fs::read_dir(&d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    eprintln!("{} frames before Ctrl-C, {:?}", names.len(), started.elapsed());
+    assert!(names.len() >= 4 && names.len() < 5000, "{names:?}");
+    for n in &names {
+        assert!(n.starts_with("clip_") && n.ends_with(".png"), "left behind: {n}");
+        let b = std::fs::read(d.join(n)).unwrap();
+        assert!(b.len() > 20 && b[b.len() - 8..b.len() - 4] == *b"IEND", "{n} is not a complete PNG");
+    }
+}
+
 #[test]
 fn voxelize_and_info_round_trip() {
     let d = tmp("vox");

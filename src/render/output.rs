@@ -45,17 +45,25 @@ fn replace_atomically<E>(
 ) -> Result<(), E> {
     let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
     let ext = path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.partial-{}{ext}", std::process::id()));
-    match write(&tmp) {
-        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
+    let partial =
+        crate::partial::Partial::new(path.with_file_name(format!(".{name}.partial-{}{ext}", std::process::id())));
+    let tmp = partial.path();
+    match write(tmp) {
+        Ok(()) => std::fs::rename(tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(tmp);
             io(e)
         }),
         Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
+            let _ = std::fs::remove_file(tmp);
             Err(e)
         }
     }
+}
+
+/// Writes `bytes` to `path` through a temporary sibling renamed into place once complete
+/// (records, reports, model files: an interrupted run never leaves one half-written).
+pub fn write_file(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    replace_atomically(path, |tmp| std::fs::write(tmp, bytes), |e| e)
 }
 
 /// Writes the frame as PNG or EXR, chosen by the extension (replacing an earlier file only

@@ -137,12 +137,20 @@ pub fn to_bytes(svo: &Svo) -> Vec<u8> {
 /// half-written file behind under the final name.
 pub fn save(svo: &Svo, path: &Path) -> Result<(), SvoFileError> {
     let io = |source| SvoFileError::Io { path: path.display().to_string(), source };
-    let tmp = path.with_extension(format!("svo.tmp{}", std::process::id()));
-    let mut f = std::fs::File::create(&tmp).map_err(io)?;
-    f.write_all(&to_bytes(svo)).map_err(io)?;
-    f.sync_all().map_err(io)?;
-    drop(f);
-    std::fs::rename(&tmp, path).map_err(io)
+    let partial = crate::partial::Partial::new(path.with_extension(format!("svo.tmp{}", std::process::id())));
+    let tmp = partial.path();
+    let written = std::fs::File::create(tmp).and_then(|mut f| {
+        f.write_all(&to_bytes(svo))?;
+        f.sync_all()
+    });
+    match written.and_then(|()| std::fs::rename(tmp, path)) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            // A full disk or a failed rename leaves no temporary behind either.
+            let _ = std::fs::remove_file(tmp);
+            Err(io(e))
+        }
+    }
 }
 
 /// Reads and validates an SVO file. The header is read and checked first (magic number,

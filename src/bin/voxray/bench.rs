@@ -323,7 +323,7 @@ pub(crate) fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) 
         if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
         }
-        std::fs::write(p, text).map_err(|source| Error::Io { path: p.display().to_string(), source })
+        output::write_file(p, text.as_bytes()).map_err(|source| Error::Io { path: p.display().to_string(), source })
     };
     let json = serde_json::to_string_pretty(&all).map_err(|e| with_path(&json_path, e))?;
     write(&json_path, &json)?;

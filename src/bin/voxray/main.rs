@@ -50,6 +50,17 @@ fn main() -> ExitCode {
     if let Some(b) = cli.memory_budget {
         voxray::memory::set_budget(b);
     }
+    // Ctrl-C stops at once: the outputs being written are removed (each is written beside its
+    // final name and renamed when complete), those finished are kept.
+    let interrupted = ctrlc::set_handler(|| {
+        let removed = voxray::partial::remove_in_flight();
+        let what = if removed == 0 { String::new() } else { format!(" ({removed} unfinished file(s) removed)") };
+        eprintln!("\nvoxray: interrupted{what}; files already written are complete and kept");
+        std::process::exit(130);
+    });
+    if let Err(e) = interrupted {
+        eprintln!("warning: Ctrl-C will not clean up: {e}");
+    }
     let result = match cli.cmd {
         None => default_cmd(),
         Some(Cmd::Render(a)) => render_cmd(a),

@@ -12,7 +12,8 @@ pub(crate) fn model_cmd(model: &str, out_dir: Option<&Path>) -> Result<(), Error
     };
     for (name, text) in files {
         let p = out_dir.join(&name);
-        std::fs::write(&p, text).map_err(|source| Error::Io { path: p.display().to_string(), source })?;
+        output::write_file(&p, text.as_bytes())
+            .map_err(|source| Error::Io { path: p.display().to_string(), source })?;
         println!("wrote {}", p.display());
     }
     Ok(())

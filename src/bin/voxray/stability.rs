@@ -51,7 +51,7 @@ pub(crate) fn stability_cmd(rays: usize, out: Option<PathBuf>) -> Result<(), Err
              `render::visibility`); the oracle walks the same ray mapped into the unit cube in f64.\n\n{tbl}",
             p.display()
         );
-        std::fs::write(&p, md).map_err(|source| Error::Io { path: p.display().to_string(), source })?;
+        output::write_file(&p, md.as_bytes()).map_err(|source| Error::Io { path: p.display().to_string(), source })?;
         println!("wrote {}", p.display());
     }
     if bad > 0 {
