@@ -342,3 +342,50 @@ impl Peers {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::voxelize::{Resolution, VoxelizeOptions};
+
+    /// The hit percentage a record's setting ends with.
+    fn hits(r: &Record) -> f64 {
+        let tail = r.setting.rsplit("hits ").next().unwrap_or("");
+        tail.trim_end_matches("% of pixels").parse().unwrap_or(f64::NAN)
+    }
+
+    /// Every caster traces the same thing: the triangle casters agree with each other, the
+    /// voxel casters (voxray's SVO, parry3d's `Voxels` of the same leaves) with each other,
+    /// and the voxels cover the triangles' pixels plus at most a silhouette band.
+    #[test]
+    fn peers_hit_the_same_pixels() {
+        let mesh = crate::model::embedded::load_default_car().unwrap();
+        let body = mesh.parts.iter().position(|p| p.name == "body").unwrap_or(0);
+        let opts = VoxelizeOptions { resolution: Resolution::Depth(8), solid: false };
+        let svo = Arc::new(crate::pipeline::build_part(&mesh, body, &opts, None, &|_, _| {}).unwrap().svo);
+        let triangles: Vec<[Vec3; 3]> = mesh.parts[body].triangles.iter().map(|t| t.positions).collect();
+        let (lo, hi) = super::super::matrix::static_scene(svo.clone()).unwrap().bounds();
+        let framed = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
+        let camera = Camera { eye: framed.target + (framed.eye - framed.target) * 0.5, ..framed };
+        let view = PeerView { name: "body".into(), triangles: &triangles, svo, camera, whole_frame: true };
+        let scene = PeerScene {
+            views: vec![view],
+            threads: vec![1],
+            warmup: 0,
+            frames: 1,
+            command: String::new(),
+            machine: String::new(),
+        };
+        let records = run(&scene, &mut |_| {}).unwrap();
+        let by = |kind: &str| hits(records.iter().find(|r| r.backend_kind == kind).unwrap());
+        let (embree, stream, trimesh) = (by("embree"), by("embree-stream"), by("parry-trimesh"));
+        let (voxray, whole, voxels) = (by("voxray-trace"), by("voxray"), by("parry-voxels"));
+        eprintln!("hits: Embree {embree}/{stream}, TriMesh {trimesh}, voxray {voxray}/{whole}, Voxels {voxels}");
+        assert!(embree > 20.0, "the body should fill a good part of the frame: {embree}%");
+        assert_eq!(embree, stream, "Embree's two APIs");
+        assert!((embree - trimesh).abs() <= 0.1, "Embree {embree}% vs parry3d TriMesh {trimesh}%");
+        assert_eq!(voxray, whole, "voxray's trace-only and whole frame");
+        assert!((voxray - voxels).abs() <= 0.2, "voxray {voxray}% vs parry3d Voxels {voxels}%");
+        assert!(voxray >= embree && voxray - embree < 8.0, "voxels {voxray}% vs triangles {embree}%");
+    }
+}
