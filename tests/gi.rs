@@ -631,3 +631,45 @@ fn gi_passes_report_their_stages() {
     frame(&mut caches);
     assert!(heard.lock().unwrap().is_empty(), "a static frame reran passes: {:?}", heard.lock().unwrap());
 }
+
+/// The half-resolution gather on the box: about a quarter of the cones, the sample pixels'
+/// colours exactly the per-pixel gather's, the rest close to them; and the cones' ambient
+/// occlusion AOV: open for the sky, darker in the corners than on the open floor.
+#[test]
+fn half_resolution_gather_and_the_ao_aov_on_the_box() {
+    use voxray::gi::{render_with_gi, GiCaches, GiSettings};
+    use voxray::render::{Features, FramePlan, Gather, RenderOptions};
+    let scene = voxray::bench::gi::room_scene(5).unwrap();
+    let lights = voxray::model::room::lights();
+    let cam = voxray::model::room::camera(128, 96);
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let opts = RenderOptions::default();
+    let frame = |gather| {
+        let s = GiSettings { res: 32, gather, ..Default::default() };
+        render_with_gi(&scene, &cam, &lights, &plan, &opts, None, &s, &mut GiCaches::new(), &|_, _| {}).unwrap().0
+    };
+    let (full, half) = (frame(Gather::Pixels), frame(Gather::Half));
+    let hits = full.instance.iter().filter(|&&i| i >= 0).count() as u64;
+    assert_eq!(full.gathers, hits);
+    assert!(half.gathers < hits / 2, "{} gathers for {hits} hits", half.gathers);
+    let (w, mut err, mut n) = (cam.width as usize, 0.0f64, 0);
+    for k in 0..full.radiance.len() {
+        let (x, y) = (k % w, k / w);
+        if x % 2 == 0 && y % 2 == 0 {
+            assert_eq!(half.radiance[k], full.radiance[k], "sample pixel ({x}, {y})");
+            assert_eq!(half.ao[k], full.ao[k]);
+        } else if full.instance[k] >= 0 {
+            err += ((half.radiance[k] - full.radiance[k]).length() / full.radiance[k].length().max(1e-3)) as f64;
+            n += 1;
+        }
+    }
+    println!("half gather: {} of {hits} gathers, mean relative difference {:.4}", half.gathers, err / n as f64);
+    assert!(err / (n as f64) < 0.08, "mean relative difference {}", err / n as f64);
+    // AO: one value per pixel in [0, 1], 1 for the sky; some corners are well occluded.
+    assert_eq!(full.ao.len(), full.radiance.len());
+    assert!(full.ao.iter().all(|a| (0.0..=1.0).contains(a)));
+    assert!(full.instance.iter().zip(&full.ao).all(|(&i, &a)| i >= 0 || a == 1.0));
+    let hit_ao: Vec<f32> = full.instance.iter().zip(&full.ao).filter(|(&i, _)| i >= 0).map(|(_, &a)| a).collect();
+    let (lo, hi) = hit_ao.iter().fold((1.0f32, 0.0f32), |(l, h), &a| (l.min(a), h.max(a)));
+    assert!(lo < 0.5 && hi - lo > 0.2, "AO from {lo} to {hi}");
+}

@@ -283,6 +283,10 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
         let e = gpu.set_gi(Some(bad)).unwrap_err().to_string();
         assert!(e.contains("GI") || e.contains("cone"), "unclear error: {e}");
     }
+    // The half-resolution gather is the CPU's; the GPU says so instead of gathering per pixel.
+    let half = GiSettings { gather: voxray::render::Gather::Half, ..Default::default() };
+    let e = gpu.set_gi(Some(half)).unwrap_err().to_string();
+    assert!(e.contains("half-resolution gather runs on the CPU backend only"), "{e}");
     let lights = Lights::default();
     let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
     for s in [

@@ -570,6 +570,12 @@ fn accuracy_on(
         let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
         push("diffuse cones", format!("{cones}"), cones as f64, ms, &f)?;
     }
+    for gather in [crate::render::Gather::Pixels, crate::render::Gather::Half] {
+        progress(&format!("gi-accuracy: {gather:?} gather"));
+        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { gather, ..default }, cfg.repeats)?;
+        let x = if gather == crate::render::Gather::Half { 0.5 } else { 1.0 };
+        push("gather", format!("{gather:?}").to_lowercase(), x, ms, &f)?;
+    }
     for filter in [Filter::Nearest, Filter::Split] {
         let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { filter, ..default }, cfg.repeats)?;
         push("filter", format!("{filter:?}").to_lowercase(), if filter == Filter::Split { 1.0 } else { 0.0 }, ms, &f)?;

@@ -348,6 +348,8 @@ pub struct GiSettings {
     pub volume: VolumeChoice,
     /// Where the GPU's cones read the level chain (ignored on the CPU).
     pub levels: LevelStore,
+    /// Where the diffuse cones are gathered: every pixel or half resolution (CPU only).
+    pub gather: crate::render::Gather,
 }
 
 impl GiSettings {
@@ -370,6 +372,7 @@ impl Default for GiSettings {
             bounces: 1,
             volume: VolumeChoice::Auto,
             levels: LevelStore::Buffer,
+            gather: crate::render::Gather::Pixels,
         }
     }
 }
@@ -577,18 +580,26 @@ pub fn prepare_light(
 }
 
 impl GiCaches {
-    /// The ambient term of a hit under the light [`prepare_light`] made last (None before
-    /// it): both lobes' reflectance times what their cones gather — the diffuse cones
-    /// (cosine-weighted, the sky where they escape) for the albedo, and for a glossy hit
-    /// (specular reflectance ks > 0) one cone along the mirror direction as wide as its
-    /// Phong lobe. Arguments: the hit's record, the world-space hit point and the primary
-    /// ray's unit direction, as [`crate::render::AmbientLight`] takes them.
-    pub fn ambient(&self, lights: &Lights) -> Option<impl Fn(&HitRecord, DVec3, DVec3) -> glam::Vec3 + Sync + '_> {
+    /// The ambient term under the light [`prepare_light`] made last (None before it), as
+    /// [`crate::render::AmbientLight`] takes it, in two parts: what the diffuse cones gather
+    /// at a hit (cosine-weighted, the sky where they escape; with the fraction that escaped),
+    /// and the term made from that — the albedo times it, and for a glossy hit (specular
+    /// reflectance ks > 0) one cone along the mirror direction as wide as its Phong lobe.
+    /// Arguments: the hit's record, the world-space hit point, the primary ray's unit
+    /// direction and the diffuse light.
+    #[allow(clippy::type_complexity)]
+    pub fn ambient(
+        &self,
+        lights: &Lights,
+    ) -> Option<(
+        impl Fn(&HitRecord, DVec3) -> (glam::Vec3, f32) + Sync + '_,
+        impl Fn(&HitRecord, DVec3, DVec3, glam::Vec3) -> glam::Vec3 + Sync + '_,
+    )> {
         let last = self.last.as_ref()?;
         let (chain, cones, sky) = (&last.chain, last.cones, lights.sky());
-        Some(move |r: &HitRecord, p: DVec3, d: DVec3| {
+        let diffuse = move |r: &HitRecord, p: DVec3| gather(chain, p, r.normal.as_dvec3(), sky, &cones);
+        let term = move |r: &HitRecord, p: DVec3, d: DVec3, light: glam::Vec3| {
             let n = r.normal.as_dvec3();
-            let (light, _open) = gather(chain, p, n, sky, &cones);
             let mut ambient = r.attr.albedo_linear() * light;
             let ks = r.attr.specular();
             if ks > 0.0 && !cones.specular_cone {
@@ -602,7 +613,8 @@ impl GiCaches {
                 ambient += (s.truncate() + sky * (1.0 - s.w)) * ks;
             }
             ambient
-        })
+        };
+        Some((diffuse, term))
     }
 }
 
@@ -622,8 +634,9 @@ pub fn render_with_gi(
     progress: &(dyn Fn(u32, u32) + Sync),
 ) -> Result<(Frame, GiStats), GiError> {
     let mut stats = prepare_light(scene, camera, lights, s, caches)?;
-    let term = caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
-    let ambient = crate::render::AmbientLight { term: &term, unchanged: stats.reuse_pixels };
+    let (diffuse, term) = caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
+    let ambient =
+        crate::render::AmbientLight { diffuse: &diffuse, term: &term, gather: s.gather, unchanged: stats.reuse_pixels };
     let (frame, cones_ms) =
         crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress)?;
     stats.cones_ms = cones_ms;

@@ -364,6 +364,13 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
+            if asked.gather != crate::render::Gather::Pixels {
+                return Err(crate::gi::GiError::Settings(
+                    "the half-resolution gather runs on the CPU backend only; the GPU gathers its cones at every pixel"
+                        .into(),
+                )
+                .into());
+            }
             let border = self.ctx.device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
             if asked.levels == crate::gi::shade::LevelStore::Texture && !border {
                 return Err(crate::gi::GiError::Settings(
@@ -966,6 +973,9 @@ impl GpuRenderer {
             instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
             on_device: false,
+            // Not read back from the GPU's cones (yet): no AO AOV, gathers not counted.
+            ao: Vec::new(),
+            gathers: 0,
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records, opts.max_level);

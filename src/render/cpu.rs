@@ -50,8 +50,14 @@ pub struct Frame {
     pub specular: Vec<f32>,
     /// Phong exponent of the surface hit ([`super::brdf`]).
     pub shininess: Vec<f32>,
+    /// Ambient occlusion from GI's diffuse cones: the cosine-weighted fraction of them that
+    /// left without meeting anything (1 for a miss); empty without GI's cones.
+    pub ao: Vec<f32>,
     /// Primary rays (one per pixel).
     pub primary_rays: u64,
+    /// Points where GI's diffuse cones were gathered (fewer than the pixels shaded with
+    /// [`super::Gather::Half`]).
+    pub gathers: u64,
     /// Pixels whose primary hit came from the hit buffer (no ray traced).
     pub reused: u64,
     /// Shadow rays traced.
@@ -212,8 +218,14 @@ pub(crate) fn leave(r: &HitRecord, at: DVec3) -> DVec3 {
 /// giving both lobes' ambient light, reflectance included (GI's cones,
 /// [`crate::gi::render_with_gi`]).
 pub struct AmbientLight<'a> {
-    /// The ambient term of one hit.
-    pub term: &'a (dyn Fn(&HitRecord, DVec3, DVec3) -> Vec3 + Sync),
+    /// The diffuse cones' light at a hit (its record and world-space point) before the
+    /// albedo, and the cosine-weighted fraction of the cones that escaped.
+    pub diffuse: &'a (dyn Fn(&HitRecord, DVec3) -> (Vec3, f32) + Sync),
+    /// The ambient term of one hit (record, point, ray direction) given its diffuse light:
+    /// both lobes, reflectance included.
+    pub term: &'a (dyn Fn(&HitRecord, DVec3, DVec3, Vec3) -> Vec3 + Sync),
+    /// Where the diffuse light is gathered: every pixel, or half resolution.
+    pub gather: super::Gather,
     /// The term gives what it gave in the stored frame (the same light, gathered the same
     /// way), so colours kept by the hit buffer stay valid.
     pub unchanged: bool,
@@ -391,17 +403,30 @@ pub fn render_lit(
     aovs(&mut f, &records);
     // Pass 2a (GI): the ambient term of every hit to be shaded, from the G-buffer alone.
     let ambient_start = std::time::Instant::now();
+    let kept_colour = |x: usize, y: usize| shade_from.is_some() && kept_hit(x, y);
     let ambient_terms: Vec<Vec3> = match ambient {
-        Some(a) => par_map(n, |k| {
-            let (x, y) = (k % w, k / w);
-            let r = &records[k];
-            let kept = shade_from.is_some() && kept_hit(x, y);
-            if r.instance < 0 || kept {
-                return Vec3::ZERO;
+        Some(a) => {
+            let needed = |x: usize, y: usize| records[y * w + x].instance >= 0 && !kept_colour(x, y);
+            let g = super::gather::gather(a.gather, &records, camera, &basis, a.diffuse, &needed);
+            f.gathers = g.gathers;
+            // Kept colours keep last frame's occlusion too.
+            f.ao = g.open;
+            if let Some(prev) = previous.filter(|p| shade_from.is_some() && p.ao.len() == n) {
+                for (k, o) in f.ao.iter_mut().enumerate() {
+                    if records[k].instance >= 0 && kept_colour(k % w, k / w) {
+                        *o = prev.ao[k];
+                    }
+                }
             }
-            let d = camera.ray_dir(&basis, x as u32, y as u32);
-            (a.term)(r, camera.eye + d * r.t as f64, d).max(Vec3::ZERO)
-        }),
+            par_map(n, |k| {
+                let (x, y) = (k % w, k / w);
+                if !needed(x, y) {
+                    return Vec3::ZERO;
+                }
+                let d = camera.ray_dir(&basis, x as u32, y as u32);
+                (a.term)(&records[k], camera.eye + d * records[k].t as f64, d, g.light[k]).max(Vec3::ZERO)
+            })
+        }
         None => Vec::new(),
     };
     let ambient_ms = ambient_start.elapsed().as_secs_f64() * 1e3;
@@ -450,7 +475,7 @@ pub fn render_lit(
         b.reused = f.reused;
         if plan.keep_hits {
             b.store(camera, scene, &prepared, records, opts.max_level);
-            b.keep_shading(lights, plan.shadows, &f.radiance);
+            b.keep_shading(lights, plan.shadows, &f.radiance, &f.ao);
             b.lit_by_gi = ambient.is_some();
         } else {
             // Nothing to keep: a later frame with the buffer switched on starts afresh.

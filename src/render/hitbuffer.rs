@@ -76,6 +76,8 @@ pub struct HitBuffer {
     pub bvh_builds: u64,
     /// Each pixel's colour in the stored frame.
     pub radiance: Vec<Vec3>,
+    /// Each pixel's ambient occlusion in the stored frame (empty without GI).
+    pub ao: Vec<f32>,
     /// The stored colours' ambient term came from GI's cones, not the flat sky.
     pub lit_by_gi: bool,
     /// The lights the stored colours were computed under.
@@ -195,12 +197,15 @@ impl HitBuffer {
         Some(Reuse { moved, moved_spheres, moved_instances })
     }
 
-    /// Keeps a frame's colours and what they were lit by, for [`Reuse::shading_valid`].
-    pub fn keep_shading(&mut self, lights: &Lights, shadows: bool, radiance: &[Vec3]) {
+    /// Keeps a frame's colours, its ambient occlusion (GI) and what they were lit by, for
+    /// [`Reuse::shading_valid`].
+    pub fn keep_shading(&mut self, lights: &Lights, shadows: bool, radiance: &[Vec3], ao: &[f32]) {
         self.lights = Some(lights.clone());
         self.shadows = shadows;
         self.radiance.clear();
         self.radiance.extend_from_slice(radiance);
+        self.ao.clear();
+        self.ao.extend_from_slice(ao);
     }
 
     /// Stores a frame's records and conditions.

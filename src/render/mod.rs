@@ -7,6 +7,7 @@ pub mod bvh;
 pub mod bvh_wide;
 pub mod cpu;
 pub mod emitters;
+pub mod gather;
 pub mod hitbuffer;
 pub mod instances;
 pub mod output;
@@ -15,5 +16,6 @@ pub mod primary;
 pub mod visibility;
 
 pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions};
+pub use gather::Gather;
 pub use hitbuffer::HitBuffer;
 pub use plan::{Features, FramePlan};

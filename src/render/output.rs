@@ -140,7 +140,8 @@ fn encode_gif(
     std::io::Write::flush(&mut out).map_err(|source| OutputError::Io { path: label.clone(), source })
 }
 
-/// Writes `t.npy`, `instance.npy` and `normal.npy` into `dir` (created if missing).
+/// Writes `t.npy`, `instance.npy` and `normal.npy` into `dir` (created if missing), and
+/// `ao.npy` (ambient occlusion, 1 = open) when GI's cones made one.
 pub fn write_aovs(frame: &Frame, dir: &Path) -> Result<(), OutputError> {
     let io = |p: &Path| {
         let path = p.display().to_string();
@@ -153,7 +154,12 @@ pub fn write_aovs(frame: &Frame, dir: &Path) -> Result<(), OutputError> {
     let inst: Vec<u8> = frame.instance.iter().flat_map(|v| v.to_le_bytes()).collect();
     write_npy(&dir.join("instance.npy"), "<i4", &[h, w], &inst).map_err(io(&dir.join("instance.npy")))?;
     let n: Vec<u8> = frame.normal.iter().flat_map(|v| [v.x, v.y, v.z]).flat_map(|v| v.to_le_bytes()).collect();
-    write_npy(&dir.join("normal.npy"), "<f4", &[h, w, 3], &n).map_err(io(&dir.join("normal.npy")))
+    write_npy(&dir.join("normal.npy"), "<f4", &[h, w, 3], &n).map_err(io(&dir.join("normal.npy")))?;
+    if frame.ao.len() == w * h {
+        let ao: Vec<u8> = frame.ao.iter().flat_map(|v| v.to_le_bytes()).collect();
+        write_npy(&dir.join("ao.npy"), "<f4", &[h, w], &ao).map_err(io(&dir.join("ao.npy")))?;
+    }
+    Ok(())
 }
 
 /// Writes one array in NumPy's `.npy` format (version 1.0, C order), replacing an earlier

@@ -114,7 +114,8 @@ pub(crate) struct RenderArgs {
     /// Output: .png (sRGB 8-bit) or .exr (linear float radiance); with --frames, name_0000.png … or one animated .gif.
     #[arg(long, default_value = "voxray.png")]
     pub(crate) out: PathBuf,
-    /// Write t.npy, instance.npy and normal.npy into this folder (with --frames: DIR/frame_0000/ …).
+    /// Write t.npy, instance.npy and normal.npy into this folder (with --frames: DIR/frame_0000/ …),
+    /// and ao.npy (ambient occlusion from the cones) with --gi on the CPU backend.
     #[arg(long)]
     pub(crate) aov_dir: Option<PathBuf>,
     /// Level-of-detail: stop this many levels below the root.
@@ -177,6 +178,10 @@ pub(crate) struct RenderArgs {
     /// equal to the CPU) or texture (a 3D texture with mips, hardware filtering; dense volume).
     #[arg(long, default_value = "buffer", requires = "gi")]
     pub(crate) gi_levels: voxray::gi::shade::LevelStore,
+    /// Where GI's diffuse cones are gathered: pixels (every pixel) or half (one pixel in each
+    /// 2×2 block, blended at the others from the samples on their own surface; CPU backend).
+    #[arg(long, default_value = "pixels", requires = "gi")]
+    pub(crate) gi_gather: voxray::render::Gather,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]

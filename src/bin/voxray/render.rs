@@ -123,6 +123,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         bounces: a.gi_bounces,
         volume: a.gi_volume,
         levels: a.gi_levels,
+        gather: a.gi_gather,
     });
     if let Some(g) = &gi {
         // Check the knobs before any frame is rendered.
@@ -317,7 +318,11 @@ pub(crate) fn write_frame(
         let d = if a.frames > 1 { dir.join(format!("frame_{f:04}")) } else { dir.clone() };
         output::write_aovs(frame, &d)?;
         if f + 1 == a.frames {
-            println!("wrote AOVs (t, instance, normal .npy) under {}", dir.display());
+            println!(
+                "wrote AOVs (t, instance, normal{} .npy) under {}",
+                if frame.ao.is_empty() { "" } else { ", ao" },
+                dir.display()
+            );
         }
     }
     Ok(())
