@@ -24,6 +24,10 @@ override GI_TEXTURE: bool = false;
 @group(1) @binding(B_GI_TOP) var<storage, read> gi_top: array<u32>;
 @group(1) @binding(B_GI_BRICK_TOP) var<storage, read> gi_brick_top: array<u32>;
 
+// The half-resolution gather's samples (render::gather): the diffuse light of pixel (2i, 2j)
+// in xyz, w = 1 where it is a hit (0: no sample). A one-element placeholder unless gi.half.
+@group(1) @binding(B_GI_SAMPLES) var<storage, read_write> gi_samples: array<vec4<f32>>;
+
 // The level chain as a 3D texture with mips (a 1³ placeholder unless GI_TEXTURE).
 @group(1) @binding(B_GI_TEX) var gi_tex: texture_3d<f32>;
 @group(1) @binding(B_GI_SAMPLER) var gi_sampler: sampler;
@@ -269,6 +273,60 @@ fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     return (light + ring_light * ct) / (1.0 + f32(ring) * ct);
 }
 
+// render::gather's samples: pixel (2i, 2j) of each 2×2 block gathers its cones.
+@compute @workgroup_size(8, 8, 1)
+fn gather_half_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let lw = gi.half_width;
+    if gid.x >= lw || gid.y >= (frame.height + 1u) / 2u {
+        return;
+    }
+    let x = 2u * gid.x;
+    let y = 2u * gid.y;
+    let h = hits[y * frame.width + x];
+    var s = vec4<f32>(0.0);
+    if h.instance >= 0 {
+        s = vec4<f32>(gi_gather(ray_dir(x, y) * h.t, vec3<f32>(h.nx, h.ny, h.nz)), 1.0);
+    }
+    gi_samples[gid.y * lw + gid.x] = s;
+}
+
+// The samples of render::gather next to pixel coordinate c: its own (c even) or the two
+// around it (c odd; one at the last odd column or row).
+fn gi_near_last(c: u32, limit: u32) -> u32 {
+    return select(c / 2u, min(c / 2u + 1u, limit - 1u), (c & 1u) == 1u);
+}
+
+// The diffuse cones' light at a pixel (render::gather::gather): its own cones, or with the
+// half-resolution gather the mean of the nearest samples on its own surface (normal within
+// GI_SAME_NORMAL, point within a voxel of its tangent plane), its own cones where none is.
+fn gi_diffuse(h: Hit, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    if gi.half == 0u {
+        return gi_gather(p, n);
+    }
+    let lw = gi.half_width;
+    let lh = (frame.height + 1u) / 2u;
+    var light = vec3<f32>(0.0);
+    var weight = 0.0;
+    for (var j = y / 2u; j <= gi_near_last(y, lh); j++) {
+        for (var i = x / 2u; i <= gi_near_last(x, lw); i++) {
+            let s = gi_samples[j * lw + i];
+            if s.w == 0.0 {
+                continue;
+            }
+            let sh = hits[2u * j * frame.width + 2u * i];
+            let q = ray_dir(2u * i, 2u * j) * sh.t;
+            if dot(n, vec3<f32>(sh.nx, sh.ny, sh.nz)) >= GI_SAME_NORMAL && abs(dot(n, q - p)) <= h.voxel {
+                light += s.xyz;
+                weight += 1.0;
+            }
+        }
+    }
+    if weight > 0.0 {
+        return light / weight;
+    }
+    return gi_gather(p, n);
+}
+
 // shade_main with the ambient term from the cones instead of the flat sky.
 @compute @workgroup_size(8, 8, 1)
 fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -280,7 +338,7 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let albedo = albedo_linear(h.albedo);
     let n = vec3<f32>(h.nx, h.ny, h.nz);
     let p = ray_dir(gid.x, gid.y) * h.t;
-    var ambient = albedo * gi_gather(p, n);
+    var ambient = albedo * gi_diffuse(h, gid.x, gid.y, p, n);
     let ks = specular(h.material);
     if ks > 0.0 && gi.specular_cone == 0u {
         ambient += ks * frame.sky.xyz;

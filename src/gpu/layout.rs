@@ -336,11 +336,11 @@ pub struct GpuGiFrame {
     /// Sparse: bricks allocated (the cell passes' threads past `bricks` × 512 stop); the GPU
     /// copies its count over what the host wrote.
     pub bricks: u32,
+    /// 1: the diffuse cones are gathered at half resolution (`render::Gather::Half`).
+    pub half: u32,
+    /// Samples per row of the half-resolution gather (the image's width halved, rounded up).
+    pub half_width: u32,
     /// Padding to 16 bytes.
-    pub pad0: u32,
-    /// Padding.
-    pub pad1: u32,
-    /// Padding.
     pub pad2: u32,
 }
 

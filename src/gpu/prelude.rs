@@ -53,8 +53,10 @@ pub mod binding {
     pub const GI_TEX: u32 = 7;
     /// Tracer group 1 (GI): `gi_sampler`.
     pub const GI_SAMPLER: u32 = 8;
+    /// Tracer group 1 (GI): `gi_samples` (the half-resolution gather's samples).
+    pub const GI_SAMPLES: u32 = 9;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 24] = [
+    pub const ALL: [(&str, u32); 25] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -79,6 +81,7 @@ pub mod binding {
         ("B_GI_BRICK_TOP", GI_BRICK_TOP),
         ("B_GI_TEX", GI_TEX),
         ("B_GI_SAMPLER", GI_SAMPLER),
+        ("B_GI_SAMPLES", GI_SAMPLES),
     ];
 }
 
@@ -101,6 +104,7 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("GI_BRICK_LEVELS", "u32", u(crate::gi::sparse::BRICK_LEVELS as u64)),
         ("GI_EMPTY", "u32", u(crate::gi::sparse::EMPTY as u64)),
         ("GI_CLEARANCE", "f32", f(crate::gi::cone::CLEARANCE as f32)),
+        ("GI_SAME_NORMAL", "f32", f(crate::render::gather::SAME_NORMAL)),
     ];
     v.extend(binding::ALL.iter().map(|&(name, b)| (name, "u32", u(b as u64))));
     // Word index of each statistic in the `stats` buffer (GpuStats).

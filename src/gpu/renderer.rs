@@ -364,13 +364,6 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
-            if asked.gather != crate::render::Gather::Pixels {
-                return Err(crate::gi::GiError::Settings(
-                    "the half-resolution gather runs on the CPU backend only; the GPU gathers its cones at every pixel"
-                        .into(),
-                )
-                .into());
-            }
             let border = self.ctx.device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
             if asked.levels == crate::gi::shade::LevelStore::Texture && !border {
                 return Err(crate::gi::GiError::Settings(
@@ -462,6 +455,7 @@ impl GpuRenderer {
             super::gi::GiPipelines {
                 inject: make("inject_main"),
                 shade: make("shade_gi_main"),
+                gather: make("gather_half_main"),
                 bounce: make("bounce_main"),
                 commit: make("bounce_commit_main"),
             }
@@ -831,9 +825,15 @@ impl GpuRenderer {
                 enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("shade"), timestamp_writes: ts(1) });
             match (&gi_work, gi_pipes) {
                 (Some(work), Some(pipes)) => {
-                    pass.set_pipeline(&pipes.shade);
                     pass.set_bind_group(0, &*bind, &[]);
                     pass.set_bind_group(1, &work.group1, &[]);
+                    if work.half {
+                        // The samples first, one per 2×2 block (in the same pass: its time is
+                        // the shading's, and each dispatch sees the one before's writes).
+                        pass.set_pipeline(&pipes.gather);
+                        pass.dispatch_workgroups(w.div_ceil(2).div_ceil(8), h.div_ceil(2).div_ceil(8), 1);
+                    }
+                    pass.set_pipeline(&pipes.shade);
                 }
                 _ => {
                     pass.set_pipeline(shade_pipe);

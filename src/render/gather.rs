@@ -34,7 +34,7 @@ impl std::str::FromStr for Gather {
 }
 
 /// Smallest cosine between a pixel's normal and a sample's it blends (about 25°).
-const SAME_NORMAL: f32 = 0.9;
+pub(crate) const SAME_NORMAL: f32 = 0.9;
 
 /// The diffuse light of every pixel that needs it, and the fraction of its cones that
 /// escaped (ambient occlusion; 1 where nothing was gathered).

@@ -127,6 +127,12 @@ impl App {
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Nearest, "nearest");
                         });
                         ui_.horizontal(|row| {
+                            use crate::render::Gather;
+                            row.label("GI gather:");
+                            row.radio_value(&mut ui.gi.gather, Gather::Pixels, "every pixel");
+                            row.radio_value(&mut ui.gi.gather, Gather::Half, "half resolution");
+                        });
+                        ui_.horizontal(|row| {
                             use crate::gi::shade::VolumeChoice;
                             row.label("GI volume:");
                             row.radio_value(&mut ui.gi.volume, VolumeChoice::Auto, "auto");

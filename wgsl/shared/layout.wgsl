@@ -220,8 +220,10 @@ struct GiFrame {
     specular_cone: u32,
     // Sparse: bricks allocated (copied in by the GPU); threads past bricks x 512 stop.
     bricks: u32,
-    pad0: u32,
-    pad1: u32,
+    // 1: the diffuse cones are gathered at half resolution (render::Gather::Half).
+    half: u32,
+    // Samples per row of the half-resolution gather (the width halved, rounded up).
+    half_width: u32,
     pad2: u32,
 }
 

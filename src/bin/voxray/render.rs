@@ -174,8 +174,9 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         match (session.gi(), &report.gi, f) {
             (Some(g), Some(s), 0) => pb.suspend(|| {
                 eprintln!(
-                    "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms",
-                    s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms
+                    "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms ({} gathers for {} hits)",
+                    s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms,
+                    frame.gathers, frame.instance.iter().filter(|&&i| i >= 0).count()
                 );
                 let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
                 eprintln!(

@@ -159,6 +159,8 @@ pub(crate) struct GiWork {
     pub texture: bool,
     /// Bind group 1 of the tracer's GI entry points.
     pub group1: wgpu::BindGroup,
+    /// The diffuse cones are gathered at half resolution (`gather_half_main` runs first).
+    pub half: bool,
     spec: VolumeSpec,
     bounces: u32,
     /// What this frame does.
@@ -209,6 +211,8 @@ pub(crate) struct GiPipelines {
     pub inject: wgpu::ComputePipeline,
     /// Shading with cone tracing.
     pub shade: wgpu::ComputePipeline,
+    /// The half-resolution gather's samples, before shading.
+    pub gather: wgpu::ComputePipeline,
     /// One more bounce into the next level 0.
     pub bounce: wgpu::ComputePipeline,
     /// The next level 0 into the chain.
@@ -372,6 +376,7 @@ impl GpuGi {
                 gi_layout_entry(b::GI_NEXT, rw),
                 gi_layout_entry(b::GI_TOP, ro),
                 gi_layout_entry(b::GI_BRICK_TOP, ro),
+                gi_layout_entry(b::GI_SAMPLES, rw),
                 wgpu::BindGroupLayoutEntry {
                     binding: b::GI_TEX,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -498,6 +503,7 @@ impl GpuGi {
         s: &GiSettings,
     ) -> Result<GiWork, GpuError> {
         let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
+        let half = s.gather == crate::render::Gather::Half;
         let layout = s.layout();
         let (spec, levels_of) = plan_volume(scene, camera, s, &mut self.caches)?;
         let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
@@ -632,10 +638,20 @@ impl GpuGi {
             tex_size: vol.texture.as_ref().map_or(0, |t| t.size),
             specular_cone: cones.specular_cone as u32,
             bricks,
+            half: half as u32,
+            half_width: camera.width.div_ceil(2),
             ..Default::default()
         };
         let kept = &mut self.kept;
         let uniform = wgpu::BufferUsages::UNIFORM;
+        // One vec4 per 2×2 block of pixels with the half-resolution gather.
+        let samples = if half {
+            let n = camera.width.div_ceil(2) as u64 * camera.height.div_ceil(2) as u64;
+            ensure(ctx, &mut kept.samples, "gi gather samples", n * 16, false, wgpu::BufferUsages::STORAGE);
+            kept.samples.clone().ok_or_else(|| GpuError::Device("gi gather samples missing".into()))?
+        } else {
+            self.placeholder.clone()
+        };
         let splat_buf = GiFrameBuffers::write(ctx, &mut kept.splat, "gi splat", bytemuck::bytes_of(&splat), uniform)?;
         let frame_buf = GiFrameBuffers::write(ctx, &mut kept.frame, "gi frame", bytemuck::bytes_of(&gframe), uniform)?;
         let splat_key = vec![pool.voxels.clone(), jobs_buf.clone(), vol.accum.clone(), splat_buf.clone()];
@@ -706,7 +722,7 @@ impl GpuGi {
         // The level texture is made with the volume's buffers, so the levels buffer in the key
         // stands for it too.
         let group1_key =
-            [&vol.accum, &vol.levels, &frame_buf, direct, next, top, brick_top].map(|b| b.clone()).to_vec();
+            [&vol.accum, &vol.levels, &frame_buf, direct, next, top, brick_top, &samples].map(|b| b.clone()).to_vec();
         let group1 = bind_cached(&mut kept.binds, ("group 1", vol.texture.is_some() as usize), group1_key, || {
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("gi (tracer group 1)"),
@@ -719,6 +735,7 @@ impl GpuGi {
                     wgpu::BindGroupEntry { binding: b::GI_NEXT, resource: next.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::GI_TOP, resource: top.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::GI_BRICK_TOP, resource: brick_top.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_SAMPLES, resource: samples.as_entire_binding() },
                     wgpu::BindGroupEntry {
                         binding: b::GI_TEX,
                         resource: wgpu::BindingResource::TextureView(
@@ -760,6 +777,7 @@ impl GpuGi {
             count_to,
             texture,
             group1,
+            half,
             spec,
             bounces: s.bounces,
             stats,
