@@ -673,3 +673,28 @@ fn half_resolution_gather_and_the_ao_aov_on_the_box() {
     let (lo, hi) = hit_ao.iter().fold((1.0f32, 0.0f32), |(l, h), &a| (l.min(a), h.max(a)));
     assert!(lo < 0.5 && hi - lo > 0.2, "AO from {lo} to {hi}");
 }
+
+/// The flicker measurement on a small clip: the still pixels are found (the ground), the
+/// numbers are finite, and nearest filtering's indirect light jumps more from frame to frame
+/// than split filtering's (the voxel-transformation paper's claim, docs/accuracy.md).
+#[test]
+fn split_filtering_flickers_less_than_nearest() {
+    let cfg = voxray::bench::gi::AccuracyConfig {
+        size: (48, 32),
+        depth: 6,
+        spp: 1,
+        repeats: 1,
+        resolutions: vec![],
+        cones: vec![],
+        bounces: vec![],
+        command: String::new(),
+        machine: String::new(),
+    };
+    let records = voxray::bench::gi::flicker(&cfg, &mut |_| {}).unwrap();
+    let f: Vec<_> = records.iter().map(|r| r.flicker.unwrap()).collect();
+    println!("{f:?}");
+    assert_eq!(f.len(), 3);
+    assert!(f.iter().all(|f| f.still > 0.2 && f.still < 1.0 && f.change.is_finite() && f.jerk.is_finite()));
+    let (nearest, split) = (f[0], f[1]);
+    assert!(split.jerk < 0.5 * nearest.jerk, "second difference: split {} vs nearest {}", split.jerk, nearest.jerk);
+}

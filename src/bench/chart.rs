@@ -86,7 +86,7 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
     register_font();
     std::fs::create_dir_all(dir).map_err(|e| ChartError { path: dir.display().to_string(), msg: e.to_string() })?;
     let mut out = Vec::new();
-    let jobs: [(&str, &str, Drawer); 8] = [
+    let jobs: [(&str, &str, Drawer); 9] = [
         ("paper", "bench-paper.png", paper),
         ("instances", "bench-instances.png", instances),
         ("resolution", "bench-resolution.png", resolution),
@@ -95,6 +95,7 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
         ("gi-scaling", "bench-gi-scaling.png", gi_scaling),
         ("gi-accuracy", "accuracy-gi.png", gi_accuracy),
         ("gi-accuracy", "accuracy-gi-panel.png", gi_accuracy_panel),
+        ("gi-accuracy", "accuracy-gi-car.png", gi_accuracy_car),
     ];
     for (group, file, draw) in jobs {
         let rs: Vec<&Record> = records.iter().filter(|r| r.group == group).collect();
@@ -332,8 +333,12 @@ fn gi_scaling(rs: &[&Record], path: &Path) -> Res<()> {
 /// Prefix of the accuracy records measured on the emissive-panel room.
 const PANEL: &str = "panel room: ";
 
+/// Prefix of the accuracy records measured on the car on its ground ([`crate::bench::gi::CAR`]).
+const CAR: &str = super::gi::CAR;
+
 fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
-    let rs: Vec<&Record> = rs.iter().copied().filter(|r| !r.name.starts_with(PANEL)).collect();
+    let rs: Vec<&Record> =
+        rs.iter().copied().filter(|r| !r.name.starts_with(PANEL) && !r.name.starts_with(CAR)).collect();
     accuracy_chart(&rs, "", path, "GI error against run time (box scene; bounces against the all-bounce reference)")
 }
 
@@ -341,6 +346,14 @@ fn gi_accuracy_panel(rs: &[&Record], path: &Path) -> Res<()> {
     let rs: Vec<&Record> = rs.iter().copied().filter(|r| r.name.starts_with(PANEL)).collect();
     let title = "GI error against run time (emissive-panel room; light samples: whole frame)";
     accuracy_chart(&rs, PANEL, path, title)
+}
+
+fn gi_accuracy_car(rs: &[&Record], path: &Path) -> Res<()> {
+    let rs: Vec<&Record> = rs.iter().copied().filter(|r| r.name.starts_with(CAR)).collect();
+    if rs.is_empty() {
+        return Ok(());
+    }
+    accuracy_chart(&rs, CAR, path, "GI error against run time (the car on its ground, sun and sky)")
 }
 
 /// Every knob of the accuracy records `rs` (names after `prefix`) as a curve.

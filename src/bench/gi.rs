@@ -470,6 +470,9 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
         cfg,
         progress,
     )?;
+    // The car on its ground under the sun and sky: the outdoor case.
+    let (car, camera) = car_on_ground(cfg)?;
+    out.extend(accuracy_on(CAR, &car, &camera, &crate::scene::Lights::default(), cfg, progress)?);
     let panel = panel_room_scene(cfg.depth)?;
     let camera = crate::model::panel_room::camera(cfg.size.0, cfg.size.1);
     let lights = crate::model::panel_room::lights();
@@ -675,6 +678,136 @@ pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec
             r.setting = format!("{} occupied cells", stats.occupied);
             out.push(r);
         }
+    }
+    Ok(out)
+}
+
+/// Prefix of the accuracy records of the car on its ground.
+pub const CAR: &str = "car on ground: ";
+
+/// The default car standing on its ground, at `cfg`'s depth, and a camera that frames it
+/// from the front quarter at `cfg`'s size.
+fn car_on_ground(cfg: &AccuracyConfig) -> Result<(Scene, crate::scene::Camera), crate::Error> {
+    let mesh = crate::model::embedded::load_default_car()?;
+    let parts = crate::pipeline::build_parts(&mesh, crate::voxelize::Resolution::Depth(cfg.depth))?;
+    let st = stage_cars(&parts, 1, false, true)?;
+    let (lo, hi) = st.cars_bounds();
+    let pad = glam::DVec3::new(0.6, 0.0, 0.6);
+    let camera = crate::scene::Camera::framing((lo - pad).as_vec3(), (hi + pad).as_vec3(), cfg.size.0, cfg.size.1);
+    Ok((st.scene, camera))
+}
+
+/// Frames of the flicker clip (at 60 frames a second: a quarter of a second of driving).
+const FLICKER_FRAMES: usize = 16;
+
+/// One frame of the flicker clip: the hits and the indirect light.
+struct ClipFrame {
+    instance: Vec<i32>,
+    t: Vec<f32>,
+    /// GI's frame minus the same frame with the flat sky term: the cones' light minus a
+    /// constant per surface, the direct light cancelled.
+    indirect: Vec<glam::Vec3>,
+    /// The instances' world transforms.
+    worlds: Vec<glam::DAffine3>,
+}
+
+/// Temporal stability, the voxel-transformation paper's argument for split filtering: the
+/// default car drives over the ground under sun and sky for [`FLICKER_FRAMES`] frames at 60
+/// frames a second, rendered with GI under nearest and split filtering and with the
+/// half-resolution gather; on the pixels whose geometry stayed the same (a still instance hit
+/// at the same t) the indirect light's first and second differences from frame to frame
+/// ([`super::metrics::Flicker`]). Each frame builds its volume afresh, as a moving car makes
+/// it.
+pub fn flicker(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
+    use crate::render::Gather;
+    let mesh = crate::model::embedded::load_default_car()?;
+    let parts = crate::pipeline::build_parts(&mesh, crate::voxelize::Resolution::Depth(cfg.depth))?;
+    let lights = crate::scene::Lights::default();
+    let (w, h) = (cfg.size.0 * 2, cfg.size.1 * 2);
+    let mut out = Vec::new();
+    let settings = [(Filter::Nearest, Gather::Pixels), (Filter::Split, Gather::Pixels), (Filter::Split, Gather::Half)];
+    for (filter, gather) in settings {
+        let name = format!("{}, {} gather", format!("{filter:?}").to_lowercase(), format!("{gather:?}").to_lowercase());
+        progress(&format!("gi-accuracy: flicker, {name}"));
+        let mut st = stage_cars(&parts, 1, true, true)?;
+        pose_all(&mut st.scene, &st.cars, 0.0)?;
+        st.scene.update()?;
+        let (lo, hi) = st.cars_bounds();
+        let pad = glam::DVec3::splat(2.0);
+        let camera = crate::scene::Camera::framing((lo - pad).as_vec3(), (hi + pad).as_vec3(), w, h);
+        let s = GiSettings { filter, gather, ..GiSettings::default() };
+        let mut caches = GiCaches::new();
+        let (mut frames, mut times) = (Vec::<ClipFrame>::new(), Vec::new());
+        let (mut change, mut jerk, mut still, mut pairs, mut triples) = (0.0, 0.0, 0.0, 0usize, 0usize);
+        for k in 0..FLICKER_FRAMES {
+            pose_all(&mut st.scene, &st.cars, k as f64 / 60.0)?;
+            st.scene.update()?;
+            let plan = FramePlan::new(&st.scene, &camera, &lights, &Features::default(), None);
+            let opts = RenderOptions::default();
+            let flat = render(&st.scene, &camera, &lights, &plan, &opts, None, &|_, _| {})?;
+            let (f, stats) =
+                render_with_gi(&st.scene, &camera, &lights, &plan, &opts, None, &s, &mut caches, &|_, _| {})?;
+            times.push(gi_ms(&stats));
+            let indirect = f.radiance.iter().zip(&flat.radiance).map(|(a, b)| *a - *b).collect();
+            frames.push(ClipFrame { instance: f.instance, t: f.t, indirect, worlds: st.scene.worlds().to_vec() });
+            let n = frames.len();
+            // Still in frames a..=b: a hit on an instance that did not move, at the same t.
+            let is_still = |p: usize, a: usize, b: usize| {
+                let i = frames[b].instance[p];
+                i >= 0
+                    && (a..b).all(|j| {
+                        frames[j].instance[p] == i
+                            && frames[j].t[p].to_bits() == frames[b].t[p].to_bits()
+                            && frames[j].worlds[i as usize] == frames[b].worlds[i as usize]
+                    })
+            };
+            let mean = |f: &dyn Fn(usize) -> Option<f64>| {
+                let (sum, count) = (0..(w * h) as usize).filter_map(f).fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+                (sum / count.max(1) as f64, count as f64 / (w * h) as f64)
+            };
+            let abs = |v: glam::Vec3| v.abs().element_sum() as f64 / 3.0;
+            if n >= 2 {
+                let (c, _) = mean(&|p| {
+                    is_still(p, n - 2, n - 1).then(|| abs(frames[n - 1].indirect[p] - frames[n - 2].indirect[p]))
+                });
+                change += c;
+                pairs += 1;
+            }
+            if n >= 3 {
+                let (j, frac) = mean(&|p| {
+                    is_still(p, n - 3, n - 1).then(|| {
+                        abs(frames[n - 1].indirect[p] - 2.0 * frames[n - 2].indirect[p] + frames[n - 3].indirect[p])
+                    })
+                });
+                jerk += j;
+                still += frac;
+                triples += 1;
+            }
+        }
+        let (median_ms, p95_ms, min_ms) = summarize(&times);
+        out.push(Record {
+            group: "gi-flicker".into(),
+            name: "flicker: the driving car".into(),
+            setting: name,
+            x: (filter == Filter::Split) as u32 as f64 + (gather == Gather::Half) as u32 as f64,
+            backend_kind: "cpu".into(),
+            backend: "CPU reference".into(),
+            width: w,
+            height: h,
+            frames: FLICKER_FRAMES,
+            instances: st.scene.instances().len(),
+            median_ms,
+            p95_ms,
+            min_ms,
+            flicker: Some(super::metrics::Flicker {
+                change: change / pairs.max(1) as f64,
+                jerk: jerk / triples.max(1) as f64,
+                still: still / triples.max(1) as f64,
+            }),
+            machine: cfg.machine.clone(),
+            command: cfg.command.clone(),
+            ..Record::default()
+        });
     }
     Ok(out)
 }

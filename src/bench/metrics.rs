@@ -22,6 +22,21 @@ pub struct ImageError {
     pub flip: Option<f64>,
 }
 
+/// How much GI's indirect light changes from frame to frame of a clip on the pixels whose
+/// geometry stayed the same (a still instance hit at the same t in consecutive frames).
+/// Light that follows a moving object changes smoothly and has a small second difference;
+/// cells popping as voxels cross them do not.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "json", derive(serde::Serialize, serde::Deserialize))]
+pub struct Flicker {
+    /// Mean |I(k+1) − I(k)| per channel, linear radiance, over the still pixels.
+    pub change: f64,
+    /// Mean |I(k+1) − 2 I(k) + I(k−1)| per channel over the pixels still in three frames.
+    pub jerk: f64,
+    /// Mean fraction of the pixels that were still (of three consecutive frames).
+    pub still: f64,
+}
+
 /// Why two frames cannot be compared.
 #[derive(Debug, thiserror::Error)]
 #[error("frames differ in size: {0}×{1} vs reference {2}×{3}")]

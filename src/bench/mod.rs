@@ -89,6 +89,9 @@ pub struct Record {
     pub volume_bytes: Option<u64>,
     /// Image error against the reference of this scenario (depth sweep), see [`metrics`].
     pub error: Option<metrics::ImageError>,
+    /// Frame-to-frame change of the indirect light over a clip (gi-accuracy's flicker rows).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub flicker: Option<metrics::Flicker>,
     /// The plan of the last frame.
     pub plan: Option<FramePlan>,
     /// The machine (CPU model and threads).

@@ -442,6 +442,25 @@ pub fn accuracy_markdown(records: &[Record], charts: &[(String, String)]) -> Str
             md += &format!("\n![error against run time]({path})\n");
         }
     }
+    let fl: Vec<&Record> = records.iter().filter(|r| r.group == "gi-flicker").collect();
+    if let Some(first) = fl.first() {
+        md += &format!(
+            "\n### Flicker: {}×{}, {} frames at 60 per second\n\n`{}`\n\n",
+            first.width, first.height, first.frames, first.command
+        );
+        md += "| setting | GI ms (median) | mean change | mean second difference | still pixels |\n|---|---|---|---|---|\n";
+        for r in fl {
+            let f = r.flicker.unwrap_or_default();
+            md += &format!(
+                "| {} | {:.1} | {:.5} | {:.5} | {:.1} % |\n",
+                r.setting,
+                r.median_ms,
+                f.change,
+                f.jerk,
+                100.0 * f.still
+            );
+        }
+    }
     md
 }
 

@@ -289,6 +289,7 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         // a hardware adapter.
         if a.backends.iter().any(|k| *k != BackendKind::Gpu) {
             records.extend(voxray::bench::gi::accuracy(&ac, &mut |w| pb.set_message(w.to_string()))?);
+            records.extend(voxray::bench::gi::flicker(&ac, &mut |w| pb.set_message(w.to_string()))?);
         }
         #[cfg(feature = "gpu")]
         if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
