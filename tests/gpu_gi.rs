@@ -279,6 +279,10 @@ fn images_agree(
         .filter(|(a, b)| (**a - **b).abs().max_element() > 0.1 * a.max_element().max(0.05))
         .count();
     assert!(off as f64 <= 0.01 * n as f64, "{off} of {n} pixels differ by more than 10 %");
+    // The cones' ambient occlusion AOV, read back from the radiance's fourth channel.
+    assert_eq!((cpu.ao.len(), gpu.ao.len()), (n, n));
+    let ao_diff = cpu.ao.iter().zip(&gpu.ao).map(|(a, b)| (a - b).abs()).sum::<f32>() / n as f32;
+    assert!(ao_diff < 0.01, "mean GPU−CPU AO difference {ao_diff}");
     (cpu, gpu, stats)
 }
 

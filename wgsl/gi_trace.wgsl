@@ -25,7 +25,8 @@ override GI_TEXTURE: bool = false;
 @group(1) @binding(B_GI_BRICK_TOP) var<storage, read> gi_brick_top: array<u32>;
 
 // The half-resolution gather's samples (render::gather): the diffuse light of pixel (2i, 2j)
-// in xyz, w = 1 where it is a hit (0: no sample). A one-element placeholder unless gi.half.
+// in xyz, its open fraction in w where it is a hit (−1: no sample). A one-element placeholder
+// unless gi.half.
 @group(1) @binding(B_GI_SAMPLES) var<storage, read_write> gi_samples: array<vec4<f32>>;
 
 // The level chain as a 3D texture with mips (a 1³ placeholder unless GI_TEXTURE).
@@ -245,13 +246,14 @@ fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -
 }
 
 // cone::gather: cosine-weighted cones (one along the normal, a ring around it); the sky fills
-// what they do not see.
-fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+// what they do not see. w: the cosine-weighted fraction of the cones that escaped (ambient
+// occlusion).
+fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec4<f32> {
     let sky = frame.sky.xyz;
     let first = gi_trace(p, n, n, gi.spread);
     let ring = gi.cones - 1u;
     if ring == 0u {
-        return first.xyz + sky * (1.0 - first.w);
+        return vec4<f32>(first.xyz + sky * (1.0 - first.w), 1.0 - first.w);
     }
     // glam's any_orthonormal_pair (Duff et al. 2017), as the CPU uses.
     // signum: -0.0 counts as negative, as f64::signum has it.
@@ -264,13 +266,16 @@ fn gi_gather(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     let st = sin(gi.tilt);
     var light = first.xyz + sky * (1.0 - first.w);
     var ring_light = vec3<f32>(0.0);
+    var ring_open = 0.0;
     for (var k = 0u; k < ring; k++) {
         let phi = 6.28318530718 * f32(k) / f32(ring);
         let d = n * ct + (tx * cos(phi) + bx * sin(phi)) * st;
         let r = gi_trace(p, n, d, gi.spread);
         ring_light += r.xyz + sky * (1.0 - r.w);
+        ring_open += 1.0 - r.w;
     }
-    return (light + ring_light * ct) / (1.0 + f32(ring) * ct);
+    let norm = 1.0 + f32(ring) * ct;
+    return vec4<f32>((light + ring_light * ct) / norm, ((1.0 - first.w) + ring_open * ct) / norm);
 }
 
 // render::gather's samples: pixel (2i, 2j) of each 2×2 block gathers its cones.
@@ -283,9 +288,9 @@ fn gather_half_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x = 2u * gid.x;
     let y = 2u * gid.y;
     let h = hits[y * frame.width + x];
-    var s = vec4<f32>(0.0);
+    var s = vec4<f32>(0.0, 0.0, 0.0, -1.0);
     if h.instance >= 0 {
-        s = vec4<f32>(gi_gather(ray_dir(x, y) * h.t, vec3<f32>(h.nx, h.ny, h.nz)), 1.0);
+        s = gi_gather(ray_dir(x, y) * h.t, vec3<f32>(h.nx, h.ny, h.nz));
     }
     gi_samples[gid.y * lw + gid.x] = s;
 }
@@ -299,24 +304,24 @@ fn gi_near_last(c: u32, limit: u32) -> u32 {
 // The diffuse cones' light at a pixel (render::gather::gather): its own cones, or with the
 // half-resolution gather the mean of the nearest samples on its own surface (normal within
 // GI_SAME_NORMAL, point within a voxel of its tangent plane), its own cones where none is.
-fn gi_diffuse(h: Hit, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+fn gi_diffuse(h: Hit, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>) -> vec4<f32> {
     if gi.half == 0u {
         return gi_gather(p, n);
     }
     let lw = gi.half_width;
     let lh = (frame.height + 1u) / 2u;
-    var light = vec3<f32>(0.0);
+    var light = vec4<f32>(0.0);
     var weight = 0.0;
     for (var j = y / 2u; j <= gi_near_last(y, lh); j++) {
         for (var i = x / 2u; i <= gi_near_last(x, lw); i++) {
             let s = gi_samples[j * lw + i];
-            if s.w == 0.0 {
+            if s.w < 0.0 {
                 continue;
             }
             let sh = hits[2u * j * frame.width + 2u * i];
             let q = ray_dir(2u * i, 2u * j) * sh.t;
             if dot(n, vec3<f32>(sh.nx, sh.ny, sh.nz)) >= GI_SAME_NORMAL && abs(dot(n, q - p)) <= h.voxel {
-                light += s.xyz;
+                light += s;
                 weight += 1.0;
             }
         }
@@ -338,7 +343,8 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let albedo = albedo_linear(h.albedo);
     let n = vec3<f32>(h.nx, h.ny, h.nz);
     let p = ray_dir(gid.x, gid.y) * h.t;
-    var ambient = albedo * gi_diffuse(h, gid.x, gid.y, p, n);
+    let diffuse = gi_diffuse(h, gid.x, gid.y, p, n);
+    var ambient = albedo * diffuse.xyz;
     let ks = specular(h.material);
     if ks > 0.0 && gi.specular_cone == 0u {
         ambient += ks * frame.sky.xyz;
@@ -351,7 +357,8 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         ambient += ks * (sc.xyz + frame.sky.xyz * (1.0 - sc.w));
     }
     ambient = max(ambient, vec3<f32>(0.0));
-    radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), 1.0);
+    // w: the cones' ambient occlusion, read back as the AO AOV (the sky's pixels have 1).
+    radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), diffuse.w);
 }
 
 // shade::bounce: every occupied cell gathers the previous chain's light over its hemisphere
@@ -367,7 +374,7 @@ fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var out = gi_direct[i];
     if cell.occ > 0.0 && dot(cell.n, cell.n) > 1e-6 {
         let centre = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * gi.min_cell.w;
-        let light = gi_gather(centre, normalize(cell.n));
+        let light = gi_gather(centre, normalize(cell.n)).xyz;
         out += vec4<f32>(cell.albedo * light * min(cell.occ, 1.0), 0.0);
     }
     gi_next[i] = out;

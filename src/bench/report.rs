@@ -452,7 +452,7 @@ pub fn accuracy_markdown(records: &[Record], charts: &[(String, String)]) -> Str
         for r in fl {
             let f = r.flicker.unwrap_or_default();
             md += &format!(
-                "| {} | {:.1} | {:.5} | {:.5} | {:.1} % |\n",
+                "| {} | {:.1} | {:.2e} | {:.2e} | {:.1} % |\n",
                 r.setting,
                 r.median_ms,
                 f.change,

@@ -973,8 +973,9 @@ impl GpuRenderer {
             instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
             on_device: false,
-            // Not read back from the GPU's cones (yet): no AO AOV, gathers not counted.
-            ao: Vec::new(),
+            // The GI shading writes the cones' open fraction into the radiance's w.
+            ao: if self.gi_stats.is_some() { rad.iter().map(|c| c[3]).collect() } else { Vec::new() },
+            // Not counted on the GPU (the half gather's fallbacks are decided per thread).
             gathers: 0,
         };
         self.state.reused = f.reused;

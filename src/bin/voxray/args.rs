@@ -115,7 +115,7 @@ pub(crate) struct RenderArgs {
     #[arg(long, default_value = "voxray.png")]
     pub(crate) out: PathBuf,
     /// Write t.npy, instance.npy and normal.npy into this folder (with --frames: DIR/frame_0000/ …),
-    /// and ao.npy (ambient occlusion from the cones) with --gi on the CPU backend.
+    /// and ao.npy (ambient occlusion from the cones) with --gi.
     #[arg(long)]
     pub(crate) aov_dir: Option<PathBuf>,
     /// Level-of-detail: stop this many levels below the root.
