@@ -139,8 +139,9 @@ pub fn check_against(budget: u64, what: &str, need: u64, advice: &str) -> Result
 /// Peak bytes per voxel while a part is voxelized and built: the per-triangle entries and
 /// their sort, the merged voxels, then the levels of the octree and its attributes. Measured:
 /// `voxray voxelize --obj models/test/cube.obj --depth 10` peaks at 963 MB of resident
-/// memory for 6.28 million voxels (157 bytes each).
-pub const VOXELIZE_BYTES_PER_VOXEL: u64 = 160;
+/// memory for 6.28 million voxels (157 bytes each); 14 400 needles at depth 12 (a tree with
+/// almost a node per voxel) at 12.5 GB for 59.0 million (212 bytes each).
+pub const VOXELIZE_BYTES_PER_VOXEL: u64 = 220;
 
 /// Bytes per pixel of a rendered frame with its AOVs, the hit records, the hit buffer kept
 /// for the next frame and the 8-bit image written out. Measured: a 2048×2048 render of the

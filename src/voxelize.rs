@@ -232,16 +232,20 @@ pub fn voxelize_in(
     }
     let total = part.triangles.len();
     let scale = (1u64 << depth) as f64 / bounds.size as f64;
-    // A surface of area A covers at least A / voxel² voxels; refuse before allocating.
-    let area: f64 = part
+    // A surface of area A covers about A / voxel² voxels, and a triangle at least as many as
+    // its longest extent along an axis spans (a needle has no area but a line of voxels);
+    // refuse before allocating.
+    let covered: f64 = part
         .triangles
         .iter()
         .map(|t| {
             let p = t.positions.map(|v| v.as_dvec3());
-            (p[1] - p[0]).cross(p[2] - p[0]).length() * 0.5
+            let area = (p[1] - p[0]).cross(p[2] - p[0]).length() * 0.5;
+            let extent = p[0].max(p[1]).max(p[2]) - p[0].min(p[1]).min(p[2]);
+            (area * scale * scale).max(extent.max_element() * scale)
         })
         .sum();
-    let estimate = area * scale * scale + total as f64;
+    let estimate = covered + total as f64;
     if estimate > MAX_VOXELS as f64 {
         return Err(VoxelizeError::TooManyVoxels {
             part: part.name.clone(),

@@ -338,7 +338,7 @@ fn memory_budget_refuses_before_allocating() {
                 .map(|s| s.to_string())
                 .chain(cube[..3].iter().map(|s| s.to_string()))
                 .collect(),
-            "voxelizing part 'cube' at depth 10 (about 6.3 million voxels) needs about 960.0 MiB, more than the memory budget of 64.0 MiB",
+            "voxelizing part 'cube' at depth 10 (about 6.3 million voxels) needs about 1.3 GiB, more than the memory budget of 64.0 MiB",
             None,
         ),
         (
@@ -398,6 +398,128 @@ fn memory_budget_refuses_before_allocating() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("rendering 16384×4096 needs about 10.0 GiB, more than the memory budget of 2.1 GiB"), "{err}");
+}
+
+/// Each input that used to abort with an out-of-memory error (exit 134, nothing written), run
+/// under an address-space cap of 2.4 GiB with the default memory budget (which follows the
+/// cap): a clear error and exit code 1 instead, before the allocation.
+#[test]
+fn inputs_that_aborted_get_clear_errors_under_a_memory_cap() {
+    let d = tmp("capped");
+    // 14 400 needles 2 units long and 10⁻⁶ wide, spread over a 2-unit cube.
+    let mut slivers = String::new();
+    for i in 0..14_400 {
+        let (y, z) = ((i % 120) as f64 / 60.0, (i / 120) as f64 / 60.0);
+        slivers += &format!("v 0 {y} {z}\nv 2 {y} {z}\nv 2 {} {z}\n", y + 1e-6);
+        slivers += &format!("f {} {} {}\n", 3 * i + 1, 3 * i + 2, 3 * i + 3);
+    }
+    std::fs::write(d.join("slivers.obj"), slivers).unwrap();
+    // Three axis planes through the origin: every voxel face they lie on touches two voxels.
+    let planes = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nv -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\n\
+                  v 0 -1 -1\nv 0 1 -1\nv 0 1 1\nv 0 -1 1\nf 1 2 3 4\nf 5 6 7 8\nf 9 10 11 12\n";
+    std::fs::write(d.join("planes.obj"), planes).unwrap();
+    let out = |name: &str| d.join(name).to_str().unwrap().to_string();
+    let (slivers, planes) = (out("slivers.obj"), out("planes.obj"));
+    let cube = ["--obj", "models/test/cube.obj", "--no-cache"];
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            ["voxelize", "--solid", "--depth", "9", "--out-dir", &out("v1")]
+                .iter()
+                .chain(&cube)
+                .map(|s| s.to_string())
+                .collect(),
+            "million voxels",
+        ),
+        (
+            ["voxelize", "--obj", &slivers, "--depth", "12", "--no-cache", "--out-dir", &out("v2")]
+                .map(String::from)
+                .to_vec(),
+            "million voxels",
+        ),
+        (
+            ["voxelize", "--obj", &planes, "--depth", "12", "--no-cache", "--out-dir", &out("v3")]
+                .map(String::from)
+                .to_vec(),
+            "million voxels",
+        ),
+        (
+            [
+                "render",
+                "--backend",
+                "cpu",
+                "--depth",
+                "4",
+                "--width",
+                "8192",
+                "--height",
+                "8192",
+                "--reference",
+                "--out",
+                &out("r.exr"),
+            ]
+            .iter()
+            .chain(&cube)
+            .map(|s| s.to_string())
+            .collect(),
+            "memory budget",
+        ),
+        (
+            [
+                "render",
+                "--backend",
+                "cpu",
+                "--depth",
+                "4",
+                "--width",
+                "8192",
+                "--height",
+                "8192",
+                "--aov-dir",
+                &out("aov"),
+                "--out",
+                &out("a.png"),
+            ]
+            .iter()
+            .chain(&cube)
+            .map(|s| s.to_string())
+            .collect(),
+            "memory budget",
+        ),
+        (
+            [
+                "render",
+                "--backend",
+                "cpu",
+                "--depth",
+                "4",
+                "--width",
+                "1024",
+                "--height",
+                "1024",
+                "--frames",
+                "1000",
+                "--out",
+                &out("c.gif"),
+            ]
+            .iter()
+            .chain(&cube)
+            .map(|s| s.to_string())
+            .collect(),
+            "memory budget",
+        ),
+    ];
+    let exe = env!("CARGO_BIN_EXE_voxray");
+    for (args, needle) in cases {
+        let quoted: Vec<String> = args.iter().map(|a| format!("'{a}'")).collect();
+        let script = format!("ulimit -v 2500000 && exec '{exe}' {}", quoted.join(" "));
+        let o = Command::new("bash").args(["-c", &script]).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(needle) && !err.contains("panicked"), "{args:?}: {err}");
+    }
+    for f in ["r.exr", "a.png", "c.gif", "aov"] {
+        assert!(!d.join(f).exists(), "{f} written");
+    }
 }
 
 /// Ctrl-C during a clip: exit code 130 with a message; every frame on disk is complete and no

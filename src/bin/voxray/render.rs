@@ -33,10 +33,6 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             a.orbit
         )));
     }
-    // Where the AOVs go is checked before rendering, not after.
-    if let Some(dir) = &a.aov_dir {
-        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
-    }
     let lights = match &a.lights_json {
         Some(p) => Lights::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
         None => Lights::default(),
@@ -110,6 +106,11 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         if is_gif { format!(" into a GIF of {} frames", a.frames) } else { String::new() }
     );
     voxray::memory::check(&what, need, "lower --width/--height (or --frames of a GIF), or raise --memory-budget")?;
+    // Where the AOVs go is checked before rendering, not after (and not made for a render the
+    // budget refuses).
+    if let Some(dir) = &a.aov_dir {
+        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
+    }
     if a.reference {
         return reference_cmd(&a, &st, &camera, &lights, t_setup);
     }
