@@ -698,3 +698,37 @@ fn split_filtering_flickers_less_than_nearest() {
     let (nearest, split) = (f[0], f[1]);
     assert!(split.jerk < 0.5 * nearest.jerk, "second difference: split {} vs nearest {}", split.jerk, nearest.jerk);
 }
+
+/// The path tracer on the source triangles: the box's image is close to the one traced
+/// through its voxels (the same lights and materials; the voxelization moves edges and
+/// normals a little), nearly every pixel sees the same part, and a part without triangles
+/// is refused with a clear error.
+#[test]
+fn the_reference_traces_the_source_triangles_too() {
+    use voxray::gi::{PathTracer, ReferenceError, ReferenceSettings, TriangleSceneError};
+    let scene = voxray::bench::gi::room_scene(6).unwrap();
+    let mesh = voxray::model::room::mesh();
+    let (cam, lights) = (voxray::model::room::camera(40, 30), voxray::model::room::lights());
+    let settings = ReferenceSettings { spp: 16, bounces: Some(1), seed: 3 };
+    let frame = |pt: Result<PathTracer, ReferenceError>| {
+        let mut pt = pt.unwrap();
+        pt.run(&mut |_, _| {});
+        pt.frame()
+    };
+    let voxels = frame(PathTracer::new(&scene, &cam, &lights, settings));
+    let triangles = frame(PathTracer::on_triangles(&scene, &mesh, &cam, &lights, settings));
+    let n = voxels.radiance.len();
+    assert!(triangles.radiance.iter().all(|c| c.is_finite() && c.min_element() >= 0.0));
+    let same = voxels.instance.iter().zip(&triangles.instance).filter(|(a, b)| a == b).count();
+    assert!(same as f64 >= 0.95 * n as f64, "{same} of {n} pixels see the same part");
+    let mean = |f: &voxray::render::Frame| f.radiance.iter().map(|c| c.element_sum()).sum::<f32>() / n as f32;
+    let (mv, mt) = (mean(&voxels), mean(&triangles));
+    assert!((mv - mt).abs() < 0.1 * mv, "mean radiance: voxels {mv}, triangles {mt}");
+    assert_ne!(voxels.radiance, triangles.radiance);
+    // A mesh with fewer parts than the scene: the missing part is named.
+    let mut short = mesh.clone();
+    short.parts.pop();
+    let e = PathTracer::on_triangles(&scene, &short, &cam, &lights, settings).err();
+    let parts = short.parts.len();
+    assert_eq!(e, Some(ReferenceError::Triangles(TriangleSceneError::MissingPart { part: parts, parts })));
+}

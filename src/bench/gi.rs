@@ -465,6 +465,7 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     let mut out = accuracy_on(
         "",
         &room_scene(cfg.depth)?,
+        Some(&crate::model::room::mesh()),
         &crate::model::room::camera(cfg.size.0, cfg.size.1),
         &crate::model::room::lights(),
         cfg,
@@ -472,11 +473,13 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     )?;
     // The car on its ground under the sun and sky: the outdoor case.
     let (car, camera) = car_on_ground(cfg)?;
-    out.extend(accuracy_on(CAR, &car, &camera, &crate::scene::Lights::default(), cfg, progress)?);
+    // (Its ground is made as voxels, with no triangles: no triangle reference.)
+    out.extend(accuracy_on(CAR, &car, None, &camera, &crate::scene::Lights::default(), cfg, progress)?);
     let panel = panel_room_scene(cfg.depth)?;
     let camera = crate::model::panel_room::camera(cfg.size.0, cfg.size.1);
     let lights = crate::model::panel_room::lights();
-    out.extend(accuracy_on("panel room: ", &panel, &camera, &lights, cfg, progress)?);
+    let panel_mesh = crate::model::panel_room::mesh();
+    out.extend(accuracy_on("panel room: ", &panel, Some(&panel_mesh), &camera, &lights, cfg, progress)?);
     // Light samples: the whole frame's time (they are drawn by the shading and injection).
     let reference = one_bounce_reference(&panel, &camera, &lights, cfg)?.0;
     let plan = FramePlan::new(&panel, &camera, &lights, &Features::default(), None);
@@ -529,9 +532,24 @@ fn one_bounce_reference(
     lights: &crate::scene::Lights,
     cfg: &AccuracyConfig,
 ) -> Result<(Frame, f64), crate::Error> {
+    one_bounce_reference_on(scene, None, camera, lights, cfg)
+}
+
+/// [`one_bounce_reference`], through `mesh`'s triangles when given instead of the voxels.
+fn one_bounce_reference_on(
+    scene: &Scene,
+    mesh: Option<&Mesh>,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    cfg: &AccuracyConfig,
+) -> Result<(Frame, f64), crate::Error> {
     let t0 = Instant::now();
-    let mut pt = PathTracer::new(scene, camera, lights, ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 })
-        .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+    let settings = ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 };
+    let pt = match mesh {
+        Some(m) => PathTracer::on_triangles(scene, m, camera, lights, settings),
+        None => PathTracer::new(scene, camera, lights, settings),
+    };
+    let mut pt = pt.map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
     pt.run(&mut |_, _| {});
     Ok((pt.frame(), t0.elapsed().as_secs_f64() * 1e3))
 }
@@ -540,6 +558,7 @@ fn one_bounce_reference(
 fn accuracy_on(
     label: &str,
     scene: &Scene,
+    mesh: Option<&Mesh>,
     camera: &crate::scene::Camera,
     lights: &crate::scene::Lights,
     cfg: &AccuracyConfig,
@@ -554,13 +573,28 @@ fn accuracy_on(
     let (reference, ref_ms) = one_bounce_reference(scene, &camera, &lights, cfg)?;
     let mut out = Vec::new();
     let instances = scene.instances().len();
+    // The same reference through the source triangles, where the scene has them.
+    let triangles = match mesh {
+        Some(m) => {
+            progress(&format!("gi-accuracy: {label}triangle reference, {} spp", cfg.spp));
+            Some(one_bounce_reference_on(scene, Some(m), &camera, &lights, cfg)?)
+        }
+        None => None,
+    };
     let mut push = |name: &str, setting: String, x: f64, ms: f64, frame: &Frame| -> Result<(), crate::Error> {
         let name = format!("{label}{name}");
-        out.push(accuracy_record(cfg, instances, &name, setting, x, ms, compare_to(frame, &reference)?));
+        let mut r = accuracy_record(cfg, instances, &name, setting, x, ms, compare_to(frame, &reference)?);
+        if let Some((t, _)) = &triangles {
+            r.error_triangles = Some(compare_to(frame, t)?);
+        }
+        out.push(r);
         Ok(())
     };
     push("no GI (flat sky term)", "renderer only".into(), 0.0, base_ms, &base)?;
     push("reference", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, ref_ms, &reference)?;
+    if let Some((t, ms)) = &triangles {
+        push("reference (triangles)", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, *ms, t)?;
+    }
     let default = GiSettings::default();
     for &res in &cfg.resolutions {
         progress(&format!("gi-accuracy: {res}³"));
@@ -688,7 +722,7 @@ pub const CAR: &str = "car on ground: ";
 /// The default car standing on its ground, at `cfg`'s depth, and a camera that frames it
 /// from the front quarter at `cfg`'s size.
 fn car_on_ground(cfg: &AccuracyConfig) -> Result<(Scene, crate::scene::Camera), crate::Error> {
-    let mesh = crate::model::embedded::load_default_car()?;
+    let mesh = crate::model::car::mesh();
     let parts = crate::pipeline::build_parts(&mesh, crate::voxelize::Resolution::Depth(cfg.depth))?;
     let st = stage_cars(&parts, 1, false, true)?;
     let (lo, hi) = st.cars_bounds();
@@ -720,7 +754,7 @@ struct ClipFrame {
 /// it.
 pub fn flicker(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
     use crate::render::Gather;
-    let mesh = crate::model::embedded::load_default_car()?;
+    let mesh = crate::model::car::mesh();
     let parts = crate::pipeline::build_parts(&mesh, crate::voxelize::Resolution::Depth(cfg.depth))?;
     let lights = crate::scene::Lights::default();
     let (w, h) = (cfg.size.0 * 2, cfg.size.1 * 2);

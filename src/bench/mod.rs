@@ -89,6 +89,10 @@ pub struct Record {
     pub volume_bytes: Option<u64>,
     /// Image error against the reference of this scenario (depth sweep), see [`metrics`].
     pub error: Option<metrics::ImageError>,
+    /// Error against the reference traced through the source triangles instead of the voxels
+    /// (gi-accuracy, scenes made from a mesh): the voxelization's own error included.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub error_triangles: Option<metrics::ImageError>,
     /// Frame-to-frame change of the indirect light over a clip (gi-accuracy's flicker rows).
     #[cfg_attr(feature = "json", serde(default))]
     pub flicker: Option<metrics::Flicker>,

@@ -425,16 +425,21 @@ pub fn accuracy_markdown(records: &[Record], charts: &[(String, String)]) -> Str
         return String::new();
     }
     let mut md = provenance(&rs);
-    md += "\n| knob | setting | GI ms (median) | RMSE | mean FLIP |\n|---|---|---|---|---|\n";
+    md += "\n| knob | setting | GI ms (median) | RMSE | mean FLIP | RMSE vs triangles | FLIP vs triangles |\n";
+    md += "|---|---|---|---|---|---|---|\n";
+    let flip =
+        |e: Option<super::metrics::ImageError>| e.and_then(|e| e.flip).map_or("–".into(), |f| format!("{f:.4}"));
     for r in &rs {
         let e = r.error.unwrap_or_default();
         md += &format!(
-            "| {} | {} | {:.1} | {:.4} | {} |\n",
+            "| {} | {} | {:.1} | {:.4} | {} | {} | {} |\n",
             r.name,
             r.setting,
             r.median_ms,
             e.rmse,
-            e.flip.map_or("–".into(), |f| format!("{f:.4}"))
+            flip(r.error),
+            r.error_triangles.map_or("–".into(), |t| format!("{:.4}", t.rmse)),
+            flip(r.error_triangles),
         );
     }
     for (group, path) in charts {

@@ -12,6 +12,7 @@ pub mod levels;
 pub mod reference;
 pub mod shade;
 pub mod sparse;
+pub mod triangles;
 pub mod volume;
 
 pub use cache::{CacheError, CacheVoxel, VoxelCache};
@@ -21,4 +22,5 @@ pub use levels::{Chain, Level, Levels};
 pub use reference::{path_trace, PathTracer, ReferenceError, ReferenceSettings};
 pub use shade::{plan_volume, prepare_light, render_with_gi, GiCaches, GiReuse, GiSettings, GiStats, VolumeKey};
 pub use sparse::{SparseLevels, SparseVolume};
+pub use triangles::{TriangleScene, TriangleSceneError};
 pub use volume::{Filter, GiError, Layout, SplatStats, Volume, VolumeSpec};

@@ -13,6 +13,7 @@
 //! GI frame share every primary hit and differ only in the light they gather; the sun's and
 //! the glow's light at the primary hit is deterministic and computed once.
 
+use super::triangles::TriangleScene;
 use crate::render::brdf;
 use crate::render::bvh::Bvh;
 use crate::render::cpu::{hit_record, leave, par_map};
@@ -61,6 +62,9 @@ pub enum ReferenceError {
     /// Too many bounces.
     #[error("bounces must be 0…{MAX_BOUNCES} (leave them unset for unlimited), not {0}")]
     Bounces(u32),
+    /// The source triangles cannot stand in for the scene.
+    #[error(transparent)]
+    Triangles(#[from] super::triangles::TriangleSceneError),
 }
 
 impl ReferenceSettings {
@@ -88,6 +92,8 @@ pub struct PathTracer<'a> {
     records: Vec<HitRecord>,
     /// The emitters as lights (empty when they are not sampled).
     emitters: EmitterTable,
+    /// The source triangles, when the paths are traced through them instead of the voxels.
+    triangles: Option<TriangleScene>,
     /// The camera's eye (hit points are relative to it).
     eye: DVec3,
     /// Camera-relative primary hit points.
@@ -110,6 +116,31 @@ impl<'a> PathTracer<'a> {
         lights: &Lights,
         settings: ReferenceSettings,
     ) -> Result<Self, ReferenceError> {
+        Self::with_geometry(scene, None, camera, lights, settings)
+    }
+
+    /// [`PathTracer::new`] with every ray, primary ones included, traced through `mesh`'s
+    /// triangles placed as the scene's instances (part i of the mesh at the scene's part i)
+    /// instead of the voxels: an image independent of the voxelization. The lights, the
+    /// materials (packed as the voxels pack them) and the emitters are the same.
+    pub fn on_triangles(
+        scene: &'a Scene,
+        mesh: &crate::mesh::Mesh,
+        camera: &Camera,
+        lights: &Lights,
+        settings: ReferenceSettings,
+    ) -> Result<Self, ReferenceError> {
+        let triangles = TriangleScene::new(mesh, scene, camera.eye)?;
+        Self::with_geometry(scene, Some(triangles), camera, lights, settings)
+    }
+
+    fn with_geometry(
+        scene: &'a Scene,
+        triangles: Option<TriangleScene>,
+        camera: &Camera,
+        lights: &Lights,
+        settings: ReferenceSettings,
+    ) -> Result<Self, ReferenceError> {
         let settings = settings.validated()?;
         let prepared = prepare(scene, camera.eye, true);
         let (bvh, search) = Bvh::when_worthwhile(&prepared);
@@ -127,6 +158,7 @@ impl<'a> PathTracer<'a> {
             } else {
                 EmitterTable::default()
             },
+            triangles,
             points: Vec::new(),
             direct: Vec::new(),
             sum: Vec::new(),
@@ -141,10 +173,9 @@ impl<'a> PathTracer<'a> {
         let fi = pt.instances();
         let primary: Vec<(HitRecord, DVec3, Vec3, u64)> = par_map(n, |k| {
             let d = camera.ray_dir(&basis, (k % w) as u32, (k / w) as u32);
-            match nearest(&fi, DVec3::ZERO, d, pt.search, &TraceOptions::default()) {
+            match pt.cast(&fi, DVec3::ZERO, d) {
                 None => (HitRecord::MISS, DVec3::ZERO, pt.lights.sky(), 1),
-                Some(h) => {
-                    let r = hit_record(scene, &pt.prepared, &h, d);
+                Some(r) => {
                     let at = d * r.t as f64;
                     let (light, rays) = pt.surface_light(&fi, &r, at, d, true);
                     (r, at, light, 1 + rays)
@@ -163,6 +194,23 @@ impl<'a> PathTracer<'a> {
         FrameInstances { parts: &self.scene.parts, prepared: &self.prepared, bvh: self.bvh.as_ref(), starts: None }
     }
 
+    /// The nearest hit from camera-relative `o` along unit `d`: the voxels' or the triangles'.
+    fn cast(&self, fi: &FrameInstances, o: DVec3, d: DVec3) -> Option<HitRecord> {
+        match &self.triangles {
+            Some(t) => t.nearest(o, d),
+            None => nearest(fi, o, d, self.search, &TraceOptions::default())
+                .map(|h| hit_record(self.scene, &self.prepared, &h, d)),
+        }
+    }
+
+    /// Whether something lies between `o` and `o + d·t_max`.
+    fn blocked(&self, fi: &FrameInstances, o: DVec3, d: DVec3, t_max: f64) -> bool {
+        match &self.triangles {
+            Some(t) => t.occluded(o, d, t_max),
+            None => occluded(fi, o, d, t_max, self.search),
+        }
+    }
+
     /// Light leaving a surface towards the viewer (looking along `d`) that does not depend on
     /// other surfaces: its emission and the sun (when visible). Returns it and the shadow rays
     /// traced. When the emitters are sampled as lights ([`Self::emitter_sample`]), a path
@@ -175,7 +223,7 @@ impl<'a> PathTracer<'a> {
         if let Some(sun) = self.lights.sun {
             if r.normal.dot(sun.to_sun) > 0.0 {
                 rays += 1;
-                if !occluded(fi, leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY, self.search) {
+                if !self.blocked(fi, leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY) {
                     let shininess = brdf::shininess_of_gloss(r.attr.gloss());
                     let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
                     out +=
@@ -187,7 +235,7 @@ impl<'a> PathTracer<'a> {
             let l = inc.to_light.as_vec3();
             if r.normal.dot(l) > 0.0 {
                 rays += 1;
-                if !occluded(fi, leave(r, at), inc.to_light, inc.distance, self.search) {
+                if !self.blocked(fi, leave(r, at), inc.to_light, inc.distance) {
                     let shininess = brdf::shininess_of_gloss(r.attr.gloss());
                     let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
                     out += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), l) * inc.irradiance;
@@ -219,7 +267,7 @@ impl<'a> PathTracer<'a> {
             shininess,
             &mut |o, dir, len| {
                 rays += 1;
-                !occluded(fi, o, dir, len, self.search)
+                !self.blocked(fi, o, dir, len)
             },
         );
         (light.as_dvec3(), rays)
@@ -249,11 +297,11 @@ impl<'a> PathTracer<'a> {
             let from = leave(&r, at);
             d = s.dir;
             rays += 1;
-            let Some(h) = nearest(fi, from, d, self.search, &TraceOptions::default()) else {
+            let Some(hit) = self.cast(fi, from, d) else {
                 light += beta * self.lights.sky().as_dvec3();
                 break;
             };
-            r = hit_record(self.scene, &self.prepared, &h, d);
+            r = hit;
             at = from + d * r.t as f64;
             let (l, shadow) = self.surface_light(fi, &r, at, d, false);
             let (e, emitter_rays) = self.emitter_sample(fi, &r, at, d, rng);

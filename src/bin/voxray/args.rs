@@ -186,6 +186,11 @@ pub(crate) struct RenderArgs {
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]
     pub(crate) reference: bool,
+    /// What the reference's rays meet: the voxels (as the renderer) or the source triangles
+    /// (a BVH over the mesh: the voxelization's own error shows; needs --no-ground with the
+    /// default car, whose ground has no triangles).
+    #[arg(long, default_value = "voxels", value_parser = ["voxels", "triangles"], requires = "reference")]
+    pub(crate) reference_geometry: String,
     /// Reference samples per pixel.
     #[arg(long, default_value_t = 256, requires = "reference")]
     pub(crate) spp: u32,

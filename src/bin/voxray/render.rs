@@ -275,7 +275,20 @@ pub(crate) fn reference_cmd(
     }
     let settings = voxray::gi::ReferenceSettings { spp: a.spp, bounces: a.bounces, seed: 1 };
     let start = Instant::now();
-    let mut pt = voxray::gi::PathTracer::new(&st.scene, camera, lights, settings).map_err(|e| usage(&e.to_string()))?;
+    let mut pt = if a.reference_geometry == "triangles" {
+        let mut mesh = load_mesh(&a.source)?;
+        if a.static_car {
+            let merged: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
+            mesh.parts = vec![Part { name: "car (static)".into(), triangles: merged }];
+        }
+        voxray::gi::PathTracer::on_triangles(&st.scene, &mesh, camera, lights, settings)
+    } else {
+        voxray::gi::PathTracer::new(&st.scene, camera, lights, settings)
+    }
+    .map_err(|e| match e {
+        voxray::gi::ReferenceError::Triangles(t) => usage(&format!("{t}: with the default car, add --no-ground")),
+        e => usage(&e.to_string()),
+    })?;
     let pb = bar(a.spp as u64, "samples per pixel");
     let checkpoint = a.spp.div_ceil(10);
     while pt.samples() < a.spp {
