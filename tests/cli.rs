@@ -420,91 +420,24 @@ fn inputs_that_aborted_get_clear_errors_under_a_memory_cap() {
     std::fs::write(d.join("planes.obj"), planes).unwrap();
     let out = |name: &str| d.join(name).to_str().unwrap().to_string();
     let (slivers, planes) = (out("slivers.obj"), out("planes.obj"));
+    // A command line: its words (the temporary folder's paths have no spaces), then the
+    // output, then the model.
+    let line = |words: &str, out_flag: &str, name: &str, model: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = words.split(' ').map(String::from).collect();
+        v.extend([out_flag.to_string(), out(name)]);
+        v.extend(model.iter().map(|s| s.to_string()));
+        v
+    };
     let cube = ["--obj", "models/test/cube.obj", "--no-cache"];
+    let big = "render --backend cpu --depth 4 --width 8192 --height 8192";
     let cases: Vec<(Vec<String>, &str)> = vec![
+        (line("voxelize --solid --depth 9", "--out-dir", "v1", &cube), "million voxels"),
+        (line(&format!("voxelize --depth 12 --no-cache --obj {slivers}"), "--out-dir", "v2", &[]), "million voxels"),
+        (line(&format!("voxelize --depth 12 --no-cache --obj {planes}"), "--out-dir", "v3", &[]), "million voxels"),
+        (line(&format!("{big} --reference"), "--out", "r.exr", &cube), "memory budget"),
+        (line(&format!("{big} --aov-dir {}", out("aov")), "--out", "a.png", &cube), "memory budget"),
         (
-            ["voxelize", "--solid", "--depth", "9", "--out-dir", &out("v1")]
-                .iter()
-                .chain(&cube)
-                .map(|s| s.to_string())
-                .collect(),
-            "million voxels",
-        ),
-        (
-            ["voxelize", "--obj", &slivers, "--depth", "12", "--no-cache", "--out-dir", &out("v2")]
-                .map(String::from)
-                .to_vec(),
-            "million voxels",
-        ),
-        (
-            ["voxelize", "--obj", &planes, "--depth", "12", "--no-cache", "--out-dir", &out("v3")]
-                .map(String::from)
-                .to_vec(),
-            "million voxels",
-        ),
-        (
-            [
-                "render",
-                "--backend",
-                "cpu",
-                "--depth",
-                "4",
-                "--width",
-                "8192",
-                "--height",
-                "8192",
-                "--reference",
-                "--out",
-                &out("r.exr"),
-            ]
-            .iter()
-            .chain(&cube)
-            .map(|s| s.to_string())
-            .collect(),
-            "memory budget",
-        ),
-        (
-            [
-                "render",
-                "--backend",
-                "cpu",
-                "--depth",
-                "4",
-                "--width",
-                "8192",
-                "--height",
-                "8192",
-                "--aov-dir",
-                &out("aov"),
-                "--out",
-                &out("a.png"),
-            ]
-            .iter()
-            .chain(&cube)
-            .map(|s| s.to_string())
-            .collect(),
-            "memory budget",
-        ),
-        (
-            [
-                "render",
-                "--backend",
-                "cpu",
-                "--depth",
-                "4",
-                "--width",
-                "1024",
-                "--height",
-                "1024",
-                "--frames",
-                "1000",
-                "--out",
-                &out("c.gif"),
-            ]
-            .iter()
-            .chain(&cube)
-            .map(|s| s.to_string())
-            .collect(),
+            line("render --backend cpu --depth 4 --width 1024 --height 1024 --frames 1000", "--out", "c.gif", &cube),
             "memory budget",
         ),
     ];

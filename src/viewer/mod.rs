@@ -252,7 +252,9 @@ pub fn run(
             mrays: 0.0,
             per_ray: (0.0, 0.0),
             gi_on: false,
-            gi: crate::gi::GiSettings { res: 64, ..Default::default() },
+            // Interactive: the half-resolution gather (the same error, a quarter of the cones;
+            // docs/accuracy.md), switchable in the panel.
+            gi: crate::gi::GiSettings { res: 64, gather: crate::render::Gather::Half, ..Default::default() },
             gi_ms: None,
             gi_on_gpu: false,
             gi_error: None,
