@@ -397,20 +397,21 @@ pub fn accuracy_gpu(
     let reference = pt.frame();
     let backend = format!("GPU: {}", ctx.describe());
     let mut out = Vec::new();
-    for (store, name) in [(LevelStore::Buffer, "buffer"), (LevelStore::Texture, "texture")] {
-        progress(&format!("gi-accuracy (GPU): {name}"));
-        let s = GiSettings { volume: VolumeChoice::Dense, levels: store, ..GiSettings::default() };
+    // The level store, then the gather (with the buffer store), each against the reference.
+    let dense = GiSettings { volume: VolumeChoice::Dense, ..GiSettings::default() };
+    let half = crate::render::Gather::Half;
+    let runs = [
+        ("level chain store (GPU, 128³)", "buffer", 0.0, dense),
+        ("level chain store (GPU, 128³)", "texture", 1.0, GiSettings { levels: LevelStore::Texture, ..dense }),
+        ("gather (GPU, 128³)", "pixels", 1.0, dense),
+        ("gather (GPU, 128³)", "half", 0.5, GiSettings { gather: half, ..dense }),
+    ];
+    for (knob, name, x, s) in runs {
+        progress(&format!("gi-accuracy (GPU): {knob}, {name}"));
         let run = gpu_gi_frames(&ctx, &s, &scene, &camera, &lights, &plan, cfg.repeats)?;
         let (times, timed, f) = (run.times, run.timed, run.frame);
-        let mut r = accuracy_record(
-            cfg,
-            scene.instances().len(),
-            "level chain store (GPU, 128³)",
-            name.into(),
-            (store == LevelStore::Texture) as u32 as f64,
-            summarize(&times).0,
-            compare_to(&f, &reference)?,
-        );
+        let error = compare_to(&f, &reference)?;
+        let mut r = accuracy_record(cfg, scene.instances().len(), knob, name.into(), x, summarize(&times).0, error);
         r.backend_kind = "gpu".into();
         r.backend = format!("{backend}{}", if timed { "" } else { " (wall clock)" });
         out.push(r);
