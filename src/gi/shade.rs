@@ -348,7 +348,7 @@ pub struct GiSettings {
     pub volume: VolumeChoice,
     /// Where the GPU's cones read the level chain (ignored on the CPU).
     pub levels: LevelStore,
-    /// Where the diffuse cones are gathered: every pixel or half resolution (CPU only).
+    /// Where the diffuse cones are gathered: every pixel or half resolution (both backends).
     pub gather: crate::render::Gather,
 }
 

@@ -223,9 +223,12 @@ impl TriangleScene {
         if n.dot(d.as_vec3()) > 0.0 {
             n = -n;
         }
-        let m = self.materials.get(tri.material as usize).cloned().unwrap_or_else(|| Material::new("", Vec3::ONE));
         let uv = tri.uv.map(|w| w[0] * (1.0 - u - v) as f32 + w[1] * u as f32 + w[2] * v as f32);
-        let attr = Attr::pack_glossy(m.albedo_at(uv), n, m.emission, m.specular, m.gloss());
+        // A triangle naming no material is grey (0.7) and matte, as the voxelizer makes it.
+        let attr = match self.materials.get(tri.material as usize) {
+            Some(m) => Attr::pack_glossy(m.albedo_at(uv), n, m.emission, m.specular, m.gloss()),
+            None => Attr::pack(Vec3::splat(0.7), n, Vec3::ZERO),
+        };
         Some(HitRecord { t: t as f32, instance: tri.instance, normal: n, face_normal: n, attr, voxel: self.offset })
     }
 
@@ -240,7 +243,8 @@ impl TriangleScene {
     }
 
     /// The nearest hit by testing every triangle (the hierarchy's oracle in the tests).
-    pub fn nearest_brute(&self, o: DVec3, d: DVec3) -> Option<(usize, f64)> {
+    #[cfg(test)]
+    fn nearest_brute(&self, o: DVec3, d: DVec3) -> Option<(usize, f64)> {
         let mut best: Option<(usize, f64)> = None;
         for (i, t) in self.tris.iter().enumerate() {
             if let Some((dist, _, _)) = Self::intersect(t, o, d, best.map_or(f64::INFINITY, |b| b.1)) {
@@ -248,11 +252,6 @@ impl TriangleScene {
             }
         }
         best
-    }
-
-    /// The instance of triangle `i`.
-    pub fn instance_of(&self, i: usize) -> i32 {
-        self.tris[i].instance
     }
 }
 

@@ -55,8 +55,8 @@ pub struct Frame {
     pub ao: Vec<f32>,
     /// Primary rays (one per pixel).
     pub primary_rays: u64,
-    /// Points where GI's diffuse cones were gathered (fewer than the pixels shaded with
-    /// [`super::Gather::Half`]).
+    /// Points where GI's diffuse cones were gathered on the CPU (fewer than the pixels shaded
+    /// with [`super::Gather::Half`]); 0 from the GPU, which does not count them.
     pub gathers: u64,
     /// Pixels whose primary hit came from the hit buffer (no ray traced).
     pub reused: u64,
@@ -213,10 +213,10 @@ pub(crate) fn leave(r: &HitRecord, at: DVec3) -> DVec3 {
     at + r.normal.as_dvec3() * v + r.face_normal.as_dvec3() * (0.1 * v)
 }
 
-/// Where the lighting's ambient term comes from when it is not the flat sky: a function of
-/// the hit (its record, the world-space hit point and the primary ray's unit direction)
-/// giving both lobes' ambient light, reflectance included (GI's cones,
-/// [`crate::gi::render_with_gi`]).
+/// Where the lighting's ambient term comes from when it is not the flat sky (GI's cones,
+/// [`crate::gi::render_with_gi`]): the diffuse light gathered at a hit, at every pixel or at
+/// half resolution ([`super::gather`]), and the term that makes both lobes' ambient light of
+/// it, reflectance included.
 pub struct AmbientLight<'a> {
     /// The diffuse cones' light at a hit (its record and world-space point) before the
     /// albedo, and the cosine-weighted fraction of the cones that escaped.

@@ -179,7 +179,7 @@ pub(crate) struct RenderArgs {
     #[arg(long, default_value = "buffer", requires = "gi")]
     pub(crate) gi_levels: voxray::gi::shade::LevelStore,
     /// Where GI's diffuse cones are gathered: pixels (every pixel) or half (one pixel in each
-    /// 2×2 block, blended at the others from the samples on their own surface; CPU backend).
+    /// 2×2 block, blended at the others from the samples on their own surface).
     #[arg(long, default_value = "pixels", requires = "gi")]
     pub(crate) gi_gather: voxray::render::Gather,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
