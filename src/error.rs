@@ -18,6 +18,12 @@ pub enum Error {
     /// Building or updating the scene.
     #[error(transparent)]
     Scene(#[from] crate::scene::SceneError),
+    /// Posing an animated node hierarchy.
+    #[error(transparent)]
+    Pose(#[from] crate::scene::animation::PoseError),
+    /// Reading a scene file (glTF, MagicaVoxel).
+    #[error(transparent)]
+    Import(#[from] crate::import::ImportError),
     /// Global illumination settings or inputs.
     #[error(transparent)]
     Gi(#[from] crate::gi::GiError),

@@ -43,6 +43,7 @@ mod error;
 pub mod gi;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod import;
 pub mod input;
 pub mod memory;
 pub mod mesh;

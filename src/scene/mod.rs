@@ -1,5 +1,6 @@
 //! What is rendered: parts placed as instances with transforms, the camera and the lights.
 
+pub mod animation;
 pub mod camera;
 pub mod car;
 pub mod ground;
@@ -11,5 +12,5 @@ pub mod transform;
 pub use camera::{Camera, CameraError};
 pub use instances::{Instance, Scene, SceneError};
 pub use lights::{Ambient, Lights, LightsError, Sun};
-pub use stage::{add_ground, stage_cars, Staged};
+pub use stage::{add_ground, stage_cars, Animated, Staged};
 pub use transform::{Transform, TransformError};

@@ -2,7 +2,8 @@
 //! checkered ground sized to what the cars can reach. Shared by the CLI, the demo (which
 //! re-stages when its car count changes) and the benchmark harness.
 
-use super::car::{add_car, clip_bounds, layout, Car};
+use super::animation::Rig;
+use super::car::{add_car, clip_bounds, layout, pose_all, Car};
 use super::{ground, Instance, Scene, Transform};
 use crate::svo::Svo;
 use glam::DVec3;
@@ -16,6 +17,18 @@ pub struct Staged {
     pub cars: Vec<Car>,
     /// A box holding every car at any clip time (or the scene's bounds if the cars stay in place).
     pub bounds: (DVec3, DVec3),
+    /// A scene file's node hierarchy and the clip it plays (None: nothing but the cars moves).
+    pub animated: Option<Animated>,
+}
+
+/// A scene file's animation as staged: its rig (with the instances it made) and the clip
+/// that plays, if any.
+#[derive(Clone, Debug, Default)]
+pub struct Animated {
+    /// The node hierarchy.
+    pub rig: Rig,
+    /// Index into the rig's clips; None poses the rest pose.
+    pub clip: Option<usize>,
 }
 
 /// Stages `n` cars built from `car_parts` (the eight parts in [`crate::model::car::PART_NAMES`]
@@ -35,7 +48,7 @@ pub fn stage_cars(car_parts: &[Arc<Svo>], n: usize, travel: bool, with_ground: b
     if with_ground {
         add_ground(&mut scene, bounds)?;
     }
-    Ok(Staged { scene, cars, bounds })
+    Ok(Staged { scene, cars, bounds, animated: None })
 }
 
 /// Adds a checkered ground (1 m tiles, voxels of at least 5 cm) reaching 3 m beyond `bounds`
@@ -50,6 +63,21 @@ pub fn add_ground(scene: &mut Scene, bounds: (DVec3, DVec3)) -> Result<(), crate
 }
 
 impl Staged {
+    /// Poses everything that moves at scene time `t` (seconds): the cars and the scene file's
+    /// clip. Call [`Scene::update`] afterwards.
+    pub fn pose(&mut self, t: f64) -> Result<(), crate::Error> {
+        pose_all(&mut self.scene, &self.cars, t)?;
+        if let Some(a) = &self.animated {
+            a.rig.pose(&mut self.scene, a.clip, t)?;
+        }
+        Ok(())
+    }
+
+    /// Whether anything moves over time.
+    pub fn moves(&self) -> bool {
+        !self.cars.is_empty() || self.animated.as_ref().is_some_and(|a| a.clip.is_some())
+    }
+
     /// World bounds of the car instances only (not the ground); of everything if no cars.
     pub fn cars_bounds(&self) -> (DVec3, DVec3) {
         if self.cars.is_empty() {

@@ -71,9 +71,15 @@ pub(crate) enum Cmd {
 
 #[derive(Args, Clone)]
 pub(crate) struct SourceArgs {
-    /// OBJ files; each object/group (or file) is a part. Default: the embedded car.
-    #[arg(long, num_args = 1..)]
-    pub(crate) obj: Vec<PathBuf>,
+    /// Scene file: OBJ (several may be given; each object/group is a part), glTF 2.0
+    /// (.gltf/.glb, with its node hierarchy and animation) or a voxray .svo; told apart by
+    /// content, then extension. Default: the embedded car.
+    #[arg(long, visible_alias = "obj", num_args = 1..)]
+    pub(crate) scene: Vec<PathBuf>,
+    /// The glTF animation to play, by name or 0-based index; `all` plays every animation of
+    /// the file together, `none` shows the rest pose (default: the file's first animation).
+    #[arg(long)]
+    pub(crate) animation: Option<String>,
     /// Voxels along the largest part's longest side, as 2^DEPTH; all parts share that voxel size.
     #[arg(long, default_value_t = 9, conflicts_with = "voxel_size", value_parser = clap::value_parser!(u32).range(1..=20))]
     pub(crate) depth: u32,

@@ -29,7 +29,7 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     if a.report_only {
         return write_records(&a, Vec::new());
     }
-    if !a.source.obj.is_empty() {
+    if !a.source.scene.is_empty() {
         return Err(usage("bench uses the default car"));
     }
     let command = std::env::args()

@@ -14,15 +14,32 @@ pub(crate) fn bar(len: u64, what: &str) -> ProgressBar {
     b
 }
 
-pub(crate) fn load_mesh(src: &SourceArgs) -> Result<Mesh, Error> {
-    let mut mesh = if src.obj.is_empty() {
-        voxray::model::embedded::load_default_car()?
+/// The model's triangles and, for a glTF scene, its node hierarchy and animation.
+pub(crate) fn load_input(src: &SourceArgs) -> Result<(Mesh, Option<Rig>), Error> {
+    let kinds = src.scene.iter().map(|p| SceneKind::of(p)).collect::<Result<Vec<_>, _>>()?;
+    if let Some(k) = kinds.iter().position(|k| *k == SceneKind::Svo) {
+        return Err(usage(&format!(
+            "{}: an .svo file holds voxels, not triangles: give it alone to render, demo or bench",
+            src.scene[k].display()
+        )));
+    }
+    if src.animation.is_some() && !kinds.contains(&SceneKind::Gltf) {
+        return Err(usage("--animation chooses among a glTF scene's animations; give a .gltf or .glb with --scene"));
+    }
+    let (mut mesh, rig) = if src.scene.is_empty() {
+        (voxray::model::embedded::load_default_car()?, None)
+    } else if kinds.contains(&SceneKind::Gltf) {
+        if src.scene.len() > 1 {
+            return Err(usage("a glTF scene is given alone (its nodes place its meshes)"));
+        }
+        let imported = voxray::import::load_gltf(&src.scene[0])?;
+        (imported.mesh, Some(imported.rig))
     } else {
         let mut m = Mesh::default();
-        for p in &src.obj {
+        for p in &src.scene {
             m.append(voxray::mesh::load_obj(p)?);
         }
-        m
+        (m, None)
     };
     if src.lambertian {
         mesh.make_lambertian();
@@ -33,7 +50,33 @@ pub(crate) fn load_mesh(src: &SourceArgs) -> Result<Mesh, Error> {
     if mesh.degenerate_skipped > 0 {
         eprintln!("note: skipped {} degenerate triangles", mesh.degenerate_skipped);
     }
-    Ok(mesh)
+    Ok((mesh, rig))
+}
+
+/// The model's triangles (a glTF scene's meshes, unplaced).
+pub(crate) fn load_mesh(src: &SourceArgs) -> Result<Mesh, Error> {
+    Ok(load_input(src)?.0)
+}
+
+/// The clip `--animation` names (default: the first; `none`: the rest pose; `all`: every
+/// animation of the file played together, added to the rig as one more clip).
+fn chosen_clip(rig: &mut Rig, which: Option<&str>) -> Result<Option<usize>, Error> {
+    match which {
+        None => Ok((!rig.clips.is_empty()).then_some(0)),
+        Some(w) if w.eq_ignore_ascii_case("none") => Ok(None),
+        Some(w) if w.eq_ignore_ascii_case("all") && rig.find_clip(w).is_none() => {
+            let channels = rig.clips.iter().flat_map(|c| c.channels.clone()).collect();
+            rig.clips.push(voxray::scene::animation::Clip::new("all".into(), channels));
+            Ok(Some(rig.clips.len() - 1))
+        }
+        Some(w) => rig.find_clip(w).map(Some).ok_or_else(|| {
+            let names: Vec<String> = rig.clips.iter().enumerate().map(|(i, c)| format!("{i}: '{}'", c.name)).collect();
+            usage(&format!(
+                "--animation {w}: no such animation (the file has {})",
+                if names.is_empty() { "none".to_string() } else { names.join(", ") }
+            ))
+        }),
+    }
 }
 
 /// Voxelizes and builds every part, printing a statistics table.
@@ -110,14 +153,36 @@ pub(crate) fn stage(
     static_car: bool,
     with_ground: bool,
 ) -> Result<Staged, Error> {
-    let default_car = src.obj.is_empty();
+    let default_car = src.scene.is_empty();
     if !default_car && (cars > 1 || static_car || in_place) {
         return Err(usage("--cars, --in-place and --static-car apply to the default car only"));
     }
-    let mut mesh = load_mesh(src)?;
+    if let [file] = &src.scene[..] {
+        if SceneKind::of(file)? == SceneKind::Svo {
+            let svo = voxray::svo::io::load(file)?;
+            let mut scene = Scene::new(vec![Arc::new(svo)]);
+            scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY })?;
+            scene.update()?;
+            let bounds = scene.bounds();
+            return Ok(Staged { scene, cars: Vec::new(), bounds, animated: None });
+        }
+    }
+    let (mut mesh, rig) = load_input(src)?;
     if default_car && !static_car {
         let parts = build_parts(&mesh, src)?;
         return stage_cars(&parts, cars as usize, !in_place, with_ground);
+    }
+    if let Some(mut rig) = rig {
+        let clip = chosen_clip(&mut rig, src.animation.as_deref())?;
+        let mut scene = Scene::new(build_parts(&mesh, src)?);
+        rig.instantiate(&mut scene, 0, clip)?;
+        scene.update()?;
+        let bounds = rig.clip_bounds(&mut scene, clip)?;
+        if let Some(c) = clip {
+            let c = &rig.clips[c];
+            eprintln!("animation '{}': {:.2} s, {} channels, looping", c.name, c.duration, c.channels.len());
+        }
+        return Ok(Staged { scene, cars: Vec::new(), bounds, animated: Some(Animated { rig, clip }) });
     }
     if static_car {
         let merged: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
@@ -132,7 +197,7 @@ pub(crate) fn stage(
     if default_car && with_ground {
         add_ground(&mut scene, bounds)?;
     }
-    Ok(Staged { scene, cars: Vec::new(), bounds })
+    Ok(Staged { scene, cars: Vec::new(), bounds, animated: None })
 }
 
 pub(crate) fn usage(msg: &str) -> Error {

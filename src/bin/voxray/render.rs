@@ -46,7 +46,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let mut camera = camera_json.unwrap_or_else(|| {
         if a.frames == 1 {
             // One frame: frame the car(s) as posed, seen from the front left of the first car.
-            let _ = pose_all(&mut st.scene, &st.cars, a.time);
+            let _ = st.pose(a.time);
             let _ = st.scene.update();
             let heading = st
                 .cars
@@ -63,7 +63,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     camera.validate()?;
     let t_setup = t0.elapsed();
     let emitters: usize = st.scene.parts.iter().map(|p| p.emitters.len()).sum();
-    if emitters > 0 && !a.source.obj.is_empty() && !lights.use_mtl_emitters {
+    if emitters > 0 && !a.source.scene.is_empty() && !lights.use_mtl_emitters {
         eprintln!(
             "note: the model has {emitters} emissive triangles (MTL Ke); they light nothing unless the lights JSON sets \"use_mtl_emitters\": true"
         );
@@ -144,7 +144,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     for f in 0..a.frames {
         let start = Instant::now();
         let t = a.time + f as f64 / a.fps;
-        pose_all(&mut st.scene, &st.cars, t)?;
+        st.pose(t)?;
         st.scene.update()?;
         let cam = orbit(&camera, a.orbit * (t - a.time));
         let report = session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {

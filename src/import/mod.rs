@@ -1,0 +1,125 @@
+//! Scene files other than OBJ: glTF 2.0 (`.gltf` with its buffers and images, `.glb`; feature
+//! `gltf`), with their node hierarchy and animation as a [`Rig`]. Which loader a file needs is
+//! told by its first bytes, then by its extension ([`SceneKind::of`]).
+
+#[cfg(feature = "gltf")]
+pub mod gltf;
+
+use crate::mesh::Mesh;
+use crate::scene::animation::Rig;
+use std::path::Path;
+
+/// Largest glTF JSON, GLB or external buffer read.
+pub const MAX_GLTF_BYTES: u64 = 2 << 30;
+/// Largest image file a glTF material may refer to.
+pub const MAX_IMAGE_BYTES: u64 = 256 << 20;
+
+/// Why a scene file could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ImportError {
+    /// Reading the file (or a file it refers to) failed or it was too large.
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
+    /// The file is malformed or uses what voxray does not support; `element` names where.
+    #[error("{path}: {element}: {message}")]
+    Invalid {
+        /// The file.
+        path: String,
+        /// The element: "buffer 2", "mesh 'wheel' primitive 0", "animation 'drive' channel 3".
+        element: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// Not a scene format voxray reads.
+    #[error("{path}: not a scene file voxray reads (by content or extension: .obj, .gltf, .glb, .svo)")]
+    Format {
+        /// The file.
+        path: String,
+    },
+    /// The build lacks the loader.
+    #[error("{path}: reading {what} needs the `{feature}` feature, which this build lacks")]
+    Unsupported {
+        /// The file.
+        path: String,
+        /// The format.
+        what: &'static str,
+        /// The cargo feature.
+        feature: &'static str,
+    },
+}
+
+/// The formats of scene files.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneKind {
+    /// Wavefront OBJ (with MTL).
+    Obj,
+    /// glTF 2.0, JSON or binary.
+    Gltf,
+    /// voxray's own SVO file.
+    Svo,
+}
+
+impl SceneKind {
+    /// The format of `path`: by its first bytes (GLB, `.svo` and MagicaVoxel magic numbers,
+    /// a JSON object with a glTF `asset`), else by extension.
+    pub fn of(path: &Path) -> Result<SceneKind, ImportError> {
+        let mut head = [0u8; 4096];
+        let n = {
+            use std::io::Read;
+            let mut f = std::fs::File::open(path).map_err(|source| match source.kind() {
+                std::io::ErrorKind::NotFound => crate::input::InputError::NotFound { path: path.display().to_string() },
+                _ => crate::input::InputError::Io { path: path.display().to_string(), source },
+            })?;
+            let mut n = 0;
+            while n < head.len() {
+                match f.read(&mut head[n..]) {
+                    Ok(0) => break,
+                    Ok(k) => n += k,
+                    Err(source) => {
+                        return Err(crate::input::InputError::Io { path: path.display().to_string(), source }.into())
+                    }
+                }
+            }
+            n
+        };
+        let head = &head[..n];
+        if head.starts_with(b"glTF") {
+            return Ok(SceneKind::Gltf);
+        }
+        if head.starts_with(&crate::svo::io::MAGIC) {
+            return Ok(SceneKind::Svo);
+        }
+        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+        let text = String::from_utf8_lossy(head);
+        let json_gltf = text.trim_start().starts_with('{') && text.contains("\"asset\"");
+        match ext.as_str() {
+            "gltf" | "glb" => Ok(SceneKind::Gltf),
+            "svo" => Ok(SceneKind::Svo),
+            "obj" => Ok(SceneKind::Obj),
+            _ if json_gltf => Ok(SceneKind::Gltf),
+            _ => Err(ImportError::Format { path: path.display().to_string() }),
+        }
+    }
+}
+
+/// A scene file's triangles and the hierarchy that places and animates them: node `k` with
+/// `part: Some(p)` places `mesh.parts[p]`.
+#[derive(Clone, Debug, Default)]
+pub struct Imported {
+    /// The parts, one per mesh the scene uses, and their materials.
+    pub mesh: Mesh,
+    /// Nodes and animation clips.
+    pub rig: Rig,
+}
+
+/// Loads a glTF 2.0 file (`.gltf` or `.glb`).
+pub fn load_gltf(path: &Path) -> Result<Imported, ImportError> {
+    #[cfg(feature = "gltf")]
+    {
+        gltf::load(path)
+    }
+    #[cfg(not(feature = "gltf"))]
+    {
+        Err(ImportError::Unsupported { path: path.display().to_string(), what: "glTF", feature: "gltf" })
+    }
+}
