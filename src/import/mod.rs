@@ -1,9 +1,12 @@
 //! Scene files other than OBJ: glTF 2.0 (`.gltf` with its buffers and images, `.glb`; feature
-//! `gltf`), with their node hierarchy and animation as a [`Rig`]. Which loader a file needs is
+//! `gltf`) and MagicaVoxel `.vox` (feature `vox`), with their node hierarchy and animation as
+//! a [`Rig`]. Which loader a file needs is
 //! told by its first bytes, then by its extension ([`SceneKind::of`]).
 
 #[cfg(feature = "gltf")]
 pub mod gltf;
+#[cfg(feature = "vox")]
+pub mod vox;
 
 use crate::mesh::Mesh;
 use crate::scene::animation::Rig;
@@ -31,7 +34,7 @@ pub enum ImportError {
         message: String,
     },
     /// Not a scene format voxray reads.
-    #[error("{path}: not a scene file voxray reads (by content or extension: .obj, .gltf, .glb, .svo)")]
+    #[error("{path}: not a scene file voxray reads (by content or extension: .obj, .gltf, .glb, .vox, .svo)")]
     Format {
         /// The file.
         path: String,
@@ -55,6 +58,8 @@ pub enum SceneKind {
     Obj,
     /// glTF 2.0, JSON or binary.
     Gltf,
+    /// MagicaVoxel.
+    Vox,
     /// voxray's own SVO file.
     Svo,
 }
@@ -86,6 +91,9 @@ impl SceneKind {
         if head.starts_with(b"glTF") {
             return Ok(SceneKind::Gltf);
         }
+        if head.starts_with(b"VOX ") {
+            return Ok(SceneKind::Vox);
+        }
         if head.starts_with(&crate::svo::io::MAGIC) {
             return Ok(SceneKind::Svo);
         }
@@ -95,6 +103,7 @@ impl SceneKind {
         match ext.as_str() {
             "gltf" | "glb" => Ok(SceneKind::Gltf),
             "svo" => Ok(SceneKind::Svo),
+            "vox" => Ok(SceneKind::Vox),
             "obj" => Ok(SceneKind::Obj),
             _ if json_gltf => Ok(SceneKind::Gltf),
             _ => Err(ImportError::Format { path: path.display().to_string() }),
@@ -122,4 +131,10 @@ pub fn load_gltf(path: &Path) -> Result<Imported, ImportError> {
     {
         Err(ImportError::Unsupported { path: path.display().to_string(), what: "glTF", feature: "gltf" })
     }
+}
+
+/// Loads a MagicaVoxel `.vox` file: its models as SVOs, its scene graph as a rig.
+#[cfg(feature = "vox")]
+pub fn load_vox(path: &Path) -> Result<vox::VoxScene, ImportError> {
+    vox::load(path)
 }

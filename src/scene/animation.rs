@@ -35,6 +35,9 @@ pub enum Property {
     Rotation,
     /// Per-axis scale (x, y, z).
     Scale,
+    /// Which part the node places (a flip-book: value x is an index into the rig's parts;
+    /// always stepped).
+    Part,
 }
 
 /// One animated property of one node.
@@ -132,6 +135,7 @@ impl Channel {
             let dt = t1 - t0;
             let u = (t - t0) / dt;
             match self.interpolation {
+                _ if self.property == Property::Part => self.value(k),
                 Interpolation::Step => self.value(k),
                 Interpolation::Linear if self.property == Property::Rotation => {
                     let (a, b) = (DQuat::from_array(self.value(k)), DQuat::from_array(self.value(k + 1)));
@@ -251,6 +255,8 @@ pub struct Rig {
     pub clips: Vec<Clip>,
     /// Per node, its scene instance (set by [`Rig::instantiate`]).
     pub instances: Vec<Option<usize>>,
+    /// Scene part index of the rig's part 0 (set by [`Rig::instantiate`]).
+    pub first_part: usize,
 }
 
 /// Relative decomposition tolerance: products of f32 file data carry ~1e-7 of apparent shear.
@@ -273,6 +279,7 @@ impl Rig {
     /// each parented to its nearest placing ancestor, posed at rest (or at `clip`'s time 0).
     pub fn instantiate(&mut self, scene: &mut Scene, first_part: usize, clip: Option<usize>) -> Result<(), PoseError> {
         self.instances = vec![None; self.nodes.len()];
+        self.first_part = first_part;
         for n in 0..self.nodes.len() {
             let Some(part) = self.nodes[n].part else { continue };
             let parent = self.instanced_ancestor(n);
@@ -309,9 +316,18 @@ impl Rig {
                 Rest::Matrix(_) => None,
             })
             .collect();
+        // Per node, the part a flip-book channel shows now (None: its own).
+        let mut shown: Vec<Option<usize>> = vec![None; n];
         if let Some(c) = clip.and_then(|c| self.clips.get(c)) {
             let local = c.local_time(t);
             for ch in &c.channels {
+                if ch.property == Property::Part {
+                    if let Some(slot) = shown.get_mut(ch.node) {
+                        // Validated finite; a part past the scene's is refused by set_part.
+                        *slot = Some(ch.sample(local)[0].max(0.0) as usize);
+                    }
+                    continue;
+                }
                 let Some(slot) = trs.get_mut(ch.node) else { continue };
                 let (mut tr, mut rot, mut sc) = slot.unwrap_or_else(|| {
                     let (s, r, t) = self.nodes[ch.node].rest.affine().to_scale_rotation_translation();
@@ -322,6 +338,7 @@ impl Rig {
                     Property::Translation => tr = DVec3::new(v[0], v[1], v[2]),
                     Property::Rotation => rot = DQuat::from_array(v),
                     Property::Scale => sc = DVec3::new(v[0], v[1], v[2]),
+                    Property::Part => {}
                 }
                 *slot = Some((tr, rot, sc));
             }
@@ -344,7 +361,11 @@ impl Rig {
                 _ => rel[k].as_ref().and_then(decompose),
             };
             let transform = transform.ok_or_else(|| PoseError::Shear { node: node.name.clone() })?;
-            scene.set_local(i, transform).map_err(|source| PoseError::Scene { node: node.name.clone(), source })?;
+            let scene_error = |source| PoseError::Scene { node: node.name.clone(), source };
+            scene.set_local(i, transform).map_err(scene_error)?;
+            if let Some(part) = shown[k].or(node.part) {
+                scene.set_part(i, self.first_part + part).map_err(scene_error)?;
+            }
         }
         Ok(())
     }

@@ -174,6 +174,20 @@ impl Scene {
         result
     }
 
+    /// Replaces the part an instance places (a flip-book's frame); its transform stays.
+    /// Frame-to-frame reuse sees the change (the instances' parts are compared).
+    pub fn set_part(&mut self, i: usize, part: usize) -> Result<(), SceneError> {
+        if part >= self.parts.len() {
+            return Err(SceneError::Part(part));
+        }
+        let inst = self.instances.get_mut(i).ok_or(SceneError::Instance(i))?;
+        if inst.part != part {
+            inst.part = part;
+            self.dirty[i] = true;
+        }
+        Ok(())
+    }
+
     /// Replaces an instance's local transform (validated) and marks it dirty.
     pub fn set_local(&mut self, i: usize, t: Transform) -> Result<(), SceneError> {
         let t = Transform::new(t.translation, t.rotation, t.scale)?;

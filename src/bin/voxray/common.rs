@@ -17,14 +17,14 @@ pub(crate) fn bar(len: u64, what: &str) -> ProgressBar {
 /// The model's triangles and, for a glTF scene, its node hierarchy and animation.
 pub(crate) fn load_input(src: &SourceArgs) -> Result<(Mesh, Option<Rig>), Error> {
     let kinds = src.scene.iter().map(|p| SceneKind::of(p)).collect::<Result<Vec<_>, _>>()?;
-    if let Some(k) = kinds.iter().position(|k| *k == SceneKind::Svo) {
+    if let Some(k) = kinds.iter().position(|k| matches!(k, SceneKind::Svo | SceneKind::Vox)) {
         return Err(usage(&format!(
-            "{}: an .svo file holds voxels, not triangles: give it alone to render, demo or bench",
+            "{}: an .svo or .vox file holds voxels, not triangles: give it alone to render, demo or bench (it cannot be voxelized or path-traced as triangles)",
             src.scene[k].display()
         )));
     }
     if src.animation.is_some() && !kinds.contains(&SceneKind::Gltf) {
-        return Err(usage("--animation chooses among a glTF scene's animations; give a .gltf or .glb with --scene"));
+        return Err(usage("--animation chooses among a glTF or .vox scene's animations; give one with --scene"));
     }
     let (mut mesh, rig) = if src.scene.is_empty() {
         (voxray::model::embedded::load_default_car()?, None)
@@ -158,6 +158,9 @@ pub(crate) fn stage(
         return Err(usage("--cars, --in-place and --static-car apply to the default car only"));
     }
     if let [file] = &src.scene[..] {
+        if SceneKind::of(file)? == SceneKind::Vox {
+            return stage_vox(file, src);
+        }
         if SceneKind::of(file)? == SceneKind::Svo {
             let svo = voxray::svo::io::load(file)?;
             let mut scene = Scene::new(vec![Arc::new(svo)]);
@@ -198,6 +201,35 @@ pub(crate) fn stage(
         add_ground(&mut scene, bounds)?;
     }
     Ok(Staged { scene, cars: Vec::new(), bounds, animated: None })
+}
+
+/// A MagicaVoxel scene: its models as parts (no voxelization), placed and animated by its
+/// scene graph.
+fn stage_vox(file: &Path, src: &SourceArgs) -> Result<Staged, Error> {
+    let v = voxray::import::load_vox(file)?;
+    for w in &v.warnings {
+        eprintln!("warning: {w}");
+    }
+    eprintln!("{:<16} {:>6} {:>10} {:>9} {:>9} {:>9}", "model", "depth", "voxels", "nodes", "geom B/v", "attr B/v");
+    for (name, svo) in v.names.iter().zip(&v.svos) {
+        let s = svo.stats();
+        eprintln!(
+            "{:<16} {:>6} {:>10} {:>9} {:>9.2} {:>9.2}",
+            name,
+            s.depth,
+            s.voxels,
+            s.nodes,
+            s.geometry_bytes_per_voxel(),
+            s.attribute_bytes_per_voxel()
+        );
+    }
+    let mut rig = v.rig;
+    let clip = chosen_clip(&mut rig, src.animation.as_deref())?;
+    let mut scene = Scene::new(v.svos.into_iter().map(Arc::new).collect());
+    rig.instantiate(&mut scene, 0, clip)?;
+    scene.update()?;
+    let bounds = rig.clip_bounds(&mut scene, clip)?;
+    Ok(Staged { scene, cars: Vec::new(), bounds, animated: Some(Animated { rig, clip }) })
 }
 
 pub(crate) fn usage(msg: &str) -> Error {
