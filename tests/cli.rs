@@ -662,3 +662,97 @@ fn gpu_backend_writes_the_same_aovs_as_the_cpu() {
         }
     }
 }
+
+#[test]
+fn shards_and_resume_give_the_frames_of_one_run() {
+    let d = tmp("shards");
+    let cache = d.join("cache");
+    let clip = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["render", "--depth", "6", "--frames", "7", "--width", "64", "--height", "40"];
+        args.extend_from_slice(&["--cache-dir", s(&cache), "--out", s(out)]);
+        args.extend_from_slice(extra);
+        let o = voxray(&args);
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let (one, many) = (d.join("one/f.png"), d.join("many/f.png"));
+    clip(&one, &[]);
+    for i in 0..3 {
+        clip(&many, &["--shard", &format!("{i}/3")]);
+    }
+    let frame = |p: &Path, f: u32| std::fs::read(p.with_file_name(format!("f_{f:04}.png"))).unwrap();
+    for f in 0..7 {
+        assert_eq!(frame(&one, f), frame(&many, f), "frame {f}: three shards give the single run's image");
+    }
+    // A frame range renders only its frames, named by their place in the clip.
+    let part = d.join("part/f.png");
+    clip(&part, &["--frame-range", "2..4"]);
+    let names: Vec<String> = std::fs::read_dir(part.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into())
+        .collect();
+    assert_eq!(names.len(), 2, "{names:?}");
+    assert_eq!(frame(&part, 3), frame(&one, 3));
+    // Resume: a missing frame and a truncated one are rendered again, the rest skipped.
+    std::fs::remove_file(many.with_file_name("f_0001.png")).unwrap();
+    std::fs::write(many.with_file_name("f_0005.png"), &frame(&one, 5)[..60]).unwrap();
+    let log = clip(&many, &["--resume"]);
+    assert!(log.contains("2 to render (5 of this range already written)"), "{log}");
+    for f in 0..7 {
+        assert_eq!(frame(&one, f), frame(&many, f), "frame {f} after resume");
+    }
+    // Bad ranges and shards are refused before anything is rendered.
+    for (flag, value) in
+        [("--shard", "3/3"), ("--shard", "1/0"), ("--shard", "x"), ("--frame-range", "5..3"), ("--frame-range", "0..8")]
+    {
+        let o = voxray(&["render", "--frames", "7", "--out", s(&d.join("bad/f.png")), flag, value]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(flag), "{flag} {value}: {err}");
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn gltf_and_vox_scenes_render_and_animate() {
+    let d = tmp("scenes");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let gltf = root.join("models/third-party/BoxAnimated/BoxAnimated.gltf");
+    let vox = root.join("models/third-party/dot_vox/axes.vox");
+    let o = voxray(&[
+        "render",
+        "--scene",
+        s(&gltf),
+        "--animation",
+        "all",
+        "--depth",
+        "6",
+        "--frames",
+        "3",
+        "--fps",
+        "1",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--cache-dir",
+        s(&d.join("cache")),
+        "--out",
+        s(&d.join("box/b.png")),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let frames: Vec<Vec<u8>> = (0..3).map(|f| std::fs::read(d.join(format!("box/b_{f:04}.png"))).unwrap()).collect();
+    assert!(frames[0] != frames[1] && frames[1] != frames[2], "the animation moves the boxes");
+    let o = voxray(&["render", "--scene", s(&vox), "--width", "64", "--height", "48", "--out", s(&d.join("axes.png"))]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("model 3"), "the model table is printed");
+    // Errors name the problem.
+    let o = voxray(&["render", "--scene", s(&gltf), "--animation", "spin", "--out", s(&d.join("x.png"))]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("no such animation") && err.contains("'animation 1'"), "{err}");
+    let o = voxray(&["render", "--scene", s(&vox), s(&gltf), "--out", s(&d.join("x.png"))]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("give it alone"));
+    std::fs::write(d.join("notes.txt"), "hello").unwrap();
+    let o = voxray(&["render", "--scene", s(&d.join("notes.txt")), "--out", s(&d.join("x.png"))]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("not a scene file"));
+    std::fs::remove_dir_all(&d).ok();
+}

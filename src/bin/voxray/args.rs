@@ -127,9 +127,22 @@ pub(crate) struct RenderArgs {
     /// Level-of-detail: stop this many levels below the root.
     #[arg(long)]
     pub(crate) lod: Option<u32>,
-    /// Frames to render (the car animates; other scenes stay still).
+    /// Frames of the clip (the car, a glTF animation or a .vox flip-book animates; other scenes stay still).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub(crate) frames: u32,
+    /// Render only frames A..B of the clip (A included, B not; frame f shows time
+    /// --time + f/--fps and is written as name_f.png whatever the range).
+    #[arg(long, value_name = "A..B")]
+    pub(crate) frame_range: Option<String>,
+    /// Render only shard I of N (0-based): the range split into N contiguous blocks, so N
+    /// machines (a Slurm job array, a Kubernetes indexed Job, GNU parallel) share a clip with
+    /// no coordination.
+    #[arg(long, value_name = "I/N")]
+    pub(crate) shard: Option<String>,
+    /// Skip frames whose image (and AOVs, with --aov-dir) already exist and read back whole:
+    /// a rerun finishes what an interrupted one left.
+    #[arg(long)]
+    pub(crate) resume: bool,
     /// Frames per second of the clip.
     #[arg(long, default_value_t = 30.0)]
     pub(crate) fps: f64,

@@ -15,11 +15,74 @@ pub(crate) fn orbit(camera: &Camera, degrees: f64) -> Camera {
     Camera { eye: camera.target + q * (camera.eye - camera.target), ..*camera }
 }
 
+/// The frames this run renders: `--frame-range A..B` (default the whole clip), then the
+/// contiguous block `--shard I/N` of it.
+pub(crate) fn frames_to_render(a: &RenderArgs) -> Result<std::ops::Range<u32>, Error> {
+    let mut range = 0..a.frames;
+    if let Some(r) = &a.frame_range {
+        let parsed =
+            r.split_once("..").and_then(|(x, y)| Some((x.trim().parse::<u32>().ok()?, y.trim().parse::<u32>().ok()?)));
+        match parsed {
+            Some((x, y)) if x < y && y <= a.frames => range = x..y,
+            _ => {
+                return Err(usage(&format!(
+                    "--frame-range {r}: expected A..B with A < B ≤ --frames ({}), frames numbered from 0",
+                    a.frames
+                )))
+            }
+        }
+    }
+    if let Some(sh) = &a.shard {
+        let parsed =
+            sh.split_once('/').and_then(|(i, n)| Some((i.trim().parse::<u32>().ok()?, n.trim().parse::<u32>().ok()?)));
+        match parsed {
+            Some((i, n)) if n >= 1 && i < n => {
+                let len = (range.end - range.start) as u64;
+                let at = |k: u32| range.start + (len * k as u64 / n as u64) as u32;
+                range = at(i)..at(i + 1);
+            }
+            _ => return Err(usage(&format!("--shard {sh}: expected I/N with 0 ≤ I < N (e.g. 0/4 … 3/4)"))),
+        }
+    }
+    Ok(range)
+}
+
+/// Whether frame `f`'s outputs are on disk and whole (resume): the image decodes at the
+/// camera's size, and with --aov-dir its AOVs are there.
+fn frame_done(a: &RenderArgs, f: u32, width: u32, height: u32) -> bool {
+    let path = numbered(&a.out, f);
+    let image_ok = image::ImageReader::open(&path)
+        .ok()
+        .and_then(|r| r.with_guessed_format().ok())
+        .and_then(|r| r.decode().ok())
+        .is_some_and(|img| img.width() == width && img.height() == height);
+    let aovs_ok = a.aov_dir.as_ref().is_none_or(|dir| {
+        let d = dir.join(format!("frame_{f:04}"));
+        ["t.npy", "instance.npy", "normal.npy"].iter().all(|n| d.join(n).is_file())
+    });
+    image_ok && aovs_ok
+}
+
 pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let t0 = Instant::now();
     let is_gif = a.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"));
     if is_gif && a.frames < 2 {
         return Err(usage("a .gif output needs --frames 2 or more"));
+    }
+    let range = frames_to_render(&a)?;
+    if is_gif && (range != (0..a.frames) || a.resume) {
+        return Err(usage(
+            "a .gif is one file of the whole clip: --frame-range, --shard and --resume write PNG or EXR frames",
+        ));
+    }
+    if a.frames == 1 && a.resume {
+        return Err(usage("--resume skips the finished frames of a clip (--frames 2 or more)"));
+    }
+    // A clip's frames go into a folder of their own, often one a batch job names: make it.
+    if a.frames > 1 && !is_gif {
+        if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.display().to_string(), source })?;
+        }
     }
     if !(a.fps.is_finite() && a.fps > 0.0) {
         return Err(usage(&format!("--fps {}: frames per second must be a positive number", a.fps)));
@@ -137,11 +200,25 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     let mut last_plan: Option<FramePlan> = None;
     let mut gif_frames = Vec::new();
     let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
-    let pb = if a.frames > 1 { bar(a.frames as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
+    let todo: Vec<u32> = range.filter(|&f| !(a.resume && frame_done(&a, f, camera.width, camera.height))).collect();
+    if a.frames > 1 && (a.resume || a.shard.is_some() || a.frame_range.is_some()) {
+        eprintln!(
+            "frames {}: {} to render{}",
+            if todo.is_empty() { "none".to_string() } else { format!("{}..{}", todo[0], todo[todo.len() - 1] + 1) },
+            todo.len(),
+            if a.resume {
+                format!(" ({} of this range already written)", frames_to_render(&a)?.len() - todo.len())
+            } else {
+                String::new()
+            }
+        );
+    }
+    let pb = if a.frames > 1 { bar(todo.len() as u64, "frames") } else { bar(2 * camera.height as u64, "rendering") };
     // GI's passes before the pixels can take minutes on a large volume: show which is running.
     let stage_bar = pb.clone();
     session.on_gi_stage(move |what| stage_bar.set_message(what.to_string()));
-    for f in 0..a.frames {
+    for &f in &todo {
+        let first = Some(&f) == todo.first();
         let start = Instant::now();
         let t = a.time + f as f64 / a.fps;
         st.pose(t)?;
@@ -157,12 +234,12 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
         }
         // The brick count is read back only for the GPU GI message, on the first frame.
-        let counted = match (&report.gi, f) {
-            (None, 0) => session.gi_bricks()?,
+        let counted = match (&report.gi, first) {
+            (None, true) => session.gi_bricks()?,
             _ => None,
         };
         let frame = session.last_frame().ok_or_else(|| usage("the renderer kept no frame"))?;
-        if f == 0 && frame.eye_inside_fraction() > 0.5 {
+        if first && frame.eye_inside_fraction() > 0.5 {
             pb.suspend(|| {
                 eprintln!(
                     "warning: the eye is inside a voxel ({:.0} % of the rays hit at t = 0), so the image is one flat \
@@ -172,8 +249,8 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             });
         }
         let backend = session.backend();
-        match (session.gi(), &report.gi, f) {
-            (Some(g), Some(s), 0) => pb.suspend(|| {
+        match (session.gi(), &report.gi, first) {
+            (Some(g), Some(s), true) => pb.suspend(|| {
                 eprintln!(
                     "GI: {} voxels into {} of {}³ cells; caches {:.0} ms, transform {:.0} ms, inject {:.0} ms, levels {:.0} ms, cones {:.0} ms ({} gathers for {} hits)",
                     s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms,
@@ -188,7 +265,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     mb(s.dense_bytes),
                 )
             }),
-            (Some(g), None, 0) => {
+            (Some(g), None, true) => {
                 let ms = backend.gi_pass_ms().map_or("not timed".to_string(), |ms| format!("{ms:.2} ms"));
                 let volume = match backend.gi_volume() {
                     Some((voxray::gi::Layout::Sparse, pool, bytes)) => {
@@ -228,14 +305,25 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     pb.finish_and_clear();
     if is_gif {
         output::write_gif(&a.out, camera.width, camera.height, a.fps, gif_frames)?;
+    } else if let (true, Some(first), Some(last)) = (a.frames > 1, todo.first(), todo.last()) {
+        println!("wrote {} … {}", numbered(&a.out, *first).display(), numbered(&a.out, *last).display());
+        if let Some(dir) = &a.aov_dir {
+            println!(
+                "wrote AOVs (t, instance, normal .npy) under {}/frame_{first:04} … frame_{last:04}",
+                dir.display()
+            );
+        }
     }
     let total: f64 = times.iter().sum();
     let (median, p95, _) = voxray::bench::summarize(&times);
-    let pixels = camera.width as u64 * camera.height as u64 * a.frames as u64;
+    if todo.is_empty() {
+        return Ok(());
+    }
+    let pixels = camera.width as u64 * camera.height as u64 * todo.len() as u64;
     eprintln!(
         "timings: setup (load, voxelize, build) {:.2}s | {} frame(s) {:.3}s, median {:.1} ms, p95 {:.1} ms",
         t_setup.as_secs_f64(),
-        a.frames,
+        todo.len(),
         total,
         median * 1e3,
         p95 * 1e3
@@ -325,14 +413,12 @@ pub(crate) fn write_frame(
         output::write_image(frame, &path)?;
         if a.frames == 1 {
             println!("wrote {}", path.display());
-        } else if f + 1 == a.frames {
-            println!("wrote {} … {}", numbered(&a.out, 0).display(), path.display());
         }
     }
     if let Some(dir) = &a.aov_dir {
         let d = if a.frames > 1 { dir.join(format!("frame_{f:04}")) } else { dir.clone() };
         output::write_aovs(frame, &d)?;
-        if f + 1 == a.frames {
+        if a.frames == 1 {
             println!(
                 "wrote AOVs (t, instance, normal{} .npy) under {}",
                 if frame.ao.is_empty() { "" } else { ", ao" },
