@@ -209,3 +209,53 @@ fn demo_with_gi_draws_a_different_picture_from_the_same_frames() {
     let differ = plain.pixels().zip(gi.pixels()).filter(|(a, b)| a != b).count();
     assert!(differ > 500, "GI changed only {differ} pixels");
 }
+
+/// A glTF file opened from the command line plays its animation: BoxAnimated's inner (pink)
+/// box starts inside the outer one and has risen above it 2 s later (60 scripted frames).
+#[test]
+fn demo_plays_a_gltf_files_animation() {
+    if !xvfb() {
+        return;
+    }
+    let d = tmp("gltf");
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/third-party/BoxAnimated/BoxAnimated.gltf");
+    let pink_above = |frames: &str| {
+        let shot = d.join(format!("shot_{frames}.png"));
+        let o = Command::new("xvfb-run")
+            .args(["-a", "-s", "-screen 0 800x600x24"])
+            .arg(env!("CARGO_BIN_EXE_voxray"))
+            .args(["demo", "--scene"])
+            .arg(&file)
+            .args([
+                "--animation",
+                "all",
+                "--frames",
+                frames,
+                "--exit",
+                "--width",
+                "96",
+                "--height",
+                "96",
+                "--depth",
+                "6",
+            ])
+            .args(["--backend", "cpu", "--cache-dir"])
+            .arg(d.join("cache"))
+            .arg("--screenshot")
+            .arg(&shot)
+            .output()
+            .expect("run xvfb-run");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let img = image::open(&shot).unwrap().to_rgb8();
+        // Pink: red and blue well above green, in the upper half of the image.
+        img.enumerate_pixels()
+            .filter(|(_, y, p)| *y < 48 && p.0[0] as i32 > p.0[1] as i32 + 40 && p.0[2] as i32 > p.0[1] as i32 + 40)
+            .count()
+    };
+    let (start, later) = (pink_above("1"), pink_above("60"));
+    assert!(
+        start < 20 && later > 200,
+        "pink pixels in the upper half: {start} at the start, {later} two seconds later"
+    );
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -23,6 +23,9 @@ impl App {
         }
         let other = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
         pose_all(&mut self.scene, &self.cars, self.time).map_err(other)?;
+        if let Some(a) = &self.opts.animated {
+            a.rig.pose(&mut self.scene, a.clip, self.time).map_err(|e| ViewerError::Other(e.to_string()))?;
+        }
         self.scene.update().map_err(other)?;
         let (w, h, panel) = match (&self.gfx, &self.soft) {
             (Some(g), _) => (g.config.width, g.config.height, self.panel_pixels(g)),

@@ -61,6 +61,9 @@ pub struct DemoOptions {
     pub gpu_read_back: bool,
     /// Start with the GPU counting each frame's statistics (switchable in the panel).
     pub gpu_stats: bool,
+    /// A scene file's hierarchy and clip, posed at the demo's time every frame (its
+    /// timeline: play, scrub, speed).
+    pub animated: Option<crate::scene::Animated>,
 }
 
 /// What the demo needs to re-stage the cars when their number changes.

@@ -71,6 +71,13 @@ impl App {
         let backend = self.report.backend.clone();
         let instances = self.scene.instances().len();
         let can_restage = self.opts.car_parts.is_some();
+        let has_cars = !self.cars.is_empty();
+        let clip = self
+            .opts
+            .animated
+            .as_ref()
+            .and_then(|a| a.clip.and_then(|c| a.rig.clips.get(c)))
+            .map(|c| (c.name.clone(), c.duration));
         let (w, h) = (g.config.width, g.config.height);
         let render_w = w.saturating_sub((PANEL_WIDTH * g.window.scale_factor() as f32).ceil() as u32);
         let output = g.egui.run_ui(raw, |root| {
@@ -102,9 +109,24 @@ impl App {
                     ui_.separator();
                     ui_.strong("Animation");
                     ui_.checkbox(playing, "play (Space)");
-                    ui_.add(egui::Slider::new(time, 0.0..=120.0).text("time (s)"));
+                    match &clip {
+                        // A scene file's clip: scrub within one loop of it.
+                        Some((name, duration)) if *duration > 0.0 => {
+                            let duration = *duration;
+                            ui_.label(format!("clip '{name}', {duration:.2} s, looping"));
+                            let mut phase = time.rem_euclid(duration);
+                            if ui_.add(egui::Slider::new(&mut phase, 0.0..=duration).text("time (s)")).changed() {
+                                *time = phase;
+                            }
+                        }
+                        _ => {
+                            ui_.add(egui::Slider::new(time, 0.0..=120.0).text("time (s)"));
+                        }
+                    }
                     ui_.add(egui::Slider::new(&mut ui.speed, 0.0..=4.0).text("speed"));
-                    ui_.checkbox(&mut ui.travel, "drive along the figure-eight");
+                    if has_cars {
+                        ui_.checkbox(&mut ui.travel, "drive along the figure-eight");
+                    }
                     ui_.separator();
                     ui_.strong("Techniques");
                     let f = &mut self.opts.features;

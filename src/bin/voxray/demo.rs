@@ -10,7 +10,9 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
     };
     check_display()?;
     let st = stage(&a.source, a.cars, a.in_place, false, !a.no_ground)?;
-    let (lo, hi) = if st.cars.is_empty() || a.in_place { st.cars_bounds() } else { st.bounds };
+    // A scene file's clip is framed over its whole loop (st.bounds), the parked cars as posed.
+    let (lo, hi) =
+        if st.animated.is_none() && (st.cars.is_empty() || a.in_place) { st.cars_bounds() } else { st.bounds };
     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
     // The default car can be re-staged with another car count from the panel.
     let car_parts =
@@ -27,6 +29,7 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         gi: a.gi,
         gpu_read_back: a.gpu_read_back,
         gpu_stats: a.gpu_stats,
+        animated: st.animated.clone(),
     };
     let report = run(opts, st.scene, st.cars, lights, camera)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
