@@ -152,3 +152,33 @@ fn bad_bench_options_fail_clearly() {
     }
     assert!(!d.join("data/bench.json").exists(), "a failed run wrote records");
 }
+
+/// On a scene file the harness runs the resolution and depth sweeps on the file's animation,
+/// says which car scenarios it skipped, and leaves the docs alone.
+#[test]
+fn the_harness_runs_on_a_scene_file() {
+    let d = tmp("scene");
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/third-party/BoxAnimated/BoxAnimated.gltf");
+    let o = bench(&d, &["--backends", "cpu", "--scene", file.to_str().unwrap(), "--animation", "all"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("skipping paper, instances"), "{err}");
+    let json = std::fs::read_to_string(d.join("data/bench.json")).unwrap();
+    let records: Vec<serde_json::Value> = serde_json::from_str(&json).unwrap();
+    let names: Vec<&str> = records.iter().filter_map(|r| r["name"].as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "BoxAnimated.gltf: 24×16",
+            "BoxAnimated.gltf: 48×32",
+            "BoxAnimated.gltf: LOD level 5 (full)",
+            "BoxAnimated.gltf: LOD level 3",
+            "BoxAnimated.gltf: LOD level 4"
+        ]
+    );
+    assert!(records.iter().all(|r| r["group"].as_str().is_some_and(|g| g.starts_with("scene-"))));
+    assert!(records.iter().all(|r| r["median_ms"].as_f64().is_some_and(|m| m > 0.0)));
+    assert!(!d.join("docs/benchmarks.md").exists(), "a scene file's records change no docs");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("| BoxAnimated.gltf: 48×32 | cpu |"), "{out}");
+}

@@ -103,6 +103,22 @@ impl MatrixConfig {
     }
 }
 
+/// What the scenarios measure: the default car (every scenario), or a scene file as staged
+/// with its animation (the resolution and depth sweeps; the paper comparison and the instance
+/// sweep are built around the car's parts and are skipped). A file's records go to the groups
+/// `scene-resolution` and `scene-depth`, named after it, apart from the car's.
+pub enum Subject<'a> {
+    /// The default car's parts and its merged static SVO.
+    Car(&'a CarModel),
+    /// A staged scene file and its name.
+    File {
+        /// The scene, its animation and the bounds of its whole clip.
+        staged: &'a mut crate::scene::Staged,
+        /// The file's name, for the records.
+        name: String,
+    },
+}
+
 /// One static instance of `svo` at the identity.
 pub fn static_scene(svo: Arc<Svo>) -> Result<Scene, crate::Error> {
     let mut scene = Scene::new(vec![svo]);
@@ -115,7 +131,7 @@ pub fn static_scene(svo: Arc<Svo>) -> Result<Scene, crate::Error> {
 /// name as it starts.
 pub fn run(
     cfg: &MatrixConfig,
-    car: &CarModel,
+    subject: &mut Subject<'_>,
     session: &mut Session,
     backend_name: &str,
     progress: &mut dyn FnMut(&str),
@@ -141,8 +157,19 @@ pub fn run(
     };
     for &scenario in &cfg.scenarios {
         let group = scenario.group();
+        let (car, file) = match subject {
+            Subject::Car(car) => (Some(*car), None),
+            Subject::File { staged, name } => (None, Some((&mut **staged, name.as_str()))),
+        };
+        let group = match &file {
+            Some(_) => format!("scene-{group}"),
+            None => group.to_string(),
+        };
+        let group = group.as_str();
         match scenario {
+            Scenario::Paper | Scenario::Instances if car.is_none() => {}
             Scenario::Paper => {
+                let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
                 let mut animated = stage_cars(&car.parts, 1, false, false)?;
                 let mut merged = static_scene(car.merged.clone())?;
                 let (lo, hi) = animated.cars_bounds();
@@ -160,6 +187,7 @@ pub fn run(
                     let clip = Clip {
                         scene,
                         cars,
+                        animated: None,
                         camera: &camera,
                         lights: &lights,
                         features,
@@ -173,6 +201,7 @@ pub fn run(
                 }
             }
             Scenario::Instances => {
+                let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
                 for &n in &cfg.cars {
                     let mut st = stage_cars(&car.parts, n, true, false)?;
                     let camera = Camera::framing(
@@ -187,6 +216,7 @@ pub fn run(
                         let clip = Clip {
                             scene: &mut st.scene,
                             cars: &st.cars,
+                            animated: None,
                             camera: &camera,
                             lights: &lights,
                             features,
@@ -201,13 +231,22 @@ pub fn run(
                 }
             }
             Scenario::Resolution => {
-                let mut st = stage_cars(&car.parts, 1, false, true)?;
-                let (lo, hi) = st.cars_bounds();
+                let mut staged_car;
+                let (st, label) = match file {
+                    Some((st, name)) => (st, format!("{name}: ")),
+                    None => {
+                        let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
+                        staged_car = stage_cars(&car.parts, 1, false, true)?;
+                        (&mut staged_car, String::new())
+                    }
+                };
+                let (lo, hi) = if st.animated.is_some() { st.bounds } else { st.cars_bounds() };
                 for &(w, h) in &cfg.resolutions {
                     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), w, h);
                     let clip = Clip {
                         scene: &mut st.scene,
                         cars: &st.cars,
+                        animated: st.animated.as_ref(),
                         camera: &camera,
                         lights: &lights,
                         features: Features::default(),
@@ -217,14 +256,22 @@ pub fn run(
                         fps: 30.0,
                     };
                     let name = format!("{w}×{h}");
-                    out.push(measure(group, name.clone(), name, (w * h) as f64, clip, progress)?.0);
+                    out.push(measure(group, format!("{label}{name}"), name, (w * h) as f64, clip, progress)?.0);
                 }
             }
             Scenario::Depth => {
-                let mut st = stage_cars(&car.parts, 1, false, true)?;
-                let (lo, hi) = st.cars_bounds();
+                let mut staged_car;
+                let (st, label) = match file {
+                    Some((st, name)) => (st, format!("{name}: ")),
+                    None => {
+                        let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
+                        staged_car = stage_cars(&car.parts, 1, false, true)?;
+                        (&mut staged_car, String::new())
+                    }
+                };
+                let (lo, hi) = if st.animated.is_some() { st.bounds } else { st.cars_bounds() };
                 let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
-                let full = car.parts.iter().map(|p| p.depth).max().unwrap_or(0);
+                let full = st.scene.parts.iter().map(|p| p.depth).max().unwrap_or(0);
                 let levels: Vec<u32> = if cfg.lod_levels.is_empty() {
                     (full.saturating_sub(3).max(1)..full).collect()
                 } else {
@@ -236,6 +283,7 @@ pub fn run(
                     let clip = Clip {
                         scene: &mut st.scene,
                         cars: &st.cars,
+                        animated: st.animated.as_ref(),
                         camera: &camera,
                         lights: &lights,
                         features: Features { hit_buffer: false, ..Features::default() },
@@ -246,7 +294,7 @@ pub fn run(
                     };
                     let setting =
                         if level == full { format!("level {level} (full)") } else { format!("level {level}") };
-                    let name = format!("LOD {setting}");
+                    let name = format!("{label}LOD {setting}");
                     let (mut r, frame) = measure(group, name, setting, level as f64, clip, progress)?;
                     let reference = reference.get_or_insert(frame.clone());
                     r.error = Some(metrics::compare(&frame, reference).map_err(|e| crate::Error::Io {

@@ -121,6 +121,8 @@ pub struct Clip<'a> {
     pub scene: &'a mut Scene,
     /// The cars to pose.
     pub cars: &'a [Car],
+    /// A scene file's hierarchy and clip to pose (None: only the cars move).
+    pub animated: Option<&'a crate::scene::Animated>,
     /// The (static) camera.
     pub camera: &'a Camera,
     /// The lights.
@@ -165,6 +167,9 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
         // same picture whatever the warm-up (the depth sweep compares it with a reference).
         let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
         pose_all(clip.scene, clip.cars, t)?;
+        if let Some(a) = clip.animated {
+            a.rig.pose(clip.scene, a.clip, t)?;
+        }
         clip.scene.update()?;
         let report = session.frame(
             clip.scene,

@@ -171,6 +171,7 @@ fn whole_frame(t: &Timing<'_>, scene: &crate::scene::Scene, voxels: &str) -> Res
     let clip = super::Clip {
         scene: &mut scene,
         cars: &[],
+        animated: None,
         camera: &t.view.camera,
         lights: &crate::scene::Lights::default(),
         features: Features { hit_buffer: false, shadows: false, ..Features::default() },

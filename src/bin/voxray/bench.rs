@@ -29,9 +29,6 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     if a.report_only {
         return write_records(&a, Vec::new());
     }
-    if !a.source.scene.is_empty() {
-        return Err(usage("bench uses the default car"));
-    }
     let command = std::env::args()
         .enumerate()
         .map(|(i, s)| if i == 0 { "voxray".to_string() } else { s })
@@ -50,6 +47,32 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             gi_volume = true;
         } else {
             scenarios.push(s.parse::<Scenario>().map_err(|e| usage(&e))?);
+        }
+    }
+    let on_file = !a.source.scene.is_empty();
+    if on_file {
+        // Built around the default car: its parts, figure-eights and GI test scenes.
+        let car_only: Vec<String> = scenarios
+            .iter()
+            .filter(|s| matches!(s, Scenario::Paper | Scenario::Instances))
+            .map(|s| s.group().to_string())
+            .chain(
+                [(peers, "peers"), (gi_scaling, "gi-scaling"), (gi_accuracy, "gi-accuracy"), (gi_volume, "gi-volume")]
+                    .into_iter()
+                    .filter(|x| x.0)
+                    .map(|x| x.1.to_string()),
+            )
+            .collect();
+        scenarios.retain(|s| matches!(s, Scenario::Resolution | Scenario::Depth));
+        (peers, gi_scaling, gi_accuracy, gi_volume) = (false, false, false, false);
+        if !car_only.is_empty() {
+            eprintln!(
+                "note: on a scene file the harness runs the resolution and depth sweeps; skipping {} (built around the default car)",
+                car_only.join(", ")
+            );
+        }
+        if scenarios.is_empty() {
+            return Err(usage("--scene: choose --scenarios resolution and/or depth"));
         }
     }
     if peers && !cfg!(feature = "peers") {
@@ -115,18 +138,28 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         command: command.clone(),
         machine: machine(),
     };
-    // The car: its parts, and all of it merged into one SVO for the static baseline.
-    let mesh = load_mesh(&a.source)?;
-    let parts = build_parts(&mesh, &a.source)?;
-    let mut merged_mesh = mesh.clone();
-    let all: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
-    merged_mesh.parts = vec![Part { name: "car (static)".into(), triangles: all }];
-    let merged = build_parts(&merged_mesh, &a.source)?.remove(0);
-    let car = CarModel { parts, merged };
-    let depth = car.parts.iter().map(|p| p.depth).max().unwrap_or(0);
+    // The car: its parts, and all of it merged into one SVO for the static baseline; or the
+    // scene file, staged with its animation.
+    let mut staged = if on_file { Some(stage(&a.source, 1, false, false, false)?) } else { None };
+    let mesh = if on_file { Mesh::default() } else { load_mesh(&a.source)? };
+    let car = if on_file {
+        None
+    } else {
+        let parts = build_parts(&mesh, &a.source)?;
+        let mut merged_mesh = mesh.clone();
+        let all: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
+        merged_mesh.parts = vec![Part { name: "car (static)".into(), triangles: all }];
+        let merged = build_parts(&merged_mesh, &a.source)?.remove(0);
+        Some(CarModel { parts, merged })
+    };
+    let the_car = || car.as_ref().ok_or_else(|| usage("this scenario needs the default car"));
+    let depth = match &staged {
+        Some(st) => st.scene.parts.iter().map(|p| p.depth).max().unwrap_or(0),
+        None => the_car()?.parts.iter().map(|p| p.depth).max().unwrap_or(0),
+    };
     if let Some(&l) = a.lod_levels.iter().find(|&&l| l >= depth && cfg.scenarios.contains(&Scenario::Depth)) {
         return Err(usage(&format!(
-            "--lod-levels {l}: the car's parts are {depth} levels deep, so a level of detail must be 1…{}",
+            "--lod-levels {l}: the parts are {depth} levels deep, so a level of detail must be 1…{}",
             depth.saturating_sub(1)
         )));
     }
@@ -157,13 +190,21 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             pb.set_message(what.to_string());
             pb.inc(1);
         };
-        records.extend(matrix::run(&cfg, &car, &mut session, &name, &mut progress)?);
+        let mut subject = match staged.as_mut() {
+            Some(st) => {
+                let file = a.source.scene[0].file_name().map_or_else(String::new, |f| f.to_string_lossy().into_owned());
+                matrix::Subject::File { staged: st, name: file }
+            }
+            None => matrix::Subject::Car(the_car()?),
+        };
+        records.extend(matrix::run(&cfg, &mut subject, &mut session, &name, &mut progress)?);
     }
     #[cfg(feature = "peers")]
     if peers {
         pb.set_message("peers: building the views");
         let car_triangles: Vec<[glam::Vec3; 3]> =
             mesh.parts.iter().flat_map(|p| p.triangles.iter().map(|t| t.positions)).collect();
+        let car = the_car()?;
         let scene = matrix::static_scene(car.merged.clone())?;
         let (lo, hi) = scene.bounds();
         let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
@@ -226,12 +267,14 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         // The CPU reference for cpu and auto; the GPU passes for gpu, and for auto on a
         // hardware adapter (as Backend::open decides).
         if a.backends.iter().any(|k| *k != BackendKind::Gpu) {
-            records.extend(voxray::bench::gi::scaling(&sc, &mesh, &car.parts, &mut |w| pb.set_message(w.to_string()))?);
+            records.extend(voxray::bench::gi::scaling(&sc, &mesh, &the_car()?.parts, &mut |w| {
+                pb.set_message(w.to_string())
+            })?);
         }
         #[cfg(feature = "gpu")]
         if a.backends.iter().any(|k| *k != BackendKind::Cpu) {
             if let Some(ctx) = bench_gpu(&a.backends, &pb, "gi-scaling") {
-                records.extend(voxray::bench::gi::scaling_gpu(&sc, &mesh, &car.parts, ctx, &mut |w| {
+                records.extend(voxray::bench::gi::scaling_gpu(&sc, &mesh, &the_car()?.parts, ctx, &mut |w| {
                     pb.set_message(w.to_string())
                 })?);
             }
@@ -338,11 +381,29 @@ pub(crate) fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) 
         charts.iter().map(|(g, f)| (g.clone(), rel.join(f).to_string_lossy().replace('\\', "/"))).collect();
     let md = report::markdown(&all, &links);
     println!("{}", report::markdown(&records, &[]));
+    // A scene file's sweeps have no section of the docs: a table of them here.
+    let file_rows: Vec<&Record> = records.iter().filter(|r| r.group.starts_with("scene-")).collect();
+    if !file_rows.is_empty() {
+        println!("| measurement | backend | median ms | p95 ms | Mrays/s | reused |");
+        println!("|---|---|---|---|---|---|");
+        for r in file_rows {
+            println!(
+                "| {} | {} | {:.2} | {:.2} | {:.2} | {:.1}% |",
+                r.name,
+                r.backend_kind,
+                r.median_ms,
+                r.p95_ms,
+                r.mrays_per_s,
+                100.0 * r.reused_fraction
+            );
+        }
+    }
     println!("wrote {} and {} ({} records)", json_path.display(), csv_path.display(), all.len());
     for (_, f) in &charts {
         println!("wrote {}", a.charts_dir.join(f).display());
     }
-    if !a.no_docs {
+    // A scene file's records change no section of the docs.
+    if !a.no_docs && a.source.scene.is_empty() {
         let doc = match std::fs::read_to_string(&a.docs) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => "# Benchmarks\n".to_string(),
