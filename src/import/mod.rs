@@ -138,3 +138,9 @@ pub fn load_gltf(path: &Path) -> Result<Imported, ImportError> {
 pub fn load_vox(path: &Path) -> Result<vox::VoxScene, ImportError> {
     vox::load(path)
 }
+
+/// [`load_vox`], calling `progress(models built, models)` as each model's SVO is done.
+#[cfg(feature = "vox")]
+pub fn load_vox_with_progress(path: &Path, progress: &dyn Fn(usize, usize)) -> Result<vox::VoxScene, ImportError> {
+    vox::load_with_progress(path, progress)
+}

@@ -28,6 +28,8 @@ use std::path::Path;
 
 /// Largest `.vox` file read.
 pub const MAX_VOX_BYTES: u64 = 512 << 20;
+/// Largest model edge read (MagicaVoxel itself makes at most 256).
+pub const MAX_MODEL_SIZE: u32 = 1024;
 /// Playback rate of `.vox` animation frames (the file does not store one).
 pub const FRAMES_PER_SECOND: f64 = 10.0;
 /// Memory one voxel takes while its SVO is built (sorting, levels, the tree).
@@ -103,6 +105,11 @@ fn frame_index(attrs: &dot_vox::Dict) -> u32 {
 
 /// Loads a `.vox` file.
 pub fn load(path: &Path) -> Result<VoxScene, ImportError> {
+    load_with_progress(path, &|_, _| {})
+}
+
+/// [`load`], calling `progress(models built, models)` as each model's SVO is done.
+pub fn load_with_progress(path: &Path, progress: &dyn Fn(usize, usize)) -> Result<VoxScene, ImportError> {
     let bytes = crate::input::read_limited(path, MAX_VOX_BYTES, "a MagicaVoxel file")?;
     let parsed = std::panic::catch_unwind(|| dot_vox::load_bytes(&bytes));
     let data = match parsed {
@@ -151,38 +158,60 @@ pub fn load(path: &Path) -> Result<VoxScene, ImportError> {
     for (k, m) in data.models.iter().enumerate() {
         let element = format!("model {k}");
         let size = [m.size.x, m.size.y, m.size.z];
-        if size.iter().any(|&s| s == 0 || s > 2048) {
-            return Err(invalid(path, element, format!("size {size:?} is not 1…2048 per axis")));
+        if size.iter().any(|&s| s == 0 || s > MAX_MODEL_SIZE) {
+            return Err(invalid(path, element, format!("size {size:?} is not 1…{MAX_MODEL_SIZE} per axis")));
         }
         if m.voxels.is_empty() {
             return Err(invalid(path, element, "has no voxels"));
         }
         let depth = size.iter().max().copied().unwrap_or(1).next_power_of_two().trailing_zeros().max(1);
         let half = size.map(|s| (s / 2) as f32);
-        let mut occupied: std::collections::HashSet<[u32; 3]> =
-            std::collections::HashSet::with_capacity(m.voxels.len());
+        // Occupancy as one bit per cell of the model's box (at most 128 MiB at 1024³): the
+        // normals look up six neighbours of every voxel.
+        let cells = size.iter().map(|&s| s as u64).product::<u64>();
+        crate::memory::check(
+            &format!("{}: {element}'s occupancy", path.display()),
+            cells / 4,
+            "raise the memory budget",
+        )
+        .map_err(|e| invalid(path, &element, e))?;
+        let index =
+            |c: [u32; 3]| (c[0] as u64 + size[0] as u64 * (c[1] as u64 + size[1] as u64 * c[2] as u64)) as usize;
+        let mut occupied = vec![0u64; (cells as usize).div_ceil(64)];
         for v in &m.voxels {
             let c = [v.x as u32, v.y as u32, v.z as u32];
             if c.iter().zip(size).any(|(&c, s)| c >= s) {
                 return Err(invalid(path, &element, format!("voxel {c:?} lies outside its size {size:?}")));
             }
-            occupied.insert(c);
+            let k = index(c);
+            occupied[k / 64] |= 1 << (k % 64);
         }
-        let mut voxels: Vec<Voxel> = Vec::with_capacity(occupied.len());
-        let mut seen = std::collections::HashSet::with_capacity(occupied.len());
+        let is_set = |bits: &[u64], c: [u32; 3]| {
+            let k = index(c);
+            bits[k / 64] & (1 << (k % 64)) != 0
+        };
+        let mut seen = vec![0u64; occupied.len()];
+        let mut voxels: Vec<Voxel> = Vec::with_capacity(m.voxels.len());
         for v in &m.voxels {
             let c = [v.x as u32, v.y as u32, v.z as u32];
-            if !seen.insert(c) {
+            let k = index(c);
+            if seen[k / 64] & (1 << (k % 64)) != 0 {
                 continue; // the first of duplicate voxels stands
             }
+            seen[k / 64] |= 1 << (k % 64);
             let mut normal = Vec3::ZERO;
-            for (axis, dir) in [(0, 1i64), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1)] {
-                let mut n = c.map(|x| x as i64);
-                n[axis] += dir;
-                let open = n[axis] < 0 || !occupied.contains(&n.map(|x| x as u32));
-                if open {
-                    normal[axis] += dir as f32;
-                }
+            for axis in 0..3 {
+                let below = c[axis] == 0 || {
+                    let mut n = c;
+                    n[axis] -= 1;
+                    !is_set(&occupied, n)
+                };
+                let above = c[axis] + 1 >= size[axis] || {
+                    let mut n = c;
+                    n[axis] += 1;
+                    !is_set(&occupied, n)
+                };
+                normal[axis] = above as i32 as f32 - below as i32 as f32;
             }
             let (albedo, emission, specular, gloss) = looks[v.i as usize];
             voxels.push(Voxel {
@@ -203,6 +232,7 @@ pub fn load(path: &Path) -> Result<VoxScene, ImportError> {
             emitters: Vec::new(),
         };
         svos.push(crate::svo::build(&grid).map_err(|e| invalid(path, &element, e))?);
+        progress(svos.len(), data.models.len());
     }
     let names = (0..svos.len()).map(|k| format!("model {k}")).collect();
 

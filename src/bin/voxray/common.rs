@@ -32,7 +32,17 @@ pub(crate) fn load_input(src: &SourceArgs) -> Result<(Mesh, Option<Rig>), Error>
         if src.scene.len() > 1 {
             return Err(usage("a glTF scene is given alone (its nodes place its meshes)"));
         }
+        let start = Instant::now();
         let imported = voxray::import::load_gltf(&src.scene[0])?;
+        eprintln!(
+            "loaded {}: {} meshes, {} triangles, {} nodes, {} animations in {:.2}s",
+            src.scene[0].display(),
+            imported.mesh.parts.len(),
+            imported.mesh.triangle_count(),
+            imported.rig.nodes.len(),
+            imported.rig.clips.len(),
+            start.elapsed().as_secs_f64()
+        );
         (imported.mesh, Some(imported.rig))
     } else {
         let mut m = Mesh::default();
@@ -206,7 +216,20 @@ pub(crate) fn stage(
 /// A MagicaVoxel scene: its models as parts (no voxelization), placed and animated by its
 /// scene graph.
 fn stage_vox(file: &Path, src: &SourceArgs) -> Result<Staged, Error> {
-    let v = voxray::import::load_vox(file)?;
+    let start = Instant::now();
+    let pb = bar(1, "models");
+    let v = voxray::import::load_vox_with_progress(file, &|done, all| {
+        pb.set_length(all as u64);
+        pb.set_position(done as u64);
+    })?;
+    pb.finish_and_clear();
+    let voxels: u64 = v.svos.iter().map(|s| s.voxel_count).sum();
+    eprintln!(
+        "loaded {}: {} models, {voxels} voxels, SVOs built in {:.2}s",
+        file.display(),
+        v.svos.len(),
+        start.elapsed().as_secs_f64()
+    );
     for w in &v.warnings {
         eprintln!("warning: {w}");
     }
