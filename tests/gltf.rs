@@ -308,3 +308,88 @@ fn a_node_under_a_sheared_empty_is_refused_by_name() {
     assert!(e.to_string().contains("'tilted'") && e.to_string().contains("shear"), "{e}");
     assert!(decompose(&DAffine3::IDENTITY).is_some());
 }
+
+/// A generated file with what BoxAnimated lacks: a matrix node, a mirrored non-uniform scale
+/// with a quaternion off unit length, and an empty (no mesh) driven by a CUBICSPLINE
+/// translation above a child turned by a STEP rotation. World matrices against the same
+/// products formed by hand.
+#[test]
+fn matrices_mirrors_and_every_interpolation_place_parts_as_written() {
+    use base64::Engine;
+    let mut bin: Vec<u8> = Vec::new();
+    let f32s = |bin: &mut Vec<u8>, v: &[f32]| {
+        let at = bin.len();
+        bin.extend(v.iter().flat_map(|x| x.to_le_bytes()));
+        at
+    };
+    // An L of two triangles (asymmetric, so a mirror shows).
+    let pos = f32s(&mut bin, &[0., 0., 0., 1., 0., 0., 0., 2., 0., 0., 0., 0., 0.5, 0., 0., 0., 0., 1.]);
+    let times = f32s(&mut bin, &[0.0, 2.0]);
+    let step_times = f32s(&mut bin, &[0.0, 1.0]);
+    // CUBICSPLINE: in-tangent, value, out-tangent per key (tangents per second).
+    let cubic = f32s(&mut bin, &[0., 0., 0., 5., 0., 0., 1., 1., 0., 0., 0., 0., 9., 0., 4., 0., 0., 0.]);
+    let steps = f32s(&mut bin, &[0., 0., 0., 1., 0., 0.70710678, 0., 0.70710678]);
+    let data = base64::engine::general_purpose::STANDARD.encode(&bin);
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0,1,2]}}],
+        "nodes":[
+          {{"name":"matrix","mesh":0,"matrix":[0.8660254,0.5,0,0, -0.5,0.8660254,0,0, 0,0,1,0, 1,2,3,1]}},
+          {{"name":"mirror","mesh":0,"scale":[-1,2,0.5],"rotation":[0,0,0.6,1.2],"translation":[0,1,0]}},
+          {{"name":"empty","translation":[5,0,0],"children":[3]}},
+          {{"name":"child","mesh":0,"translation":[0,0,1]}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+        "accessors":[
+          {{"bufferView":0,"componentType":5126,"count":6,"type":"VEC3","min":[0,0,0],"max":[1,2,1]}},
+          {{"bufferView":1,"componentType":5126,"count":2,"type":"SCALAR","min":[0],"max":[2]}},
+          {{"bufferView":2,"componentType":5126,"count":6,"type":"VEC3"}},
+          {{"bufferView":3,"componentType":5126,"count":2,"type":"VEC4"}},
+          {{"bufferView":4,"componentType":5126,"count":2,"type":"SCALAR","min":[0],"max":[1]}}],
+        "bufferViews":[
+          {{"buffer":0,"byteOffset":{pos},"byteLength":72}},
+          {{"buffer":0,"byteOffset":{times},"byteLength":8}},
+          {{"buffer":0,"byteOffset":{cubic},"byteLength":72}},
+          {{"buffer":0,"byteOffset":{steps},"byteLength":32}},
+          {{"buffer":0,"byteOffset":{step_times},"byteLength":8}}],
+        "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{data}"}}],
+        "animations":[{{"name":"move","samplers":[
+            {{"input":1,"output":2,"interpolation":"CUBICSPLINE"}},
+            {{"input":4,"output":3,"interpolation":"STEP"}}],
+          "channels":[
+            {{"sampler":0,"target":{{"node":2,"path":"translation"}}}},
+            {{"sampler":1,"target":{{"node":3,"path":"rotation"}}}}]}}]}}"#,
+        bin.len()
+    );
+    let dir = temp_dir("kinds");
+    let p = dir.join("kinds.gltf");
+    std::fs::write(&p, json).unwrap();
+    let mut im = load_gltf(&p).expect("loads");
+    std::fs::remove_dir_all(&dir).ok();
+    assert!(
+        im.mesh.warnings.iter().any(|w| w.contains("'mirror'") && w.contains("normalized")),
+        "{:?}",
+        im.mesh.warnings
+    );
+    let parts = build_parts(&im.mesh, Resolution::Depth(4)).unwrap();
+    let mut scene = Scene::new(parts);
+    im.rig.instantiate(&mut scene, 0, Some(0)).unwrap();
+    let q = DQuat::from_xyzw(0.0, 0.0, 0.6, 1.2).normalize();
+    let mirror = DAffine3::from_scale_rotation_translation(DVec3::new(-1.0, 2.0, 0.5), q, DVec3::Y);
+    let matrix = DAffine3::from_cols_array(&[0.8660254, 0.5, 0.0, -0.5, 0.8660254, 0.0, 0.0, 0.0, 1.0, 1.0, 2.0, 3.0]);
+    // The clip lasts 2 s (its last key) and loops: 2.5 s looks like 0.5 s.
+    for (t, local) in [(0.0, 0.0), (0.5, 0.5), (0.999, 0.999), (1.0, 1.0), (1.5, 1.5), (2.5, 0.5)] {
+        im.rig.pose(&mut scene, Some(0), t).unwrap();
+        scene.update().unwrap();
+        // Hermite from (5,0,0) with tangent (1,1,0)/s to (9,0,4) with tangent 0 over 2 s.
+        let u: f64 = local / 2.0;
+        let (h00, h10, h01) =
+            (2.0 * u.powi(3) - 3.0 * u * u + 1.0, u.powi(3) - 2.0 * u * u + u, -2.0 * u.powi(3) + 3.0 * u * u);
+        let empty =
+            DVec3::new(5.0, 0.0, 0.0) * h00 + DVec3::new(1.0, 1.0, 0.0) * 2.0 * h10 + DVec3::new(9.0, 0.0, 4.0) * h01;
+        let turn = if local < 1.0 { DQuat::IDENTITY } else { DQuat::from_rotation_y(std::f64::consts::FRAC_PI_2) };
+        let child = DAffine3::from_translation(empty) * DAffine3::from_rotation_translation(turn, DVec3::Z);
+        for (i, want) in [(0, matrix), (1, mirror), (2, child)] {
+            assert!(scene.world(i).abs_diff_eq(want, 1e-6), "t = {t}, instance {i}: {:?} vs {want:?}", scene.world(i));
+        }
+        assert!(scene.world(1).matrix3.determinant() < 0.0, "the mirror stays a mirror");
+    }
+}

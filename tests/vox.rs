@@ -124,6 +124,11 @@ fn dict(pairs: &[(&str, &str)]) -> dot_vox::Dict {
 
 /// A shape listing two models as frames 0 and 3, under a transform that moves at frame 3.
 fn flip_book(rotation: &str) -> dot_vox::DotVoxData {
+    flip_book_moving(rotation, true)
+}
+
+/// [`flip_book`]; with `moving` false the transform has one frame (only the model swaps).
+fn flip_book_moving(rotation: &str, moving: bool) -> dot_vox::DotVoxData {
     use dot_vox::{SceneNode, ShapeModel};
     let frame = |f: &str, t: &str| dot_vox::Frame::new(dict(&[("_f", f), ("_t", t), ("_r", rotation)]));
     dot_vox::DotVoxData {
@@ -142,7 +147,11 @@ fn flip_book(rotation: &str) -> dot_vox::DotVoxData {
             SceneNode::Group { attributes: dict(&[]), children: vec![2] },
             SceneNode::Transform {
                 attributes: dict(&[("_name", "mover")]),
-                frames: vec![frame("0", "0 0 0"), frame("3", "10 0 0")],
+                frames: if moving {
+                    vec![frame("0", "0 0 0"), frame("3", "10 0 0")]
+                } else {
+                    vec![frame("0", "0 0 0")]
+                },
                 child: 3,
                 layer_id: 0,
             },
@@ -228,4 +237,58 @@ fn malformed_vox_files_get_errors_not_panics() {
         assert!(r.is_ok(), "case {case}: the loader panicked");
     }
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Swapping a flip-book's model is a change the hit buffer sees: the frame after the swap is
+/// the frame rendered afresh, bit for bit.
+#[test]
+fn a_model_swap_is_not_hidden_by_the_hit_buffer() {
+    use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+    use voxray::scene::{Camera, Lights};
+    let p = write("swap", &flip_book_moving("4", false));
+    let v = load_vox(&p).unwrap();
+    std::fs::remove_file(&p).ok();
+    let mut rig = v.rig.clone();
+    let mut scene = Scene::new(v.svos.into_iter().map(Arc::new).collect());
+    rig.instantiate(&mut scene, 0, Some(0)).unwrap();
+    scene.update().unwrap();
+    let camera = Camera {
+        eye: DVec3::new(6.0, 5.0, 7.0),
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        vfov_deg: 40.0,
+        width: 48,
+        height: 40,
+    };
+    let (lights, features) = (Lights::default(), Features::default());
+    let fps = voxray::import::vox::FRAMES_PER_SECOND;
+    let frame_at = |scene: &mut Scene, t: f64, hits: Option<&mut HitBuffer>| {
+        rig.pose(scene, Some(0), t).unwrap();
+        scene.update().unwrap();
+        let plan = FramePlan::new(scene, &camera, &lights, &features, hits.as_deref());
+        render(scene, &camera, &lights, &plan, &RenderOptions::default(), hits, &|_, _| {}).unwrap()
+    };
+    let mut hits = HitBuffer::new();
+    let before = frame_at(&mut scene, 2.0 / fps, Some(&mut hits));
+    let kept = frame_at(&mut scene, 2.5 / fps, Some(&mut hits));
+    assert!(kept.reused > 0, "a still frame reuses its pixels");
+    let swapped = frame_at(&mut scene, 3.0 / fps, Some(&mut hits));
+    let fresh = frame_at(&mut scene, 3.0 / fps, None);
+    assert_ne!(before.instance, vec![-1; before.instance.len()], "the model is in view");
+    assert_ne!(before.t, swapped.t, "the other model shows");
+    assert_eq!(
+        swapped.t.iter().map(|t| t.to_bits()).collect::<Vec<_>>(),
+        fresh.t.iter().map(|t| t.to_bits()).collect::<Vec<_>>()
+    );
+    assert_eq!(swapped.radiance, fresh.radiance);
+}
+
+/// Huge voxel counts go through the memory budget before anything is built.
+#[test]
+fn voxel_counts_past_the_budget_are_refused_first() {
+    let path = third_party("axes.vox");
+    let e = voxray::memory::with_budget(64 << 10, || load_vox(&path)).err().expect("refused under 64 KiB");
+    let msg = e.to_string();
+    assert!(msg.contains("axes.vox") && msg.contains("voxels") && msg.contains("budget"), "{msg}");
+    assert!(voxray::memory::with_budget(1 << 30, || load_vox(&path)).is_ok());
 }
