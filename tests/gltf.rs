@@ -328,7 +328,8 @@ fn matrices_mirrors_and_every_interpolation_place_parts_as_written() {
     let step_times = f32s(&mut bin, &[0.0, 1.0]);
     // CUBICSPLINE: in-tangent, value, out-tangent per key (tangents per second).
     let cubic = f32s(&mut bin, &[0., 0., 0., 5., 0., 0., 1., 1., 0., 0., 0., 0., 9., 0., 4., 0., 0., 0.]);
-    let steps = f32s(&mut bin, &[0., 0., 0., 1., 0., 0.70710678, 0., 0.70710678]);
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    let steps = f32s(&mut bin, &[0., 0., 0., 1., 0., h, 0., h]);
     let data = base64::engine::general_purpose::STANDARD.encode(&bin);
     let json = format!(
         r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0,1,2]}}],
