@@ -104,9 +104,10 @@ impl MatrixConfig {
 }
 
 /// What the scenarios measure: the default car (every scenario), or a scene file as staged
-/// with its animation (the resolution and depth sweeps; the paper comparison and the instance
-/// sweep are built around the car's parts and are skipped). A file's records go to the groups
-/// `scene-resolution` and `scene-depth`, named after it, apart from the car's.
+/// with its animation (the paper comparison against its merged triangles, and the resolution
+/// and depth sweeps; the instance sweep is built around the car's figure-eights and is
+/// skipped). A file's records go to the groups `scene-paper`, `scene-resolution` and
+/// `scene-depth`, named after it, apart from the car's.
 pub enum Subject<'a> {
     /// The default car's parts and its merged static SVO.
     Car(&'a CarModel),
@@ -116,6 +117,9 @@ pub enum Subject<'a> {
         staged: &'a mut crate::scene::Staged,
         /// The file's name, for the records.
         name: String,
+        /// Its triangles at time 0 merged into one SVO, the paper comparison's static
+        /// baseline (None for a file without triangles: the comparison is skipped).
+        merged: Option<Arc<Svo>>,
     },
 }
 
@@ -159,7 +163,7 @@ pub fn run(
         let group = scenario.group();
         let (car, file) = match subject {
             Subject::Car(car) => (Some(*car), None),
-            Subject::File { staged, name } => (None, Some((&mut **staged, name.as_str()))),
+            Subject::File { staged, name, merged } => (None, Some((&mut **staged, name.as_str(), merged.clone()))),
         };
         let group = match &file {
             Some(_) => format!("scene-{group}"),
@@ -167,27 +171,38 @@ pub fn run(
         };
         let group = group.as_str();
         match scenario {
-            Scenario::Paper | Scenario::Instances if car.is_none() => {}
+            Scenario::Instances if car.is_none() => {}
+            Scenario::Paper if file.as_ref().is_some_and(|f| f.2.is_none()) => {}
             Scenario::Paper => {
-                let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
-                let mut animated = stage_cars(&car.parts, 1, false, false)?;
-                let mut merged = static_scene(car.merged.clone())?;
-                let (lo, hi) = animated.cars_bounds();
+                let mut staged_car;
+                let (animated, merged_svo, label, what_static) = match file {
+                    Some((st, name, Some(m))) => (st, m, format!("{name}: "), "static single-SVO scene"),
+                    _ => {
+                        let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
+                        staged_car = stage_cars(&car.parts, 1, false, false)?;
+                        (&mut staged_car, car.merged.clone(), String::new(), "static single-SVO car")
+                    }
+                };
+                let mut merged = static_scene(merged_svo)?;
+                let (lo, hi) = if animated.animated.is_some() { animated.bounds } else { animated.cars_bounds() };
                 let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
                 let primary = Features { shadows: false, ..Features::default() };
                 let settings = [
-                    ("a", "static single-SVO car", Features { hit_buffer: false, ..primary }, true),
+                    ("a", what_static, Features { hit_buffer: false, ..primary }, true),
                     ("b", "animated parts, no optimizations", Features::NONE, false),
                     ("c", "animated, culling + sorting + hit buffer", Features { bvh: false, ..primary }, false),
                     ("d", "animated, every optimization + shadow rays", Features::default(), false),
                 ];
                 for (i, (tag, what, features, is_static)) in settings.into_iter().enumerate() {
-                    let (scene, cars) =
-                        if is_static { (&mut merged, &[][..]) } else { (&mut animated.scene, &animated.cars[..]) };
+                    let (scene, cars, rig) = if is_static {
+                        (&mut merged, &[][..], None)
+                    } else {
+                        (&mut animated.scene, &animated.cars[..], animated.animated.as_ref())
+                    };
                     let clip = Clip {
                         scene,
                         cars,
-                        animated: None,
+                        animated: rig,
                         camera: &camera,
                         lights: &lights,
                         features,
@@ -196,7 +211,7 @@ pub fn run(
                         frames: cfg.frames,
                         fps: 30.0,
                     };
-                    let name = format!("{tag}: {what}");
+                    let name = format!("{label}{tag}: {what}");
                     out.push(measure(group, name, tag.into(), i as f64, clip, progress)?.0);
                 }
             }
@@ -233,7 +248,7 @@ pub fn run(
             Scenario::Resolution => {
                 let mut staged_car;
                 let (st, label) = match file {
-                    Some((st, name)) => (st, format!("{name}: ")),
+                    Some((st, name, _)) => (st, format!("{name}: ")),
                     None => {
                         let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
                         staged_car = stage_cars(&car.parts, 1, false, true)?;
@@ -262,7 +277,7 @@ pub fn run(
             Scenario::Depth => {
                 let mut staged_car;
                 let (st, label) = match file {
-                    Some((st, name)) => (st, format!("{name}: ")),
+                    Some((st, name, _)) => (st, format!("{name}: ")),
                     None => {
                         let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
                         staged_car = stage_cars(&car.parts, 1, false, true)?;

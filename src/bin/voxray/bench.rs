@@ -50,29 +50,38 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         }
     }
     let on_file = !a.source.scene.is_empty();
+    // A scene file with triangles (OBJ, glTF) gets the paper comparison and the peers against
+    // its triangles merged at time 0; a .vox or .svo file has none to merge.
+    let file_triangles = on_file
+        && a.source.scene.iter().all(|p| SceneKind::of(p).is_ok_and(|k| matches!(k, SceneKind::Obj | SceneKind::Gltf)));
     if on_file {
-        // Built around the default car: its parts, figure-eights and GI test scenes.
-        let car_only: Vec<String> = scenarios
-            .iter()
-            .filter(|s| matches!(s, Scenario::Paper | Scenario::Instances))
-            .map(|s| s.group().to_string())
-            .chain(
-                [(peers, "peers"), (gi_scaling, "gi-scaling"), (gi_accuracy, "gi-accuracy"), (gi_volume, "gi-volume")]
-                    .into_iter()
-                    .filter(|x| x.0)
-                    .map(|x| x.1.to_string()),
-            )
-            .collect();
-        scenarios.retain(|s| matches!(s, Scenario::Resolution | Scenario::Depth));
-        (peers, gi_scaling, gi_accuracy, gi_volume) = (false, false, false, false);
-        if !car_only.is_empty() {
+        let mut skipped: Vec<String> = Vec::new();
+        let mut skip = |what: &str, on: &mut bool| {
+            if *on {
+                skipped.push(what.to_string());
+                *on = false;
+            }
+        };
+        // Built around the default car: its figure-eights and the GI test scenes.
+        let mut instances = scenarios.contains(&Scenario::Instances);
+        skip("instances", &mut instances);
+        let mut paper = scenarios.contains(&Scenario::Paper);
+        if !file_triangles {
+            skip("paper", &mut paper);
+            skip("peers", &mut peers);
+        }
+        skip("gi-scaling", &mut gi_scaling);
+        skip("gi-accuracy", &mut gi_accuracy);
+        skip("gi-volume", &mut gi_volume);
+        scenarios.retain(|s| matches!(s, Scenario::Resolution | Scenario::Depth) || (*s == Scenario::Paper && paper));
+        if !skipped.is_empty() {
             eprintln!(
-                "note: on a scene file the harness runs the resolution and depth sweeps; skipping {} (built around the default car)",
-                car_only.join(", ")
+                "note: skipping {} on a scene file (the instance sweep and the GI scenarios are built around the default car; the paper comparison and the peers need triangles)",
+                skipped.join(", ")
             );
         }
-        if scenarios.is_empty() {
-            return Err(usage("--scene: choose --scenarios resolution and/or depth"));
+        if scenarios.is_empty() && !peers {
+            return Err(usage("--scene: choose --scenarios among paper, resolution, depth, peers"));
         }
     }
     if peers && !cfg!(feature = "peers") {
@@ -142,6 +151,28 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     // scene file, staged with its animation.
     let mut staged = if on_file { Some(stage(&a.source, 1, false, false, false)?) } else { None };
     let mesh = if on_file { Mesh::default() } else { load_mesh(&a.source)? };
+    // The file's triangles where its instances stand at time 0, as one part.
+    let file_mesh = match (&staged, file_triangles) {
+        (Some(st), true) => {
+            let parts = load_mesh(&a.source)?;
+            let mut merged: Vec<voxray::mesh::Triangle> = Vec::new();
+            for (i, inst) in st.scene.instances().iter().enumerate() {
+                let w = st.scene.world(i);
+                for t in parts.parts.get(inst.part).map_or(&[][..], |p| &p.triangles[..]) {
+                    let positions = t.positions.map(|p| w.transform_point3(p.as_dvec3()).as_vec3());
+                    merged.push(voxray::mesh::Triangle { positions, ..*t });
+                }
+            }
+            let mut m = parts.clone();
+            m.parts = vec![Part { name: "scene (static)".into(), triangles: merged }];
+            Some(m)
+        }
+        _ => None,
+    };
+    let file_merged = match (&file_mesh, cfg.scenarios.contains(&Scenario::Paper) || peers) {
+        (Some(m), true) => Some(build_parts(m, &a.source)?.remove(0)),
+        _ => None,
+    };
     let car = if on_file {
         None
     } else {
@@ -193,7 +224,7 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         let mut subject = match staged.as_mut() {
             Some(st) => {
                 let file = a.source.scene[0].file_name().map_or_else(String::new, |f| f.to_string_lossy().into_owned());
-                matrix::Subject::File { staged: st, name: file }
+                matrix::Subject::File { staged: st, name: file, merged: file_merged.clone() }
             }
             None => matrix::Subject::Car(the_car()?),
         };
@@ -202,46 +233,54 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
     #[cfg(feature = "peers")]
     if peers {
         pb.set_message("peers: building the views");
+        // The car (or the scene file's triangles, merged where they stand at time 0).
+        let source_mesh = file_mesh.as_ref().unwrap_or(&mesh);
         let car_triangles: Vec<[glam::Vec3; 3]> =
-            mesh.parts.iter().flat_map(|p| p.triangles.iter().map(|t| t.positions)).collect();
-        let car = the_car()?;
-        let scene = matrix::static_scene(car.merged.clone())?;
+            source_mesh.parts.iter().flat_map(|p| p.triangles.iter().map(|t| t.positions)).collect();
+        let merged_svo = match &file_merged {
+            Some(m) => m.clone(),
+            None => the_car()?.merged.clone(),
+        };
+        let scene = matrix::static_scene(merged_svo.clone())?;
         let (lo, hi) = scene.bounds();
         let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), a.width, a.height);
-        // Close up: the same direction, near enough that the car covers most pixels.
+        // Close up: the same direction, near enough that the model covers most pixels.
         let close = Camera { eye: camera.target + (camera.eye - camera.target) * 0.4, ..camera };
-        // The body alone, voxelized 2^11 along its longest side.
-        let body_index = mesh.parts.iter().position(|p| p.name == "body").unwrap_or(0);
-        let mut body_mesh = mesh.clone();
-        body_mesh.parts = vec![mesh.parts[body_index].clone()];
-        let body_source = SourceArgs { depth: 11, voxel_size: None, ..a.source.clone() };
-        let body = build_parts(&body_mesh, &body_source)?.remove(0);
-        let body_triangles: Vec<[glam::Vec3; 3]> = body_mesh.parts[0].triangles.iter().map(|t| t.positions).collect();
-        let (blo, bhi) = matrix::static_scene(body.clone())?.bounds();
-        let body_camera = Camera::framing(blo.as_vec3(), bhi.as_vec3(), a.width, a.height);
-        let views = vec![
+        let mut views = vec![
             voxray::bench::peers::PeerView {
                 name: "default".into(),
                 triangles: &car_triangles,
-                svo: car.merged.clone(),
+                svo: merged_svo.clone(),
                 camera,
                 whole_frame: true,
             },
             voxray::bench::peers::PeerView {
                 name: "close-up".into(),
                 triangles: &car_triangles,
-                svo: car.merged.clone(),
+                svo: merged_svo.clone(),
                 camera: close,
                 whole_frame: false,
             },
-            voxray::bench::peers::PeerView {
+        ];
+        // The car's body alone, voxelized 2^11 along its longest side.
+        let body_triangles: Vec<[glam::Vec3; 3]>;
+        if !on_file {
+            let body_index = mesh.parts.iter().position(|p| p.name == "body").unwrap_or(0);
+            let mut body_mesh = mesh.clone();
+            body_mesh.parts = vec![mesh.parts[body_index].clone()];
+            let body_source = SourceArgs { depth: 11, voxel_size: None, ..a.source.clone() };
+            let body = build_parts(&body_mesh, &body_source)?.remove(0);
+            body_triangles = body_mesh.parts[0].triangles.iter().map(|t| t.positions).collect();
+            let (blo, bhi) = matrix::static_scene(body.clone())?.bounds();
+            let body_camera = Camera::framing(blo.as_vec3(), bhi.as_vec3(), a.width, a.height);
+            views.push(voxray::bench::peers::PeerView {
                 name: format!("body at depth {}", body.depth),
                 triangles: &body_triangles,
                 svo: body,
                 camera: body_camera,
                 whole_frame: false,
-            },
-        ];
+            });
+        }
         let mut threads = vec![1, rayon::current_num_threads()];
         threads.dedup();
         let input = voxray::bench::peers::PeerScene {
@@ -252,7 +291,15 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
             command: command.clone(),
             machine: cfg.machine.clone(),
         };
-        records.extend(voxray::bench::peers::run(&input, &mut |w| pb.set_message(w.to_string()))?);
+        let mut peer_records = voxray::bench::peers::run(&input, &mut |w| pb.set_message(w.to_string()))?;
+        if on_file {
+            let file = a.source.scene[0].file_name().map_or_else(String::new, |f| f.to_string_lossy().into_owned());
+            for r in &mut peer_records {
+                r.group = "scene-peers".into();
+                r.setting = format!("{file}: {}", r.setting);
+            }
+        }
+        records.extend(peer_records);
         pb.inc(4);
     }
     if gi_scaling {
@@ -387,10 +434,11 @@ pub(crate) fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) 
         println!("| measurement | backend | median ms | p95 ms | Mrays/s | reused |");
         println!("|---|---|---|---|---|---|");
         for r in file_rows {
+            let name = if r.group == "scene-peers" { format!("{} ({})", r.name, r.setting) } else { r.name.clone() };
             println!(
                 "| {} | {} | {:.2} | {:.2} | {:.2} | {:.1}% |",
-                r.name,
-                r.backend_kind,
+                name,
+                r.backend,
                 r.median_ms,
                 r.p95_ms,
                 r.mrays_per_s,
