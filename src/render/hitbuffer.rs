@@ -86,6 +86,8 @@ pub struct HitBuffer {
     pub shadows: bool,
     /// A frame handed back by [`HitBuffer::recycle`], whose buffers the next frame fills.
     pub spare: Option<super::cpu::Frame>,
+    /// Last frame's prepared instances, refilled by the next frame (no fresh pages).
+    pub prepared: Vec<super::instances::Prepared>,
 }
 
 /// What the current frame may reuse.

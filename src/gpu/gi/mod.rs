@@ -647,6 +647,12 @@ impl GpuGi {
         // One vec4 per 2×2 block of pixels with the half-resolution gather.
         let samples = if half {
             let n = camera.width.div_ceil(2) as u64 * camera.height.div_ceil(2) as u64;
+            ctx.check_binding("the GI gather's samples", n * 16)?;
+            ctx.check_memory(
+                || format!("the half-resolution GI gather's samples for a {}×{} frame", camera.width, camera.height),
+                n * 16,
+                "lower the resolution, use --gi-gather pixels, or raise the memory budget",
+            )?;
             ensure(ctx, &mut kept.samples, "gi gather samples", n * 16, false, wgpu::BufferUsages::STORAGE);
             kept.samples.clone().ok_or_else(|| GpuError::Device("gi gather samples missing".into()))?
         } else {
