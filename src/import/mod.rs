@@ -33,12 +33,6 @@ pub enum ImportError {
         /// What is wrong.
         message: String,
     },
-    /// Not a scene format voxray reads.
-    #[error("{path}: not a scene file voxray reads (by content or extension: .obj, .gltf, .glb, .vox, .svo)")]
-    Format {
-        /// The file.
-        path: String,
-    },
     /// The build lacks the loader.
     #[error("{path}: reading {what} needs the `{feature}` feature, which this build lacks")]
     Unsupported {
@@ -66,7 +60,8 @@ pub enum SceneKind {
 
 impl SceneKind {
     /// The format of `path`: by its first bytes (GLB, `.svo` and MagicaVoxel magic numbers,
-    /// a JSON object with a glTF `asset`), else by extension.
+    /// a JSON object with a glTF `asset`), else by extension, else OBJ (which has no magic
+    /// number, and was the only format before the others: its loader says what is wrong).
     pub fn of(path: &Path) -> Result<SceneKind, ImportError> {
         let mut head = [0u8; 4096];
         let n = {
@@ -106,7 +101,7 @@ impl SceneKind {
             "vox" => Ok(SceneKind::Vox),
             "obj" => Ok(SceneKind::Obj),
             _ if json_gltf => Ok(SceneKind::Gltf),
-            _ => Err(ImportError::Format { path: path.display().to_string() }),
+            _ => Ok(SceneKind::Obj),
         }
     }
 }

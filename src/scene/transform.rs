@@ -129,17 +129,19 @@ mod tests {
             let tiny = [1.0, 1e-6, 1e-60, 1e-150, 1e-300][(k / 7) % 5];
             let e = |rng: &mut crate::rng::Rng| {
                 let v = rng.f64() * 2.0 - 1.0;
-                if rng.f64() < 0.5 { v * big } else { v * tiny }
+                if rng.f64() < 0.5 {
+                    v * big
+                } else {
+                    v * tiny
+                }
             };
             let cols: [f64; 9] = std::array::from_fn(|_| e(&mut rng));
             let m = DAffine3 { matrix3: DMat3::from_cols_array(&cols), translation: DVec3::ZERO };
             assert_eq!(is_well_conditioned(&m), full(&m), "{m:?}");
             seen[full(&m) as usize] += 1;
         }
-        let overflow = DAffine3 {
-            matrix3: DMat3::from_diagonal(DVec3::new(1e200, 1e200, 1e-300)),
-            translation: DVec3::ZERO,
-        };
+        let overflow =
+            DAffine3 { matrix3: DMat3::from_diagonal(DVec3::new(1e200, 1e200, 1e-300)), translation: DVec3::ZERO };
         assert!(!is_well_conditioned(&overflow) && !full(&overflow));
         assert!(seen[0] > 100 && seen[1] > 100, "both answers occur: {seen:?}");
     }
