@@ -86,10 +86,6 @@ pub struct HitBuffer {
     pub shadows: bool,
     /// A frame handed back by [`HitBuffer::recycle`], whose buffers the next frame fills.
     pub spare: Option<super::cpu::Frame>,
-    /// Last frame's prepared instances, refilled by the next frame (no fresh pages).
-    pub prepared: Vec<super::instances::Prepared>,
-    /// The spheres the BVH was refitted to, refilled likewise.
-    pub bvh_spheres: Vec<(DVec3, f64)>,
 }
 
 /// What the current frame may reuse.
@@ -160,12 +156,8 @@ impl HitBuffer {
     /// This frame's instance BVH: the stored frame's refitted, or a new one (counted in
     /// [`HitBuffer::bvh_builds`]). Store it back with `self.bvh = Some(..)` after the frame.
     pub fn take_bvh(&mut self, prepared: &[Prepared]) -> super::bvh::Bvh {
-        // The spheres go into last frame's vector: no fresh pages for 80 000 instances.
-        let mut spheres = std::mem::take(&mut self.bvh_spheres);
-        spheres.clear();
-        spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
+        let spheres: Vec<(DVec3, f64)> = prepared.iter().map(|p| (p.centre, p.radius)).collect();
         let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), &spheres);
-        self.bvh_spheres = spheres;
         if bvh.refits == 0 {
             self.bvh_builds += 1;
         }

@@ -66,59 +66,48 @@ pub struct Prepared {
 /// Prepares every instance for a camera at `eye`. `transform == false` (a frame plan that
 /// found only identity transforms) maps rays with the cube offset and scale alone.
 pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
-    let mut out = Vec::new();
-    prepare_into(scene, eye, transform, &mut out);
-    out
-}
-
-/// [`prepare`] into `out` (cleared first): a renderer that keeps the vector from frame to
-/// frame writes tens of thousands of instances without faulting in fresh pages each frame.
-pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, out: &mut Vec<Prepared>) {
     let one = |i: usize| {
         let inst = &scene.instances()[i];
-        let cube = scene.parts[inst.part].bounds;
-        let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
-        let w = scene.world(i);
-        // One inverse of the linear part serves both maps (as DAffine3::inverse forms it).
-        let inv3: DMat3 = w.matrix3.inverse();
-        let to_unit = if transform {
-            let cube_from_world = DAffine3::from_scale(DVec3::splat(1.0 / size)) * DAffine3::from_translation(-min);
-            let inverse = DAffine3 { matrix3: inv3, translation: -(inv3 * w.translation) };
-            ToUnit::Affine(cube_from_world * inverse * DAffine3::from_translation(eye))
-        } else {
-            ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
-        };
-        // The exact bounding sphere of the transformed cube about its transformed centre:
-        // the farthest points of a parallelepiped from its centre are corners.
-        let half = DVec3::splat(size * 0.5);
-        let centre_obj = min + half;
-        let mut radius = 0.0f64;
-        let mut max_stretch = 0.0f64;
-        for k in 0..4 {
-            let s = DVec3::new(if k & 1 == 0 { 1.0 } else { -1.0 }, if k & 2 == 0 { 1.0 } else { -1.0 }, 1.0);
-            radius = radius.max(w.transform_vector3(half * s).length());
-        }
-        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-            max_stretch = max_stretch.max(w.transform_vector3(axis).length());
-        }
-        Prepared {
-            part: inst.part,
-            to_unit,
-            normal_to_world: inv3.transpose(),
-            centre: w.transform_point3(centre_obj) - eye,
-            radius: radius * (1.0 + SPHERE_PAD) + f64::MIN_POSITIVE,
-            max_stretch,
+        {
+            let cube = scene.parts[inst.part].bounds;
+            let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
+            let w = scene.world(i);
+            let to_unit = if transform {
+                let cube_from_world = DAffine3::from_scale(DVec3::splat(1.0 / size)) * DAffine3::from_translation(-min);
+                ToUnit::Affine(cube_from_world * w.inverse() * DAffine3::from_translation(eye))
+            } else {
+                ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
+            };
+            // The exact bounding sphere of the transformed cube about its transformed centre:
+            // the farthest points of a parallelepiped from its centre are corners.
+            let half = DVec3::splat(size * 0.5);
+            let centre_obj = min + half;
+            let mut radius = 0.0f64;
+            let mut max_stretch = 0.0f64;
+            for k in 0..4 {
+                let s = DVec3::new(if k & 1 == 0 { 1.0 } else { -1.0 }, if k & 2 == 0 { 1.0 } else { -1.0 }, 1.0);
+                radius = radius.max(w.transform_vector3(half * s).length());
+            }
+            for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+                max_stretch = max_stretch.max(w.transform_vector3(axis).length());
+            }
+            Prepared {
+                part: inst.part,
+                to_unit,
+                normal_to_world: w.matrix3.inverse().transpose(),
+                centre: w.transform_point3(centre_obj) - eye,
+                radius: radius * (1.0 + SPHERE_PAD) + f64::MIN_POSITIVE,
+                max_stretch,
+            }
         }
     };
-    out.clear();
     // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
     if scene.instances().len() >= 1024 {
         use rayon::prelude::*;
-        (0..scene.instances().len()).into_par_iter().map(one).collect_into_vec(out);
-        return;
+        return (0..scene.instances().len()).into_par_iter().map(one).collect();
     }
-    out.extend((0..scene.instances().len()).map(one));
+    (0..scene.instances().len()).map(one).collect()
 }
 
 /// Whether the eye (the camera-relative origin `prepared` was made for) lies inside a voxel

@@ -96,32 +96,17 @@ fn chunk_runs(starts: &[usize], n: usize) -> Vec<usize> {
     out
 }
 
-/// `out` cleared and refilled with `f(0..count)` flattened (`N` items each), in parallel for
-/// long lists when enabled; each call's items are written in place (no per-thread lists to
-/// concatenate), and the capacity is kept from call to call.
-fn fill<R: Send + Clone, const N: usize>(
-    out: &mut Vec<R>,
-    count: usize,
-    blank: R,
-    f: impl Fn(usize) -> [R; N] + Sync + Send,
-) {
+/// `out` cleared and refilled with `f(0..count)` flattened, in parallel for long lists when
+/// enabled; its capacity is kept from call to call.
+fn fill<R: Send, I: IntoIterator<Item = R>>(out: &mut Vec<R>, count: usize, f: impl Fn(usize) -> I + Sync + Send) {
     out.clear();
-    out.resize(count * N, blank);
     #[cfg(feature = "parallel")]
-    if count >= PARALLEL_MIN / 8 && N > 0 {
+    if count >= PARALLEL_MIN / 8 {
         use rayon::prelude::*;
-        out.par_chunks_mut(N).enumerate().for_each(|(k, chunk)| {
-            for (slot, item) in chunk.iter_mut().zip(f(k)) {
-                *slot = item;
-            }
-        });
+        out.par_extend((0..count).into_par_iter().flat_map_iter(f));
         return;
     }
-    for (k, chunk) in out.chunks_mut(N.max(1)).enumerate().take(count) {
-        for (slot, item) in chunk.iter_mut().zip(f(k)) {
-            *slot = item;
-        }
-    }
+    out.extend((0..count).flat_map(f));
 }
 
 impl Scene {
@@ -164,7 +149,7 @@ impl Scene {
     ) -> Result<(), SceneError> {
         let n = self.instances.len();
         let mut locals = std::mem::take(&mut self.scratch.locals);
-        fill(&mut locals, count, Err(SceneError::Instance(usize::MAX)), |k| {
+        fill(&mut locals, count, |k| {
             make(k).map(|(i, t)| {
                 if i >= n {
                     return Err(SceneError::Instance(i));
