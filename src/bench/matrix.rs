@@ -123,6 +123,31 @@ pub enum Subject<'a> {
     },
 }
 
+/// The scene a sweep runs on: the file's, or one car on its ground staged into `slot`; and
+/// the prefix of its records' names.
+fn sweep_scene<'s>(
+    file: Option<(&'s mut crate::scene::Staged, &str, Option<Arc<Svo>>)>,
+    car: Option<&CarModel>,
+    slot: &'s mut Option<crate::scene::Staged>,
+) -> Result<(&'s mut crate::scene::Staged, String), crate::Error> {
+    match file {
+        Some((st, name, _)) => Ok((st, format!("{name}: "))),
+        None => {
+            let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
+            Ok((slot.insert(stage_cars(&car.parts, 1, false, true)?), String::new()))
+        }
+    }
+}
+
+/// The box a sweep's camera frames: a file's whole clip, the parked car as it stands.
+fn framed(st: &crate::scene::Staged) -> (glam::DVec3, glam::DVec3) {
+    if st.animated.is_some() {
+        st.bounds
+    } else {
+        st.cars_bounds()
+    }
+}
+
 /// One static instance of `svo` at the identity.
 pub fn static_scene(svo: Arc<Svo>) -> Result<Scene, crate::Error> {
     let mut scene = Scene::new(vec![svo]);
@@ -184,7 +209,7 @@ pub fn run(
                     }
                 };
                 let mut merged = static_scene(merged_svo)?;
-                let (lo, hi) = if animated.animated.is_some() { animated.bounds } else { animated.cars_bounds() };
+                let (lo, hi) = framed(animated);
                 let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
                 let primary = Features { shadows: false, ..Features::default() };
                 let settings = [
@@ -246,16 +271,9 @@ pub fn run(
                 }
             }
             Scenario::Resolution => {
-                let mut staged_car;
-                let (st, label) = match file {
-                    Some((st, name, _)) => (st, format!("{name}: ")),
-                    None => {
-                        let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
-                        staged_car = stage_cars(&car.parts, 1, false, true)?;
-                        (&mut staged_car, String::new())
-                    }
-                };
-                let (lo, hi) = if st.animated.is_some() { st.bounds } else { st.cars_bounds() };
+                let mut slot = None;
+                let (st, label) = sweep_scene(file, car, &mut slot)?;
+                let (lo, hi) = framed(st);
                 for &(w, h) in &cfg.resolutions {
                     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), w, h);
                     let clip = Clip {
@@ -275,16 +293,9 @@ pub fn run(
                 }
             }
             Scenario::Depth => {
-                let mut staged_car;
-                let (st, label) = match file {
-                    Some((st, name, _)) => (st, format!("{name}: ")),
-                    None => {
-                        let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
-                        staged_car = stage_cars(&car.parts, 1, false, true)?;
-                        (&mut staged_car, String::new())
-                    }
-                };
-                let (lo, hi) = if st.animated.is_some() { st.bounds } else { st.cars_bounds() };
+                let mut slot = None;
+                let (st, label) = sweep_scene(file, car, &mut slot)?;
+                let (lo, hi) = framed(st);
                 let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
                 let full = st.scene.parts.iter().map(|p| p.depth).max().unwrap_or(0);
                 let levels: Vec<u32> = if cfg.lod_levels.is_empty() {
