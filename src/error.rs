@@ -60,6 +60,9 @@ pub enum Error {
         /// The parts given.
         got: usize,
     },
+    /// A combination this build or backend does not run.
+    #[error("{0}")]
+    Unsupported(&'static str),
     /// The GPU backend was asked of a build without it.
     #[error("this build has no GPU support (the `gpu` feature)")]
     NoGpuSupport,

@@ -401,7 +401,7 @@ fn changing_the_level_of_detail_invalidates_the_hit_buffer() {
     scene.update().unwrap();
     let (cam, lights) = (camera(), Lights::default());
     let features = Features::default();
-    let coarse = RenderOptions { max_level: 2 };
+    let coarse = RenderOptions { max_level: 2, ..Default::default() };
     let mut hits = HitBuffer::new();
     let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
     render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();

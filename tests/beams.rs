@@ -40,7 +40,7 @@ fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
     let features = Features { beams, hit_buffer: false, ..Features::default() };
     let plan = FramePlan::new(s, cam, &lights, &features, None);
     assert_eq!(plan.beams, beams, "{}", plan.explain());
-    render(s, cam, &lights, &plan, &RenderOptions { max_level }, None, &|_, _| {}).unwrap()
+    render(s, cam, &lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
 }
 
 #[test]

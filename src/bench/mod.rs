@@ -176,7 +176,7 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
             clip.camera,
             clip.lights,
             &clip.features,
-            &RenderOptions { max_level: clip.lod },
+            &RenderOptions { max_level: clip.lod, ..Default::default() },
             &|_, _| {},
         )?;
         let secs = start.elapsed().as_secs_f64();

@@ -16,16 +16,30 @@ use crate::traverse::TraceOptions;
 use glam::{DVec3, Vec3};
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
+/// How a frame finds what each pixel sees.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Renderer {
+    /// Primary rays traced through the octrees (exact).
+    #[default]
+    Trace,
+    /// Square splats of the surface voxels with a depth buffer ([`super::splat`]; CPU only).
+    Splat,
+}
+
 /// Renderer settings that are not part of the frame plan.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderOptions {
     /// Level-of-detail limit (levels below the root); `u32::MAX` for full detail.
     pub max_level: u32,
+    /// Ray tracing or splatting for primary visibility (shading is the same).
+    pub renderer: Renderer,
+    /// Splats: the square-size factor ([`super::splat::DEFAULT_FACTOR`]).
+    pub splat_factor: f32,
 }
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        RenderOptions { max_level: u32::MAX }
+        RenderOptions { max_level: u32::MAX, renderer: Renderer::Trace, splat_factor: super::splat::DEFAULT_FACTOR }
     }
 }
 
@@ -328,8 +342,14 @@ pub fn render_lit(
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
-    let reuse =
-        hits.as_deref().filter(|_| plan.hit_buffer).and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
+    let splatting = opts.renderer == Renderer::Splat;
+    // The parts' splat lists live in the hit buffer between frames.
+    let mut splat_cache = hits.as_deref_mut().map(|h| std::mem::take(&mut h.splats)).unwrap_or_default();
+    // Splatted records are not the ray tracer's: nothing is reused from them, or into them.
+    let reuse = hits
+        .as_deref()
+        .filter(|_| plan.hit_buffer && !splatting)
+        .and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
     // Last frame's records are updated in place: a kept pixel is not touched at all, and no
     // fresh pages are faulted in every frame. With reuse on, they are this camera's size.
     let mut records = hits.as_deref_mut().map(|h| std::mem::take(&mut h.records)).unwrap_or_default();
@@ -356,11 +376,28 @@ pub fn render_lit(
     let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, &hit, d));
     };
-    let traced = trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
-        for _ in 0..rows {
+    let traced = if splatting {
+        let per_instance: Vec<_> =
+            scene.instances().iter().map(|i| splat_cache.get(&scene.parts[i.part], opts.max_level)).collect();
+        super::splat::rasterize(scene, &prepared, &per_instance, camera, opts.splat_factor, &mut records);
+        for _ in 0..h {
             tick();
         }
-    });
+        let tiles = w.div_ceil(TILE as usize) * h.div_ceil(TILE as usize);
+        // Every pixel is drawn afresh: none counts as reused.
+        super::primary::Traced {
+            work: Default::default(),
+            rays: (w * h) as u64,
+            moved_only: 0,
+            stored: vec![u64::MAX; tiles],
+        }
+    } else {
+        trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
+            for _ in 0..rows {
+                tick();
+            }
+        })
+    };
 
     // Pass 2: shading. A pixel keeps last frame's colour when it kept its hit record (it was
     // not traced), the lights and shadow switch are the same, and (with shadows) its shadow
@@ -473,7 +510,8 @@ pub fn render_lit(
     f.shade_reused = shade_reused.into_inner();
     if let Some(b) = hits {
         b.reused = f.reused;
-        if plan.keep_hits {
+        b.splats = splat_cache;
+        if plan.keep_hits && !splatting {
             b.store(camera, scene, &prepared, records, opts.max_level);
             b.keep_shading(lights, plan.shadows, &f.radiance, &f.ao);
             b.lit_by_gi = ambient.is_some();

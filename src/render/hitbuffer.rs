@@ -86,6 +86,8 @@ pub struct HitBuffer {
     pub shadows: bool,
     /// A frame handed back by [`HitBuffer::recycle`], whose buffers the next frame fills.
     pub spare: Option<super::cpu::Frame>,
+    /// The parts' splat lists, for frames drawn with [`super::Renderer::Splat`].
+    pub splats: super::splat::SplatCache,
 }
 
 /// What the current frame may reuse.

@@ -13,9 +13,10 @@ pub mod instances;
 pub mod output;
 pub mod plan;
 pub mod primary;
+pub mod splat;
 pub mod visibility;
 
-pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions};
+pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions, Renderer};
 pub use gather::Gather;
 pub use hitbuffer::HitBuffer;
 pub use plan::{Features, FramePlan};

@@ -53,7 +53,7 @@ impl App {
             self.ui.gi_on = false;
             session.set_gi(None).map_err(other)?;
         }
-        let opts = RenderOptions { max_level: self.ui.lod };
+        let opts = RenderOptions { max_level: self.ui.lod, ..Default::default() };
         let features = self.opts.features;
         let report = match session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}) {
             Ok(r) => r,

@@ -127,6 +127,13 @@ pub(crate) struct RenderArgs {
     /// Level-of-detail: stop this many levels below the root.
     #[arg(long)]
     pub(crate) lod: Option<u32>,
+    /// Primary visibility: trace (rays through the octrees, exact) or splat (square splats of
+    /// the surface voxels with a depth buffer; CPU only). Shading is the same.
+    #[arg(long, default_value = "trace", value_parser = ["trace", "splat"])]
+    pub(crate) renderer: String,
+    /// Splats: the square's side in units of a voxel's projected edge (at least one pixel).
+    #[arg(long, default_value_t = voxray::render::splat::DEFAULT_FACTOR)]
+    pub(crate) splat_factor: f32,
     /// Frames of the clip (the car, a glTF animation or a .vox flip-book animates; other scenes stay still).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub(crate) frames: u32,

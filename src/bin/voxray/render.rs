@@ -178,7 +178,12 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         return reference_cmd(&a, &st, &camera, &lights, t_setup);
     }
     let features = a.switches.features();
-    let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX) };
+    if !(a.splat_factor.is_finite() && (0.1..=8.0).contains(&a.splat_factor)) {
+        return Err(usage(&format!("--splat-factor {}: must be 0.1…8", a.splat_factor)));
+    }
+    let renderer =
+        if a.renderer == "splat" { voxray::render::Renderer::Splat } else { voxray::render::Renderer::Trace };
+    let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX), renderer, splat_factor: a.splat_factor };
     let gi = a.gi.then(|| voxray::gi::GiSettings {
         res: a.gi_res,
         filter: a.gi_filter,
