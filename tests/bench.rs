@@ -187,3 +187,25 @@ fn the_harness_runs_on_a_scene_file() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("| BoxAnimated.gltf: 48×32 | CPU"), "{out}");
 }
+
+/// The splat scenario times both renderers on the same clips and records the splat frames'
+/// error against the traced ones, in a table and a chart of their own.
+#[test]
+fn the_splat_scenario_compares_squares_with_rays() {
+    let d = tmp("splat");
+    let o = bench(&d, &["--backends", "cpu", "--scenarios", "splat"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json = std::fs::read_to_string(d.join("data/bench.json")).unwrap();
+    let records: Vec<serde_json::Value> = serde_json::from_str(&json).unwrap();
+    let splats: Vec<&serde_json::Value> = records.iter().filter(|r| r["setting"] == "splat").collect();
+    let traces = records.iter().filter(|r| r["setting"] == "trace").count();
+    // Cars 1 and 3, and levels 3, 4 and the full 5.
+    assert_eq!((splats.len(), traces), (5, 5));
+    for r in &splats {
+        let mismatch = r["error"]["mismatch"].as_f64().expect("each splat row has its error against the traced frame");
+        assert!((0.0..0.5).contains(&mismatch), "{}: mismatch {mismatch}", r["name"]);
+    }
+    let md = std::fs::read_to_string(d.join("docs/benchmarks.md")).unwrap();
+    assert!(md.contains("### Square splats against ray tracing") && md.contains("| 3 cars | cpu |"), "{md}");
+    assert!(d.join("docs/images/bench-splat.png").exists());
+}

@@ -178,3 +178,17 @@ fn splats_and_rays_see_the_same_instances_but_at_silhouettes() {
     );
     assert!(differ < covered / 4, "{differ} differing pixels of {covered}");
 }
+
+/// An instance whose bounding sphere holds the eye (the ground under a clip's camera) is
+/// splatted at full detail, not as its whole cube at level 0 (which once covered the screen).
+#[test]
+fn an_instance_around_the_eye_is_splatted_in_full() {
+    let parts = build_parts(&voxray::model::car::mesh(), Resolution::Depth(5)).unwrap();
+    let st = voxray::scene::stage_cars(&parts, 1, true, true).unwrap();
+    let camera = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 64, 40);
+    let (t, s) = (frame(&st.scene, &camera, Renderer::Trace), frame(&st.scene, &camera, Renderer::Splat));
+    let sky = t.instance.iter().filter(|&&i| i < 0).count();
+    assert!(sky > 100, "the traced view shows sky ({sky} pixels)");
+    let differ = t.instance.iter().zip(&s.instance).filter(|(a, b)| a != b).count();
+    assert!(differ < t.instance.len() / 20, "{differ} of {} pixels differ", t.instance.len());
+}

@@ -86,9 +86,10 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
     register_font();
     std::fs::create_dir_all(dir).map_err(|e| ChartError { path: dir.display().to_string(), msg: e.to_string() })?;
     let mut out = Vec::new();
-    let jobs: [(&str, &str, Drawer); 9] = [
+    let jobs: [(&str, &str, Drawer); 10] = [
         ("paper", "bench-paper.png", paper),
         ("instances", "bench-instances.png", instances),
+        ("splat", "bench-splat.png", splat),
         ("resolution", "bench-resolution.png", resolution),
         ("depth", "bench-depth.png", depth),
         ("peers", "bench-peers.png", peers),
@@ -313,6 +314,33 @@ fn instances(rs: &[&Record], path: &Path) -> Res<()> {
         }
     }
     lines(path, "Instance scaling (log-log)", ("instances", "median frame time (ms)"), &series, true)
+}
+
+/// Splats against rays: frame time over the voxels drawn (the level sweep) and over the cars,
+/// both log-log, one line per renderer.
+fn splat(rs: &[&Record], path: &Path) -> Res<()> {
+    let mut series = Vec::new();
+    for k in kinds(rs) {
+        for (key, unit) in [("level ", "one car by voxel count"), (" cars: ", "cars")] {
+            for setting in ["trace", "splat"] {
+                let p: Vec<(f64, f64, String)> = rs
+                    .iter()
+                    .filter(|r| r.backend_kind == k && r.setting == setting && r.name.contains(key))
+                    .map(|r| (r.x, r.median_ms, String::new()))
+                    .collect();
+                if !p.is_empty() {
+                    series.push((format!("{setting}, {unit}"), p));
+                }
+            }
+        }
+    }
+    lines(
+        path,
+        "Splats against rays (log-log; x: voxels or cars)",
+        ("voxels (level sweep) or cars", "median frame time (ms)"),
+        &series,
+        true,
+    )
 }
 
 fn gi_scaling(rs: &[&Record], path: &Path) -> Res<()> {

@@ -4,7 +4,7 @@
 //! against the full-depth reference, so error can be read against run time).
 
 use super::{metrics, run_clip, Clip, Record};
-use crate::render::{Features, Frame};
+use crate::render::{Features, Frame, Renderer};
 use crate::scene::{stage_cars, Camera, Instance, Lights, Scene, Transform};
 use crate::session::Session;
 use crate::svo::Svo;
@@ -23,6 +23,9 @@ pub enum Scenario {
     Resolution,
     /// Level-of-detail sweep with image error against full depth.
     Depth,
+    /// Square splats against ray tracing: a car count sweep and a level (voxel count) sweep,
+    /// frame time and the splat image's error against the traced one.
+    Splat,
 }
 
 impl std::str::FromStr for Scenario {
@@ -33,8 +36,9 @@ impl std::str::FromStr for Scenario {
             "instances" => Ok(Scenario::Instances),
             "resolution" => Ok(Scenario::Resolution),
             "depth" | "lod" => Ok(Scenario::Depth),
+            "splat" => Ok(Scenario::Splat),
             other => Err(format!(
-                "unknown scenario '{other}' (the scenarios: paper, instances, resolution, depth, peers, gi-scaling, gi-volume, gi-accuracy)"
+                "unknown scenario '{other}' (the scenarios: paper, instances, resolution, depth, splat, peers, gi-scaling, gi-volume, gi-accuracy)"
             )),
         }
     }
@@ -48,6 +52,7 @@ impl Scenario {
             Scenario::Instances => "instances",
             Scenario::Resolution => "resolution",
             Scenario::Depth => "depth",
+            Scenario::Splat => "splat",
         }
     }
 }
@@ -98,6 +103,7 @@ impl MatrixConfig {
                 Scenario::Instances => 2 * self.cars.len(),
                 Scenario::Resolution => self.resolutions.len(),
                 Scenario::Depth => 1 + self.lod_levels.len().max(3),
+                Scenario::Splat => 2 * (self.cars.len() + 1 + self.lod_levels.len().max(3)),
             })
             .sum()
     }
@@ -196,7 +202,77 @@ pub fn run(
         };
         let group = group.as_str();
         match scenario {
-            Scenario::Instances if car.is_none() => {}
+            Scenario::Instances | Scenario::Splat if car.is_none() => {}
+            Scenario::Splat => {
+                let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
+                let features = Features { hit_buffer: false, ..Features::default() };
+                // Both renderers on one clip; the splat frame's error against the traced one.
+                let mut pair = |st: &mut crate::scene::Staged,
+                                camera: &Camera,
+                                lod: u32,
+                                what: String,
+                                x: f64,
+                                progress: &mut dyn FnMut(&str)|
+                 -> Result<(), crate::Error> {
+                    let mut traced: Option<Frame> = None;
+                    for renderer in [Renderer::Trace, Renderer::Splat] {
+                        let clip = Clip {
+                            scene: &mut st.scene,
+                            cars: &st.cars,
+                            animated: None,
+                            renderer,
+                            camera,
+                            lights: &lights,
+                            features,
+                            lod,
+                            warmup: cfg.warmup.min(2),
+                            frames: cfg.sweep_frames,
+                            fps: 30.0,
+                        };
+                        let name = format!("{what}: {}", if renderer == Renderer::Trace { "trace" } else { "splat" });
+                        let setting = if renderer == Renderer::Trace { "trace" } else { "splat" };
+                        let (mut r, frame) = measure(group, name, setting.into(), x, clip, progress)?;
+                        match &traced {
+                            None => traced = Some(frame),
+                            Some(t) => {
+                                r.error = Some(metrics::compare(&frame, t).map_err(|e| crate::Error::Io {
+                                    path: "bench".into(),
+                                    source: std::io::Error::other(e.to_string()),
+                                })?)
+                            }
+                        }
+                        out.push(r);
+                    }
+                    Ok(())
+                };
+                // Cars driving, no ground: what the squares cost as the crowd grows (each car
+                // splatted at the level whose voxels are about a pixel).
+                for &n in &cfg.cars {
+                    let mut st = stage_cars(&car.parts, n, true, false)?;
+                    let camera = Camera::framing(
+                        st.bounds.0.as_vec3(),
+                        st.bounds.1.as_vec3(),
+                        cfg.sweep_size.0,
+                        cfg.sweep_size.1,
+                    );
+                    pair(&mut st, &camera, u32::MAX, format!("{n} cars"), n as f64, progress)?;
+                }
+                // One car, its voxels limited to each level: the voxel count sweep.
+                let mut st = stage_cars(&car.parts, 1, false, false)?;
+                let (lo, hi) = st.cars_bounds();
+                let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
+                let full = car.parts.iter().map(|p| p.depth).max().unwrap_or(0);
+                let levels: Vec<u32> = if cfg.lod_levels.is_empty() {
+                    (full.saturating_sub(3).max(1)..=full).collect()
+                } else {
+                    cfg.lod_levels.iter().copied().filter(|&l| l <= full).chain([full]).collect()
+                };
+                for level in levels {
+                    let voxels: usize = car.parts.iter().map(|p| p.at_level(level).len()).sum();
+                    let lod = if level == full { u32::MAX } else { level };
+                    pair(&mut st, &camera, lod, format!("level {level}, {voxels} voxels"), voxels as f64, progress)?;
+                }
+            }
             Scenario::Paper if file.as_ref().is_some_and(|f| f.2.is_none()) => {}
             Scenario::Paper => {
                 let mut staged_car;
@@ -228,6 +304,7 @@ pub fn run(
                         scene,
                         cars,
                         animated: rig,
+                        renderer: crate::render::Renderer::Trace,
                         camera: &camera,
                         lights: &lights,
                         features,
@@ -257,6 +334,7 @@ pub fn run(
                             scene: &mut st.scene,
                             cars: &st.cars,
                             animated: None,
+                            renderer: crate::render::Renderer::Trace,
                             camera: &camera,
                             lights: &lights,
                             features,
@@ -280,6 +358,7 @@ pub fn run(
                         scene: &mut st.scene,
                         cars: &st.cars,
                         animated: st.animated.as_ref(),
+                        renderer: crate::render::Renderer::Trace,
                         camera: &camera,
                         lights: &lights,
                         features: Features::default(),
@@ -310,6 +389,7 @@ pub fn run(
                         scene: &mut st.scene,
                         cars: &st.cars,
                         animated: st.animated.as_ref(),
+                        renderer: crate::render::Renderer::Trace,
                         camera: &camera,
                         lights: &lights,
                         features: Features { hit_buffer: false, ..Features::default() },

@@ -123,6 +123,8 @@ pub struct Clip<'a> {
     pub cars: &'a [Car],
     /// A scene file's hierarchy and clip to pose (None: only the cars move).
     pub animated: Option<&'a crate::scene::Animated>,
+    /// Ray tracing or square splats for primary visibility.
+    pub renderer: crate::render::Renderer,
     /// The (static) camera.
     pub camera: &'a Camera,
     /// The lights.
@@ -176,7 +178,7 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
             clip.camera,
             clip.lights,
             &clip.features,
-            &RenderOptions { max_level: clip.lod, ..Default::default() },
+            &RenderOptions { max_level: clip.lod, renderer: clip.renderer, ..Default::default() },
             &|_, _| {},
         )?;
         let secs = start.elapsed().as_secs_f64();

@@ -172,6 +172,7 @@ fn whole_frame(t: &Timing<'_>, scene: &crate::scene::Scene, voxels: &str) -> Res
         scene: &mut scene,
         cars: &[],
         animated: None,
+        renderer: crate::render::Renderer::Trace,
         camera: &t.view.camera,
         lights: &crate::scene::Lights::default(),
         features: Features { hit_buffer: false, shadows: false, ..Features::default() },

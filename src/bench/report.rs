@@ -90,7 +90,7 @@ pub fn merge(old: Vec<Record>, new: &[Record]) -> Vec<Record> {
         |r: &Record| new.iter().any(|n| n.group == r.group && (n.backend_kind == r.backend_kind || r.group == "peers"));
     let mut out: Vec<Record> = old.into_iter().filter(|r| !measured(r)).collect();
     out.extend_from_slice(new);
-    let order = |g: &str| ["paper", "instances", "resolution", "depth", "peers"].iter().position(|&x| x == g);
+    let order = |g: &str| ["paper", "instances", "resolution", "depth", "splat", "peers"].iter().position(|&x| x == g);
     // Stable: keeps each run's own order within a group.
     out.sort_by_key(|r| order(&r.group).unwrap_or(usize::MAX));
     out
@@ -262,6 +262,48 @@ hit-distance error where both hit the same instance. No hit buffer, shadows on.\
             );
         }
         chart(&mut md, "depth");
+        md += "\n";
+    }
+    let rs = of("splat");
+    if !rs.is_empty() {
+        md += "### Square splats against ray tracing\n\n";
+        md += "The same frames drawn two ways: primary rays traced through the octrees, or every surface \
+voxel splatted as a screen-aligned square (side = its projected edge, at least a pixel) into a depth \
+buffer, each instance at the level whose voxels are about a pixel (`--renderer splat`, CPU). Shading \
+(sun, shadow rays into the SVOs, sky) is the same; no hit buffer. Error of the splat frame against the \
+traced one of the same pose: FLIP of the displayed images and the fraction of pixels whose coverage \
+(hit/miss or instance) differs.\n\n";
+        md += &provenance(&rs);
+        let flip = |r: &Record| r.error.and_then(|e| e.flip).map_or("–".into(), |f| format!("{f:.4}"));
+        let mismatch = |r: &Record| r.error.map_or("–".into(), |e| format!("{:.2}%", 100.0 * e.mismatch));
+        for (title, unit, key) in
+            [("Cars", "cars", " cars: "), ("Voxel count (one car, voxels limited to a level)", "voxels", "level ")]
+        {
+            let rows: Vec<&&Record> = rs.iter().filter(|r| r.name.contains(key)).collect();
+            if rows.is_empty() {
+                continue;
+            }
+            md += &format!("\n#### {title}\n\n| {unit} | backend | trace ms | splat ms | splat ÷ trace | FLIP | coverage mismatch |\n|---|---|---|---|---|---|---|\n");
+            for s in rows.iter().filter(|r| r.setting == "splat") {
+                let what = s.name.trim_end_matches(": splat");
+                let t = rows.iter().find(|r| {
+                    r.setting == "trace"
+                        && r.name.trim_end_matches(": trace") == what
+                        && r.backend_kind == s.backend_kind
+                });
+                md += &format!(
+                    "| {} | {} | {} | {:.1} | {} | {} | {} |\n",
+                    what,
+                    s.backend_kind,
+                    t.map_or("–".into(), |t| format!("{:.1}", t.median_ms)),
+                    s.median_ms,
+                    t.map_or("–".into(), |t| format!("{:.2}", s.median_ms / t.median_ms.max(1e-9))),
+                    flip(s),
+                    mismatch(s)
+                );
+            }
+        }
+        chart(&mut md, "splat");
         md += "\n";
     }
     let rs = of("peers");

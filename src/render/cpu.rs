@@ -377,8 +377,15 @@ pub fn render_lit(
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, &hit, d));
     };
     let traced = if splatting {
-        let per_instance: Vec<_> =
-            scene.instances().iter().map(|i| splat_cache.get(&scene.parts[i.part], opts.max_level)).collect();
+        let per_instance: Vec<_> = scene
+            .instances()
+            .iter()
+            .zip(&prepared)
+            .map(|(i, p)| {
+                let svo = &scene.parts[i.part];
+                splat_cache.get(svo, super::splat::level_for(svo, p, camera, opts.max_level))
+            })
+            .collect();
         super::splat::rasterize(scene, &prepared, &per_instance, camera, opts.splat_factor, &mut records);
         for _ in 0..h {
             tick();

@@ -113,6 +113,26 @@ pub struct SplatStats {
     pub fragments: u64,
 }
 
+/// The level at which instance `p` of `svo` is splatted for `camera`: the coarsest whose
+/// voxels still project to at least a pixel at the instance's nearest point (its bounding
+/// sphere's), so a far instance draws about one square per pixel it covers; never finer than
+/// `max_level` or the tree.
+pub fn level_for(svo: &Svo, p: &Prepared, camera: &Camera, max_level: u32) -> u32 {
+    let full = max_level.min(svo.depth);
+    let z = (p.centre.length() - p.radius).max(f64::MIN_POSITIVE);
+    let focal = camera.height as f64 / (2.0 * (camera.vfov_deg.to_radians() * 0.5).tan());
+    // The cube's edge in pixels there; each level halves a voxel's.
+    let cube_px = svo.bounds.size as f64 * p.max_stretch * focal / z;
+    // The eye inside the sphere (z → 0: the cube spans the whole view) needs full detail.
+    if !cube_px.is_finite() {
+        return full;
+    }
+    if !(cube_px > 1.0) {
+        return 0;
+    }
+    (cube_px.log2().ceil() as u32).min(full)
+}
+
 /// Camera-relative world → camera coordinates (right, up, forward), in f64.
 fn view(camera: &Camera) -> DAffine3 {
     let b = camera.basis();

@@ -64,6 +64,8 @@ pub struct DemoOptions {
     /// A scene file's hierarchy and clip, posed at the demo's time every frame (its
     /// timeline: play, scrub, speed).
     pub animated: Option<crate::scene::Animated>,
+    /// Start with square splats for primary visibility (CPU renderer; switchable in the panel).
+    pub splat: bool,
 }
 
 /// What the demo needs to re-stage the cars when their number changes.
@@ -216,6 +218,7 @@ pub fn run(
     let event_loop = EventLoop::new().map_err(|e| ViewerError::NoDisplay(e.to_string()))?;
     let home = Orbit::of(&camera);
     let cars_n = cars.len().max(1);
+    let splat = opts.splat;
     let mut app = App {
         opts,
         scene,
@@ -249,6 +252,7 @@ pub fn run(
             speed: 1.0,
             travel: false,
             lod: u32::MAX,
+            splat,
             frame_ms: VecDeque::new(),
             plan: None,
             reused: 0.0,

@@ -270,7 +270,8 @@ pub(crate) struct BenchArgs {
     #[command(flatten)]
     pub(crate) source: SourceArgs,
     /// Scenario families: paper (static vs animated vs optimized), instances, resolution,
-    /// depth (LOD error vs time), peers (Embree / parry3d; needs `--features peers`), gi-scaling
+    /// depth (LOD error vs time), splat (square splats vs ray tracing over cars and voxel
+    /// counts, CPU), peers (Embree / parry3d; needs `--features peers`), gi-scaling
     /// (voxel transformation vs re-voxelization), gi-volume (dense vs sparse GI volume: time and
     /// memory), gi-accuracy (GI knobs vs the path-traced box; writes docs/accuracy.md).
     #[arg(long, value_delimiter = ',', default_value = "paper,instances,resolution,depth")]
@@ -356,6 +357,9 @@ pub(crate) struct DemoArgs {
     /// Window height.
     #[arg(long, default_value_t = 768)]
     pub(crate) height: u32,
+    /// Primary visibility at start: trace or splat (CPU renderer; switchable in the panel).
+    #[arg(long, default_value = "trace", value_parser = ["trace", "splat"])]
+    pub(crate) renderer: String,
     /// Draw this many frames (the clip advances 1/30 s per frame), then stop with --exit.
     #[arg(long)]
     pub(crate) frames: Option<u64>,

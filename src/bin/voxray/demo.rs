@@ -30,6 +30,7 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         gpu_read_back: a.gpu_read_back,
         gpu_stats: a.gpu_stats,
         animated: st.animated.clone(),
+        splat: a.renderer == "splat",
     };
     let report = run(opts, st.scene, st.cars, lights, camera)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);
