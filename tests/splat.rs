@@ -45,7 +45,7 @@ fn one_voxel_covers_the_pixels_of_its_square() {
     let f = frame(&scene, &camera, Renderer::Splat);
     // The square: side = edge · focal / z about the centre's projection (the image centre).
     let focal = 64.0 / (2.0 * (15f64.to_radians()).tan());
-    let half = 0.5 * 1.0 * focal / 10.0;
+    let half = 0.5 * voxray::render::splat::DEFAULT_FACTOR as f64 * focal / 10.0;
     let (c, mut covered) = (32.0, 0);
     for y in 0..64 {
         for x in 0..64 {

@@ -28,10 +28,12 @@ use glam::{DAffine3, DVec3, Vec3};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Weak};
 
-/// Default square-size factor: the side of a voxel's square in units of its projected edge.
-/// 1 covers a face-on voxel's projection exactly; a voxel seen along a diagonal projects up to
-/// √3 times wider, which the neighbouring squares cover on a closed surface.
-pub const DEFAULT_FACTOR: f32 = 1.0;
+/// Default square-size factor: the side of a voxel's square in units of its projected edge,
+/// chosen by measurement (docs/splats.md): against the traced frame of the car on its ground
+/// (1280×768), 0.75 leaves holes in 4.7 % of the pixels, 1 in 0.03 %, 1.25 in none, with the
+/// least coverage mismatch (0.033 %) and image RMSE (0.0119); larger squares bloat the
+/// silhouettes (2: 0.15 % of the pixels, RMSE 0.028).
+pub const DEFAULT_FACTOR: f32 = 1.25;
 
 /// A part's surface voxels at one level, ready to splat.
 #[derive(Clone, Debug, PartialEq)]
