@@ -377,6 +377,7 @@ pub fn render_lit(
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, &hit, d));
     };
     let traced = if splatting {
+        splat_cache.prune();
         let per_instance: Vec<_> = scene
             .instances()
             .iter()

@@ -16,7 +16,7 @@
 //! - **Parallel**: splats are drawn by many threads at once into one buffer of 64-bit words
 //!   (depth bits above, splat number below) with an atomic minimum — order-independent, so
 //!   the image is the same whatever the threads do; ties go to the lower splat number.
-//! - **Culling**: voxels at or behind a near plane at 10⁻⁶ of the scene's size are skipped (a
+//! - **Culling**: voxels at or behind a near plane at 10⁻⁶ of the largest instance's size are skipped (a
 //!   voxel behind the eye draws nothing), and instances whose bounding sphere lies wholly
 //!   behind it or outside the view are skipped whole.
 
@@ -81,26 +81,31 @@ impl Splats {
     }
 }
 
-/// Built splat lists kept between frames, per part and level (a part no longer alive is
-/// dropped).
+/// Built splat lists kept between frames, per part and level (lists of parts no longer alive
+/// are dropped by [`SplatCache::prune`]).
 #[derive(Clone, Debug, Default)]
 pub struct SplatCache {
-    entries: Vec<(Weak<Svo>, u32, Arc<Splats>)>,
+    // Keyed by the part's address: a live `Weak` keeps that allocation from being reused, so
+    // an address that matches one held here is that part.
+    entries: std::collections::HashMap<(usize, u32), (Weak<Svo>, Arc<Splats>)>,
 }
 
 impl SplatCache {
-    /// The splats of `svo` at `level`, built on first use.
+    /// The splats of `svo` at `level` (clamped to its depth), built on first use.
     pub fn get(&mut self, svo: &Arc<Svo>, level: u32) -> Arc<Splats> {
         let level = level.min(svo.depth);
-        self.entries.retain(|e| e.0.strong_count() > 0);
-        if let Some(e) =
-            self.entries.iter().find(|e| e.1 == level && e.0.upgrade().is_some_and(|p| Arc::ptr_eq(&p, svo)))
-        {
-            return e.2.clone();
+        let key = (Arc::as_ptr(svo) as usize, level);
+        if let Some((_, s)) = self.entries.get(&key) {
+            return s.clone();
         }
         let s = Arc::new(Splats::build(svo, level));
-        self.entries.push((Arc::downgrade(svo), level, s.clone()));
+        self.entries.insert(key, (Arc::downgrade(svo), s.clone()));
         s
+    }
+
+    /// Drops the lists of parts no longer alive (once a frame, not per instance).
+    pub fn prune(&mut self) {
+        self.entries.retain(|_, e| e.0.strong_count() > 0);
     }
 }
 
@@ -135,6 +140,28 @@ pub fn level_for(svo: &Svo, p: &Prepared, camera: &Camera, max_level: u32) -> u3
     (cube_px.log2().ceil() as u32).min(full)
 }
 
+/// ⌈x⌉ and ⌊x⌋ without a libm call (the baseline x86-64 target has no rounding instruction);
+/// exact for |x| < 2⁶³, and the callers clamp to the image afterwards.
+#[inline(always)]
+fn ceil(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t < x {
+        t + 1.0
+    } else {
+        t
+    }
+}
+
+#[inline(always)]
+fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
 /// Camera-relative world → camera coordinates (right, up, forward), in f64.
 fn view(camera: &Camera) -> DAffine3 {
     let b = camera.basis();
@@ -158,9 +185,9 @@ pub fn rasterize(
     let to_view = view(camera);
     let focal = h as f64 / (2.0 * basis.tan_half);
     let aspect_half = basis.tan_half * w as f64 / h as f64;
-    // The near plane: a millionth of the scene's size in front of the eye.
-    let (lo, hi) = scene.bounds();
-    let near = ((hi - lo).length() * 1e-6).max(f64::MIN_POSITIVE);
+    // The near plane: a millionth of the largest instance's size in front of the eye.
+    let largest = prepared.iter().fold(0.0f64, |a, p| a.max(p.radius));
+    let near = (largest * 2e-6).max(f64::MIN_POSITIVE);
     let depth: Vec<AtomicU64> = (0..w * h).map(|_| AtomicU64::new(u64::MAX)).collect();
     // Splat numbers: instance i's splat k is first[i] + k.
     let mut first = Vec::with_capacity(splats.len() + 1);
@@ -209,10 +236,10 @@ pub fn rasterize(
             let py = (1.0 - c.y as f64 / (z * basis.tan_half)) * 0.5 * h as f64;
             let half = (0.5 * factor as f64 * world_edge * focal / z).clamp(0.5, (w + h) as f64);
             // Pixels whose centres lie inside the square.
-            let x0 = (px - half - 0.5).ceil().max(0.0);
-            let x1 = (px + half - 0.5).floor().min(w as f64 - 1.0);
-            let y0 = (py - half - 0.5).ceil().max(0.0);
-            let y1 = (py + half - 0.5).floor().min(h as f64 - 1.0);
+            let x0 = ceil(px - half - 0.5).max(0.0);
+            let x1 = floor(px + half - 0.5).min(w as f64 - 1.0);
+            let y0 = ceil(py - half - 0.5).max(0.0);
+            let y1 = floor(py + half - 0.5).min(h as f64 - 1.0);
             if !(x0 <= x1 && y0 <= y1) {
                 continue;
             }
@@ -279,4 +306,15 @@ pub fn rasterize(
     #[cfg(not(feature = "parallel"))]
     records.chunks_mut(w).enumerate().for_each(|(y, row)| resolve(y, row));
     SplatStats { splats: total, drawn: stats_drawn.into_inner(), fragments: stats_fragments.into_inner() }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn rounding_matches_the_library() {
+        for x in [-3.5, -3.0, -2.9, -0.5, -0.0, 0.0, 0.25, 1.0, 1.5, 2.999, 1e9 + 0.5, -1e12 - 0.25] {
+            assert_eq!(super::ceil(x), x.ceil(), "ceil {x}");
+            assert_eq!(super::floor(x), x.floor(), "floor {x}");
+        }
+    }
 }
