@@ -40,6 +40,15 @@ impl Texture {
     }
 }
 
+/// An sRGB-encoded channel value in [0, 1] as linear light (textures, palettes).
+pub fn srgb_to_linear(s: f32) -> f32 {
+    if s <= 0.040_45 {
+        s / 12.92
+    } else {
+        ((s + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// A two-sided material: Lambertian diffuse plus an optional Phong lobe
 /// ([`crate::render::brdf`]).
 #[derive(Clone, Debug, PartialEq)]
@@ -458,15 +467,6 @@ mod obj {
         let texels =
             img.pixels().map(|p| Vec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2]))).collect();
         Ok(Texture { width, height, texels })
-    }
-
-    #[cfg(feature = "image-io")]
-    fn srgb_to_linear(s: f32) -> f32 {
-        if s <= 0.040_45 {
-            s / 12.92
-        } else {
-            ((s + 0.055) / 1.055).powf(2.4)
-        }
     }
 
     #[cfg(not(feature = "image-io"))]

@@ -145,6 +145,13 @@ fn sweep_scene<'s>(
     }
 }
 
+/// `n` cars driving their figure-eights with no ground, and the sweep's camera framing them all.
+fn crowd(car: &CarModel, n: usize, cfg: &MatrixConfig) -> Result<(crate::scene::Staged, Camera), crate::Error> {
+    let st = stage_cars(&car.parts, n, true, false)?;
+    let camera = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), cfg.sweep_size.0, cfg.sweep_size.1);
+    Ok((st, camera))
+}
+
 /// The box a sweep's camera frames: a file's whole clip, the parked car as it stands.
 fn framed(st: &crate::scene::Staged) -> (glam::DVec3, glam::DVec3) {
     if st.animated.is_some() {
@@ -248,13 +255,7 @@ pub fn run(
                 // Cars driving, no ground: what the squares cost as the crowd grows (each car
                 // splatted at the level whose voxels are about a pixel).
                 for &n in &cfg.cars {
-                    let mut st = stage_cars(&car.parts, n, true, false)?;
-                    let camera = Camera::framing(
-                        st.bounds.0.as_vec3(),
-                        st.bounds.1.as_vec3(),
-                        cfg.sweep_size.0,
-                        cfg.sweep_size.1,
-                    );
+                    let (mut st, camera) = crowd(car, n, cfg)?;
                     pair(&mut st, &camera, u32::MAX, format!("{n} cars"), n as f64, progress)?;
                 }
                 // One car, its voxels limited to each level: the voxel count sweep.
@@ -320,13 +321,7 @@ pub fn run(
             Scenario::Instances => {
                 let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
                 for &n in &cfg.cars {
-                    let mut st = stage_cars(&car.parts, n, true, false)?;
-                    let camera = Camera::framing(
-                        st.bounds.0.as_vec3(),
-                        st.bounds.1.as_vec3(),
-                        cfg.sweep_size.0,
-                        cfg.sweep_size.1,
-                    );
+                    let (mut st, camera) = crowd(car, n, cfg)?;
                     for bvh in [true, false] {
                         let features = Features { bvh, hit_buffer: false, shadows: false, ..Features::default() };
                         let setting = if bvh { "BVH" } else { "sorted spheres" };

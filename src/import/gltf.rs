@@ -474,7 +474,7 @@ fn decode_texture(bytes: &[u8], loaded: &mut u64) -> Result<Texture, String> {
     *loaded += texels * 12;
     let img = image::load_from_memory(bytes).map_err(|e| e.to_string())?.to_rgb32f();
     let (width, height) = img.dimensions();
-    let lin = |s: f32| if s <= 0.040_45 { s / 12.92 } else { ((s + 0.055) / 1.055).powf(2.4) };
+    let lin = crate::mesh::srgb_to_linear;
     let texels = img.pixels().map(|p| Vec3::new(lin(p[0]), lin(p[1]), lin(p[2]))).collect();
     Ok(Texture { width, height, texels })
 }

@@ -53,12 +53,7 @@ fn invalid(path: &Path, element: impl Into<String>, message: impl std::fmt::Disp
 }
 
 fn srgb_to_linear(c: u8) -> f32 {
-    let s = c as f32 / 255.0;
-    if s <= 0.040_45 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
+    crate::mesh::srgb_to_linear(c as f32 / 255.0)
 }
 
 /// The signed permutation of a `_r` byte, or None when it is not one.

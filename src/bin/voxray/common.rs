@@ -168,10 +168,11 @@ pub(crate) fn stage(
         return Err(usage("--cars, --in-place and --static-car apply to the default car only"));
     }
     if let [file] = &src.scene[..] {
-        if SceneKind::of(file)? == SceneKind::Vox {
+        let kind = SceneKind::of(file)?;
+        if kind == SceneKind::Vox {
             return stage_vox(file, src);
         }
-        if SceneKind::of(file)? == SceneKind::Svo {
+        if kind == SceneKind::Svo {
             let svo = voxray::svo::io::load(file)?;
             let mut scene = Scene::new(vec![Arc::new(svo)]);
             scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY })?;
