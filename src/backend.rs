@@ -113,10 +113,6 @@ impl Backend {
         match self {
             Backend::Cpu(h) => Ok(render(scene, camera, lights, plan, opts, Some(h), progress)?),
             #[cfg(feature = "gpu")]
-            Backend::Gpu(_) if opts.renderer == crate::render::Renderer::Splat => {
-                Err(crate::Error::Unsupported("the splat renderer runs on the CPU only: use --backend cpu"))
-            }
-            #[cfg(feature = "gpu")]
             Backend::Gpu(g) => Ok(g.render(scene, camera, lights, plan, opts)?),
         }
     }

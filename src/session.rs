@@ -133,9 +133,6 @@ impl Session {
         opts: &RenderOptions,
         progress: &(dyn Fn(u32, u32) + Sync),
     ) -> Result<FrameReport, crate::Error> {
-        if opts.renderer == crate::render::Renderer::Splat && !matches!(self.backend, Backend::Cpu(_)) {
-            return Err(crate::Error::Unsupported("the splat renderer runs on the CPU only: use --backend cpu"));
-        }
         let mut plan = self.backend.plan(scene, camera, lights, features, self.first);
         // The last frame's memory is refilled instead of fresh pages faulted in.
         if let Some(old) = self.frame.take() {

@@ -534,3 +534,87 @@ fn points_spots_and_extra_suns_light_the_gpu_frame_as_the_cpu() {
     let rays = (c.shadow_rays as f64, g.shadow_rays as f64);
     assert!((rays.0 - rays.1).abs() <= 0.002 * rays.0 + 16.0, "shadow rays: CPU {} GPU {}", rays.0, rays.1);
 }
+
+/// The GPU's splat frame against the CPU's: the squares are projected in f32 on the GPU (f64
+/// on the CPU), so a pixel centre within rounding of a square's edge may pick the
+/// neighbouring square; elsewhere the same square wins, with the same t.
+fn assert_splats_close(cpu: &Frame, gpu: &Frame, what: &str) {
+    let n = cpu.t.len();
+    let covered = cpu.instance.iter().filter(|&&i| i >= 0).count();
+    assert!(covered > n / 20, "{what}: the splats cover {covered} of {n} pixels");
+    let same = cpu.instance.iter().zip(&gpu.instance).filter(|(a, b)| a == b).count();
+    assert!(same as f64 >= 0.998 * n as f64, "{what}: instance ids agree on {same} of {n} pixels");
+    let (mut exact, mut agree) = (0usize, 0usize);
+    for k in 0..n {
+        assert!(!gpu.t[k].is_nan() && gpu.radiance[k].is_finite(), "{what}: NaN at pixel {k}");
+        if cpu.instance[k] >= 0 && cpu.instance[k] == gpu.instance[k] {
+            agree += 1;
+            exact += (((cpu.t[k] - gpu.t[k]) / cpu.t[k]).abs() <= 1e-4) as usize;
+        }
+    }
+    assert!(exact as f64 >= 0.995 * agree as f64, "{what}: t agrees on {exact} of {agree} pixels");
+    assert_eq!(gpu.reused, 0, "{what}: a splat frame keeps no hits");
+    let mean: f32 =
+        cpu.radiance.iter().zip(&gpu.radiance).map(|(a, b)| (*a - *b).abs().max_element()).sum::<f32>() / n as f32;
+    assert!(mean < 0.01, "{what}: mean radiance difference {mean}");
+}
+
+#[test]
+fn gpu_splats_match_the_cpu_splats() {
+    let Some(ctx) = context() else { return };
+    let (mut s_cpu, cars_cpu) = scene(3);
+    let (mut s_gpu, cars_gpu) = scene(3);
+    let lights = Lights::default();
+    let splat = RenderOptions { renderer: voxray::render::Renderer::Splat, ..RenderOptions::default() };
+    let features = Features { beams: false, ..Features::default() };
+    let mut cpu_hits = HitBuffer::new();
+    let mut gpu = GpuRenderer::new(ctx);
+    let base = street_camera(160, 100);
+    // A driving clip seen from an orbiting camera, then a close-up whose squares span many
+    // pixels each, and a level-of-detail cap.
+    for f in 0..4 {
+        let t = f as f64 / 30.0;
+        for (a, b) in cars_cpu.iter().zip(&cars_gpu) {
+            pose(&mut s_cpu, a, t).unwrap();
+            pose(&mut s_gpu, b, t).unwrap();
+        }
+        s_cpu.update().unwrap();
+        s_gpu.update().unwrap();
+        let q = DQuat::from_rotation_y((20.0 * t).to_radians());
+        let mut cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
+        let mut opts = splat;
+        if f == 2 {
+            cam.eye = DVec3::new(2.5, 1.5, 6.0);
+        }
+        if f == 3 {
+            opts.max_level = 4;
+        }
+        let plan = FramePlan::new(&s_cpu, &cam, &lights, &features, Some(&cpu_hits));
+        let c = render(&s_cpu, &cam, &lights, &plan, &opts, Some(&mut cpu_hits), &|_, _| {}).unwrap();
+        let g = gpu.render(&s_gpu, &cam, &lights, &plan, &opts).unwrap();
+        assert_splats_close(&c, &g, &format!("splat frame {f}"));
+    }
+}
+
+/// A traced frame after a splat frame traces afresh: the splatted records never stand in for
+/// the rays' hits.
+#[test]
+fn a_traced_gpu_frame_after_splats_reuses_nothing_of_them() {
+    let Some(ctx) = context() else { return };
+    let (s, _) = scene(1);
+    let lights = Lights::default();
+    let cam = street_camera(120, 80);
+    let features = Features { beams: false, ..Features::default() };
+    let splat = RenderOptions { renderer: voxray::render::Renderer::Splat, ..RenderOptions::default() };
+    let mut gpu = GpuRenderer::new(ctx);
+    let plan = FramePlan::new(&s, &cam, &lights, &features, Some(&gpu.state));
+    gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    let plan = FramePlan::new(&s, &cam, &lights, &features, Some(&gpu.state));
+    gpu.render(&s, &cam, &lights, &plan, &splat).unwrap();
+    let plan = FramePlan::new(&s, &cam, &lights, &features, Some(&gpu.state));
+    let g = gpu.render(&s, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    assert_eq!(g.reused, 0, "the traced frame reused splatted records");
+    let fresh = FramePlan::new(&s, &cam, &lights, &features, None);
+    let c = render(&s, &cam, &lights, &fresh, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+    assert_close(&c, &g, "traced after splatted");
+}

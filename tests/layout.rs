@@ -221,6 +221,33 @@ fn wgsl_structs_match_rust() {
             ],
         ),
         (
+            "SplatEntry",
+            size_of::<GpuSplatEntry>(),
+            vec![
+                ("view_x", offset_of!(GpuSplatEntry, view_x)),
+                ("view_y", offset_of!(GpuSplatEntry, view_y)),
+                ("view_z", offset_of!(GpuSplatEntry, view_z)),
+                ("first", offset_of!(GpuSplatEntry, first)),
+                ("base", offset_of!(GpuSplatEntry, base)),
+                ("count", offset_of!(GpuSplatEntry, count)),
+                ("instance", offset_of!(GpuSplatEntry, instance)),
+                ("half_px", offset_of!(GpuSplatEntry, half_px)),
+                ("half_depth", offset_of!(GpuSplatEntry, half_depth)),
+                ("voxel", offset_of!(GpuSplatEntry, voxel)),
+                ("pad", offset_of!(GpuSplatEntry, pad)),
+            ],
+        ),
+        (
+            "SplatFrame",
+            size_of::<GpuSplatFrame>(),
+            vec![
+                ("entries", offset_of!(GpuSplatFrame, entries)),
+                ("total", offset_of!(GpuSplatFrame, total)),
+                ("row_threads", offset_of!(GpuSplatFrame, row_threads)),
+                ("near", offset_of!(GpuSplatFrame, near)),
+            ],
+        ),
+        (
             "GiSplat",
             size_of::<GpuGiSplat>(),
             vec![
@@ -345,19 +372,22 @@ fn shared_constants_come_from_rust_once() {
 #[test]
 fn tracer_bindings_are_named_from_rust() {
     use voxray::gpu::prelude::binding::ALL;
-    let src = [include_str!("../wgsl/trace.wgsl"), include_str!("../wgsl/gi_trace.wgsl")].concat();
+    let src =
+        [include_str!("../wgsl/trace.wgsl"), include_str!("../wgsl/gi_trace.wgsl"), include_str!("../wgsl/splat.wgsl")]
+            .concat();
     let bindings: Vec<&str> = src.lines().filter(|l| l.trim_start().starts_with("@group(")).collect();
     assert_eq!(bindings.len(), ALL.len(), "{bindings:#?}");
-    for (name, _) in ALL {
-        let n = bindings.iter().filter(|l| l.contains(&format!("@binding({name})"))).count();
-        assert_eq!(n, 1, "{name} binds {n} variables");
+    // (group, number) of each binding, read from the line that names its constant.
+    let mut slots = Vec::new();
+    for (name, number) in ALL {
+        let lines: Vec<&&str> = bindings.iter().filter(|l| l.contains(&format!("@binding({name})"))).collect();
+        assert_eq!(lines.len(), 1, "{name} binds {} variables", lines.len());
+        let group = lines[0].trim_start()["@group(".len()..].split(')').next().unwrap().to_string();
+        slots.push((group, number));
     }
     // Within a group, no two numbers are the same.
-    let (g0, g1) = ALL.split_at(13);
-    for g in [g0, g1] {
-        let mut v: Vec<u32> = g.iter().map(|x| x.1).collect();
-        v.sort();
-        v.dedup();
-        assert_eq!(v.len(), g.len());
-    }
+    let n = slots.len();
+    slots.sort();
+    slots.dedup();
+    assert_eq!(slots.len(), n, "two bindings share a group and number");
 }

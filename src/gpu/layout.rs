@@ -379,3 +379,45 @@ pub struct GpuGiTri {
     /// Emitted radiance (MTL `Ke`); w unused.
     pub emission: [f32; 4],
 }
+
+/// One drawn instance of the splat renderer and where its splats lie. WGSL: `SplatEntry`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuSplatEntry {
+    /// Rows of the map object space → camera coordinates (right, up, forward), camera-relative.
+    pub view_x: [f32; 4],
+    /// Second row.
+    pub view_y: [f32; 4],
+    /// Third row (view depth).
+    pub view_z: [f32; 4],
+    /// Splat number of its first splat (numbers run over the drawn instances in order).
+    pub first: u32,
+    /// Its first splat in the centre and attribute pools.
+    pub base: u32,
+    /// Its splats.
+    pub count: u32,
+    /// The scene's instance.
+    pub instance: u32,
+    /// Half the square's side in pixels at view depth 1.
+    pub half_px: f32,
+    /// How far a voxel's nearest corner lies in front of its centre along the view axis.
+    pub half_depth: f32,
+    /// World voxel edge.
+    pub voxel: f32,
+    /// Padding.
+    pub pad: u32,
+}
+
+/// The splat passes' uniforms. WGSL: `SplatFrame`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuSplatFrame {
+    /// Drawn instances (rows of the entry buffer).
+    pub entries: u32,
+    /// Their splats.
+    pub total: u32,
+    /// Threads per dispatch row (splats spread over y past 65 535 groups).
+    pub row_threads: u32,
+    /// The near plane's view depth.
+    pub near: f32,
+}

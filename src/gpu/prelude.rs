@@ -55,8 +55,20 @@ pub mod binding {
     pub const GI_SAMPLER: u32 = 8;
     /// Tracer group 1 (GI): `gi_samples` (the half-resolution gather's samples).
     pub const GI_SAMPLES: u32 = 9;
+    /// Tracer group 2 (splats): `splat_frame`.
+    pub const SPLAT_FRAME: u32 = 0;
+    /// Tracer group 2: `splat_entries`.
+    pub const SPLAT_ENTRIES: u32 = 1;
+    /// Tracer group 2: `splat_centres`.
+    pub const SPLAT_CENTRES: u32 = 2;
+    /// Tracer group 2: `splat_attrs`.
+    pub const SPLAT_ATTRS: u32 = 3;
+    /// Tracer group 2: `splat_depth`.
+    pub const SPLAT_DEPTH: u32 = 4;
+    /// Tracer group 2: `splat_ids`.
+    pub const SPLAT_IDS: u32 = 5;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 25] = [
+    pub const ALL: [(&str, u32); 31] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -82,6 +94,12 @@ pub mod binding {
         ("B_GI_TEX", GI_TEX),
         ("B_GI_SAMPLER", GI_SAMPLER),
         ("B_GI_SAMPLES", GI_SAMPLES),
+        ("B_SPLAT_FRAME", SPLAT_FRAME),
+        ("B_SPLAT_ENTRIES", SPLAT_ENTRIES),
+        ("B_SPLAT_CENTRES", SPLAT_CENTRES),
+        ("B_SPLAT_ATTRS", SPLAT_ATTRS),
+        ("B_SPLAT_DEPTH", SPLAT_DEPTH),
+        ("B_SPLAT_IDS", SPLAT_IDS),
     ];
 }
 

@@ -26,6 +26,7 @@ pub fn trace_source() -> String {
         include_str!("../../wgsl/trace.wgsl"),
         include_str!("../../wgsl/shared/gi_fixed.wgsl"),
         include_str!("../../wgsl/gi_trace.wgsl"),
+        include_str!("../../wgsl/splat.wgsl"),
     ]
     .join("\n")
 }
@@ -44,7 +45,7 @@ pub fn rays_source() -> String {
 /// GPU times of one frame (from timestamp queries, when the adapter has them).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GpuTimes {
-    /// Trace pass, milliseconds.
+    /// Trace pass (the splat passes with the splat renderer), milliseconds.
     pub trace_ms: f64,
     /// Shade pass, milliseconds.
     pub shade_ms: f64,
@@ -172,6 +173,8 @@ pub struct GpuRenderer {
     /// The last frame's eye lies inside a voxel ([`crate::render::instances::eye_inside`]),
     /// for frames kept on the GPU, whose t values say so only on the GPU.
     pub eye_inside: bool,
+    /// The splat renderer's passes and buffers (made on its first frame).
+    splat: Option<super::splat::GpuSplat>,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -188,7 +191,7 @@ fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
 }
 
 /// One entry point of the tracer's module compiled for a plan variant (its `override` values).
-fn plan_pipeline(
+pub(crate) fn plan_pipeline(
     device: &wgpu::Device,
     layout: &wgpu::PipelineLayout,
     module: &wgpu::ShaderModule,
@@ -282,6 +285,7 @@ impl GpuRenderer {
             counting: false,
             stats: None,
             eye_inside: false,
+            splat: None,
         }
         .with_device_limit()
     }
@@ -560,7 +564,9 @@ impl GpuRenderer {
         let (w, h) = (camera.width, camera.height);
         let n = (w * h) as usize;
         let prepared = prepare(scene, camera.eye, plan.transform);
-        let reuse = if plan.hit_buffer && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
+        let splatting = opts.renderer == crate::render::Renderer::Splat;
+        // Splatted records are not the ray tracer's: nothing is reused from them, or into them.
+        let reuse = if plan.hit_buffer && !splatting && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
             self.state.reuse(camera, scene, &prepared, opts.max_level)
         } else {
             None
@@ -662,6 +668,13 @@ impl GpuRenderer {
             _ => None,
         };
         self.gi_stats = gi_work.as_ref().map(|w| w.stats);
+        let splat_work = if splatting {
+            let sp = self.splat.get_or_insert_with(|| super::splat::GpuSplat::new(&self.ctx));
+            sp.build_pipelines(&self.ctx.device, &self.module, &self.layout);
+            Some(sp.prepare(&self.ctx, scene, &prepared, camera, opts.max_level, opts.splat_factor)?)
+        } else {
+            None
+        };
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
         let gi_pipes = gi_work.as_ref().map(|w| {
             &self.gi_pipelines[&(search, plan.shadows, w.stats.layout == crate::gi::Layout::Sparse, w.texture)]
@@ -810,12 +823,15 @@ impl GpuRenderer {
             enc.clear_buffer(stats_buf, 0, None);
         }
         let groups = (w.div_ceil(8), h.div_ceil(8));
-        {
-            let mut pass =
-                enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: ts(0) });
-            pass.set_pipeline(trace_pipe);
-            pass.set_bind_group(0, &*bind, &[]);
-            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        match (&splat_work, self.splat.as_mut()) {
+            (Some(work), Some(sp)) => sp.encode(&ctx, &mut enc, bind, work, (w, h), ts(0))?,
+            _ => {
+                let mut pass = enc
+                    .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: ts(0) });
+                pass.set_pipeline(trace_pipe);
+                pass.set_bind_group(0, &*bind, &[]);
+                pass.dispatch_workgroups(groups.0, groups.1, 1);
+            }
         }
         if let (Some(work), Some(pipes), Some(gi)) = (&gi_work, gi_pipes, &self.gi) {
             gi.encode(work, &mut enc, pipes, bind, ts(2))?;
@@ -898,8 +914,13 @@ impl GpuRenderer {
             };
             self.state.reused = 0;
             self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
+            if splatting {
+                // Nothing to keep: a later traced frame starts afresh.
+                self.state.camera = None;
+            }
             self.state.bvh = bvh;
-            self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
+            self.buffer_bytes =
+                buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes) + splat_work.as_ref().map_or(0, |s| s.bytes);
             let now = self.ctx.traffic();
             self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
             self.eye_inside = crate::render::instances::eye_inside(&scene.parts, &prepared);
@@ -980,8 +1001,13 @@ impl GpuRenderer {
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records, opts.max_level);
+        if splatting {
+            // Nothing to keep: a later traced frame starts afresh.
+            self.state.camera = None;
+        }
         self.state.bvh = bvh;
-        self.buffer_bytes = buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes);
+        self.buffer_bytes =
+            buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes) + splat_work.as_ref().map_or(0, |s| s.bytes);
         let now = self.ctx.traffic();
         self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
         Ok(f)

@@ -22,7 +22,8 @@ pub enum Renderer {
     /// Primary rays traced through the octrees (exact).
     #[default]
     Trace,
-    /// Square splats of the surface voxels with a depth buffer ([`super::splat`]; CPU only).
+    /// Square splats of the surface voxels with a depth buffer ([`super::splat`]; on the GPU
+    /// `wgsl/splat.wgsl`).
     Splat,
 }
 
@@ -377,16 +378,7 @@ pub fn render_lit(
         *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, &hit, d));
     };
     let traced = if splatting {
-        splat_cache.prune();
-        let per_instance: Vec<_> = scene
-            .instances()
-            .iter()
-            .zip(&prepared)
-            .map(|(i, p)| {
-                let svo = &scene.parts[i.part];
-                splat_cache.get(svo, super::splat::level_for(svo, p, camera, opts.max_level))
-            })
-            .collect();
+        let per_instance = splat_cache.for_frame(scene, &prepared, camera, opts.max_level);
         super::splat::rasterize(scene, &prepared, &per_instance, camera, opts.splat_factor, &mut records);
         for _ in 0..h {
             tick();

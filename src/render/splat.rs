@@ -107,6 +107,27 @@ impl SplatCache {
     pub fn prune(&mut self) {
         self.entries.retain(|_, e| e.0.strong_count() > 0);
     }
+
+    /// Each instance's splats for this frame, at the level [`level_for`] picks (lists of
+    /// parts no longer alive dropped first).
+    pub fn for_frame(
+        &mut self,
+        scene: &Scene,
+        prepared: &[Prepared],
+        camera: &Camera,
+        max_level: u32,
+    ) -> Vec<Arc<Splats>> {
+        self.prune();
+        scene
+            .instances()
+            .iter()
+            .zip(prepared)
+            .map(|(i, p)| {
+                let svo = &scene.parts[i.part];
+                self.get(svo, level_for(svo, p, camera, max_level))
+            })
+            .collect()
+    }
 }
 
 /// What one splat pass did.
@@ -162,11 +183,82 @@ fn floor(x: f64) -> f64 {
     }
 }
 
-/// Camera-relative world → camera coordinates (right, up, forward), in f64.
-fn view(camera: &Camera) -> DAffine3 {
-    let b = camera.basis();
-    let rows = glam::DMat3::from_cols(b.right, b.up, b.forward).transpose();
-    DAffine3 { matrix3: rows, translation: DVec3::ZERO }
+/// The frame's projection of splats, shared by the CPU rasterizer and the GPU passes
+/// (`gpu::splat`) so that both draw the same squares.
+#[derive(Clone, Copy, Debug)]
+pub struct Projection {
+    /// Camera-relative world → camera coordinates (right, up, forward), in f64.
+    pub to_view: DAffine3,
+    /// Focal length in pixels.
+    pub focal: f64,
+    /// tan(vfov/2) · width / height.
+    pub aspect_half: f64,
+    /// tan(vfov/2).
+    pub tan_half: f64,
+    /// The near plane's view depth: a millionth of the largest instance's size.
+    pub near: f64,
+}
+
+/// One instance as the splat passes see it.
+#[derive(Clone, Copy, Debug)]
+pub struct InstanceView {
+    /// Object space → camera coordinates, camera-relative in f64 before rounding to f32.
+    pub to_camera: glam::Affine3A,
+    /// Half a square's side in pixels at view depth 1 (divided by the depth per splat).
+    pub half_px: f64,
+    /// Half the voxel's depth along the view axis: its nearest corner is that far in front of
+    /// its centre (the cube's extent along the camera's forward axis).
+    pub half_depth: f64,
+    /// World voxel edge.
+    pub voxel: f64,
+}
+
+impl Projection {
+    /// The projection of `camera` for the instances `prepared`.
+    pub fn new(camera: &Camera, prepared: &[Prepared]) -> Projection {
+        let basis = camera.basis();
+        let b = &basis;
+        let rows = glam::DMat3::from_cols(b.right, b.up, b.forward).transpose();
+        let largest = prepared.iter().fold(0.0f64, |a, p| a.max(p.radius));
+        Projection {
+            to_view: DAffine3 { matrix3: rows, translation: DVec3::ZERO },
+            focal: camera.height as f64 / (2.0 * basis.tan_half),
+            aspect_half: basis.tan_half * camera.width as f64 / camera.height as f64,
+            tan_half: basis.tan_half,
+            near: (largest * 2e-6).max(f64::MIN_POSITIVE),
+        }
+    }
+
+    /// Whether instance `p`'s bounding sphere lies wholly behind the near plane or beside
+    /// the view (it then draws nothing).
+    pub fn culled(&self, p: &Prepared) -> bool {
+        let c = self.to_view.transform_point3(p.centre);
+        let off_side = c.x.abs() - p.radius > (c.z + p.radius).max(0.0) * self.aspect_half * 1.01
+            || c.y.abs() - p.radius > (c.z + p.radius).max(0.0) * self.tan_half * 1.01;
+        c.z + p.radius <= self.near || off_side
+    }
+
+    /// Instance `i` (prepared as `p`, splatted as `s`) seen from `camera`.
+    pub fn instance(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        i: usize,
+        p: &Prepared,
+        s: &Splats,
+        factor: f32,
+    ) -> InstanceView {
+        let m = self.to_view * DAffine3::from_translation(-camera.eye) * scene.world(i);
+        let world_edge = s.edge as f64 * p.max_stretch;
+        InstanceView {
+            to_camera: glam::Affine3A::from_cols_array(&m.to_cols_array().map(|v| v as f32)),
+            half_px: 0.5 * factor as f64 * world_edge * self.focal,
+            half_depth: 0.5
+                * s.edge as f64
+                * (m.matrix3.x_axis.z.abs() + m.matrix3.y_axis.z.abs() + m.matrix3.z_axis.z.abs()),
+            voxel: world_edge,
+        }
+    }
 }
 
 /// Draws every instance's splats into `records` (one per pixel, row 0 at the top), which
@@ -182,12 +274,8 @@ pub fn rasterize(
 ) -> SplatStats {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
-    let to_view = view(camera);
-    let focal = h as f64 / (2.0 * basis.tan_half);
-    let aspect_half = basis.tan_half * w as f64 / h as f64;
-    // The near plane: a millionth of the largest instance's size in front of the eye.
-    let largest = prepared.iter().fold(0.0f64, |a, p| a.max(p.radius));
-    let near = (largest * 2e-6).max(f64::MIN_POSITIVE);
+    let proj = Projection::new(camera, prepared);
+    let (aspect_half, near) = (proj.aspect_half, proj.near);
     let depth: Vec<AtomicU64> = (0..w * h).map(|_| AtomicU64::new(u64::MAX)).collect();
     // Splat numbers: instance i's splat k is first[i] + k.
     let mut first = Vec::with_capacity(splats.len() + 1);
@@ -203,11 +291,7 @@ pub fn rasterize(
     const JOB: usize = 8192;
     let mut jobs: Vec<(usize, usize, usize)> = Vec::new();
     for (i, (s, p)) in splats.iter().zip(prepared).enumerate() {
-        // A sphere wholly behind the near plane, or beside the view, draws nothing.
-        let c = to_view.transform_point3(p.centre);
-        let off_side = c.x.abs() - p.radius > (c.z + p.radius).max(0.0) * aspect_half * 1.01
-            || c.y.abs() - p.radius > (c.z + p.radius).max(0.0) * basis.tan_half * 1.01;
-        if c.z + p.radius <= near || off_side {
+        if proj.culled(p) {
             continue;
         }
         for start in (0..s.centres.len()).step_by(JOB) {
@@ -216,15 +300,8 @@ pub fn rasterize(
     }
     let draw = |&(i, start, end): &(usize, usize, usize)| {
         let s = &splats[i];
-        let p = &prepared[i];
-        // Object → camera coordinates, camera-relative in f64 before rounding to f32.
-        let m = to_view * DAffine3::from_translation(-camera.eye) * scene.world(i);
-        let m32 = glam::Affine3A::from_cols_array(&m.to_cols_array().map(|v| v as f32));
-        let world_edge = s.edge as f64 * p.max_stretch;
-        // Half the voxel's depth along the view axis: its nearest corner is that far in front
-        // of its centre (the cube's extent along the camera's forward axis).
-        let half_depth =
-            0.5 * s.edge as f64 * (m.matrix3.x_axis.z.abs() + m.matrix3.y_axis.z.abs() + m.matrix3.z_axis.z.abs());
+        let v = proj.instance(scene, camera, i, &prepared[i], s, factor);
+        let (m32, half_depth) = (v.to_camera, v.half_depth);
         let (mut drawn, mut fragments) = (0u64, 0u64);
         for k in start..end {
             let c = m32.transform_point3(s.centres[k]);
@@ -234,7 +311,7 @@ pub fn rasterize(
             }
             let px = (c.x as f64 / (z * aspect_half) + 1.0) * 0.5 * w as f64;
             let py = (1.0 - c.y as f64 / (z * basis.tan_half)) * 0.5 * h as f64;
-            let half = (0.5 * factor as f64 * world_edge * focal / z).clamp(0.5, (w + h) as f64);
+            let half = (v.half_px / z).clamp(0.5, (w + h) as f64);
             // Pixels whose centres lie inside the square.
             let x0 = ceil(px - half - 0.5).max(0.0);
             let x1 = floor(px + half - 0.5).min(w as f64 - 1.0);

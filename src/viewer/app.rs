@@ -53,9 +53,7 @@ impl App {
             self.ui.gi_on = false;
             session.set_gi(None).map_err(other)?;
         }
-        // Splats only where the CPU renders (the panel says so otherwise).
-        let splat = self.ui.splat && matches!(session.backend(), crate::backend::Backend::Cpu(_));
-        let renderer = if splat { crate::render::Renderer::Splat } else { crate::render::Renderer::Trace };
+        let renderer = if self.ui.splat { crate::render::Renderer::Splat } else { crate::render::Renderer::Trace };
         let opts = RenderOptions { max_level: self.ui.lod, renderer, ..Default::default() };
         let features = self.opts.features;
         let report = match session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}) {

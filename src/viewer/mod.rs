@@ -64,7 +64,7 @@ pub struct DemoOptions {
     /// A scene file's hierarchy and clip, posed at the demo's time every frame (its
     /// timeline: play, scrub, speed).
     pub animated: Option<crate::scene::Animated>,
-    /// Start with square splats for primary visibility (CPU renderer; switchable in the panel).
+    /// Start with square splats for primary visibility (switchable in the panel).
     pub splat: bool,
 }
 

@@ -15,7 +15,7 @@ pub(super) struct Ui {
     pub(super) speed: f64,
     pub(super) travel: bool,
     pub(super) lod: u32,
-    /// Primary visibility: rays or square splats (splats on the CPU renderer only).
+    /// Primary visibility: rays or square splats.
     pub(super) splat: bool,
     pub(super) frame_ms: VecDeque<f32>,
     pub(super) plan: Option<FramePlan>,
@@ -74,7 +74,6 @@ impl App {
         let instances = self.scene.instances().len();
         let can_restage = self.opts.car_parts.is_some();
         let has_cars = !self.cars.is_empty();
-        let on_cpu = self.session.as_ref().is_some_and(|s| matches!(s.backend(), crate::backend::Backend::Cpu(_)));
         let clip = self
             .opts
             .animated
@@ -101,9 +100,6 @@ impl App {
                         row.radio_value(&mut ui.splat, false, "rays");
                         row.radio_value(&mut ui.splat, true, "square splats");
                     });
-                    if ui.splat && !on_cpu {
-                        ui_.small("square splats run on the CPU renderer: choose CPU above");
-                    }
                     ui_.separator();
                     ui_.strong("Scene");
                     if can_restage {

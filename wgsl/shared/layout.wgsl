@@ -248,3 +248,36 @@ struct GiTri {
     c: vec4<f32>,
     emission: vec4<f32>,
 }
+
+// Mirrors voxray::gpu::layout::GpuSplatEntry: one drawn instance of the splat renderer
+// (render::splat::InstanceView) and where its splats lie.
+struct SplatEntry {
+    // Rows of the map object space -> camera coordinates (right, up, forward), camera-relative.
+    view_x: vec4<f32>,
+    view_y: vec4<f32>,
+    view_z: vec4<f32>,
+    // Splat number of its first splat (numbers run over the drawn instances in order).
+    first: u32,
+    // Its first splat in the centre and attribute pools.
+    base: u32,
+    count: u32,
+    instance: u32,
+    // Half the square's side in pixels at view depth 1 (factor · world voxel edge · focal / 2).
+    half_px: f32,
+    // How far a voxel's nearest corner lies in front of its centre along the view axis.
+    half_depth: f32,
+    // World voxel edge.
+    voxel: f32,
+    pad: u32,
+}
+
+// Mirrors voxray::gpu::layout::GpuSplatFrame: the splat passes' uniforms.
+struct SplatFrame {
+    // Drawn instances (rows of splat_entries) and their splats.
+    entries: u32,
+    total: u32,
+    // Threads per dispatch row (splats spread over y past 65 535 groups).
+    row_threads: u32,
+    // The near plane's view depth.
+    near: f32,
+}

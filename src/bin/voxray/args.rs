@@ -128,7 +128,7 @@ pub(crate) struct RenderArgs {
     #[arg(long)]
     pub(crate) lod: Option<u32>,
     /// Primary visibility: trace (rays through the octrees, exact) or splat (square splats of
-    /// the surface voxels with a depth buffer; CPU only). Shading is the same.
+    /// the surface voxels with a depth buffer; CPU and GPU). Shading is the same.
     #[arg(long, default_value = "trace", value_parser = ["trace", "splat"])]
     pub(crate) renderer: String,
     /// Splats: the square's side in units of a voxel's projected edge (at least one pixel).
@@ -357,7 +357,7 @@ pub(crate) struct DemoArgs {
     /// Window height.
     #[arg(long, default_value_t = 768)]
     pub(crate) height: u32,
-    /// Primary visibility at start: trace or splat (CPU renderer; switchable in the panel).
+    /// Primary visibility at start: trace or splat (switchable in the panel).
     #[arg(long, default_value = "trace", value_parser = ["trace", "splat"])]
     pub(crate) renderer: String,
     /// Draw this many frames (the clip advances 1/30 s per frame), then stop with --exit.
