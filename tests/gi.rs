@@ -732,3 +732,53 @@ fn the_reference_traces_the_source_triangles_too() {
     let parts = short.parts.len();
     assert_eq!(e, Some(ReferenceError::Triangles(TriangleSceneError::MissingPart { part: parts, parts })));
 }
+
+/// Radiance caches on the box against a path-traced one-bounce reference, beside the
+/// per-pixel gather (the same light gathered at every pixel): a few caches and few fallback
+/// gathers stand in for every pixel's cones at about the per-pixel gather's error, clustered
+/// or evenly placed, and the stage times are reported.
+#[test]
+fn radiance_caches_light_the_box_about_as_well_as_the_per_pixel_gather() {
+    use voxray::gi::{render_with_gi, GiCaches, GiSettings, PathTracer, ReferenceSettings};
+    use voxray::render::radiance_cache::{CacheSettings, Placement};
+    use voxray::render::{Features, FramePlan, Gather, RenderOptions};
+    let scene = voxray::bench::gi::room_scene(5).unwrap();
+    let lights = voxray::model::room::lights();
+    let cam = voxray::model::room::camera(128, 96);
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let opts = RenderOptions::default();
+    let frame = |gather| {
+        let s = GiSettings { res: 32, gather, ..Default::default() };
+        render_with_gi(&scene, &cam, &lights, &plan, &opts, None, &s, &mut GiCaches::new(), &|_, _| {}).unwrap().0
+    };
+    let mut pt =
+        PathTracer::new(&scene, &cam, &lights, ReferenceSettings { spp: 64, bounces: Some(1), seed: 1 }).unwrap();
+    pt.run(&mut |_, _| {});
+    let reference = pt.frame();
+    let rmse = |f: &voxray::render::Frame| {
+        let (mut e, mut n) = (0.0f64, 0);
+        for (a, b) in f.radiance.iter().zip(&reference.radiance) {
+            e += (*a - *b).length_squared() as f64;
+            n += 1;
+        }
+        (e / n as f64).sqrt()
+    };
+    let full = frame(Gather::Pixels);
+    let hits = full.instance.iter().filter(|&&i| i >= 0).count();
+    let base = rmse(&full);
+    for placement in [Placement::Clustered, Placement::Even] {
+        let c = frame(Gather::Caches(CacheSettings { placement, ..Default::default() }));
+        let stages = c.cache_stages.expect("the cache gather reports its stages");
+        let tiles = cam.width.div_ceil(16) * cam.height.div_ceil(16);
+        let e = rmse(&c);
+        println!(
+            "{placement:?}: {} caches, {} fallback gathers of {hits} hits, RMSE {e:.4} (per pixel {base:.4}), {stages:?}",
+            stages.caches, c.gathers
+        );
+        assert!(stages.caches >= tiles as u64 && stages.caches <= 3 * tiles as u64, "{} caches", stages.caches);
+        assert!((c.gathers as usize) < hits / 20, "{} fallback gathers", c.gathers);
+        assert!(e < 1.1 * base, "{placement:?}: RMSE {e} against the per-pixel gather's {base}");
+        assert!(c.radiance.iter().all(|r| r.is_finite()));
+        assert!(c.ao.iter().all(|a| (0.0..=1.0).contains(a)));
+    }
+}

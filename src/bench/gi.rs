@@ -350,8 +350,21 @@ pub fn gi_frame(
     settings: &GiSettings,
     repeats: usize,
 ) -> Result<(f64, Frame), crate::Error> {
+    gi_frame_timed(scene, camera, lights, plan, settings, repeats).map(|(ms, _, f)| (ms, f))
+}
+
+/// [`gi_frame`], with the median milliseconds of the gather at the pixels too.
+pub fn gi_frame_timed(
+    scene: &Scene,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    plan: &FramePlan,
+    settings: &GiSettings,
+    repeats: usize,
+) -> Result<(f64, f64, Frame), crate::Error> {
     let mut caches = GiCaches::new();
     let mut times = Vec::new();
+    let mut gathers = Vec::new();
     let mut last = None;
     // One untimed run builds the caches (load-time work). Every run is timed as a first
     // frame: reusing the last frame's chain would time the cones alone.
@@ -361,11 +374,12 @@ pub fn gi_frame(
         let (f, stats) = render_with_gi(scene, camera, lights, plan, &opts, None, settings, &mut caches, &|_, _| {})?;
         if k > 0 {
             times.push(gi_ms(&stats));
+            gathers.push(stats.cones_ms);
         }
         last = Some(f);
     }
     let frame = last.ok_or_else(|| crate::gi::GiError::Settings("no GI frame".into()))?;
-    Ok((summarize(&times).0, frame))
+    Ok((summarize(&times).0, summarize(&gathers).0, frame))
 }
 
 /// Milliseconds of a CPU frame's GI passes.
@@ -582,41 +596,91 @@ fn accuracy_on(
         }
         None => None,
     };
-    let mut push = |name: &str, setting: String, x: f64, ms: f64, frame: &Frame| -> Result<(), crate::Error> {
+    let mut push = |name: &str,
+                    setting: String,
+                    x: f64,
+                    ms: f64,
+                    gather_ms: Option<f64>,
+                    frame: &Frame|
+     -> Result<(), crate::Error> {
         let name = format!("{label}{name}");
         let mut r = accuracy_record(cfg, instances, &name, setting, x, ms, compare_to(frame, &reference)?);
+        r.cache_stages = frame.cache_stages;
+        r.gather_ms = gather_ms;
         if let Some((t, _)) = &triangles {
             r.error_triangles = Some(compare_to(frame, t)?);
         }
         out.push(r);
         Ok(())
     };
-    push("no GI (flat sky term)", "renderer only".into(), 0.0, base_ms, &base)?;
-    push("reference", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, ref_ms, &reference)?;
+    push("no GI (flat sky term)", "renderer only".into(), 0.0, base_ms, None, &base)?;
+    push("reference", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, ref_ms, None, &reference)?;
     if let Some((t, ms)) = &triangles {
-        push("reference (triangles)", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, *ms, t)?;
+        push("reference (triangles)", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, *ms, None, t)?;
     }
     let default = GiSettings::default();
     for &res in &cfg.resolutions {
         progress(&format!("gi-accuracy: {res}³"));
-        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { res, ..default }, cfg.repeats)?;
-        push("volume resolution", format!("{res}³"), res as f64, ms, &f)?;
+        let (ms, g, f) = gi_frame_timed(scene, &camera, &lights, &plan, &GiSettings { res, ..default }, cfg.repeats)?;
+        push("volume resolution", format!("{res}³"), res as f64, ms, Some(g), &f)?;
     }
     for &cones in &cfg.cones {
         progress(&format!("gi-accuracy: {cones} cones"));
         let s = GiSettings { cones: crate::gi::ConeSettings { diffuse_cones: cones, ..default.cones }, ..default };
-        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
-        push("diffuse cones", format!("{cones}"), cones as f64, ms, &f)?;
+        let (ms, g, f) = gi_frame_timed(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
+        push("diffuse cones", format!("{cones}"), cones as f64, ms, Some(g), &f)?;
     }
-    for gather in [crate::render::Gather::Pixels, crate::render::Gather::Half] {
-        progress(&format!("gi-accuracy: {gather:?} gather"));
-        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { gather, ..default }, cfg.repeats)?;
-        let x = if gather == crate::render::Gather::Half { 0.5 } else { 1.0 };
-        push("gather", format!("{gather:?}").to_lowercase(), x, ms, &f)?;
+    let caches = crate::render::radiance_cache::CacheSettings::default();
+    for (what, gather) in [
+        ("pixels", crate::render::Gather::Pixels),
+        ("half", crate::render::Gather::Half),
+        ("caches", crate::render::Gather::Caches(caches)),
+    ] {
+        progress(&format!("gi-accuracy: {what} gather"));
+        let (ms, gather_ms, f) =
+            gi_frame_timed(scene, &camera, &lights, &plan, &GiSettings { gather, ..default }, cfg.repeats)?;
+        let x = match gather {
+            crate::render::Gather::Half => 0.5,
+            crate::render::Gather::Caches(_) => 0.25,
+            crate::render::Gather::Pixels => 1.0,
+        };
+        push("gather", what.into(), x, ms, Some(gather_ms), &f)?;
+    }
+    // Each radiance-cache knob about the defaults.
+    use crate::render::radiance_cache::{CacheSettings, Placement};
+    let with = |f: &dyn Fn(&mut CacheSettings)| {
+        let mut c = caches;
+        f(&mut c);
+        c
+    };
+    let mut knobs: Vec<(&str, String, f64, CacheSettings)> = Vec::new();
+    for n in [1u32, 2, 3, 4] {
+        knobs.push(("caches: per tile", format!("{n}"), n as f64, with(&|c| c.per_tile = n)));
+    }
+    for t in [8u32, 16, 32] {
+        knobs.push(("caches: tile", format!("{t} px"), t as f64, with(&|c| c.tile = t)));
+    }
+    for r in [8u32, 16, 32] {
+        knobs.push(("caches: map resolution", format!("{r}²"), r as f64, with(&|c| c.res = r)));
+    }
+    for r in [1u32, 2, 3] {
+        knobs.push(("caches: radius", format!("{r} tiles"), r as f64, with(&|c| c.radius = r)));
+    }
+    for p in [Placement::Clustered, Placement::Even] {
+        let x = (p == Placement::Clustered) as u32 as f64;
+        knobs.push(("caches: placement", format!("{p:?}").to_lowercase(), x, with(&|c| c.placement = p)));
+    }
+    for (knob, setting, x, c) in knobs {
+        progress(&format!("gi-accuracy: {knob} {setting}"));
+        let s = GiSettings { gather: crate::render::Gather::Caches(c), ..default };
+        let (ms, gather_ms, f) = gi_frame_timed(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
+        push(knob, setting, x, ms, Some(gather_ms), &f)?;
     }
     for filter in [Filter::Nearest, Filter::Split] {
-        let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { filter, ..default }, cfg.repeats)?;
-        push("filter", format!("{filter:?}").to_lowercase(), if filter == Filter::Split { 1.0 } else { 0.0 }, ms, &f)?;
+        let (ms, g, f) =
+            gi_frame_timed(scene, &camera, &lights, &plan, &GiSettings { filter, ..default }, cfg.repeats)?;
+        let x = if filter == Filter::Split { 1.0 } else { 0.0 };
+        push("filter", format!("{filter:?}").to_lowercase(), x, ms, Some(g), &f)?;
     }
     if !cfg.bounces.is_empty() {
         // More bounces approach the light after all bounces, not after one: they are measured

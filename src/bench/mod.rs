@@ -96,6 +96,13 @@ pub struct Record {
     /// Frame-to-frame change of the indirect light over a clip (gi-accuracy's flicker rows).
     #[cfg_attr(feature = "json", serde(default))]
     pub flicker: Option<metrics::Flicker>,
+    /// Milliseconds of GI's gather at the pixels (the ambient pass: cones, or caches and
+    /// their blending), median (gi-accuracy, CPU).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub gather_ms: Option<f64>,
+    /// Where the radiance caches' time went (gi-accuracy rows that gather with caches).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub cache_stages: Option<crate::render::radiance_cache::CacheStages>,
     /// The plan of the last frame.
     pub plan: Option<FramePlan>,
     /// The machine (CPU model and threads).

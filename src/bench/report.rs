@@ -467,17 +467,18 @@ pub fn accuracy_markdown(records: &[Record], charts: &[(String, String)]) -> Str
         return String::new();
     }
     let mut md = provenance(&rs);
-    md += "\n| knob | setting | GI ms (median) | RMSE | mean FLIP | RMSE vs triangles | FLIP vs triangles |\n";
-    md += "|---|---|---|---|---|---|---|\n";
+    md += "\n| knob | setting | GI ms (median) | gather ms | RMSE | mean FLIP | RMSE vs triangles | FLIP vs triangles |\n";
+    md += "|---|---|---|---|---|---|---|---|\n";
     let flip =
         |e: Option<super::metrics::ImageError>| e.and_then(|e| e.flip).map_or("–".into(), |f| format!("{f:.4}"));
     for r in &rs {
         let e = r.error.unwrap_or_default();
         md += &format!(
-            "| {} | {} | {:.1} | {:.4} | {} | {} | {} |\n",
+            "| {} | {} | {:.1} | {} | {:.4} | {} | {} | {} |\n",
             r.name,
             r.setting,
             r.median_ms,
+            r.gather_ms.map_or("–".into(), |g| format!("{g:.1}")),
             e.rmse,
             flip(r.error),
             r.error_triangles.map_or("–".into(), |t| format!("{:.4}", t.rmse)),
@@ -487,6 +488,18 @@ pub fn accuracy_markdown(records: &[Record], charts: &[(String, String)]) -> Str
     for (group, path) in charts {
         if group == "gi-accuracy" {
             md += &format!("\n![error against run time]({path})\n");
+        }
+    }
+    let staged: Vec<&&Record> = rs.iter().filter(|r| r.cache_stages.is_some()).collect();
+    if !staged.is_empty() {
+        md += "\n#### Radiance caches: where the gather's time goes (ms, last timed frame)\n\n";
+        md += "| knob | setting | caches | placement | cache tracing | convolution | gathering |\n|---|---|---|---|---|---|---|\n";
+        for r in staged {
+            let c = r.cache_stages.unwrap_or_default();
+            md += &format!(
+                "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                r.name, r.setting, c.caches, c.placement_ms, c.tracing_ms, c.convolution_ms, c.gathering_ms
+            );
         }
     }
     let fl: Vec<&Record> = records.iter().filter(|r| r.group == "gi-flicker").collect();

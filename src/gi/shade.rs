@@ -382,6 +382,9 @@ impl GiSettings {
     pub fn validated(self) -> Result<Self, GiError> {
         VolumeSpec::with_layout(self.res, DVec3::ZERO, 1.0, self.layout())?;
         self.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
+        if let crate::render::Gather::Caches(c) = self.gather {
+            c.validated().map_err(GiError::Settings)?;
+        }
         if !(1..=MAX_BOUNCES).contains(&self.bounces) {
             return Err(GiError::Settings(format!("bounces must be 1…{MAX_BOUNCES}, not {}", self.bounces)));
         }
@@ -593,17 +596,21 @@ impl GiCaches {
         lights: &Lights,
     ) -> Option<(
         impl Fn(&HitRecord, DVec3) -> (glam::Vec3, f32) + Sync + '_,
-        impl Fn(&HitRecord, DVec3, DVec3, glam::Vec3) -> glam::Vec3 + Sync + '_,
+        impl Fn(&HitRecord, DVec3, DVec3, glam::Vec3, Option<glam::Vec3>) -> glam::Vec3 + Sync + '_,
+        impl Fn(DVec3, DVec3, DVec3, f64) -> glam::Vec4 + Sync + '_,
     )> {
         let last = self.last.as_ref()?;
         let (chain, cones, sky) = (&last.chain, last.cones, lights.sky());
         let diffuse = move |r: &HitRecord, p: DVec3| gather(chain, p, r.normal.as_dvec3(), sky, &cones);
-        let term = move |r: &HitRecord, p: DVec3, d: DVec3, light: glam::Vec3| {
+        let term = move |r: &HitRecord, p: DVec3, d: DVec3, light: glam::Vec3, glossy: Option<glam::Vec3>| {
             let n = r.normal.as_dvec3();
             let mut ambient = r.attr.albedo_linear() * light;
             let ks = r.attr.specular();
             if ks > 0.0 && !cones.specular_cone {
                 ambient += sky * ks;
+            } else if let Some(g) = glossy.filter(|_| ks > 0.0) {
+                // The radiance caches' lobe-sized level along the mirror direction.
+                ambient += g * ks;
             } else if ks > 0.0 {
                 // The specular cone: the Phong lobe's light, the sky where the cone escapes.
                 let reflected = crate::render::brdf::reflect(d, n).normalize();
@@ -614,7 +621,12 @@ impl GiCaches {
             }
             ambient
         };
-        Some((diffuse, term))
+        // One cone of a radiance cache's map: its light, the sky where it escapes.
+        let cone = move |o: DVec3, n: DVec3, d: DVec3, aperture: f64| {
+            let s = trace(chain, o, n, d, aperture, cones.max_distance);
+            (s.truncate() + sky * (1.0 - s.w)).extend(1.0 - s.w)
+        };
+        Some((diffuse, term, cone))
     }
 }
 
@@ -634,9 +646,15 @@ pub fn render_with_gi(
     progress: &(dyn Fn(u32, u32) + Sync),
 ) -> Result<(Frame, GiStats), GiError> {
     let mut stats = prepare_light(scene, camera, lights, s, caches)?;
-    let (diffuse, term) = caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
-    let ambient =
-        crate::render::AmbientLight { diffuse: &diffuse, term: &term, gather: s.gather, unchanged: stats.reuse_pixels };
+    let (diffuse, term, cone) =
+        caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
+    let ambient = crate::render::AmbientLight {
+        diffuse: &diffuse,
+        term: &term,
+        cone: Some(&cone),
+        gather: s.gather,
+        unchanged: stats.reuse_pixels,
+    };
     let (frame, cones_ms) =
         crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress)?;
     stats.cones_ms = cones_ms;

@@ -368,6 +368,14 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
+            if matches!(asked.gather, crate::render::Gather::Caches(_)) {
+                return Err(crate::gi::GiError::Settings(
+                    "the radiance-cache gather runs on the CPU only so far: use --gi-gather pixels or half on the \
+                     GPU, or --backend cpu"
+                        .into(),
+                )
+                .into());
+            }
             let border = self.ctx.device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
             if asked.levels == crate::gi::shade::LevelStore::Texture && !border {
                 return Err(crate::gi::GiError::Settings(
@@ -998,6 +1006,7 @@ impl GpuRenderer {
             ao: if self.gi_stats.is_some() { rad.iter().map(|c| c[3]).collect() } else { Vec::new() },
             // Not counted on the GPU (the half gather's fallbacks are decided per thread).
             gathers: 0,
+            cache_stages: None,
         };
         self.state.reused = f.reused;
         self.state.store(camera, scene, &prepared, records, opts.max_level);

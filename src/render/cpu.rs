@@ -73,6 +73,8 @@ pub struct Frame {
     /// Points where GI's diffuse cones were gathered on the CPU (fewer than the pixels shaded
     /// with [`super::Gather::Half`]); 0 from the GPU, which does not count them.
     pub gathers: u64,
+    /// Where the radiance caches' time went, when GI gathered with them (CPU).
+    pub cache_stages: Option<super::radiance_cache::CacheStages>,
     /// Pixels whose primary hit came from the hit buffer (no ray traced).
     pub reused: u64,
     /// Shadow rays traced.
@@ -228,6 +230,10 @@ pub(crate) fn leave(r: &HitRecord, at: DVec3) -> DVec3 {
     at + r.normal.as_dvec3() * v + r.face_normal.as_dvec3() * (0.1 * v)
 }
 
+/// The ambient term of one hit: (record, point, ray direction, diffuse light, glossy light
+/// from radiance caches) → both lobes' light, reflectance included.
+pub type AmbientTerm<'a> = dyn Fn(&HitRecord, DVec3, DVec3, Vec3, Option<Vec3>) -> Vec3 + Sync + 'a;
+
 /// Where the lighting's ambient term comes from when it is not the flat sky (GI's cones,
 /// [`crate::gi::render_with_gi`]): the diffuse light gathered at a hit, at every pixel or at
 /// half resolution ([`super::gather`]), and the term that makes both lobes' ambient light of
@@ -236,10 +242,13 @@ pub struct AmbientLight<'a> {
     /// The diffuse cones' light at a hit (its record and world-space point) before the
     /// albedo, and the cosine-weighted fraction of the cones that escaped.
     pub diffuse: &'a (dyn Fn(&HitRecord, DVec3) -> (Vec3, f32) + Sync),
-    /// The ambient term of one hit (record, point, ray direction) given its diffuse light:
-    /// both lobes, reflectance included.
-    pub term: &'a (dyn Fn(&HitRecord, DVec3, DVec3, Vec3) -> Vec3 + Sync),
-    /// Where the diffuse light is gathered: every pixel, or half resolution.
+    /// The ambient term of one hit (record, point, ray direction) given its diffuse light and,
+    /// where radiance caches gave it, its glossy light (else the term traces its own
+    /// specular cone): both lobes, reflectance included.
+    pub term: &'a AmbientTerm<'a>,
+    /// One cone through the light (for radiance caches; None: they gather per pixel).
+    pub cone: Option<super::gather::ConeFn<'a>>,
+    /// Where the diffuse light is gathered: every pixel, half resolution or radiance caches.
     pub gather: super::Gather,
     /// The term gives what it gave in the stored frame (the same light, gathered the same
     /// way), so colours kept by the hit buffer stay valid.
@@ -444,8 +453,9 @@ pub fn render_lit(
     let ambient_terms: Vec<Vec3> = match ambient {
         Some(a) => {
             let needed = |x: usize, y: usize| records[y * w + x].instance >= 0 && !kept_colour(x, y);
-            let g = super::gather::gather(a.gather, &records, camera, &basis, a.diffuse, &needed);
+            let g = super::gather::gather(a.gather, &records, camera, &basis, a.diffuse, a.cone, &needed);
             f.gathers = g.gathers;
+            f.cache_stages = g.stages;
             // Kept colours keep last frame's occlusion too.
             f.ao = g.open;
             if let Some(prev) = previous.filter(|p| shade_from.is_some() && p.ao.len() == n) {
@@ -461,7 +471,8 @@ pub fn render_lit(
                     return Vec3::ZERO;
                 }
                 let d = camera.ray_dir(&basis, x as u32, y as u32);
-                (a.term)(&records[k], camera.eye + d * records[k].t as f64, d, g.light[k]).max(Vec3::ZERO)
+                let glossy = g.glossy.get(k).copied().flatten();
+                (a.term)(&records[k], camera.eye + d * records[k].t as f64, d, g.light[k], glossy).max(Vec3::ZERO)
             })
         }
         None => Vec::new(),

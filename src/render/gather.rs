@@ -4,13 +4,15 @@
 //! of its (up to four) nearest samples that lie on its own surface — a normal within about
 //! 25° and a point within one voxel of its tangent plane — and gathers its own cones where
 //! none does, so silhouettes and creases are never blurred across; a pixel on a sample is
-//! that sample.
+//! that sample. The third way evaluates cones at a few radiance caches placed by clustering
+//! the G-buffer's normals ([`super::radiance_cache`]).
 
 use super::cpu::par_map;
 use super::hitbuffer::HitRecord;
+use super::radiance_cache::{CacheSettings, CacheStages};
 use crate::scene::camera::Basis;
 use crate::scene::Camera;
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec4};
 
 /// How the diffuse cones are gathered for the pixels (`--gi-gather`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -20,6 +22,8 @@ pub enum Gather {
     Pixels,
     /// One pixel in four gathers; the others blend the samples on their own surface.
     Half,
+    /// Cones at clustered radiance caches, blended at the pixels (diffuse and glossy).
+    Caches(CacheSettings),
 }
 
 impl std::str::FromStr for Gather {
@@ -28,7 +32,8 @@ impl std::str::FromStr for Gather {
         match s.to_ascii_lowercase().as_str() {
             "pixels" => Ok(Gather::Pixels),
             "half" => Ok(Gather::Half),
-            other => Err(format!("unknown GI gather '{other}' (use pixels or half)")),
+            "caches" => Ok(Gather::Caches(CacheSettings::default())),
+            other => Err(format!("unknown GI gather '{other}' (use pixels, half or caches)")),
         }
     }
 }
@@ -45,6 +50,19 @@ pub(crate) struct Gathered {
     pub open: Vec<f32>,
     /// Points where cones were gathered (samples and pixels that gathered their own).
     pub gathers: u64,
+    /// With caches: each pixel's glossy light from them (None: trace its own specular cone).
+    pub glossy: Vec<Option<Vec3>>,
+    /// With caches: where their time went.
+    pub stages: Option<CacheStages>,
+}
+
+/// What a cone needs and gives: `cone(origin, normal, direction, full aperture)` is the
+/// radiance arriving (the sky where the cone escapes) and, in w, the fraction that escaped.
+pub type ConeFn<'a> = &'a (dyn Fn(DVec3, DVec3, DVec3, f64) -> Vec4 + Sync);
+
+/// The solid angle (steradians) of a cone of full aperture `aperture` (radians).
+pub fn cone_solid_angle(aperture: f64) -> f64 {
+    std::f64::consts::TAU * (1.0 - (0.5 * aperture).cos())
 }
 
 /// Gathers the diffuse light at the pixels for which `needed(x, y)` holds (hits to be
@@ -55,6 +73,7 @@ pub(crate) fn gather(
     camera: &Camera,
     basis: &Basis,
     diffuse: &(dyn Fn(&HitRecord, DVec3) -> (Vec3, f32) + Sync),
+    cone: Option<ConeFn<'_>>,
     needed: &(dyn Fn(usize, usize) -> bool + Sync),
 ) -> Gathered {
     let (w, h) = (camera.width as usize, camera.height as usize);
@@ -68,7 +87,55 @@ pub(crate) fn gather(
             let out = par_map(w * h, |k| needed(k % w, k / w).then(|| own(k % w, k / w)));
             let gathers = out.iter().filter(|o| o.is_some()).count() as u64;
             let (light, open) = out.into_iter().map(|o| o.unwrap_or((Vec3::ZERO, 1.0))).unzip();
-            Gathered { light, open, gathers }
+            Gathered { light, open, gathers, glossy: Vec::new(), stages: None }
+        }
+        Gather::Caches(s) => {
+            let Some(cone) = cone else {
+                return gather(Gather::Pixels, records, camera, basis, diffuse, None, needed);
+            };
+            let hit = |x: u32, y: u32| {
+                let (x, y) = (x as usize, y as usize);
+                needed(x, y).then(|| (point(x, y), records[y * w + x].normal.as_dvec3().normalize_or(DVec3::Y)))
+            };
+            let mut stages = CacheStages::default();
+            let caches = super::radiance_cache::build(&s, camera, &hit, cone, &mut stages);
+            let start = std::time::Instant::now();
+            let out = par_map(w * h, |k| {
+                let (x, y) = (k % w, k / w);
+                if !needed(x, y) {
+                    return None;
+                }
+                let r = &records[k];
+                let (p, n) = (point(x, y), r.normal.as_dvec3().normalize_or(DVec3::Y));
+                let footprint = super::radiance_cache::footprint(camera, basis, r.t as f64);
+                let (e, weight) = caches.blend(s.radius, x as u32, y as u32, p, n, footprint);
+                let (light, open, own) = if weight > 0.0 {
+                    (e.truncate(), e.w, false)
+                } else {
+                    let (l, o) = own(x, y);
+                    (l, o, true)
+                };
+                let glossy = (r.attr.specular() > 0.0).then(|| {
+                    let d = camera.ray_dir(basis, x as u32, y as u32);
+                    let reflected = super::brdf::reflect(d, n).normalize();
+                    let shininess = super::brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
+                    let omega = cone_solid_angle(super::brdf::cone_aperture(shininess));
+                    caches.glossy(s.radius, x as u32, y as u32, p, n, footprint, reflected, omega)
+                });
+                Some((light, open, own, glossy.flatten()))
+            });
+            stages.gathering_ms = start.elapsed().as_secs_f64() * 1e3;
+            let gathers = out.iter().filter(|o| o.as_ref().is_some_and(|o| o.2)).count() as u64;
+            let mut light = Vec::with_capacity(w * h);
+            let mut open = Vec::with_capacity(w * h);
+            let mut glossy = Vec::with_capacity(w * h);
+            for o in out {
+                let (l, a, _, g) = o.unwrap_or((Vec3::ZERO, 1.0, false, None));
+                light.push(l);
+                open.push(a);
+                glossy.push(g);
+            }
+            Gathered { light, open, gathers, glossy, stages: Some(stages) }
         }
         Gather::Half => {
             let (lw, lh) = (w.div_ceil(2), h.div_ceil(2));
@@ -112,7 +179,7 @@ pub(crate) fn gather(
                     None => (Vec3::ZERO, 1.0),
                 })
                 .unzip();
-            Gathered { light, open, gathers }
+            Gathered { light, open, gathers, glossy: Vec::new(), stages: None }
         }
     }
 }
@@ -147,8 +214,8 @@ mod tests {
         let basis = camera.basis();
         let light = |r: &HitRecord, _: DVec3| (Vec3::splat(1.0 + r.instance as f32), 0.25 + 0.5 * r.instance as f32);
         let needed = |x: usize, y: usize| records[y * w as usize + x].instance >= 0;
-        let full = gather(Gather::Pixels, &records, &camera, &basis, &light, &needed);
-        let half = gather(Gather::Half, &records, &camera, &basis, &light, &needed);
+        let full = gather(Gather::Pixels, &records, &camera, &basis, &light, None, &needed);
+        let half = gather(Gather::Half, &records, &camera, &basis, &light, None, &needed);
         let hits = records.iter().filter(|r| r.instance >= 0).count() as u64;
         assert_eq!(full.gathers, hits);
         // A quarter of the pixels, plus those beside the step that no sample on their own wall
@@ -175,8 +242,8 @@ mod tests {
             .collect();
         let light = |_: &HitRecord, p: DVec3| (Vec3::splat(2.0 + p.x as f32), 1.0);
         let needed = |_: usize, _: usize| true;
-        let full = gather(Gather::Pixels, &records, &camera, &basis, &light, &needed);
-        let half = gather(Gather::Half, &records, &camera, &basis, &light, &needed);
+        let full = gather(Gather::Pixels, &records, &camera, &basis, &light, None, &needed);
+        let half = gather(Gather::Half, &records, &camera, &basis, &light, None, &needed);
         for k in 0..(w * h) as usize {
             let (x, y) = (k % w as usize, k / w as usize);
             let last = x == w as usize - 1 && x % 2 == 1 || y == h as usize - 1 && y % 2 == 1;

@@ -13,6 +13,7 @@ pub mod instances;
 pub mod output;
 pub mod plan;
 pub mod primary;
+pub mod radiance_cache;
 pub mod splat;
 pub mod visibility;
 

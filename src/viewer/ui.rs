@@ -160,6 +160,8 @@ impl App {
                             row.label("GI gather:");
                             row.radio_value(&mut ui.gi.gather, Gather::Pixels, "every pixel");
                             row.radio_value(&mut ui.gi.gather, Gather::Half, "half resolution");
+                            let caches = Gather::Caches(Default::default());
+                            row.radio_value(&mut ui.gi.gather, caches, "radiance caches (CPU)");
                         });
                         ui_.horizontal(|row| {
                             use crate::gi::shade::VolumeChoice;

@@ -204,10 +204,26 @@ pub(crate) struct RenderArgs {
     /// equal to the CPU) or texture (a 3D texture with mips, hardware filtering; dense volume).
     #[arg(long, default_value = "buffer", requires = "gi")]
     pub(crate) gi_levels: voxray::gi::shade::LevelStore,
-    /// Where GI's diffuse cones are gathered: pixels (every pixel) or half (one pixel in each
-    /// 2×2 block, blended at the others from the samples on their own surface).
+    /// Where GI's diffuse cones are gathered: pixels (every pixel), half (one pixel in each
+    /// 2×2 block, blended at the others from the samples on their own surface) or caches
+    /// (clustered radiance caches, diffuse and glossy; CPU; docs/gi.md).
     #[arg(long, default_value = "pixels", requires = "gi")]
     pub(crate) gi_gather: voxray::render::Gather,
+    /// Radiance caches: tile edge in pixels.
+    #[arg(long, default_value_t = 16, requires = "gi")]
+    pub(crate) gi_cache_tile: u32,
+    /// Radiance caches: most caches per tile (one per dominant normal).
+    #[arg(long, default_value_t = 3, requires = "gi")]
+    pub(crate) gi_cache_count: u32,
+    /// Radiance caches: texels per side of each cache's hemispherical map (4, 8, 16 or 32).
+    #[arg(long, default_value_t = 16, requires = "gi")]
+    pub(crate) gi_cache_res: u32,
+    /// Radiance caches: gathering radius in tiles.
+    #[arg(long, default_value_t = 2, requires = "gi")]
+    pub(crate) gi_cache_radius: u32,
+    /// Radiance caches: placement, clustered (the tiles' dominant normals) or even (a grid).
+    #[arg(long, default_value = "clustered", requires = "gi")]
+    pub(crate) gi_cache_placement: voxray::render::radiance_cache::Placement,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]

@@ -192,7 +192,18 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         bounces: a.gi_bounces,
         volume: a.gi_volume,
         levels: a.gi_levels,
-        gather: a.gi_gather,
+        gather: match a.gi_gather {
+            voxray::render::Gather::Caches(_) => {
+                voxray::render::Gather::Caches(voxray::render::radiance_cache::CacheSettings {
+                    tile: a.gi_cache_tile,
+                    per_tile: a.gi_cache_count,
+                    res: a.gi_cache_res,
+                    radius: a.gi_cache_radius,
+                    placement: a.gi_cache_placement,
+                })
+            }
+            g => g,
+        },
     });
     if let Some(g) = &gi {
         // Check the knobs before any frame is rendered.
@@ -261,6 +272,12 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     s.voxels, s.occupied, g.res, s.caches_ms, s.transform_ms, s.inject_ms, s.levels_ms, s.cones_ms,
                     frame.gathers, frame.instance.iter().filter(|&&i| i >= 0).count()
                 );
+                if let Some(c) = frame.cache_stages {
+                    eprintln!(
+                        "GI radiance caches: {} placed; placement {:.1} ms, cache tracing {:.1} ms, convolution {:.1} ms, gathering {:.1} ms",
+                        c.caches, c.placement_ms, c.tracing_ms, c.convolution_ms, c.gathering_ms
+                    );
+                }
                 let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
                 eprintln!(
                     "GI volume: {:?}, {:.1} MiB of cells (dense {}³: {:.1} MiB)",
