@@ -758,3 +758,53 @@ fn gltf_and_vox_scenes_render_and_animate() {
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("no non-degenerate triangles"));
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// The radiance-cache gather from the command line: it renders the box and reports where its
+/// time went; bad knobs are refused by name; the GPU says it does not run it.
+#[test]
+fn radiance_caches_render_and_refuse_bad_knobs() {
+    let d = tmp("caches");
+    let out = s(&d.join("caches.png")).to_string();
+    let box_args = [
+        "--obj",
+        "models/box/box.obj",
+        "--camera-json",
+        "models/box/camera.json",
+        "--lights-json",
+        "models/box/lights.json",
+        "--width",
+        "48",
+        "--height",
+        "36",
+        "--no-cache",
+        "--gi",
+        "--gi-res",
+        "32",
+        "--gi-gather",
+        "caches",
+        "--out",
+        &out,
+    ];
+    let o = voxray(&[&["render", "--backend", "cpu"][..], &box_args[..]].concat());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("GI radiance caches:") && err.contains("cache tracing"), "{err}");
+    assert!(std::fs::metadata(&out).is_ok_and(|m| m.len() > 0));
+    for (knob, value, says) in [
+        ("--gi-cache-res", "12", "cache map resolution must be 4, 8, 16 or 32, not 12"),
+        ("--gi-cache-tile", "2", "cache tile must be 4…256 pixels, not 2"),
+        ("--gi-cache-count", "0", "caches per tile must be 1…16, not 0"),
+        ("--gi-cache-radius", "9", "cache gathering radius must be 1…8 tiles, not 9"),
+        ("--gi-cache-placement", "random", "unknown cache placement 'random'"),
+    ] {
+        let o = voxray(&[&["render", "--backend", "cpu", knob, value][..], &box_args[..]].concat());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{knob} {value} was accepted");
+        assert!(err.contains(says), "{knob} {value}: {err}");
+    }
+    let o = voxray(&[&["render", "--backend", "gpu"][..], &box_args[..]].concat());
+    let err = String::from_utf8_lossy(&o.stderr);
+    // Without any Vulkan adapter (outside CI) the GPU backend cannot start at all.
+    let no_adapter = err.contains("adapter") && !std::env::var("CI").is_ok_and(|v| v == "true");
+    assert!(!o.status.success() && (no_adapter || err.contains("runs on the CPU only so far")), "{err}");
+}

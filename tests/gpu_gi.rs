@@ -648,3 +648,27 @@ fn gpu_gi_with_emitters_matches_the_cpu() {
     .unwrap();
     images_agree(ctx, &scene, &cam, &more, GiSettings { res: 32, ..Default::default() });
 }
+
+/// The GPU counts its GI gathers as the CPU does: every shaded hit with the per-pixel gather;
+/// the samples and the pixels no sample serves with the half-resolution one.
+#[test]
+fn gpu_counts_its_gathers_like_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let scene = room_scene(6).unwrap();
+    let (cam, lights) = (voxray::model::room::camera(64, 48), voxray::model::room::lights());
+    let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+    let opts = RenderOptions::default();
+    for gather in [voxray::render::Gather::Pixels, voxray::render::Gather::Half] {
+        let s = GiSettings { res: 32, gather, ..Default::default() };
+        let (cpu, _) =
+            voxray::gi::render_with_gi(&scene, &cam, &lights, &plan, &opts, None, &s, &mut GiCaches::new(), &|_, _| {})
+                .unwrap();
+        let mut gpu = GpuRenderer::new(ctx.clone());
+        gpu.set_gi(Some(s)).unwrap();
+        gpu.set_counting(true);
+        let g = gpu.render(&scene, &cam, &lights, &plan, &opts).unwrap();
+        let tol = 8 + cpu.gathers / 50;
+        assert!(g.gathers > 0, "{gather:?}: the GPU counted no gathers");
+        assert!(cpu.gathers.abs_diff(g.gathers) <= tol, "{gather:?}: CPU {} GPU {} gathers", cpu.gathers, g.gathers);
+    }
+}

@@ -291,6 +291,7 @@ fn gather_half_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var s = vec4<f32>(0.0, 0.0, 0.0, -1.0);
     if h.instance >= 0 {
         s = gi_gather(ray_dir(x, y) * h.t, vec3<f32>(h.nx, h.ny, h.nz));
+        gi_count_gather();
     }
     gi_samples[gid.y * lw + gid.x] = s;
 }
@@ -306,6 +307,7 @@ fn gi_near_last(c: u32, limit: u32) -> u32 {
 // GI_SAME_NORMAL, point within a voxel of its tangent plane), its own cones where none is.
 fn gi_diffuse(h: Hit, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>) -> vec4<f32> {
     if gi.half == 0u {
+        gi_count_gather();
         return gi_gather(p, n);
     }
     let lw = gi.half_width;
@@ -329,7 +331,15 @@ fn gi_diffuse(h: Hit, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>) -> vec4<f32> {
     if weight > 0.0 {
         return light / weight;
     }
+    gi_count_gather();
     return gi_gather(p, n);
+}
+
+// Adds one gather point to the frame's statistics (Frame::gathers), when counting.
+fn gi_count_gather() {
+    if frame.count != 0u {
+        atomicAdd(&stats[STAT_GATHERS], 1u);
+    }
 }
 
 // shade_main with the ambient term from the cones instead of the flat sky.

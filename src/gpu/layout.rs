@@ -143,8 +143,11 @@ pub struct GpuStats {
     pub spheres_culled: u32,
     /// Shadow rays traced.
     pub shadow_rays: u32,
+    /// Points where GI's diffuse cones were gathered (every shaded hit, or with the
+    /// half-resolution gather its samples and the pixels that gathered their own).
+    pub gathers: u32,
     /// Padding.
-    pub pad: [u32; 3],
+    pub pad: [u32; 2],
 }
 
 /// One BVH node; `lo[3]`/`hi[3]` hold `first`/`count` as bits. WGSL: `BvhNode`.

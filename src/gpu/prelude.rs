@@ -135,6 +135,7 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
             ("STAT_INSTANCES_TRACED", offset_of!(GpuStats, instances_traced)),
             ("STAT_SPHERES_CULLED", offset_of!(GpuStats, spheres_culled)),
             ("STAT_SHADOW_RAYS", offset_of!(GpuStats, shadow_rays)),
+            ("STAT_GATHERS", offset_of!(GpuStats, gathers)),
         ]
         .map(|(name, off)| (name, "u32", u(off as u64 / 4))),
     );

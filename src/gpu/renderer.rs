@@ -942,6 +942,7 @@ impl GpuRenderer {
                 instances_traced: st.instances_traced as u64,
                 spheres_culled: st.spheres_culled as u64,
                 shadow_rays: st.shadow_rays as u64,
+                gathers: st.gathers as u64,
                 on_device: true,
                 ..Frame::default()
             });
@@ -1004,8 +1005,8 @@ impl GpuRenderer {
             on_device: false,
             // The GI shading writes the cones' open fraction into the radiance's w.
             ao: if self.gi_stats.is_some() { rad.iter().map(|c| c[3]).collect() } else { Vec::new() },
-            // Not counted on the GPU (the half gather's fallbacks are decided per thread).
-            gathers: 0,
+            // Counted by the GI passes when counting is on (0 otherwise).
+            gathers: self.stats.map_or(0, |st| st.gathers as u64),
             cache_stages: None,
         };
         self.state.reused = f.reused;
