@@ -672,3 +672,44 @@ fn gpu_counts_its_gathers_like_the_cpu() {
         assert!(cpu.gathers.abs_diff(g.gathers) <= tol, "{gather:?}: CPU {} GPU {} gathers", cpu.gathers, g.gathers);
     }
 }
+
+/// Radiance caches on the GPU: the box lit through them as on the CPU, clustered and even,
+/// with their fallback gathers counted alike; and different from the GPU's per-pixel gather
+/// (so the caches were really used).
+#[test]
+fn gpu_radiance_caches_match_the_cpu() {
+    use voxray::render::radiance_cache::{CacheSettings, Placement};
+    let Some(ctx) = context() else { return };
+    let scene = room_scene(6).unwrap();
+    let (_, per_pixel) = box_images_agree(ctx.clone(), &scene, GiSettings { res: 32, ..Default::default() });
+    for placement in [Placement::Clustered, Placement::Even] {
+        let c = CacheSettings { placement, tile: 8, ..Default::default() };
+        let s = GiSettings { res: 32, gather: voxray::render::Gather::Caches(c), ..Default::default() };
+        let (cpu, gpu) = box_images_agree(ctx.clone(), &scene, s);
+        let differ = gpu.radiance.iter().zip(&per_pixel.radiance).filter(|(a, b)| a != b).count();
+        assert!(
+            differ > gpu.radiance.len() / 4,
+            "{placement:?}: only {differ} pixels differ from the per-pixel gather"
+        );
+        let mut renderer = GpuRenderer::new(ctx.clone());
+        renderer.set_gi(Some(s)).unwrap();
+        renderer.set_counting(true);
+        let (cam, lights) = (voxray::model::room::camera(64, 48), voxray::model::room::lights());
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+        let g = renderer.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        assert!(
+            cpu.gathers.abs_diff(g.gathers) <= 8 + cpu.gathers / 10,
+            "{placement:?}: CPU {} GPU {} fallback gathers",
+            cpu.gathers,
+            g.gathers
+        );
+    }
+    // Glossy walls: the caches' lobe-sized mip level along the mirror direction.
+    let glossy = voxray::bench::gi::glossy_room_scene(6).unwrap();
+    let c = CacheSettings { tile: 8, ..Default::default() };
+    box_images_agree(
+        ctx,
+        &glossy,
+        GiSettings { res: 32, gather: voxray::render::Gather::Caches(c), ..Default::default() },
+    );
+}

@@ -29,6 +29,13 @@ override GI_TEXTURE: bool = false;
 // unless gi.half.
 @group(1) @binding(B_GI_SAMPLES) var<storage, read_write> gi_samples: array<vec4<f32>>;
 
+// Radiance caches (render::radiance_cache): two vec4 per slot (tile × per_tile slots): the
+// camera-relative point and 1 when placed, then the unit normal and the pixel (x | y << 16, as
+// bits). Their maps, gi.cache_stride vec4 per slot: the res² texels, the mips down to 1², the
+// irradiance map. One-element placeholders unless gi.caches.
+@group(1) @binding(B_GI_CACHE_POINTS) var<storage, read_write> gi_cache_points: array<vec4<f32>>;
+@group(1) @binding(B_GI_CACHE_MAPS) var<storage, read_write> gi_cache_maps: array<vec4<f32>>;
+
 // The level chain as a 3D texture with mips (a 1³ placeholder unless GI_TEXTURE).
 @group(1) @binding(B_GI_TEX) var gi_tex: texture_3d<f32>;
 @group(1) @binding(B_GI_SAMPLER) var gi_sampler: sampler;
@@ -306,6 +313,14 @@ fn gi_near_last(c: u32, limit: u32) -> u32 {
 // half-resolution gather the mean of the nearest samples on its own surface (normal within
 // GI_SAME_NORMAL, point within a voxel of its tangent plane), its own cones where none is.
 fn gi_diffuse(h: Hit, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>) -> vec4<f32> {
+    if gi.caches != 0u {
+        let c = gi_cache_blend(x, y, p, n, h.t, vec3<f32>(0.0), -1.0);
+        if c.weight > 0.0 {
+            return c.value;
+        }
+        gi_count_gather();
+        return gi_gather(p, n);
+    }
     if gi.half == 0u {
         gi_count_gather();
         return gi_gather(p, n);
@@ -356,8 +371,18 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let diffuse = gi_diffuse(h, gid.x, gid.y, p, n);
     var ambient = albedo * diffuse.xyz;
     let ks = specular(h.material);
+    var glossy = GiCacheBlend(vec4<f32>(0.0), 0.0);
+    if ks > 0.0 && gi.specular_cone != 0u && gi.caches != 0u {
+        // The caches' lobe-sized level along the mirror direction (render::gather).
+        let e = shininess_of(h.material);
+        let omega = 6.28318530718 * (1.0 - pow(0.5, 1.0 / max(e, 1.0)));
+        let r = normalize(reflect(ray_dir(gid.x, gid.y), n));
+        glossy = gi_cache_blend(gid.x, gid.y, p, n, h.t, r, omega);
+    }
     if ks > 0.0 && gi.specular_cone == 0u {
         ambient += ks * frame.sky.xyz;
+    } else if glossy.weight > 0.0 {
+        ambient += ks * glossy.value.xyz;
     } else if ks > 0.0 {
         // The specular cone (shade.rs): the Phong lobe's light, the sky where it escapes.
         let r = reflect(ray_dir(gid.x, gid.y), n);
@@ -398,4 +423,465 @@ fn bounce_commit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     gi_levels[i] = gi_next[i];
+}
+
+// ---- Radiance caches (render::radiance_cache) ----
+
+// radiance_cache::square_to_disk then map_direction: map point (u, v) → local direction.
+fn gi_map_direction(u: f32, v: f32) -> vec3<f32> {
+    let a = 2.0 * u - 1.0;
+    let b = 2.0 * v - 1.0;
+    var x = 0.0;
+    var y = 0.0;
+    if a != 0.0 || b != 0.0 {
+        var r = b;
+        var phi = 1.57079632679 - 0.78539816340 * (a / b);
+        if abs(a) > abs(b) {
+            r = a;
+            phi = 0.78539816340 * (b / a);
+        }
+        x = r * cos(phi);
+        y = r * sin(phi);
+    }
+    let rho2 = min(x * x + y * y, 1.0);
+    let s = sqrt(2.0 - rho2);
+    return vec3<f32>(x * s, y * s, 1.0 - rho2);
+}
+
+// radiance_cache::map_point: local unit direction → map point.
+fn gi_map_point(d: vec3<f32>) -> vec2<f32> {
+    let z = clamp(d.z, 0.0, 1.0);
+    let horizontal = sqrt(d.x * d.x + d.y * d.y);
+    let rho = sqrt(1.0 - z);
+    var x = 0.0;
+    var y = 0.0;
+    if horizontal > 0.0 {
+        x = d.x / horizontal * rho;
+        y = d.y / horizontal * rho;
+    }
+    let r = sqrt(x * x + y * y);
+    if r == 0.0 {
+        return vec2<f32>(0.5);
+    }
+    var phi = atan2(y, x);
+    if phi < -0.78539816340 {
+        phi += 6.28318530718;
+    }
+    var ab: vec2<f32>;
+    if phi < 0.78539816340 {
+        ab = vec2<f32>(r, phi * r / 0.78539816340);
+    } else if phi < 2.35619449019 {
+        ab = vec2<f32>(-(phi - 1.57079632679) * r / 0.78539816340, r);
+    } else if phi < 3.92699081699 {
+        ab = vec2<f32>(-r, -(phi - 3.14159265359) * r / 0.78539816340);
+    } else {
+        ab = vec2<f32>((phi - 4.71238898038) * r / 0.78539816340, -r);
+    }
+    return (ab + 1.0) * 0.5;
+}
+
+// glam's any_orthonormal_pair, as gi_gather uses: the cache's tangent frame.
+fn gi_tangents(n: vec3<f32>) -> mat2x3<f32> {
+    let sign = select(-1.0, 1.0, (bitcast<u32>(n.z) & 0x80000000u) == 0u);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    return mat2x3<f32>(vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x), vec3<f32>(b, sign + n.y * n.y * a, -n.y));
+}
+
+// First element of mip level k (level 0: the res² texels) within a slot's maps.
+fn gi_mip_offset(k: u32) -> u32 {
+    var off = 0u;
+    var n = gi.cache_res;
+    for (var j = 0u; j < k; j++) {
+        off += n * n;
+        n = n / 2u;
+    }
+    return off;
+}
+
+// Levels of the pyramid (res² down to 1²).
+fn gi_mip_count() -> u32 {
+    return firstTrailingBit(gi.cache_res) + 1u;
+}
+
+// The irradiance map's texels per side.
+fn gi_irr_res() -> u32 {
+    return max(gi.cache_res / 2u, 2u);
+}
+
+// MapLevel::lookup: bilinear at map point m of the n×n level starting at element `base`.
+fn gi_map_lookup(base: u32, n: u32, m: vec2<f32>) -> vec4<f32> {
+    let fx = clamp(m.x * f32(n) - 0.5, 0.0, f32(n - 1u));
+    let fy = clamp(m.y * f32(n) - 0.5, 0.0, f32(n - 1u));
+    let x0 = u32(floor(fx));
+    let y0 = u32(floor(fy));
+    let x1 = min(x0 + 1u, n - 1u);
+    let y1 = min(y0 + 1u, n - 1u);
+    let tx = fx - f32(x0);
+    let ty = fy - f32(y0);
+    let top = gi_cache_maps[base + y0 * n + x0] * (1.0 - tx) + gi_cache_maps[base + y0 * n + x1] * tx;
+    let bottom = gi_cache_maps[base + y1 * n + x0] * (1.0 - tx) + gi_cache_maps[base + y1 * n + x1] * tx;
+    return top * (1.0 - ty) + bottom * ty;
+}
+
+// Placement scratch of one tile's workgroup.
+var<workgroup> gi_hist: array<atomic<u32>, 64>;
+var<workgroup> gi_picks: array<vec3<f32>, 16>;
+var<workgroup> gi_pick_count: u32;
+var<workgroup> gi_sum_n: array<atomic<i32>, 48>;
+var<workgroup> gi_sum_xy: array<atomic<u32>, 32>;
+var<workgroup> gi_members: array<atomic<u32>, 16>;
+var<workgroup> gi_best: array<atomic<u32>, 16>;
+
+// Fixed point of the placement's sums (histogram weights and normals).
+const GI_PLACE_FIX: f32 = 4096.0;
+
+// radiance_cache::histogram_directions: a Fibonacci sphere of 64 directions.
+fn gi_hist_dir(i: u32) -> vec3<f32> {
+    let z = 1.0 - 2.0 * (f32(i) + 0.5) / 64.0;
+    let r = sqrt(1.0 - z * z);
+    let phi = 2.39996322973 * f32(i);
+    return vec3<f32>(r * cos(phi), r * sin(phi), z);
+}
+
+// The tile's pixel k (row by row) and whether it is a hit.
+fn gi_tile_pixel(tile: u32, k: u32) -> vec3<u32> {
+    let t = gi.cache_tile;
+    let tx = tile % gi.cache_tiles_x;
+    let ty = tile / gi.cache_tiles_x;
+    let x0 = tx * t;
+    let y0 = ty * t;
+    let w = min(x0 + t, frame.width) - x0;
+    let x = x0 + k % w;
+    let y = y0 + k / w;
+    let inside = k < w * (min(y0 + t, frame.height) - y0);
+    return vec3<u32>(x, y, select(0u, 1u, inside && hits[y * frame.width + x].instance >= 0));
+}
+
+// radiance_cache::place_tile, clustered or even, one workgroup per tile: up to per_tile
+// caches into the tile's slots (unplaced slots are marked empty).
+@compute @workgroup_size(64, 1, 1)
+fn cache_place_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let tile = wid.x + wid.y * 65535u;
+    let tiles = gi.cache_tiles_x * ((frame.height + gi.cache_tile - 1u) / gi.cache_tile);
+    if tile >= tiles {
+        return;
+    }
+    let per = gi.cache_per_tile;
+    let tx = tile % gi.cache_tiles_x;
+    let ty = tile / gi.cache_tiles_x;
+    let x0 = tx * gi.cache_tile;
+    let y0 = ty * gi.cache_tile;
+    let tw = min(x0 + gi.cache_tile, frame.width) - x0;
+    let th = min(y0 + gi.cache_tile, frame.height) - y0;
+    let count = tw * th;
+    for (var i = li; i < 64u; i += 64u) {
+        atomicStore(&gi_hist[i], 0u);
+    }
+    for (var i = li; i < 48u; i += 64u) {
+        atomicStore(&gi_sum_n[i], 0);
+    }
+    for (var i = li; i < 32u; i += 64u) {
+        atomicStore(&gi_sum_xy[i], 0u);
+    }
+    for (var i = li; i < 16u; i += 64u) {
+        atomicStore(&gi_members[i], 0u);
+        atomicStore(&gi_best[i], 0u);
+    }
+    workgroupBarrier();
+    if gi.cache_placement == 0u {
+        for (var k = li; k < count; k += 64u) {
+            let px = gi_tile_pixel(tile, k);
+            if px.z == 0u {
+                continue;
+            }
+            let h = hits[px.y * frame.width + px.x];
+            let n = normalize(vec3<f32>(h.nx, h.ny, h.nz));
+            for (var b = 0u; b < 64u; b++) {
+                let w = exp(-(1.0 - dot(n, gi_hist_dir(b))) / 0.1);
+                atomicAdd(&gi_hist[b], u32(w * GI_PLACE_FIX + 0.5));
+            }
+        }
+    }
+    workgroupBarrier();
+    if li == 0u {
+        var picks = 0u;
+        if gi.cache_placement == 0u {
+            // dominant_normals: the best direction, the others damped by 1 − |d·d_best|⁸.
+            var w: array<f32, 64>;
+            for (var b = 0u; b < 64u; b++) {
+                w[b] = f32(atomicLoad(&gi_hist[b]));
+            }
+            var first = 0.0;
+            for (var k = 0u; k < per; k++) {
+                var bi = 0u;
+                for (var b = 1u; b < 64u; b++) {
+                    if w[b] >= w[bi] {
+                        bi = b;
+                    }
+                }
+                let best = w[bi];
+                if k == 0u {
+                    first = best;
+                }
+                if !(best > 0.0) || best < 0.1 * first {
+                    break;
+                }
+                let d = gi_hist_dir(bi);
+                gi_picks[picks] = d;
+                picks += 1u;
+                for (var b = 0u; b < 64u; b++) {
+                    w[b] *= 1.0 - pow(abs(dot(gi_hist_dir(b), d)), 8.0);
+                }
+            }
+        }
+        gi_pick_count = picks;
+    }
+    workgroupBarrier();
+    let picks = workgroupUniformLoad(&gi_pick_count);
+    let k_even = u32(ceil(sqrt(f32(per))));
+    let cell = max((tw + k_even - 1u) / k_even, 1u);
+    // Clusters: sums of their members' normals and pixel positions.
+    for (var k = li; k < count; k += 64u) {
+        let px = gi_tile_pixel(tile, k);
+        if px.z == 0u {
+            continue;
+        }
+        let h = hits[px.y * frame.width + px.x];
+        let n = normalize(vec3<f32>(h.nx, h.ny, h.nz));
+        if gi.cache_placement == 0u {
+            for (var c = 0u; c < picks; c++) {
+                let own = dot(n, gi_picks[c]);
+                var nearest = own > 0.5;
+                for (var o = 0u; o < picks; o++) {
+                    if o != c && dot(n, gi_picks[o]) > own {
+                        nearest = false;
+                    }
+                }
+                if nearest {
+                    atomicAdd(&gi_members[c], 1u);
+                    atomicAdd(&gi_sum_n[3u * c], i32(round(n.x * GI_PLACE_FIX)));
+                    atomicAdd(&gi_sum_n[3u * c + 1u], i32(round(n.y * GI_PLACE_FIX)));
+                    atomicAdd(&gi_sum_n[3u * c + 2u], i32(round(n.z * GI_PLACE_FIX)));
+                    atomicAdd(&gi_sum_xy[2u * c], px.x);
+                    atomicAdd(&gi_sum_xy[2u * c + 1u], px.y);
+                }
+            }
+        }
+    }
+    workgroupBarrier();
+    // The representative of each cluster (or grid cell): the highest score, ties to the last
+    // pixel, as Iterator::max_by keeps.
+    for (var k = li; k < count; k += 64u) {
+        let px = gi_tile_pixel(tile, k);
+        if px.z == 0u {
+            continue;
+        }
+        let h = hits[px.y * frame.width + px.x];
+        let n = normalize(vec3<f32>(h.nx, h.ny, h.nz));
+        if gi.cache_placement == 0u {
+            for (var c = 0u; c < picks; c++) {
+                let own = dot(n, gi_picks[c]);
+                var nearest = own > 0.5;
+                for (var o = 0u; o < picks; o++) {
+                    if o != c && dot(n, gi_picks[o]) > own {
+                        nearest = false;
+                    }
+                }
+                if !nearest {
+                    continue;
+                }
+                let m = f32(atomicLoad(&gi_members[c]));
+                let sn = vec3<f32>(
+                    f32(atomicLoad(&gi_sum_n[3u * c])),
+                    f32(atomicLoad(&gi_sum_n[3u * c + 1u])),
+                    f32(atomicLoad(&gi_sum_n[3u * c + 2u])),
+                );
+                let mean = select(gi_picks[c], normalize(sn), dot(sn, sn) > 0.0);
+                let centre = vec2<f32>(f32(atomicLoad(&gi_sum_xy[2u * c])), f32(atomicLoad(&gi_sum_xy[2u * c + 1u]))) / m;
+                let dist = length(vec2<f32>(f32(px.x), f32(px.y)) - centre);
+                let score = dot(n, mean) - 0.5 * dist / f32(tw);
+                let q = u32(clamp((score + 2.0) * 16383.0, 0.0, 65535.0));
+                atomicMax(&gi_best[c], (q << 16u) | (k + 1u));
+            }
+        } else {
+            // The grid cell of this pixel; its cache is the hit nearest the cell's centre.
+            let i = (px.x - x0) / cell;
+            let j = min(px.y - y0, th - 1u) / cell;
+            let c = j * k_even + i;
+            if i < k_even && j < k_even && c < per {
+                let cx = f32(x0) + (f32(i) + 0.5) * f32(cell);
+                let cy = f32(y0) + (f32(j) + 0.5) * f32(cell);
+                let d2 = (f32(px.x) - cx) * (f32(px.x) - cx) + (f32(px.y) - cy) * (f32(px.y) - cy);
+                // Nearest first, ties to the first pixel (min_by keeps the first).
+                let q = 65535u - u32(clamp(d2, 0.0, 65535.0));
+                atomicMax(&gi_best[c], (q << 16u) | (65535u - k));
+            }
+        }
+    }
+    workgroupBarrier();
+    if li < per {
+        let slot = tile * per + li;
+        let key = atomicLoad(&gi_best[li]);
+        var k = 0u;
+        var placed = key != 0u;
+        if gi.cache_placement == 0u {
+            placed = placed && li < picks;
+            k = (key & 0xFFFFu) - 1u;
+        } else {
+            k = 65535u - (key & 0xFFFFu);
+        }
+        if placed {
+            let px = gi_tile_pixel(tile, k);
+            let h = hits[px.y * frame.width + px.x];
+            let p = ray_dir(px.x, px.y) * h.t;
+            gi_cache_points[2u * slot] = vec4<f32>(p, 1.0);
+            gi_cache_points[2u * slot + 1u] =
+                vec4<f32>(normalize(vec3<f32>(h.nx, h.ny, h.nz)), bitcast<f32>(px.x | (px.y << 16u)));
+        } else {
+            gi_cache_points[2u * slot] = vec4<f32>(0.0);
+        }
+    }
+}
+
+// radiance_cache::trace_texels: one cone per texel of every placed cache, as wide as the
+// texel's solid angle.
+@compute @workgroup_size(64, 1, 1)
+fn cache_trace_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x + gid.y * gi.cache_row_threads;
+    let texels = gi.cache_res * gi.cache_res;
+    let slot = i / texels;
+    if slot >= gi.cache_slots || gi_cache_points[2u * slot].w == 0.0 {
+        return;
+    }
+    let t = i % texels;
+    let p = gi_cache_points[2u * slot].xyz;
+    let n = gi_cache_points[2u * slot + 1u].xyz;
+    let tb = gi_tangents(n);
+    let res = f32(gi.cache_res);
+    let l = gi_map_direction((f32(t % gi.cache_res) + 0.5) / res, (f32(t / gi.cache_res) + 0.5) / res);
+    let d = tb[0] * l.x + tb[1] * l.y + n * l.z;
+    let c = gi_trace(p, n, d, gi.cache_spread);
+    gi_cache_maps[slot * gi.cache_stride + t] = vec4<f32>(c.xyz + frame.sky.xyz * (1.0 - c.w), 1.0 - c.w);
+}
+
+// The level-0 texel directions of the slot a convolution workgroup works on.
+var<workgroup> gi_texel_dirs: array<vec3<f32>, 1024>;
+
+// radiance_cache::convolve, one workgroup per cache: the mips (each texel the mean of its
+// block of level 0, as the 2×2 averages make it) and the irradiance map (the cosine-weighted
+// mean about each texel's direction); the level-0 directions are made once per workgroup.
+@compute @workgroup_size(64, 1, 1)
+fn cache_convolve_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let slot = wid.x + wid.y * 65535u;
+    if slot >= gi.cache_slots || gi_cache_points[2u * slot].w == 0.0 {
+        return;
+    }
+    let texels = gi.cache_res * gi.cache_res;
+    let res = f32(gi.cache_res);
+    for (var t = li; t < texels; t += 64u) {
+        gi_texel_dirs[t] = gi_map_direction((f32(t % gi.cache_res) + 0.5) / res, (f32(t / gi.cache_res) + 0.5) / res);
+    }
+    workgroupBarrier();
+    let base = slot * gi.cache_stride;
+    let mips = gi_mip_count();
+    let irr = gi_mip_offset(mips);
+    let ni = gi_irr_res();
+    for (var j = texels + li; j < gi.cache_stride; j += 64u) {
+        if j < irr {
+            var k = 1u;
+            while gi_mip_offset(k + 1u) <= j {
+                k += 1u;
+            }
+            let n = gi.cache_res >> k;
+            let e = j - gi_mip_offset(k);
+            let block = 1u << k;
+            let x0 = (e % n) * block;
+            let y0 = (e / n) * block;
+            var sum = vec4<f32>(0.0);
+            for (var y = y0; y < y0 + block; y++) {
+                for (var x = x0; x < x0 + block; x++) {
+                    sum += gi_cache_maps[base + y * gi.cache_res + x];
+                }
+            }
+            gi_cache_maps[base + j] = sum / f32(block * block);
+            continue;
+        }
+        let e = j - irr;
+        let nd = gi_map_direction((f32(e % ni) + 0.5) / f32(ni), (f32(e / ni) + 0.5) / f32(ni));
+        var sum = vec4<f32>(0.0);
+        var weight = 0.0;
+        for (var t = 0u; t < texels; t++) {
+            let c = dot(nd, gi_texel_dirs[t]);
+            if c > 0.0 {
+                sum += gi_cache_maps[base + t] * c;
+                weight += c;
+            }
+        }
+        gi_cache_maps[base + j] = select(vec4<f32>(0.0), sum / weight, weight > 0.0);
+    }
+}
+
+// A blend of the caches near a pixel and its total weight (0: none applies).
+struct GiCacheBlend {
+    value: vec4<f32>,
+    weight: f32,
+}
+
+// FrameCaches::blend (omega < 0: the irradiance and open fraction at normal n) and
+// FrameCaches::glossy (the radiance along unit d over a lobe of omega steradians), at pixel
+// (x, y) with camera-relative point p, unit normal n and ray parameter t.
+fn gi_cache_blend(x: u32, y: u32, p: vec3<f32>, n: vec3<f32>, t: f32, d: vec3<f32>, omega: f32) -> GiCacheBlend {
+    let tx = x / gi.cache_tile;
+    let ty = y / gi.cache_tile;
+    let tiles_y = (frame.height + gi.cache_tile - 1u) / gi.cache_tile;
+    let r = gi.cache_radius;
+    // radiance_cache::footprint.
+    let footprint = t * 2.0 * frame.forward.w / f32(frame.height);
+    let reach = f32(r) * f32(gi.cache_tile) * footprint;
+    var sum = vec4<f32>(0.0);
+    var weight = 0.0;
+    let texel = 6.28318530718 / f32(gi.cache_res * gi.cache_res);
+    let mips = gi_mip_count();
+    for (var jy = select(0u, ty - r, ty >= r); jy < min(ty + r + 1u, tiles_y); jy++) {
+        for (var jx = select(0u, tx - r, tx >= r); jx < min(tx + r + 1u, gi.cache_tiles_x); jx++) {
+            let tile = jy * gi.cache_tiles_x + jx;
+            for (var c = 0u; c < gi.cache_per_tile; c++) {
+                let slot = tile * gi.cache_per_tile + c;
+                let a = gi_cache_points[2u * slot];
+                if a.w == 0.0 {
+                    continue;
+                }
+                let cn = gi_cache_points[2u * slot + 1u].xyz;
+                if omega >= 0.0 && dot(d, cn) <= 0.0 {
+                    continue;
+                }
+                let wn = clamp((dot(n, cn) - 0.9) / (1.0 - 0.9), 0.0, 1.0);
+                let wd = clamp(1.0 - length(a.xyz - p) / reach, 0.0, 1.0);
+                let wc = min(wn, wd);
+                if wc <= 0.0 {
+                    continue;
+                }
+                let tb = gi_tangents(cn);
+                let base = slot * gi.cache_stride;
+                if omega < 0.0 {
+                    let m = gi_map_point(vec3<f32>(dot(n, tb[0]), dot(n, tb[1]), dot(n, cn)));
+                    sum += gi_map_lookup(base + gi_mip_offset(mips), gi_irr_res(), m) * wc;
+                } else {
+                    let level = min(0.5 * log2(max(omega / texel, 1.0)), f32(mips - 1u));
+                    let m = gi_map_point(vec3<f32>(dot(d, tb[0]), dot(d, tb[1]), dot(d, cn)));
+                    let lo = u32(floor(level));
+                    let hi = min(lo + 1u, mips - 1u);
+                    let f = level - f32(lo);
+                    var v = gi_map_lookup(base + gi_mip_offset(lo), gi.cache_res >> lo, m);
+                    if hi != lo && f > 0.0 {
+                        v = v * (1.0 - f) + gi_map_lookup(base + gi_mip_offset(hi), gi.cache_res >> hi, m) * f;
+                    }
+                    sum += v * wc;
+                }
+                weight += wc;
+            }
+        }
+    }
+    return GiCacheBlend(select(vec4<f32>(0.0), sum / weight, weight > 0.0), weight);
 }

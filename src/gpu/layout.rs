@@ -343,8 +343,32 @@ pub struct GpuGiFrame {
     pub half: u32,
     /// Samples per row of the half-resolution gather (the image's width halved, rounded up).
     pub half_width: u32,
-    /// Padding to 16 bytes.
-    pub pad2: u32,
+    /// 1: the diffuse light comes from radiance caches (`render::Gather::Caches`).
+    pub caches: u32,
+    /// Their tile edge in pixels.
+    pub cache_tile: u32,
+    /// Texels per side of a cache's map.
+    pub cache_res: u32,
+    /// Gathering radius in tiles.
+    pub cache_radius: u32,
+    /// Most caches per tile (slots per tile).
+    pub cache_per_tile: u32,
+    /// Tiles per row.
+    pub cache_tiles_x: u32,
+    /// Slots: tiles × per tile.
+    pub cache_slots: u32,
+    /// vec4 per slot in the map buffer (texels, mips, irradiance map).
+    pub cache_stride: u32,
+    /// 0: clustered placement, 1: even.
+    pub cache_placement: u32,
+    /// 2 tan(aperture / 2) of a texel's cone.
+    pub cache_spread: f32,
+    /// Threads per dispatch row of the cache tracing and convolution passes.
+    pub cache_row_threads: u32,
+    /// Padding.
+    pub pad3: u32,
+    /// Padding.
+    pub pad4: u32,
 }
 
 /// One step down the level chain. WGSL: `GiLevelStep`.

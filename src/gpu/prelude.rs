@@ -55,6 +55,10 @@ pub mod binding {
     pub const GI_SAMPLER: u32 = 8;
     /// Tracer group 1 (GI): `gi_samples` (the half-resolution gather's samples).
     pub const GI_SAMPLES: u32 = 9;
+    /// Tracer group 1 (GI): `gi_cache_points` (the radiance caches' points and normals).
+    pub const GI_CACHE_POINTS: u32 = 10;
+    /// Tracer group 1 (GI): `gi_cache_maps` (their maps, mips and irradiance maps).
+    pub const GI_CACHE_MAPS: u32 = 11;
     /// Tracer group 2 (splats): `splat_frame`.
     pub const SPLAT_FRAME: u32 = 0;
     /// Tracer group 2: `splat_entries`.
@@ -68,7 +72,7 @@ pub mod binding {
     /// Tracer group 2: `splat_ids`.
     pub const SPLAT_IDS: u32 = 5;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 31] = [
+    pub const ALL: [(&str, u32); 33] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -94,6 +98,8 @@ pub mod binding {
         ("B_GI_TEX", GI_TEX),
         ("B_GI_SAMPLER", GI_SAMPLER),
         ("B_GI_SAMPLES", GI_SAMPLES),
+        ("B_GI_CACHE_POINTS", GI_CACHE_POINTS),
+        ("B_GI_CACHE_MAPS", GI_CACHE_MAPS),
         ("B_SPLAT_FRAME", SPLAT_FRAME),
         ("B_SPLAT_ENTRIES", SPLAT_ENTRIES),
         ("B_SPLAT_CENTRES", SPLAT_CENTRES),

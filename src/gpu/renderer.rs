@@ -368,14 +368,6 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
-            if matches!(asked.gather, crate::render::Gather::Caches(_)) {
-                return Err(crate::gi::GiError::Settings(
-                    "the radiance-cache gather runs on the CPU only so far: use --gi-gather pixels or half on the \
-                     GPU, or --backend cpu"
-                        .into(),
-                )
-                .into());
-            }
             let border = self.ctx.device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
             if asked.levels == crate::gi::shade::LevelStore::Texture && !border {
                 return Err(crate::gi::GiError::Settings(
@@ -468,6 +460,9 @@ impl GpuRenderer {
                 inject: make("inject_main"),
                 shade: make("shade_gi_main"),
                 gather: make("gather_half_main"),
+                cache_place: make("cache_place_main"),
+                cache_trace: make("cache_trace_main"),
+                cache_convolve: make("cache_convolve_main"),
                 bounce: make("bounce_main"),
                 commit: make("bounce_commit_main"),
             }
@@ -856,6 +851,20 @@ impl GpuRenderer {
                         // the shading's, and each dispatch sees the one before's writes).
                         pass.set_pipeline(&pipes.gather);
                         pass.dispatch_workgroups(w.div_ceil(2).div_ceil(8), h.div_ceil(2).div_ceil(8), 1);
+                    }
+                    if let Some([place, trace, convolve]) = work.caches {
+                        // The radiance caches: placed per tile, traced, convolved, then read
+                        // by the shading (one pass: their time is the shading's).
+                        for (pipe, dims) in [
+                            (&pipes.cache_place, place),
+                            (&pipes.cache_trace, trace),
+                            (&pipes.cache_convolve, convolve),
+                        ] {
+                            if dims.0 > 0 && dims.1 > 0 {
+                                pass.set_pipeline(pipe);
+                                pass.dispatch_workgroups(dims.0, dims.1, 1);
+                            }
+                        }
                     }
                     pass.set_pipeline(&pipes.shade);
                 }

@@ -50,8 +50,9 @@ impl Default for CacheSettings {
 impl CacheSettings {
     /// Checks the knobs.
     pub fn validated(self) -> Result<Self, String> {
-        if !(4..=256).contains(&self.tile) {
-            return Err(format!("cache tile must be 4…256 pixels, not {}", self.tile));
+        // 128² pixels keep a tile's pixel index in the 16 bits the GPU's placement packs it in.
+        if !(4..=128).contains(&self.tile) {
+            return Err(format!("cache tile must be 4…128 pixels, not {}", self.tile));
         }
         if !(1..=16).contains(&self.per_tile) {
             return Err(format!("caches per tile must be 1…16, not {}", self.per_tile));

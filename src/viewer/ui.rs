@@ -161,7 +161,7 @@ impl App {
                             row.radio_value(&mut ui.gi.gather, Gather::Pixels, "every pixel");
                             row.radio_value(&mut ui.gi.gather, Gather::Half, "half resolution");
                             let caches = Gather::Caches(Default::default());
-                            row.radio_value(&mut ui.gi.gather, caches, "radiance caches (CPU)");
+                            row.radio_value(&mut ui.gi.gather, caches, "radiance caches");
                         });
                         ui_.horizontal(|row| {
                             use crate::gi::shade::VolumeChoice;

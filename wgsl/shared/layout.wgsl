@@ -224,7 +224,24 @@ struct GiFrame {
     half: u32,
     // Samples per row of the half-resolution gather (the width halved, rounded up).
     half_width: u32,
-    pad2: u32,
+    // 1: the diffuse light comes from radiance caches (render::Gather::Caches), with their
+    // knobs (radiance_cache::CacheSettings; placement 0 clustered, 1 even).
+    caches: u32,
+    cache_tile: u32,
+    cache_res: u32,
+    cache_radius: u32,
+    cache_per_tile: u32,
+    // Tiles per row, slots (tiles x per_tile) and vec4 per slot in the map buffer.
+    cache_tiles_x: u32,
+    cache_slots: u32,
+    cache_stride: u32,
+    cache_placement: u32,
+    // 2 tan(aperture / 2) of a texel's cone.
+    cache_spread: f32,
+    // Threads per dispatch row of the cache tracing and convolution passes.
+    cache_row_threads: u32,
+    pad3: u32,
+    pad4: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuGiLevelStep: one step down the level chain.

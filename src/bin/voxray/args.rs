@@ -206,7 +206,7 @@ pub(crate) struct RenderArgs {
     pub(crate) gi_levels: voxray::gi::shade::LevelStore,
     /// Where GI's diffuse cones are gathered: pixels (every pixel), half (one pixel in each
     /// 2×2 block, blended at the others from the samples on their own surface) or caches
-    /// (clustered radiance caches, diffuse and glossy; CPU; docs/gi.md).
+    /// (clustered radiance caches, diffuse and glossy; docs/gi.md).
     #[arg(long, default_value = "pixels", requires = "gi")]
     pub(crate) gi_gather: voxray::render::Gather,
     /// Radiance caches: tile edge in pixels.

@@ -17,6 +17,9 @@ pub(super) struct GiFrameBuffers {
     pub(super) frame: Option<wgpu::Buffer>,
     /// The half-resolution gather's samples (light, and 1 where the sample pixel is a hit).
     pub(super) samples: Option<wgpu::Buffer>,
+    /// The radiance caches' points and maps.
+    pub(super) cache_points: Option<wgpu::Buffer>,
+    pub(super) cache_maps: Option<wgpu::Buffer>,
     /// The sparse brick steps' uniforms (8³ → 4³ → 2³ → top table).
     pub(super) brick_steps: Vec<Option<wgpu::Buffer>>,
     /// Where the sparse brick count is read back.

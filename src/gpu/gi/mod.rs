@@ -161,6 +161,9 @@ pub(crate) struct GiWork {
     pub group1: wgpu::BindGroup,
     /// The diffuse cones are gathered at half resolution (`gather_half_main` runs first).
     pub half: bool,
+    /// Radiance caches: the workgroups of placement (one per tile), cache tracing and
+    /// convolution, run before the shading.
+    pub caches: Option<[(u32, u32); 3]>,
     spec: VolumeSpec,
     bounces: u32,
     /// What this frame does.
@@ -213,6 +216,12 @@ pub(crate) struct GiPipelines {
     pub shade: wgpu::ComputePipeline,
     /// The half-resolution gather's samples, before shading.
     pub gather: wgpu::ComputePipeline,
+    /// The radiance caches: placement, tracing, convolution, before shading.
+    pub cache_place: wgpu::ComputePipeline,
+    /// Their texels' cones.
+    pub cache_trace: wgpu::ComputePipeline,
+    /// Their mips and irradiance maps.
+    pub cache_convolve: wgpu::ComputePipeline,
     /// One more bounce into the next level 0.
     pub bounce: wgpu::ComputePipeline,
     /// The next level 0 into the chain.
@@ -377,6 +386,8 @@ impl GpuGi {
                 gi_layout_entry(b::GI_TOP, ro),
                 gi_layout_entry(b::GI_BRICK_TOP, ro),
                 gi_layout_entry(b::GI_SAMPLES, rw),
+                gi_layout_entry(b::GI_CACHE_POINTS, rw),
+                gi_layout_entry(b::GI_CACHE_MAPS, rw),
                 wgpu::BindGroupLayoutEntry {
                     binding: b::GI_TEX,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -504,6 +515,10 @@ impl GpuGi {
     ) -> Result<GiWork, GpuError> {
         let cones = s.cones.validated().map_err(|e| GiError::Settings(e.to_string()))?;
         let half = s.gather == crate::render::Gather::Half;
+        let caches = match s.gather {
+            crate::render::Gather::Caches(c) => Some(c.validated().map_err(GiError::Settings)?),
+            _ => None,
+        };
         let layout = s.layout();
         let (spec, levels_of) = plan_volume(scene, camera, s, &mut self.caches)?;
         let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
@@ -642,8 +657,64 @@ impl GpuGi {
             half_width: camera.width.div_ceil(2),
             ..Default::default()
         };
+        // The caches' slots (per tile) and maps: the texels, the mips down to 1², the
+        // irradiance map at half the resolution.
+        let mut gframe = gframe;
+        let cache_dispatch = match caches {
+            Some(c) => {
+                let tiles_x = camera.width.div_ceil(c.tile);
+                let tiles = tiles_x * camera.height.div_ceil(c.tile);
+                let slots = tiles * c.per_tile;
+                let mips: u32 = (0..=c.res.trailing_zeros()).map(|k| (c.res >> k) * (c.res >> k)).sum();
+                let irr = (c.res / 2).max(2);
+                let stride = mips + irr * irr;
+                const ROW: u32 = 1024 * 64;
+                let dims = |threads: u64| (threads.div_ceil(64).min(1024) as u32, threads.div_ceil(ROW as u64) as u32);
+                // Tracing: a thread per texel; convolution: a workgroup per cache.
+                let trace = dims(slots as u64 * (c.res * c.res) as u64);
+                let convolve = (slots.min(65_535), slots.div_ceil(65_535));
+                if trace.1 > 65_535 || convolve.1 > 65_535 {
+                    return Err(GpuError::TooLarge {
+                        what: "the GI caches' passes",
+                        size: slots as u64,
+                        limit: 65_535,
+                    });
+                }
+                gframe.caches = 1;
+                gframe.cache_tile = c.tile;
+                gframe.cache_res = c.res;
+                gframe.cache_radius = c.radius;
+                gframe.cache_per_tile = c.per_tile;
+                gframe.cache_tiles_x = tiles_x;
+                gframe.cache_slots = slots;
+                gframe.cache_stride = stride;
+                gframe.cache_placement = (c.placement == crate::render::radiance_cache::Placement::Even) as u32;
+                let aperture = crate::render::radiance_cache::texel_aperture(c.res as usize);
+                gframe.cache_spread = (2.0 * (aperture * 0.5).tan()) as f32;
+                gframe.cache_row_threads = ROW;
+                Some((slots as u64, stride as u64, [(tiles.min(65_535), tiles.div_ceil(65_535)), trace, convolve]))
+            }
+            None => None,
+        };
         let kept = &mut self.kept;
         let uniform = wgpu::BufferUsages::UNIFORM;
+        let (cache_points, cache_maps) = match cache_dispatch {
+            Some((slots, stride, _)) => {
+                let (points, maps) = (slots * 32, slots * stride * 16);
+                ctx.check_binding("the GI caches' maps", maps)?;
+                ctx.check_memory(
+                    || format!("{slots} GI cache slots of {stride} texels"),
+                    points + maps,
+                    "use fewer or smaller caches (--gi-cache-count, --gi-cache-res, --gi-cache-tile)",
+                )?;
+                let usage = wgpu::BufferUsages::STORAGE;
+                ensure(ctx, &mut kept.cache_points, "gi cache points", points, false, usage);
+                ensure(ctx, &mut kept.cache_maps, "gi cache maps", maps, false, usage);
+                let missing = || GpuError::Device("gi cache buffers missing".into());
+                (kept.cache_points.clone().ok_or_else(missing)?, kept.cache_maps.clone().ok_or_else(missing)?)
+            }
+            None => (self.placeholder.clone(), self.placeholder.clone()),
+        };
         // One vec4 per 2×2 block of pixels with the half-resolution gather.
         let samples = if half {
             let n = camera.width.div_ceil(2) as u64 * camera.height.div_ceil(2) as u64;
@@ -728,7 +799,9 @@ impl GpuGi {
         // The level texture is made with the volume's buffers, so the levels buffer in the key
         // stands for it too.
         let group1_key =
-            [&vol.accum, &vol.levels, &frame_buf, direct, next, top, brick_top, &samples].map(|b| b.clone()).to_vec();
+            [&vol.accum, &vol.levels, &frame_buf, direct, next, top, brick_top, &samples, &cache_points, &cache_maps]
+                .map(|b| b.clone())
+                .to_vec();
         let group1 = bind_cached(&mut kept.binds, ("group 1", vol.texture.is_some() as usize), group1_key, || {
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("gi (tracer group 1)"),
@@ -742,6 +815,8 @@ impl GpuGi {
                     wgpu::BindGroupEntry { binding: b::GI_TOP, resource: top.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::GI_BRICK_TOP, resource: brick_top.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::GI_SAMPLES, resource: samples.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_CACHE_POINTS, resource: cache_points.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::GI_CACHE_MAPS, resource: cache_maps.as_entire_binding() },
                     wgpu::BindGroupEntry {
                         binding: b::GI_TEX,
                         resource: wgpu::BindingResource::TextureView(
@@ -761,6 +836,7 @@ impl GpuGi {
             res: spec.res,
             levels: vol.offsets.len() as u32,
             bytes: pool.voxels.size()
+                + cache_dispatch.map_or(0, |_| cache_points.size() + cache_maps.size())
                 + vol.accum.size()
                 + vol.levels.size()
                 + jobs_buf.size()
@@ -784,6 +860,7 @@ impl GpuGi {
             texture,
             group1,
             half,
+            caches: cache_dispatch.map(|d| d.2),
             spec,
             bounces: s.bounces,
             stats,
