@@ -414,11 +414,16 @@ pub fn accuracy_gpu(
     // The level store, then the gather (with the buffer store), each against the reference.
     let dense = GiSettings { volume: VolumeChoice::Dense, ..GiSettings::default() };
     let half = crate::render::Gather::Half;
+    let c = crate::render::radiance_cache::CacheSettings::default();
+    let caches = crate::render::Gather::Caches(c);
+    let caches8 = crate::render::Gather::Caches(crate::render::radiance_cache::CacheSettings { res: 8, ..c });
     let runs = [
         ("level chain store (GPU, 128³)", "buffer", 0.0, dense),
         ("level chain store (GPU, 128³)", "texture", 1.0, GiSettings { levels: LevelStore::Texture, ..dense }),
         ("gather (GPU, 128³)", "pixels", 1.0, dense),
         ("gather (GPU, 128³)", "half", 0.5, GiSettings { gather: half, ..dense }),
+        ("gather (GPU, 128³)", "caches", 0.25, GiSettings { gather: caches, ..dense }),
+        ("gather (GPU, 128³)", "caches 8²", 0.125, GiSettings { gather: caches8, ..dense }),
     ];
     for (knob, name, x, s) in runs {
         progress(&format!("gi-accuracy (GPU): {knob}, {name}"));

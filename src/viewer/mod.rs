@@ -56,6 +56,8 @@ pub struct DemoOptions {
     pub car_parts: Option<CarParts>,
     /// Start with voxel-transformation GI on (it can be switched in the panel).
     pub gi: bool,
+    /// Where GI's diffuse light is gathered at start (switchable in the panel).
+    pub gi_gather: crate::render::Gather,
     /// Read every GPU frame back whole and present it through the host, as before frames
     /// stayed on the GPU (for comparisons; off, the window draws the GPU's radiance buffer).
     pub gpu_read_back: bool,
@@ -219,6 +221,7 @@ pub fn run(
     let home = Orbit::of(&camera);
     let cars_n = cars.len().max(1);
     let splat = opts.splat;
+    let gi_gather = opts.gi_gather;
     let mut app = App {
         opts,
         scene,
@@ -259,9 +262,9 @@ pub fn run(
             mrays: 0.0,
             per_ray: (0.0, 0.0),
             gi_on: false,
-            // Interactive: the half-resolution gather (the same error, a quarter of the cones;
-            // docs/accuracy.md), switchable in the panel.
-            gi: crate::gi::GiSettings { res: 64, gather: crate::render::Gather::Half, ..Default::default() },
+            // Interactive: by default the half-resolution gather (the same error, a quarter of
+            // the cones; docs/accuracy.md), switchable in the panel.
+            gi: crate::gi::GiSettings { res: 64, gather: gi_gather, ..Default::default() },
             gi_ms: None,
             gi_on_gpu: false,
             gi_error: None,

@@ -402,6 +402,10 @@ pub(crate) struct DemoArgs {
     /// Start with voxel-transformation GI on (on the backend that renders; switchable in the panel).
     #[arg(long)]
     pub(crate) gi: bool,
+    /// Where GI's diffuse light is gathered at start: pixels, half or caches (radiance caches
+    /// with their default knobs; switchable in the panel).
+    #[arg(long, default_value = "half")]
+    pub(crate) gi_gather: voxray::render::Gather,
     /// Where to render: cpu, gpu or auto (the GPU on a hardware adapter, else the CPU).
     #[arg(long, env = "VOXRAY_BACKEND", default_value = "auto")]
     pub(crate) backend: voxray::backend::BackendKind,

@@ -27,6 +27,7 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         features: a.switches.features(),
         car_parts,
         gi: a.gi,
+        gi_gather: a.gi_gather,
         gpu_read_back: a.gpu_read_back,
         gpu_stats: a.gpu_stats,
         animated: st.animated.clone(),
