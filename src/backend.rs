@@ -241,6 +241,16 @@ impl Backend {
         }
     }
 
+    /// The radiance caches' GPU pass times of the last frame (placement, tracing, convolution)
+    /// in milliseconds, when measured.
+    pub fn cache_pass_times(&self) -> Option<[f64; 3]> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.times.and_then(|t| t.cache_ms),
+        }
+    }
+
     /// GPU pass times of the last frame (trace, shade) in milliseconds, when measured.
     pub fn pass_times(&self) -> Option<(f64, f64)> {
         match self {

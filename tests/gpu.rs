@@ -366,7 +366,8 @@ fn steady_gpu_frames_create_no_buffers() {
         }
         // Still read back every frame: the hit records and the image (and the timestamps).
         let expected = pixels * (std::mem::size_of::<voxray::gpu::layout::GpuHit>() as u64 + 16);
-        let timestamps = if ctx.timestamps { 48 } else { 0 };
+        // Four timestamps: the trace and shade passes' starts and ends.
+        let timestamps = if ctx.timestamps { 32 } else { 0 };
         assert_eq!(read_back, expected + timestamps, "frame {f}");
     }
 }
@@ -468,7 +469,7 @@ fn gpu_counters_equal_the_counts_of_the_read_back_records() {
             summed,
             "frame {f} kept on the GPU"
         );
-        let timestamps = if ctx.timestamps { 48 } else { 0 };
+        let timestamps = if ctx.timestamps { 32 } else { 0 };
         assert_eq!(kept.frame_traffic.1, 32 + timestamps, "frame {f}: only the statistics read back");
         moved_only += a.moved_only;
         assert!(a.shadow_rays > 0 && (f == 0 || a.reused > 0), "frame {f}: {summed:?}");

@@ -51,6 +51,9 @@ pub struct GpuTimes {
     pub shade_ms: f64,
     /// GI passes (transform, inject, levels), milliseconds; zero without GI.
     pub gi_ms: f64,
+    /// With radiance caches: their placement, tracing and convolution passes, milliseconds
+    /// (their blending is in the shade pass).
+    pub cache_ms: Option<[f64; 3]>,
 }
 
 struct Pools {
@@ -796,17 +799,17 @@ impl GpuRenderer {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("passes"),
                 ty: wgpu::QueryType::Timestamp,
-                count: 6,
+                count: 12,
             });
             let resolve = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps"),
-                size: 48,
+                size: 96,
                 usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             });
             let read_back = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps readback"),
-                size: 48,
+                size: 96,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             });
@@ -839,6 +842,29 @@ impl GpuRenderer {
         if let (Some(work), Some(pipes), Some(gi)) = (&gi_work, gi_pipes, &self.gi) {
             gi.encode(work, &mut enc, pipes, bind, ts(2))?;
         }
+        // The radiance caches before the shading that reads them: placed per tile, traced,
+        // convolved, each its own pass with its own timestamps.
+        if let (Some(work), Some(pipes)) = (&gi_work, gi_pipes) {
+            if let Some(dims) = work.caches {
+                let passes = [
+                    ("cache placement", &pipes.cache_place),
+                    ("cache tracing", &pipes.cache_trace),
+                    ("cache convolution", &pipes.cache_convolve),
+                ];
+                for (k, ((label, pipe), d)) in passes.into_iter().zip(dims).enumerate() {
+                    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some(label),
+                        timestamp_writes: ts(3 + k as u32),
+                    });
+                    pass.set_bind_group(0, &*bind, &[]);
+                    pass.set_bind_group(1, &work.group1, &[]);
+                    pass.set_pipeline(pipe);
+                    if d.0 > 0 && d.1 > 0 {
+                        pass.dispatch_workgroups(d.0, d.1, 1);
+                    }
+                }
+            }
+        }
         {
             let mut pass =
                 enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("shade"), timestamp_writes: ts(1) });
@@ -851,20 +877,6 @@ impl GpuRenderer {
                         // the shading's, and each dispatch sees the one before's writes).
                         pass.set_pipeline(&pipes.gather);
                         pass.dispatch_workgroups(w.div_ceil(2).div_ceil(8), h.div_ceil(2).div_ceil(8), 1);
-                    }
-                    if let Some([place, trace, convolve]) = work.caches {
-                        // The radiance caches: placed per tile, traced, convolved, then read
-                        // by the shading (one pass: their time is the shading's).
-                        for (pipe, dims) in [
-                            (&pipes.cache_place, place),
-                            (&pipes.cache_trace, trace),
-                            (&pipes.cache_convolve, convolve),
-                        ] {
-                            if dims.0 > 0 && dims.1 > 0 {
-                                pass.set_pipeline(pipe);
-                                pass.dispatch_workgroups(dims.0, dims.1, 1);
-                            }
-                        }
                     }
                     pass.set_pipeline(&pipes.shade);
                 }
@@ -879,7 +891,11 @@ impl GpuRenderer {
             (Some(gi), Some(_)) if self.gi_capture => gi.copy_capture(&self.ctx, &mut enc),
             _ => None,
         };
-        let n_ts = if gi_work.is_some() { 6 } else { 4 };
+        let n_ts = match &gi_work {
+            Some(w) if w.caches.is_some() => 12,
+            Some(_) => 6,
+            None => 4,
+        };
         let readbacks = if read_back {
             let (hits_rb, rad_rb) =
                 (kept.hits_read.as_ref().ok_or_else(missing)?, kept.radiance_read.as_ref().ok_or_else(missing)?);
@@ -910,12 +926,14 @@ impl GpuRenderer {
         };
         let times = match ts_rb {
             Some(b) => {
-                let ts: Vec<u64> = read(&self.ctx, b)?;
+                // Only the passes that ran wrote their timestamps; only those are read.
+                let ts: Vec<u64> = read_first(&self.ctx, b, 8 * n_ts as u64)?;
                 let period = self.ctx.queue.get_timestamp_period() as f64 * 1e-6;
                 Some(GpuTimes {
                     trace_ms: ts[1].saturating_sub(ts[0]) as f64 * period,
                     shade_ms: ts[3].saturating_sub(ts[2]) as f64 * period,
                     gi_ms: if gi_work.is_some() { ts[5].saturating_sub(ts[4]) as f64 * period } else { 0.0 },
+                    cache_ms: (n_ts == 12).then(|| [6, 8, 10].map(|k| ts[k + 1].saturating_sub(ts[k]) as f64 * period)),
                 })
             }
             None => None,
@@ -1094,7 +1112,12 @@ fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
 
 /// Maps a MAP_READ buffer and copies it out.
 pub fn read<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
-    let slice = buf.slice(..);
+    read_first(ctx, buf, buf.size())
+}
+
+/// Maps the first `bytes` of a MAP_READ buffer and copies them out.
+pub fn read_first<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer, bytes: u64) -> Result<Vec<T>, GpuError> {
+    let slice = buf.slice(..bytes);
     let (tx, rx) = std::sync::mpsc::channel();
     slice.map_async(wgpu::MapMode::Read, move |r| {
         let _ = tx.send(r);

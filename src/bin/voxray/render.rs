@@ -213,6 +213,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     eprintln!("backend: {}", session.description());
     session.set_gi(gi)?;
     let mut gpu_times = Vec::new();
+    let mut cache_times: Vec<[f64; 3]> = Vec::new();
     let mut last_plan: Option<FramePlan> = None;
     let mut gif_frames = Vec::new();
     let (mut times, mut traced, mut reused) = (Vec::new(), 0u64, 0u64);
@@ -316,6 +317,9 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         if let Some(t) = backend.pass_times() {
             gpu_times.push(t);
         }
+        if let Some(t) = backend.cache_pass_times() {
+            cache_times.push(t);
+        }
         traced += frame.primary_rays - frame.reused + frame.shadow_rays;
         reused += frame.reused;
         last_plan = Some(plan);
@@ -354,6 +358,15 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         let (tr, _, _) = voxray::bench::summarize(&gpu_times.iter().map(|t| t.0).collect::<Vec<_>>());
         let (sh, _, _) = voxray::bench::summarize(&gpu_times.iter().map(|t| t.1).collect::<Vec<_>>());
         eprintln!("GPU passes (timestamp queries, median): trace {tr:.2} ms, shade {sh:.2} ms");
+    }
+    if !cache_times.is_empty() {
+        let m = |k: usize| voxray::bench::summarize(&cache_times.iter().map(|t| t[k]).collect::<Vec<_>>()).0;
+        eprintln!(
+            "GPU radiance-cache passes (median): placement {:.2} ms, cache tracing {:.2} ms, convolution {:.2} ms (gathering is in the shade pass)",
+            m(0),
+            m(1),
+            m(2)
+        );
     }
     eprintln!(
         "rays: {traced} traced ({:.1}% of pixels reused from the hit buffer) = {:.2} Mrays/s on {} ({}x{}, {} instances)",
