@@ -829,9 +829,20 @@ pub fn flicker(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<V
     let lights = crate::scene::Lights::default();
     let (w, h) = (cfg.size.0 * 2, cfg.size.1 * 2);
     let mut out = Vec::new();
-    let settings = [(Filter::Nearest, Gather::Pixels), (Filter::Split, Gather::Pixels), (Filter::Split, Gather::Half)];
+    // The radiance caches too: their placement follows the G-buffer, so it moves with the car.
+    let settings = [
+        (Filter::Nearest, Gather::Pixels),
+        (Filter::Split, Gather::Pixels),
+        (Filter::Split, Gather::Half),
+        (Filter::Split, Gather::Caches(crate::render::radiance_cache::CacheSettings::default())),
+    ];
     for (filter, gather) in settings {
-        let name = format!("{}, {} gather", format!("{filter:?}").to_lowercase(), format!("{gather:?}").to_lowercase());
+        let how = match gather {
+            Gather::Pixels => "pixels",
+            Gather::Half => "half",
+            Gather::Caches(_) => "caches",
+        };
+        let name = format!("{}, {how} gather", format!("{filter:?}").to_lowercase());
         progress(&format!("gi-accuracy: flicker, {name}"));
         let mut st = stage_cars(&parts, 1, true, true)?;
         pose_all(&mut st.scene, &st.cars, 0.0)?;
@@ -893,7 +904,12 @@ pub fn flicker(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<V
             group: "gi-flicker".into(),
             name: "flicker: the driving car".into(),
             setting: name,
-            x: (filter == Filter::Split) as u32 as f64 + (gather == Gather::Half) as u32 as f64,
+            x: (filter == Filter::Split) as u32 as f64
+                + match gather {
+                    Gather::Pixels => 0.0,
+                    Gather::Half => 1.0,
+                    Gather::Caches(_) => 2.0,
+                },
             backend_kind: "cpu".into(),
             backend: "CPU reference".into(),
             width: w,
