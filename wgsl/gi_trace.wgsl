@@ -558,6 +558,25 @@ fn gi_tile_pixel(tile: u32, k: u32) -> vec3<u32> {
     return vec3<u32>(x, y, select(0u, 1u, inside && hits[y * frame.width + x].instance >= 0));
 }
 
+// The unit normal of pixel px's hit.
+fn gi_hit_normal(px: vec3<u32>) -> vec3<f32> {
+    let h = hits[px.y * frame.width + px.x];
+    return normalize(vec3<f32>(h.nx, h.ny, h.nz));
+}
+
+// place_tile's cluster membership: normal n is nearest pick c among the first `picks` (and
+// within 60° of it).
+fn gi_in_cluster(n: vec3<f32>, c: u32, picks: u32) -> bool {
+    let own = dot(n, gi_picks[c]);
+    var nearest = own > 0.5;
+    for (var o = 0u; o < picks; o++) {
+        if o != c && dot(n, gi_picks[o]) > own {
+            nearest = false;
+        }
+    }
+    return nearest;
+}
+
 // radiance_cache::place_tile, clustered or even, one workgroup per tile: up to per_tile
 // caches into the tile's slots (unplaced slots are marked empty).
 @compute @workgroup_size(64, 1, 1)
@@ -595,8 +614,7 @@ fn cache_place_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
             if px.z == 0u {
                 continue;
             }
-            let h = hits[px.y * frame.width + px.x];
-            let n = normalize(vec3<f32>(h.nx, h.ny, h.nz));
+            let n = gi_hit_normal(px);
             for (var b = 0u; b < 64u; b++) {
                 let w = exp(-(1.0 - dot(n, gi_hist_dir(b))) / 0.1);
                 atomicAdd(&gi_hist[b], u32(w * GI_PLACE_FIX + 0.5));
@@ -647,18 +665,10 @@ fn cache_place_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
         if px.z == 0u {
             continue;
         }
-        let h = hits[px.y * frame.width + px.x];
-        let n = normalize(vec3<f32>(h.nx, h.ny, h.nz));
+        let n = gi_hit_normal(px);
         if gi.cache_placement == 0u {
             for (var c = 0u; c < picks; c++) {
-                let own = dot(n, gi_picks[c]);
-                var nearest = own > 0.5;
-                for (var o = 0u; o < picks; o++) {
-                    if o != c && dot(n, gi_picks[o]) > own {
-                        nearest = false;
-                    }
-                }
-                if nearest {
+                if gi_in_cluster(n, c, picks) {
                     atomicAdd(&gi_members[c], 1u);
                     atomicAdd(&gi_sum_n[3u * c], i32(round(n.x * GI_PLACE_FIX)));
                     atomicAdd(&gi_sum_n[3u * c + 1u], i32(round(n.y * GI_PLACE_FIX)));
@@ -677,18 +687,10 @@ fn cache_place_main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
         if px.z == 0u {
             continue;
         }
-        let h = hits[px.y * frame.width + px.x];
-        let n = normalize(vec3<f32>(h.nx, h.ny, h.nz));
+        let n = gi_hit_normal(px);
         if gi.cache_placement == 0u {
             for (var c = 0u; c < picks; c++) {
-                let own = dot(n, gi_picks[c]);
-                var nearest = own > 0.5;
-                for (var o = 0u; o < picks; o++) {
-                    if o != c && dot(n, gi_picks[o]) > own {
-                        nearest = false;
-                    }
-                }
-                if !nearest {
+                if !gi_in_cluster(n, c, picks) {
                     continue;
                 }
                 let m = f32(atomicLoad(&gi_members[c]));

@@ -492,13 +492,13 @@ pub fn build(
 }
 
 impl FrameCaches {
-    /// The caches' blend at a pixel (x, y) with world point `p` and unit normal `n`, a pixel's
-    /// footprint `footprint` (world units per pixel at its depth): the cosine-weighted light
-    /// and open fraction, and the caches' total weight (0: none applies).
-    pub fn blend(&self, radius: u32, x: u32, y: u32, p: DVec3, n: DVec3, footprint: f64) -> (Vec4, f64) {
+    /// Calls `f(cache, weight)` for every cache of the tiles within `radius` of pixel (x, y)
+    /// whose weight at world point `p` with unit normal `n` is positive (`footprint`: world
+    /// units per pixel at its depth): the smaller of the normal and the distance weight.
+    #[allow(clippy::too_many_arguments)]
+    fn near(&self, radius: u32, x: u32, y: u32, p: DVec3, n: DVec3, footprint: f64, mut f: impl FnMut(&CacheMap, f64)) {
         let (tx, ty) = (x / self.tile, y / self.tile);
         let reach = radius as f64 * self.tile as f64 * footprint;
-        let (mut sum, mut weight) = (Vec4::ZERO, 0.0f64);
         for jy in ty.saturating_sub(radius)..(ty + radius + 1).min(self.tiles_y) {
             for jx in tx.saturating_sub(radius)..(tx + radius + 1).min(self.tiles_x) {
                 let t = (jy * self.tiles_x + jx) as usize;
@@ -507,12 +507,22 @@ impl FrameCaches {
                     let wd = (1.0 - (c.at.point - p).length() / reach).clamp(0.0, 1.0);
                     let wc = wn.min(wd);
                     if wc > 0.0 {
-                        sum += c.irradiance(n) * wc as f32;
-                        weight += wc;
+                        f(c, wc);
                     }
                 }
             }
         }
+    }
+
+    /// The caches' blend at a pixel (x, y) with world point `p` and unit normal `n`, a pixel's
+    /// footprint `footprint` (world units per pixel at its depth): the cosine-weighted light
+    /// and open fraction, and the caches' total weight (0: none applies).
+    pub fn blend(&self, radius: u32, x: u32, y: u32, p: DVec3, n: DVec3, footprint: f64) -> (Vec4, f64) {
+        let (mut sum, mut weight) = (Vec4::ZERO, 0.0f64);
+        self.near(radius, x, y, p, n, footprint, |c, wc| {
+            sum += c.irradiance(n) * wc as f32;
+            weight += wc;
+        });
         (if weight > 0.0 { sum / weight as f32 } else { Vec4::ZERO }, weight)
     }
 
@@ -531,26 +541,13 @@ impl FrameCaches {
         d: DVec3,
         omega: f64,
     ) -> Option<Vec3> {
-        let (tx, ty) = (x / self.tile, y / self.tile);
-        let reach = radius as f64 * self.tile as f64 * footprint;
         let (mut sum, mut weight) = (Vec3::ZERO, 0.0f64);
-        for jy in ty.saturating_sub(radius)..(ty + radius + 1).min(self.tiles_y) {
-            for jx in tx.saturating_sub(radius)..(tx + radius + 1).min(self.tiles_x) {
-                let t = (jy * self.tiles_x + jx) as usize;
-                for c in &self.maps[self.first[t] as usize..self.first[t + 1] as usize] {
-                    if d.dot(c.at.normal) <= 0.0 {
-                        continue;
-                    }
-                    let wn = ((n.dot(c.at.normal) - NORMAL_FLOOR) / (1.0 - NORMAL_FLOOR)).clamp(0.0, 1.0);
-                    let wd = (1.0 - (c.at.point - p).length() / reach).clamp(0.0, 1.0);
-                    let wc = wn.min(wd);
-                    if wc > 0.0 {
-                        sum += c.radiance(d, omega) * wc as f32;
-                        weight += wc;
-                    }
-                }
+        self.near(radius, x, y, p, n, footprint, |c, wc| {
+            if d.dot(c.at.normal) > 0.0 {
+                sum += c.radiance(d, omega) * wc as f32;
+                weight += wc;
             }
-        }
+        });
         (weight > 0.0).then(|| sum / weight as f32)
     }
 }
