@@ -4,7 +4,8 @@
 //! --scenarios peers` is the full comparison.
 //!
 //! `cargo run --release --example primary_rays [-- DEPTH [WIDTH HEIGHT]]` (default 9, 1280×768);
-//! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement.
+//! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement, `BEAMS=on` or `off`
+//! for one of the two.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -42,6 +43,9 @@ fn main() -> Result<(), voxray::Error> {
         let prepared = prepare(&scene, camera.eye, false);
         let instances = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
         for beams in [true, false] {
+            if std::env::var("BEAMS").is_ok_and(|b| (b == "on") != beams) {
+                continue;
+            }
             let primary = Primary {
                 instances,
                 camera: &camera,

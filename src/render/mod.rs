@@ -15,6 +15,7 @@ pub mod plan;
 pub mod primary;
 pub mod radiance_cache;
 pub mod splat;
+pub mod tile_search;
 pub mod visibility;
 
 pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions, Renderer};

@@ -3,6 +3,7 @@
 //! renderer's trace pass and library users who only want the hits share this loop.
 
 use super::beam::{self, TileRays, TILE};
+use super::tile_search::{nearest_tile, TileScratch};
 use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
@@ -84,6 +85,9 @@ pub fn trace_tiles<T: Send, S>(
         let mut band_rays = 0u64;
         let mut band_moved = 0u64;
         let mut starts = Vec::new();
+        let mut scratch = TileScratch::default();
+        let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
+        let mut hits = [None; (TILE * TILE) as usize];
         let tile_h = rows.len() / w;
         for x0 in (0..w).step_by(TILE as usize) {
             let x1 = (x0 + TILE as usize).min(w);
@@ -129,6 +133,23 @@ pub fn trace_tiles<T: Send, S>(
             } else {
                 p.instances
             };
+            if p.beams {
+                // The tile's rays as packets through each instance (the same answers).
+                let mut l = todo;
+                while l != 0 {
+                    let k = l.trailing_zeros() as usize;
+                    l &= l - 1;
+                    dirs[k] =
+                        p.camera.ray_dir(&basis, (x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                }
+                nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, &mut scratch, &mut hits);
+                while todo != 0 {
+                    let k = todo.trailing_zeros() as usize;
+                    todo &= todo - 1;
+                    let (ty, x) = (k / TILE as usize, x0 + k % TILE as usize);
+                    store(&mut rows[ty * w + x], hits[k].map(|h| (h, dirs[k])));
+                }
+            }
             while todo != 0 {
                 let k = todo.trailing_zeros() as usize;
                 todo &= todo - 1;

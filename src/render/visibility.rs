@@ -97,7 +97,7 @@ pub fn widen(t: f32) -> f32 {
 }
 
 #[inline]
-fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
+pub(super) fn keep(best: &mut Option<InstanceHit>, i: usize, hit: Hit) {
     let better = match best {
         None => true,
         Some(b) => hit.t < b.hit.t || (hit.t == b.hit.t && i < b.instance),

@@ -17,6 +17,8 @@
 //! only the third (see `trace_impl`) and a pop rebuilds the parent's vectors from the child's
 //! with selects, bit for bit. The three lanes of a vector live in one SSE register.
 
+pub mod packet;
+
 use crate::ray::{Ray, UnitRay};
 use crate::svo::{Attr, Svo, MAX_DEPTH};
 use glam::{BVec3A, Vec3, Vec3A};

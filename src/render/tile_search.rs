@@ -1,0 +1,118 @@
+//! The nearest-hit search of [`super::visibility`] for a whole tile of primary rays at once:
+//! each instance's octree is traversed by the tile's rays as one packet
+//! ([`crate::traverse::packet`]) instead of ray by ray.
+//!
+//! The answers are [`super::visibility::nearest_work`]'s bit for bit, in every search mode:
+//! every mode finds the plain search's answer (the nearest t, equal t to the lower instance),
+//! a trace bounded by the best t so far finds either the unbounded trace's hit or nothing,
+//! and the packet finds what the scalar traversal finds. The search differs only in order:
+//! the tile visits its instances by beam start, nearest first, and a ray skips an instance
+//! whose beam start or sphere entry lies beyond its best hit.
+
+use super::instances::sphere_interval;
+use super::visibility::{keep, widen, FrameInstances, InstanceHit, Search, Work};
+use crate::ray::UnitRay;
+use crate::traverse::packet::{trace_packet, PacketStack, LANES};
+use crate::traverse::{Hit, TraceOptions};
+use glam::DVec3;
+
+/// Reusable memory of [`nearest_tile`]: make one per thread.
+pub struct TileScratch {
+    stack: PacketStack,
+    rays: Vec<Option<UnitRay>>,
+    opts: Vec<TraceOptions>,
+    hits: Vec<Option<Hit>>,
+    order: Vec<(f32, usize)>,
+}
+
+impl Default for TileScratch {
+    fn default() -> Self {
+        TileScratch {
+            stack: PacketStack::default(),
+            rays: vec![None; LANES],
+            opts: vec![TraceOptions::default(); LANES],
+            hits: vec![None; LANES],
+            order: Vec::new(),
+        }
+    }
+}
+
+/// The nearest hit of each ray `o + t·dirs[k]` for the lanes `k` of `lanes` (up to
+/// [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for the
+/// ray. `fi.starts` holds the tile's beam starts (every ray of `dirs` inside the tile's beam).
+#[allow(clippy::too_many_arguments)]
+pub fn nearest_tile(
+    fi: &FrameInstances,
+    o: DVec3,
+    dirs: &[DVec3],
+    lanes: u64,
+    search: Search,
+    opts: &TraceOptions,
+    work: &mut Work,
+    scratch: &mut TileScratch,
+    out: &mut [Option<InstanceHit>],
+) {
+    let n = fi.prepared.len();
+    let starts = fi.starts.unwrap_or(&[]);
+    let start_of = |i: usize| starts.get(i).copied().unwrap_or(opts.t_min);
+    let mut l = lanes;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        out[k] = None;
+    }
+    // Instances nearest beam start first, so that later ones are mostly skipped.
+    let order = &mut scratch.order;
+    order.clear();
+    order.extend((0..n).map(|i| (start_of(i), i)).filter(|&(s, _)| s != f32::INFINITY));
+    order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let beam_culled = (n - order.len()) as u64;
+    let rays = lanes.count_ones() as u64;
+    if search != Search::Plain {
+        work.culled += beam_culled * rays;
+    }
+    for &(start, i) in order.iter() {
+        let p = &fi.prepared[i];
+        let t_min = if start > opts.t_min { start } else { opts.t_min };
+        let mut todo = 0u64;
+        let mut l = lanes;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            let d = dirs[k];
+            let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
+            if search != Search::Plain {
+                let Some((entry, _)) = sphere_interval(p.centre, p.radius, o, d) else {
+                    work.culled += 1;
+                    continue;
+                };
+                if entry > bound as f64 {
+                    continue;
+                }
+            }
+            if start > bound {
+                continue;
+            }
+            work.traced += 1;
+            scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d));
+            scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
+            todo |= 1 << k;
+        }
+        if todo == 0 {
+            continue;
+        }
+        trace_packet(&fi.parts[p.part], &scratch.rays, &scratch.opts, todo, &mut scratch.stack, &mut scratch.hits);
+        let mut l = todo;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            if let Some(h) = scratch.hits[k] {
+                keep(&mut out[k], i, h);
+            }
+        }
+    }
+    if search == Search::Plain {
+        // The plain search counts every instance as traced.
+        work.traced += beam_culled * rays;
+    }
+}

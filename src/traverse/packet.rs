@@ -1,0 +1,374 @@
+//! Up to 64 coherent rays (a screen tile's primary rays) traced through one SVO together,
+//! with the answers of [`super::trace_unit`] bit for bit.
+//!
+//! The packet walks the tree depth first and tests four rays at a time (SSE lanes) against
+//! each occupied child; a node is entered when any of its rays crosses it, and each ray's
+//! t-values come from Revelles' halving exactly as in the scalar loop, so a node's t-values
+//! for a ray do not depend on which other rays share its packet.
+//!
+//! Why the answers are the scalar ones. All rays of a packet share the mirror bits, so in
+//! mirrored space every direction component is positive and a ray can only pass from child
+//! `a` to child `b` of a node when `b`'s bits contain `a`'s: visiting children in numeric
+//! order is front to back for every ray at once, and depth first over the tree the first
+//! occupied leaf a ray crosses is its nearest. The packet counts a child as crossed when the
+//! closed interval `[max(entry, t_min), exit]` is not empty; Revelles' chain of children
+//! (first child, then exit planes, ties to the lowest axis) visits exactly those children
+//! except some of zero length (where the ray only touches an edge or corner at one t). A
+//! child's interval lies inside its parent's, so a leaf the scalar loop would not reach
+//! has a zero-length interval itself: every other leaf the packet reports is on the chain,
+//! and being the first in the same order, it is the scalar answer. A leaf of zero length
+//! is handed to the scalar loop for that ray.
+
+use super::{finish, trace_unit, Hit, TraceOptions};
+use crate::ray::UnitRay;
+use crate::svo::{Svo, MAX_DEPTH};
+use wide::f32x4;
+
+/// Rays in a packet.
+pub const LANES: usize = 64;
+const QUADS: usize = LANES / 4;
+
+/// Per axis, four rays' values for each quad of the packet.
+type Axes = [[f32x4; QUADS]; 3];
+
+/// The t-values of one node for every ray of the packet (Revelles §3.1): entry planes,
+/// midplanes, exit planes. Only the quads with rays in the node are written.
+#[derive(Clone, Copy)]
+struct Frame {
+    t0: Axes,
+    tm: Axes,
+    t1: Axes,
+}
+
+const EMPTY: Frame =
+    Frame { t0: [[f32x4::ZERO; QUADS]; 3], tm: [[f32x4::ZERO; QUADS]; 3], t1: [[f32x4::ZERO; QUADS]; 3] };
+
+/// Reusable memory for tracing packets (about 50 KB: one [`Frame`] per level); make one per
+/// thread and pass it to every [`trace_packet`].
+pub struct PacketStack {
+    frames: Box<[Frame; MAX_DEPTH as usize + 1]>,
+}
+
+impl Default for PacketStack {
+    fn default() -> Self {
+        PacketStack { frames: Box::new([EMPTY; MAX_DEPTH as usize + 1]) }
+    }
+}
+
+/// The rays of one pass over the tree (one mirror value).
+struct Pass<'a> {
+    svo: &'a Svo,
+    rays: &'a [Option<UnitRay>],
+    opts: &'a [TraceOptions],
+    out: &'a mut [Option<Hit>],
+    frames: &'a mut [Frame; MAX_DEPTH as usize + 1],
+    origin: Axes,
+    inv: Axes,
+    t_min: [f32x4; QUADS],
+    t_max: [f32x4; QUADS],
+    mirror: u32,
+    max_level: u32,
+    /// Rays still without an answer.
+    active: u64,
+}
+
+/// Quads holding a ray of `lanes`: bit 4q set when quad q has one.
+#[inline(always)]
+fn quads_of(lanes: u64) -> u64 {
+    let x = lanes | (lanes >> 1);
+    (x | (x >> 2)) & 0x1111_1111_1111_1111
+}
+
+/// The next quad of a [`quads_of`] mask, removed from it.
+#[inline(always)]
+fn next_quad(quads: &mut u64) -> usize {
+    let q = quads.trailing_zeros() as usize / 4;
+    *quads &= *quads - 1;
+    q
+}
+
+#[inline(always)]
+fn lane(v: f32x4, k: usize) -> f32 {
+    v.to_array()[k]
+}
+
+impl Pass<'_> {
+    /// Visits the children of `node` (level `level`, mirrored coordinates `coord`) for the rays
+    /// `lanes`, whose t-values for the node are `frames[level]`.
+    fn visit(&mut self, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
+        let mask = self.svo.masks[node] as u32;
+        for c in 0..8u32 {
+            let octant = c ^ self.mirror;
+            if mask & (1 << octant) == 0 {
+                continue;
+            }
+            let lanes = lanes & self.active;
+            if lanes == 0 {
+                return;
+            }
+            let (up_x, up_y, up_z) = (c & 1 != 0, c & 2 != 0, c & 4 != 0);
+            let f = &self.frames[level];
+            let pick = |a: usize, up: bool, q: usize| {
+                if up {
+                    (f.tm[a][q], f.t1[a][q])
+                } else {
+                    (f.t0[a][q], f.tm[a][q])
+                }
+            };
+            let mut crossed = 0u64;
+            let mut quads = quads_of(lanes);
+            while quads != 0 {
+                let q = next_quad(&mut quads);
+                let ((x0, x1), (y0, y1), (z0, z1)) = (pick(0, up_x, q), pick(1, up_y, q), pick(2, up_z, q));
+                let te = x0.fast_max(y0).fast_max(z0);
+                let tx = x1.fast_min(y1).fast_min(z1);
+                let ok = te.fast_max(self.t_min[q]).simd_le(tx) & te.simd_le(self.t_max[q]);
+                crossed |= (ok.to_bitmask() as u64) << (4 * q);
+            }
+            crossed &= lanes;
+            if crossed == 0 {
+                continue;
+            }
+            let child_level = level as u32 + 1;
+            let cc = [2 * coord[0] + up_x as u32, 2 * coord[1] + up_y as u32, 2 * coord[2] + up_z as u32];
+            if child_level >= self.max_level {
+                self.hits(level, node, c, cc, crossed);
+                continue;
+            }
+            let (lo, hi) = self.frames.split_at_mut(level + 1);
+            let (f, g) = (&lo[level], &mut hi[0]);
+            let mut quads = quads_of(crossed);
+            while quads != 0 {
+                let q = next_quad(&mut quads);
+                for (a, up) in [up_x, up_y, up_z].into_iter().enumerate() {
+                    let (t0, t1) = if up { (f.tm[a][q], f.t1[a][q]) } else { (f.t0[a][q], f.tm[a][q]) };
+                    g.t0[a][q] = t0;
+                    g.t1[a][q] = t1;
+                    // Revelles §3.1: the midplanes halfway in t (as the scalar loop).
+                    g.tm[a][q] = (t0 + t1) * f32x4::splat(0.5);
+                }
+            }
+            self.visit(level + 1, self.svo.child_node(node, octant), cc, crossed);
+        }
+    }
+
+    /// Reports child `c` of `node` as the hit of the rays `lanes`.
+    fn hits(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
+        let attr = self.svo.child_attr(node, c ^ self.mirror);
+        let f = &self.frames[level];
+        while lanes != 0 {
+            let k = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            self.active &= !(1 << k);
+            let (q, l) = (k / 4, k % 4);
+            let mut ct0 = [0f32; 3];
+            let mut ct1 = [0f32; 3];
+            for a in 0..3 {
+                let (t0, t1) = if c & (1 << a) != 0 { (f.tm[a][q], f.t1[a][q]) } else { (f.t0[a][q], f.tm[a][q]) };
+                ct0[a] = lane(t0, l);
+                ct1[a] = lane(t1, l);
+            }
+            let te = ct0[0].max(ct0[1]).max(ct0[2]);
+            let tx = ct1[0].min(ct1[1]).min(ct1[2]);
+            let t_min = lane(self.t_min[q], l);
+            let Some(ray) = self.rays[k].as_ref() else { continue };
+            self.out[k] = if te.max(t_min) == tx {
+                // Zero length: Revelles' chain may pass this leaf by (see the module notes).
+                trace_unit(self.svo, ray, &self.opts[k]).hit
+            } else {
+                finish(ray, te, t_min, level as u32 + 1, cc, attr, ct0)
+            };
+        }
+    }
+}
+
+/// Traces `rays[k]` with `opts[k]` for every lane `k` of `lanes` (at most [`LANES`] rays, all
+/// three slices as long) and writes `trace_unit(svo, ray, opts).hit` into `out[k]`; lanes
+/// without a ray get `None`. Every ray's `max_level` must be the same.
+pub fn trace_packet(
+    svo: &Svo,
+    rays: &[Option<UnitRay>],
+    opts: &[TraceOptions],
+    lanes: u64,
+    stack: &mut PacketStack,
+    out: &mut [Option<Hit>],
+) {
+    let n = rays.len().min(LANES).min(opts.len()).min(out.len());
+    let lanes = if n == LANES { lanes } else { lanes & ((1u64 << n) - 1) };
+    let mut todo = 0u64;
+    let mut l = lanes;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        out[k] = None;
+        match &rays[k] {
+            // Rays along an axis, and whole-tree level limits, take the scalar loop.
+            Some(r) if r.parallel == 0 && opts[k].max_level.min(svo.depth) > 0 => todo |= 1 << k,
+            Some(r) => out[k] = trace_unit(svo, r, &opts[k]).hit,
+            None => {}
+        }
+    }
+    while todo != 0 {
+        // One pass per mirror value: numeric child order is front to back only for rays that
+        // share it.
+        let mirror = rays[todo.trailing_zeros() as usize].as_ref().map_or(0, |r| r.mirror);
+        let max_level = opts[todo.trailing_zeros() as usize].max_level.min(svo.depth);
+        let mut pass_lanes = 0u64;
+        let mut l = todo;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            if rays[k].as_ref().is_some_and(|r| r.mirror == mirror) && opts[k].max_level.min(svo.depth) == max_level {
+                pass_lanes |= 1 << k;
+            }
+        }
+        todo &= !pass_lanes;
+        run_pass(svo, rays, opts, pass_lanes, mirror, max_level, stack, out);
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_pass(
+    svo: &Svo,
+    rays: &[Option<UnitRay>],
+    opts: &[TraceOptions],
+    lanes: u64,
+    mirror: u32,
+    max_level: u32,
+    stack: &mut PacketStack,
+    out: &mut [Option<Hit>],
+) {
+    let mut pass = Pass {
+        svo,
+        rays,
+        opts,
+        out,
+        frames: &mut stack.frames,
+        origin: [[f32x4::ZERO; QUADS]; 3],
+        inv: [[f32x4::ZERO; QUADS]; 3],
+        t_min: [f32x4::ZERO; QUADS],
+        t_max: [f32x4::ZERO; QUADS],
+        mirror,
+        max_level,
+        active: 0,
+    };
+    let set = |v: &mut f32x4, j: usize, x: f32| bytemuck::cast_mut::<f32x4, [f32; 4]>(v)[j] = x;
+    let mut l = lanes;
+    let mut live = 0u64;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        let Some(r) = rays[k].as_ref() else { continue };
+        let (q, j) = (k / 4, k % 4);
+        // As the scalar loop: t range in internal units, empty ranges miss.
+        let (lo, hi) = (r.to_internal(opts[k].t_min.max(f32::MIN)), r.to_internal(opts[k].t_max));
+        if !(lo <= hi) {
+            continue;
+        }
+        for a in 0..3 {
+            set(&mut pass.origin[a][q], j, r.origin[a]);
+            set(&mut pass.inv[a][q], j, r.inv_dir[a]);
+        }
+        set(&mut pass.t_min[q], j, lo);
+        set(&mut pass.t_max[q], j, hi);
+        live |= 1 << k;
+    }
+    // The root's planes as the scalar loop computes them: (p − o)·inv at p = 0, ½, 1.
+    let mut entered = 0u64;
+    let mut quads = quads_of(live);
+    while quads != 0 {
+        let q = next_quad(&mut quads);
+        let f = &mut pass.frames[0];
+        for a in 0..3 {
+            let (o, i) = (pass.origin[a][q], pass.inv[a][q]);
+            f.t0[a][q] = (f32x4::ZERO - o) * i;
+            f.tm[a][q] = (f32x4::splat(0.5) - o) * i;
+            f.t1[a][q] = (f32x4::ONE - o) * i;
+        }
+        let te = f.t0[0][q].fast_max(f.t0[1][q]).fast_max(f.t0[2][q]);
+        let tx = f.t1[0][q].fast_min(f.t1[1][q]).fast_min(f.t1[2][q]);
+        let ok = te.simd_le(tx) & pass.t_min[q].simd_le(tx) & te.simd_le(pass.t_max[q]);
+        entered |= (ok.to_bitmask() as u64) << (4 * q);
+    }
+    entered &= live;
+    pass.active = entered;
+    if entered != 0 {
+        pass.visit(0, 0, [0; 3], entered);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::stability::{make_case, scene_blobs, standard_cases, Case, CaseRay};
+    use glam::Vec3;
+
+    fn opts_of(case: &Case, r: &CaseRay) -> TraceOptions {
+        TraceOptions { t_min: r.t_min, t_max: r.t_max, max_level: case.max_level.unwrap_or(u32::MAX) }
+    }
+
+    /// Traces `rays` in packets of 64 and one by one; returns how many answers differ (and the
+    /// first that does).
+    fn differences(case: &Case, rays: &[CaseRay]) -> (usize, Option<String>) {
+        let mut stack = PacketStack::default();
+        let (mut n, mut first) = (0, None);
+        for chunk in rays.chunks(LANES) {
+            let units: Vec<_> =
+                chunk.iter().map(|r| UnitRay::from_unit(r.origin.as_dvec3(), r.dir.as_dvec3())).collect();
+            let opts: Vec<_> = chunk.iter().map(|r| opts_of(case, r)).collect();
+            let mut out = vec![None; chunk.len()];
+            let lanes = if chunk.len() == LANES { u64::MAX } else { (1u64 << chunk.len()) - 1 };
+            trace_packet(&case.svo, &units, &opts, lanes, &mut stack, &mut out);
+            for (k, r) in chunk.iter().enumerate() {
+                let want = units[k].and_then(|u| trace_unit(&case.svo, &u, &opts[k]).hit);
+                if out[k] != want {
+                    n += 1;
+                    first.get_or_insert_with(|| {
+                        format!("{}: ray {r:?}: packet {:?}, scalar {want:?}", case.name, out[k])
+                    });
+                }
+            }
+        }
+        (n, first)
+    }
+
+    #[test]
+    fn packets_answer_as_the_scalar_loop_on_the_stability_suite() {
+        for case in standard_cases(20_000) {
+            let (n, first) = differences(&case, &case.rays);
+            assert_eq!(n, 0, "{first:?}");
+        }
+    }
+
+    /// Tiles of rays from one eye through a grid of points on voxel corners and edges: coherent
+    /// like primary rays, and full of exact contacts (rays through edges and corners of
+    /// voxels), where the packet must hand zero-length leaves to the scalar loop.
+    #[test]
+    fn coherent_tiles_through_voxel_corners_answer_as_the_scalar_loop() {
+        let depth = 6;
+        let case = make_case("blobs", depth, scene_blobs(depth, 7), Vec::new(), None);
+        let mut rng = Rng::new(5);
+        let cell = 1.0 / (1u32 << depth) as f32;
+        let mut rays = Vec::new();
+        for _ in 0..400 {
+            let eye = Vec3::new(
+                rng.below(3) as f32 - 1.0 + 0.5,
+                rng.below(3) as f32 - 1.0 + 0.5,
+                rng.below(2) as f32 * 2.0 - 0.5,
+            );
+            // Eyes on lattice points too, so many rays pass exactly through voxel corners.
+            let eye = if rng.below(2) == 0 { (eye / cell).round() * cell } else { eye };
+            let base = [0, 1, 2].map(|_| rng.below(1 << depth) as f32);
+            let step = [1.0f32, 0.5, 0.25][rng.below(3) as usize];
+            for y in 0..8 {
+                for x in 0..8 {
+                    let p = Vec3::new(base[0] + x as f32 * step, base[1] + y as f32 * step, base[2]) * cell;
+                    rays.push(CaseRay { origin: eye, dir: p - eye, t_min: 0.0, t_max: f32::INFINITY });
+                }
+            }
+        }
+        let (n, first) = differences(&case, &rays);
+        assert_eq!(n, 0, "{first:?}");
+    }
+}
