@@ -3,7 +3,7 @@
 //! as coherent streams of 8×8 tiles), parry3d's `TriMesh` (triangle BVH) and parry3d's
 //! `Voxels` built from the SVO's own leaf voxels. Each traces the nearest hit of every primary
 //! ray of a frame. voxray answers the same queries through its primary-ray API
-//! ([`crate::render::primary`]: 8×8 tiles with beams) on the SVO of the same triangles, and
+//! ([`crate::render::primary`]: 8×8 tiles with beams, each tile a packet) on the SVO of the same triangles, and
 //! renders whole frames of the default view too. Every caster runs on one thread and on all
 //! threads, on several views; the hit fraction of each is recorded so a reader can see they
 //! trace the same thing.
@@ -149,7 +149,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 );
                 t_hit.iter().filter(|t| t.is_finite()).count() as u64
             };
-            let what = format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams");
+            let what = format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams, as packets");
             out.push(timed(&t, "voxray (trace only)", "voxray-trace", &what, &mut run)?);
             peers.time(&t, &tris, &mut out)?;
         }

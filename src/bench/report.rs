@@ -313,7 +313,7 @@ traced one of the same pose: FLIP of the displayed images and the fraction of pi
 object, seen whole and close up, and its body alone voxelized at depth 11. Embree and parry3d \
 `TriMesh` trace the triangle mesh, parry3d `Voxels` the SVO's own leaf voxels. `voxray (trace \
 only)` answers the same nearest-hit queries through its primary-ray API (8×8 tiles, each started \
-at its beam), `voxray (whole frame)` also shades them into the frame buffer. Embree runs one ray \
+at its beam and traced as one packet per instance, see traversal.md), `voxray (whole frame)` also shades them into the frame buffer. Embree runs one ray \
 at a time and, as `Embree 3 (stream)`, on coherent streams of the same 8×8 tiles. Every caster \
 runs on one thread and on all threads; the ratio columns divide voxray's trace-only rays per \
 second by each row's at the same thread count. Ratio > 1: voxray is faster.\n\n";
