@@ -1,7 +1,10 @@
 //! Beams (`render::beam`): primary rays started at their tile's conservative start t find
 //! exactly the hits they find from the eye, over rotated, anisotropically scaled, tiny and
 //! huge instances, cameras inside and grazing the parts, narrow and wide fields of view,
-//! images whose sides are not multiples of the tile, and levels of detail.
+//! images whose sides are not multiples of the tile, and levels of detail. With beams on, a
+//! tile's rays also go through each octree as one packet (its primary rays, and the sun's
+//! shadow rays of its pixels), so these comparisons check the packets against the rays one
+//! by one as well.
 
 use glam::{DQuat, DVec3};
 use std::sync::{Arc, OnceLock};

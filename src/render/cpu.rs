@@ -159,6 +159,70 @@ fn for_rows<T: Send>(buf: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + 
     buf.chunks_mut(width).enumerate().for_each(|(y, row)| f(y, row));
 }
 
+/// A pixel's shadow ray towards the sun, traced before shading ([`sun_shadows`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum SunRay {
+    /// Not traced (the pixel needed none when it was decided).
+    Untraced,
+    /// Nothing blocks it.
+    Free,
+    /// An instance blocks it.
+    Blocked,
+}
+
+/// The sun's shadow rays (towards `to_sun`, unbounded) of the pixels `needs(x, y)` says,
+/// starting at `origin(x, y)`, traced tile by tile as packets
+/// ([`super::tile_search::occluded_tile`]): per pixel of a `width` × `height` frame.
+fn sun_shadows(
+    fi: &FrameInstances,
+    width: usize,
+    height: usize,
+    to_sun: DVec3,
+    search: super::visibility::Search,
+    needs: impl Fn(usize, usize) -> bool + Sync + Send,
+    origin: impl Fn(usize, usize) -> DVec3 + Sync + Send,
+) -> Vec<SunRay> {
+    let t = TILE as usize;
+    let mut out = vec![SunRay::Untraced; width * height];
+    let band = |y0: usize, rows: &mut [SunRay]| {
+        let mut scratch = super::tile_search::TileScratch::default();
+        let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
+        let tile_h = rows.len() / width;
+        for x0 in (0..width).step_by(t) {
+            let mut lanes = 0u64;
+            for ty in 0..tile_h {
+                for x in x0..(x0 + t).min(width) {
+                    if needs(x, y0 + ty) {
+                        let k = ty * t + x - x0;
+                        origins[k] = origin(x, y0 + ty);
+                        lanes |= 1 << k;
+                    }
+                }
+            }
+            if lanes == 0 {
+                continue;
+            }
+            let blocked =
+                super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, &mut scratch);
+            let mut l = lanes;
+            while l != 0 {
+                let k = l.trailing_zeros() as usize;
+                l &= l - 1;
+                let free = blocked & (1 << k) == 0;
+                rows[(k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
+            }
+        }
+    };
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        out.par_chunks_mut(width * t).enumerate().for_each(|(i, rows)| band(i * t, rows));
+    }
+    #[cfg(not(feature = "parallel"))]
+    out.chunks_mut(width * t).enumerate().for_each(|(i, rows)| band(i * t, rows));
+    out
+}
+
 /// The hit record of a nearest hit along unit direction `d`: world normals turned to face the
 /// ray (surfaces are two-sided), the voxel's world size for offsets.
 pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
@@ -479,6 +543,22 @@ pub fn render_lit(
         None => Vec::new(),
     };
     let ambient_ms = ambient_start.elapsed().as_secs_f64() * 1e3;
+    // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
+    // answers as one by one); kept hits whose colour turns out not to be kept ask later.
+    let sun_rays = match lights.sun {
+        Some(sun) if plan.shadows && plan.beams && prepared.len() <= super::beam::MAX_INSTANCES => {
+            let needs = |x: usize, y: usize| {
+                let r = &records[y * w + x];
+                r.instance >= 0 && !kept_colour(x, y) && r.normal.dot(sun.to_sun) > 0.0
+            };
+            let origin = |x: usize, y: usize| {
+                let r = &records[y * w + x];
+                leave(r, camera.ray_dir(&basis, x as u32, y as u32) * r.t as f64)
+            };
+            sun_shadows(&fi, w, camera.height as usize, sun.to_sun.as_dvec3(), search, needs, origin)
+        }
+        _ => Vec::new(),
+    };
     for_rows(&mut f.radiance, w, |y, row| {
         let mut kept = 0;
         for (x, out) in row.iter_mut().enumerate() {
@@ -510,6 +590,13 @@ pub fn render_lit(
                     return true;
                 }
                 shadow_rays.fetch_add(1, Ordering::Relaxed);
+                if t_max == f64::INFINITY && lights.sun.is_some_and(|s| s.to_sun.as_dvec3() == dir) {
+                    match sun_rays.get(k) {
+                        Some(&SunRay::Free) => return true,
+                        Some(&SunRay::Blocked) => return false,
+                        _ => {}
+                    }
+                }
                 !occluded(&fi, start, dir, t_max, search)
             });
             *out = ambient_term + radiance;

@@ -116,3 +116,70 @@ pub fn nearest_tile(
         work.traced += beam_culled * rays;
     }
 }
+
+/// Whether each ray `origins[k] + t·dir`, `0 ≤ t ≤ t_max`, for the lanes `k` of `lanes` (up to
+/// [`LANES`]), hits an instance: bit `k` of the result set when it does. What
+/// [`super::visibility::occluded`] answers for each ray, the octrees traversed by the rays
+/// together (shadow rays towards one sun, from a tile's surface points).
+#[allow(clippy::too_many_arguments)]
+pub fn occluded_tile(
+    fi: &FrameInstances,
+    origins: &[DVec3],
+    dir: DVec3,
+    lanes: u64,
+    t_max: f64,
+    search: Search,
+    scratch: &mut TileScratch,
+) -> u64 {
+    let opts = TraceOptions { t_max: t_max as f32, ..TraceOptions::default() };
+    // The rays are parallel: they lie in a cylinder around the line through the centre of
+    // their origins' bounding box, as wide as the box's half-diagonal. An instance whose
+    // sphere that cylinder misses is missed by every ray (and its octree lies inside it).
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    let mut l = lanes;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        lo = lo.min(origins[k]);
+        hi = hi.max(origins[k]);
+    }
+    let (centre, width) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
+    let mut open = lanes;
+    for p in fi.prepared {
+        if sphere_interval(p.centre, p.radius + width, centre, dir).is_none() {
+            continue;
+        }
+        let mut todo = 0u64;
+        let mut l = open;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            // Every search but the plain one skips instances whose sphere the ray misses (or
+            // enters beyond t_max): that changes no answer, the octree lies inside the sphere.
+            if search != Search::Plain
+                && !sphere_interval(p.centre, p.radius, origins[k], dir).is_some_and(|(t0, _)| t0 <= t_max)
+            {
+                continue;
+            }
+            scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(origins[k]), p.to_unit.vector(dir));
+            scratch.opts[k] = opts;
+            todo |= 1 << k;
+        }
+        if todo == 0 {
+            continue;
+        }
+        trace_packet(&fi.parts[p.part], &scratch.rays, &scratch.opts, todo, &mut scratch.stack, &mut scratch.hits);
+        let mut l = todo;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            if scratch.hits[k].is_some() {
+                open &= !(1 << k);
+            }
+        }
+        if open == 0 {
+            break;
+        }
+    }
+    lanes & !open
+}
