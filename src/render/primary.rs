@@ -3,7 +3,7 @@
 //! renderer's trace pass and library users who only want the hits share this loop.
 
 use super::beam::{self, TileRays, TILE};
-use super::tile_search::{nearest_tile, TileScratch};
+use super::tile_search::{nearest_moved_tile, nearest_tile, TileScratch};
 use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
@@ -157,6 +157,36 @@ pub fn trace_tiles<T: Send, S>(
                 let d = p.camera.ray_dir(&basis, x as u32, (y0 + ty) as u32);
                 let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
                 store(&mut rows[ty * w + x], hit.map(|h| (h, d)));
+            }
+            if p.beams && partial != 0 {
+                // The same as one by one below, the moved instances traced by the rays together.
+                let mut l = partial;
+                while l != 0 {
+                    let k = l.trailing_zeros() as usize;
+                    l &= l - 1;
+                    dirs[k] =
+                        p.camera.ray_dir(&basis, (x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                }
+                nearest_moved_tile(
+                    &fi,
+                    DVec3::ZERO,
+                    &dirs,
+                    partial,
+                    p.moved,
+                    &bounds,
+                    &p.opts,
+                    &mut work,
+                    &mut scratch,
+                    &mut hits,
+                );
+                while partial != 0 {
+                    let k = partial.trailing_zeros() as usize;
+                    partial &= partial - 1;
+                    if let Some(hit) = hits[k] {
+                        store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], Some((hit, dirs[k])));
+                        masks[x0 / TILE as usize] |= 1 << k;
+                    }
+                }
             }
             while partial != 0 {
                 let k = partial.trailing_zeros() as usize;

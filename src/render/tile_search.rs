@@ -183,3 +183,77 @@ pub fn occluded_tile(
     }
     lanes & !open
 }
+
+/// [`super::visibility::nearest_moved`] for each ray `o + t·dirs[k]` of the lanes `k` of
+/// `lanes`, against its bound `bounds[k]` (the nearest hit `(t, instance)` among the
+/// instances that did not move), the moved instances' octrees traversed by the rays
+/// together: `out[k]` is the moved instances' hit that beats the bound, if any. The
+/// instances are visited in the order of `moved`, as one ray at a time does, so every ray
+/// traces them with the same bounds and finds the same hit.
+#[allow(clippy::too_many_arguments)]
+pub fn nearest_moved_tile(
+    fi: &FrameInstances,
+    o: DVec3,
+    dirs: &[DVec3],
+    lanes: u64,
+    moved: &[u32],
+    bounds: &[(f32, i32)],
+    opts: &TraceOptions,
+    work: &mut Work,
+    scratch: &mut TileScratch,
+    out: &mut [Option<InstanceHit>],
+) {
+    let mut best = [(0f32, 0usize); LANES];
+    let mut l = lanes;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        let (t, instance) = bounds[k];
+        best[k] = (t, if instance < 0 { usize::MAX } else { instance as usize });
+        out[k] = None;
+    }
+    for &i in moved {
+        let i = i as usize;
+        let p = &fi.prepared[i];
+        if fi.starts.is_some_and(|s| s[i] == f32::INFINITY) {
+            work.culled += lanes.count_ones() as u64;
+            continue;
+        }
+        let mut todo = 0u64;
+        let mut l = lanes;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, dirs[k]) else {
+                work.culled += 1;
+                continue;
+            };
+            let t_max = best[k].0.min(opts.t_max);
+            if t0 > t_max as f64 {
+                continue;
+            }
+            work.traced += 1;
+            let start = fi.starts.map_or(opts.t_min, |s| s[i]);
+            let t_min = if start > opts.t_min { start } else { opts.t_min };
+            scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(dirs[k]));
+            scratch.opts[k] = TraceOptions { t_min, t_max: widen(t_max), ..*opts };
+            todo |= 1 << k;
+        }
+        if todo == 0 {
+            continue;
+        }
+        trace_packet(&fi.parts[p.part], &scratch.rays, &scratch.opts, todo, &mut scratch.stack, &mut scratch.hits);
+        let mut l = todo;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            if let Some(h) = scratch.hits[k] {
+                let (best_t, best_i) = best[k];
+                if h.t < best_t || (h.t == best_t && i < best_i) {
+                    best[k] = (h.t, i);
+                    out[k] = Some(InstanceHit { instance: i, hit: h });
+                }
+            }
+        }
+    }
+}
