@@ -5,7 +5,8 @@
 //!   no beams), as the SVO-core measurement was made; `voxray bench` measures the optimized
 //!   paths;
 //! - `car_1280x768_trace_only`: the car merged into one SVO, nearest hits only through
-//!   `render::primary` (8×8 tiles), with and without beams.
+//!   `render::primary` (8×8 tiles), with beams (each tile then goes through the octree as one
+//!   packet, `traverse::packet`) and without (one ray at a time, from the eye).
 //!
 //! `cargo bench --bench traverse`
 
@@ -95,7 +96,7 @@ fn car_primary_rays(c: &mut Criterion) {
                 beams,
                 moved: &[],
             };
-            let name = format!("{}_{threads}_threads", if beams { "beams" } else { "no_beams" });
+            let name = format!("{}_{threads}_threads", if beams { "beams_packets" } else { "no_beams_one_by_one" });
             g.bench_function(name, |b| {
                 b.iter(|| {
                     pool.install(|| {
