@@ -3,7 +3,7 @@
 //! device. Without a display it says so. In CI (CI=true) a missing Xvfb fails the test.
 #![cfg(feature = "viewer")]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn xvfb() -> bool {
@@ -17,10 +17,32 @@ fn xvfb() -> bool {
     found
 }
 
-fn tmp(name: &str) -> PathBuf {
+/// A scratch folder of one test, removed when the test ends (pass or fail).
+struct TempDir(PathBuf);
+
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn tmp(name: &str) -> TempDir {
     let d = std::env::temp_dir().join(format!("voxray-demo-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TempDir(d)
 }
 
 /// Runs the demo and checks its screenshot; returns its standard output.
