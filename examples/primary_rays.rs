@@ -5,7 +5,7 @@
 //!
 //! `cargo run --release --example primary_rays [-- DEPTH [WIDTH HEIGHT]]` (default 9, 1280×768);
 //! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement, `BEAMS=on` or `off`
-//! for one of the two.
+//! for one of the two, `VIEW=default` or `close-up` for one view.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -40,6 +40,9 @@ fn main() -> Result<(), voxray::Error> {
     let default = Camera::framing(lo.as_vec3(), hi.as_vec3(), width, height);
     let close = Camera { eye: default.target + (default.eye - default.target) * 0.4, ..default };
     for (name, camera) in [("default", default), ("close-up", close)] {
+        if std::env::var("VIEW").is_ok_and(|v| v != name) {
+            continue;
+        }
         let prepared = prepare(&scene, camera.eye, false);
         let instances = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
         for beams in [true, false] {

@@ -1,4 +1,4 @@
-// Revelles' parametric octree traversal: the WGSL twin of src/traverse.rs and of
+// Revelles' parametric octree traversal: the WGSL twin of src/traverse/mod.rs and of
 // UnitRay::from_unit in src/ray.rs. Same function names, same order of steps; comments
 // point at the differences (f32 only: no f64 rebasing or f64 hit t on the GPU).
 //
