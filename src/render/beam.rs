@@ -19,6 +19,11 @@ use glam::DVec3;
 /// Tile side in pixels.
 pub const TILE: u32 = 8;
 
+/// Width in pixels of the run of tiles (a tile high) that shares one beam: a beam costs about
+/// as much as tracing its tile's rays as a packet, and on the car a beam per four tiles
+/// loses less in later starts than it saves (docs/benchmarks.md, step 12).
+pub const BEAM_WIDTH: u32 = 4 * TILE;
+
 /// Instances above this count get no beams (a per-tile start for every instance would cost
 /// more than it saves; the BVH culls them instead).
 pub const MAX_INSTANCES: usize = 64;

@@ -2,7 +2,7 @@
 //! beam starts ([`super::beam`]), then its rays run the nearest-hit search from there. The CPU
 //! renderer's trace pass and library users who only want the hits share this loop.
 
-use super::beam::{self, TileRays, TILE};
+use super::beam::{self, TileRays, BEAM_WIDTH, TILE};
 use super::tile_search::{nearest_moved_tile, nearest_tile, TileScratch};
 use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
@@ -85,6 +85,8 @@ pub fn trace_tiles<T: Send, S>(
         let mut band_rays = 0u64;
         let mut band_moved = 0u64;
         let mut starts = Vec::new();
+        // Where the beam in `starts` begins (none yet).
+        let mut beam_x0 = usize::MAX;
         let mut scratch = TileScratch::default();
         let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
         let mut hits = [None; (TILE * TILE) as usize];
@@ -116,8 +118,15 @@ pub fn trace_tiles<T: Send, S>(
             band_rays += (todo | partial).count_ones() as u64;
             band_moved += partial.count_ones() as u64;
             let fi = if p.beams {
-                let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
-                beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
+                // One beam serves the tiles of a [`BEAM_WIDTH`]-pixel run of the band: its cone
+                // holds all their rays, so its starts hold for each of them.
+                let bx0 = x0 - x0 % BEAM_WIDTH as usize;
+                if beam_x0 != bx0 {
+                    let bx1 = (bx0 + BEAM_WIDTH as usize).min(w);
+                    let tile = TileRays::new(p.camera, &basis, bx0 as u32, y0 as u32, bx1 as u32, (y0 + tile_h) as u32);
+                    beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
+                    beam_x0 = bx0;
+                }
                 if starts.iter().all(|&s| s == f32::INFINITY) {
                     // The tile's cone meets no instance's voxels: every pending ray misses (and
                     // no moved instance beats a bound).
