@@ -1,39 +1,18 @@
 //! The `voxray` command line, end to end: images, AOVs in DESIGN.md's conventions, the SVO
 //! cache, and clear errors for bad input.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::TempDir;
+use std::path::Path;
 use std::process::{Command, Output};
 
 fn voxray(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_voxray")).args(args).output().expect("run voxray")
 }
 
-/// A scratch folder of one test, removed when the test ends (pass or fail).
-struct TempDir(PathBuf);
-
-impl std::ops::Deref for TempDir {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl AsRef<Path> for TempDir {
-    fn as_ref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn tmp(name: &str) -> TempDir {
-    let d = std::env::temp_dir().join(format!("voxray-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    TempDir(d)
+    TempDir::new("voxray-cli", name)
 }
 
 fn s(p: &Path) -> &str {

@@ -3,7 +3,9 @@
 //! device. Without a display it says so. In CI (CI=true) a missing Xvfb fails the test.
 #![cfg(feature = "viewer")]
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::TempDir;
 use std::process::Command;
 
 fn xvfb() -> bool {
@@ -17,32 +19,8 @@ fn xvfb() -> bool {
     found
 }
 
-/// A scratch folder of one test, removed when the test ends (pass or fail).
-struct TempDir(PathBuf);
-
-impl std::ops::Deref for TempDir {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl AsRef<Path> for TempDir {
-    fn as_ref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn tmp(name: &str) -> TempDir {
-    let d = std::env::temp_dir().join(format!("voxray-demo-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    TempDir(d)
+    TempDir::new("voxray-demo", name)
 }
 
 /// Runs the demo and checks its screenshot; returns its standard output.

@@ -1,36 +1,15 @@
 //! OBJ/MTL loading: parts, materials, textures, and clear typed errors for bad input.
 
+mod common;
+
+use common::TempDir;
 use glam::{Vec2, Vec3};
 use std::path::{Path, PathBuf};
 use voxray::mesh::{load_obj, MeshError};
 use voxray::voxelize::{voxelize, Resolution, VoxelizeOptions};
 
-/// A scratch folder of one test, removed when the test ends (pass or fail).
-struct TempDir(PathBuf);
-
-impl std::ops::Deref for TempDir {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl AsRef<Path> for TempDir {
-    fn as_ref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn tmp(name: &str) -> TempDir {
-    let d = std::env::temp_dir().join(format!("voxray-mesh-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    TempDir(d)
+    TempDir::new("voxray-mesh", name)
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {

@@ -204,10 +204,7 @@ fn sun_shadows(
             }
             let blocked =
                 super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, &mut scratch);
-            let mut l = lanes;
-            while l != 0 {
-                let k = l.trailing_zeros() as usize;
-                l &= l - 1;
+            for k in super::tile_search::each(lanes) {
                 let free = blocked & (1 << k) == 0;
                 rows[(k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
             }

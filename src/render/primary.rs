@@ -3,7 +3,7 @@
 //! renderer's trace pass and library users who only want the hits share this loop.
 
 use super::beam::{self, TileRays, BEAM_WIDTH, TILE};
-use super::tile_search::{nearest_moved_tile, nearest_tile, TileScratch};
+use super::tile_search::{each, nearest_moved_tile, nearest_tile, TileScratch};
 use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
@@ -142,69 +142,56 @@ pub fn trace_tiles<T: Send, S>(
             } else {
                 p.instances
             };
+            // Lane k of the tile: its index in `rows`, and its pixel.
+            let at = |k: usize| (k / TILE as usize) * w + x0 + k % TILE as usize;
+            let pixel = |k: usize| ((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
             if p.beams {
-                // The tile's rays as packets through each instance (the same answers).
-                let mut l = todo;
-                while l != 0 {
-                    let k = l.trailing_zeros() as usize;
-                    l &= l - 1;
-                    dirs[k] =
-                        p.camera.ray_dir(&basis, (x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                // The tile's rays as packets through each instance: the same answers as one by
+                // one (below).
+                for k in each(todo | partial) {
+                    let (x, y) = pixel(k);
+                    dirs[k] = p.camera.ray_dir(&basis, x, y);
                 }
-                nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, &mut scratch, &mut hits);
-                while todo != 0 {
-                    let k = todo.trailing_zeros() as usize;
-                    todo &= todo - 1;
-                    let (ty, x) = (k / TILE as usize, x0 + k % TILE as usize);
-                    store(&mut rows[ty * w + x], hits[k].map(|h| (h, dirs[k])));
-                }
-            }
-            while todo != 0 {
-                let k = todo.trailing_zeros() as usize;
-                todo &= todo - 1;
-                let (ty, x) = (k / TILE as usize, x0 + k % TILE as usize);
-                let d = p.camera.ray_dir(&basis, x as u32, (y0 + ty) as u32);
-                let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
-                store(&mut rows[ty * w + x], hit.map(|h| (h, d)));
-            }
-            if p.beams && partial != 0 {
-                // The same as one by one below, the moved instances traced by the rays together.
-                let mut l = partial;
-                while l != 0 {
-                    let k = l.trailing_zeros() as usize;
-                    l &= l - 1;
-                    dirs[k] =
-                        p.camera.ray_dir(&basis, (x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
-                }
-                nearest_moved_tile(
-                    &fi,
-                    DVec3::ZERO,
-                    &dirs,
-                    partial,
-                    p.moved,
-                    &bounds,
-                    &p.opts,
-                    &mut work,
-                    &mut scratch,
-                    &mut hits,
-                );
-                while partial != 0 {
-                    let k = partial.trailing_zeros() as usize;
-                    partial &= partial - 1;
-                    if let Some(hit) = hits[k] {
-                        store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], Some((hit, dirs[k])));
-                        masks[x0 / TILE as usize] |= 1 << k;
+                if todo != 0 {
+                    nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, &mut scratch, &mut hits);
+                    for k in each(todo) {
+                        store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
                     }
                 }
+                if partial != 0 {
+                    nearest_moved_tile(
+                        &fi,
+                        DVec3::ZERO,
+                        &dirs,
+                        partial,
+                        p.moved,
+                        &bounds,
+                        &p.opts,
+                        &mut work,
+                        &mut scratch,
+                        &mut hits,
+                    );
+                    for k in each(partial) {
+                        if let Some(hit) = hits[k] {
+                            store(&mut rows[at(k)], Some((hit, dirs[k])));
+                            masks[x0 / TILE as usize] |= 1 << k;
+                        }
+                    }
+                }
+                continue;
             }
-            while partial != 0 {
-                let k = partial.trailing_zeros() as usize;
-                partial &= partial - 1;
-                let (ty, x) = (k / TILE as usize, x0 + k % TILE as usize);
-                let d = p.camera.ray_dir(&basis, x as u32, (y0 + ty) as u32);
+            for k in each(todo) {
+                let (x, y) = pixel(k);
+                let d = p.camera.ray_dir(&basis, x, y);
+                let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
+                store(&mut rows[at(k)], hit.map(|h| (h, d)));
+            }
+            for k in each(partial) {
+                let (x, y) = pixel(k);
+                let d = p.camera.ray_dir(&basis, x, y);
                 let (t, instance) = bounds[k];
                 if let Some(hit) = nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work) {
-                    store(&mut rows[ty * w + x], Some((hit, d)));
+                    store(&mut rows[at(k)], Some((hit, d)));
                     masks[x0 / TILE as usize] |= 1 << k;
                 }
             }

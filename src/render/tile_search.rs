@@ -9,9 +9,10 @@
 //! the tile visits its instances by beam start, nearest first, and a ray skips an instance
 //! whose beam start or sphere entry lies beyond its best hit.
 
-use super::instances::sphere_interval;
+use super::instances::{sphere_interval, Prepared};
 use super::visibility::{keep, widen, FrameInstances, InstanceHit, Search, Work};
 use crate::ray::UnitRay;
+use crate::svo::Svo;
 use crate::traverse::packet::{trace_packet, PacketStack, LANES};
 use crate::traverse::{Hit, TraceOptions};
 use glam::DVec3;
@@ -37,6 +38,36 @@ impl Default for TileScratch {
     }
 }
 
+impl TileScratch {
+    /// Sets lane `k` to the ray `o + t·d`, mapped into instance `p`'s unit cube, traced with
+    /// `opts`.
+    fn set(&mut self, k: usize, p: &Prepared, o: DVec3, d: DVec3, opts: TraceOptions) {
+        self.rays[k] = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d));
+        self.opts[k] = opts;
+    }
+
+    /// Traces the lanes `todo` (each set by [`Self::set`]) through `svo` as one packet and
+    /// returns the hits, lowest lane first.
+    fn trace(&mut self, svo: &Svo, todo: u64) -> impl Iterator<Item = (usize, Hit)> + '_ {
+        if todo != 0 {
+            trace_packet(svo, &self.rays, &self.opts, todo, &mut self.stack, &mut self.hits);
+        }
+        let hits = &self.hits;
+        each(todo).filter_map(move |k| hits[k].map(|h| (k, h)))
+    }
+}
+
+/// The lanes set in `mask`, lowest first.
+pub(crate) fn each(mut mask: u64) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            k
+        })
+    })
+}
+
 /// The nearest hit of each ray `o + t·dirs[k]` for the lanes `k` of `lanes` (up to
 /// [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for the
 /// ray. `fi.starts` holds the tile's beam starts (every ray of `dirs` inside the tile's beam).
@@ -55,14 +86,12 @@ pub fn nearest_tile(
     let n = fi.prepared.len();
     let starts = fi.starts.unwrap_or(&[]);
     let start_of = |i: usize| starts.get(i).copied().unwrap_or(opts.t_min);
-    let mut l = lanes;
-    while l != 0 {
-        let k = l.trailing_zeros() as usize;
-        l &= l - 1;
+    for k in each(lanes) {
         out[k] = None;
     }
     // Instances nearest beam start first, so that later ones are mostly skipped.
-    let order = &mut scratch.order;
+    // (Taken out of the scratch while its other buffers trace, and put back for the next tile.)
+    let mut order = std::mem::take(&mut scratch.order);
     order.clear();
     order.extend((0..n).map(|i| (start_of(i), i)).filter(|&(s, _)| s != f32::INFINITY));
     order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
@@ -75,10 +104,7 @@ pub fn nearest_tile(
         let p = &fi.prepared[i];
         let t_min = if start > opts.t_min { start } else { opts.t_min };
         let mut todo = 0u64;
-        let mut l = lanes;
-        while l != 0 {
-            let k = l.trailing_zeros() as usize;
-            l &= l - 1;
+        for k in each(lanes) {
             let d = dirs[k];
             let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
             if search != Search::Plain {
@@ -94,23 +120,14 @@ pub fn nearest_tile(
                 continue;
             }
             work.traced += 1;
-            scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d));
-            scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
+            scratch.set(k, p, o, d, TraceOptions { t_min, t_max: widen(bound), ..*opts });
             todo |= 1 << k;
         }
-        if todo == 0 {
-            continue;
-        }
-        trace_packet(&fi.parts[p.part], &scratch.rays, &scratch.opts, todo, &mut scratch.stack, &mut scratch.hits);
-        let mut l = todo;
-        while l != 0 {
-            let k = l.trailing_zeros() as usize;
-            l &= l - 1;
-            if let Some(h) = scratch.hits[k] {
-                keep(&mut out[k], i, h);
-            }
+        for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
+            keep(&mut out[k], i, h);
         }
     }
+    scratch.order = order;
     if search == Search::Plain {
         // The plain search counts every instance as traced.
         work.traced += beam_culled * rays;
@@ -136,10 +153,7 @@ pub fn occluded_tile(
     // their origins' bounding box, as wide as the box's half-diagonal. An instance whose
     // sphere that cylinder misses is missed by every ray (and its octree lies inside it).
     let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-    let mut l = lanes;
-    while l != 0 {
-        let k = l.trailing_zeros() as usize;
-        l &= l - 1;
+    for k in each(lanes) {
         lo = lo.min(origins[k]);
         hi = hi.max(origins[k]);
     }
@@ -150,10 +164,7 @@ pub fn occluded_tile(
             continue;
         }
         let mut todo = 0u64;
-        let mut l = open;
-        while l != 0 {
-            let k = l.trailing_zeros() as usize;
-            l &= l - 1;
+        for k in each(open) {
             // Every search but the plain one skips instances whose sphere the ray misses (or
             // enters beyond t_max): that changes no answer, the octree lies inside the sphere.
             if search != Search::Plain
@@ -161,21 +172,11 @@ pub fn occluded_tile(
             {
                 continue;
             }
-            scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(origins[k]), p.to_unit.vector(dir));
-            scratch.opts[k] = opts;
+            scratch.set(k, p, origins[k], dir, opts);
             todo |= 1 << k;
         }
-        if todo == 0 {
-            continue;
-        }
-        trace_packet(&fi.parts[p.part], &scratch.rays, &scratch.opts, todo, &mut scratch.stack, &mut scratch.hits);
-        let mut l = todo;
-        while l != 0 {
-            let k = l.trailing_zeros() as usize;
-            l &= l - 1;
-            if scratch.hits[k].is_some() {
-                open &= !(1 << k);
-            }
+        for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
+            open &= !(1 << k);
         }
         if open == 0 {
             break;
@@ -204,10 +205,7 @@ pub fn nearest_moved_tile(
     out: &mut [Option<InstanceHit>],
 ) {
     let mut best = [(0f32, 0usize); LANES];
-    let mut l = lanes;
-    while l != 0 {
-        let k = l.trailing_zeros() as usize;
-        l &= l - 1;
+    for k in each(lanes) {
         let (t, instance) = bounds[k];
         best[k] = (t, if instance < 0 { usize::MAX } else { instance as usize });
         out[k] = None;
@@ -220,10 +218,7 @@ pub fn nearest_moved_tile(
             continue;
         }
         let mut todo = 0u64;
-        let mut l = lanes;
-        while l != 0 {
-            let k = l.trailing_zeros() as usize;
-            l &= l - 1;
+        for k in each(lanes) {
             let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, dirs[k]) else {
                 work.culled += 1;
                 continue;
@@ -235,24 +230,14 @@ pub fn nearest_moved_tile(
             work.traced += 1;
             let start = fi.starts.map_or(opts.t_min, |s| s[i]);
             let t_min = if start > opts.t_min { start } else { opts.t_min };
-            scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(dirs[k]));
-            scratch.opts[k] = TraceOptions { t_min, t_max: widen(t_max), ..*opts };
+            scratch.set(k, p, o, dirs[k], TraceOptions { t_min, t_max: widen(t_max), ..*opts });
             todo |= 1 << k;
         }
-        if todo == 0 {
-            continue;
-        }
-        trace_packet(&fi.parts[p.part], &scratch.rays, &scratch.opts, todo, &mut scratch.stack, &mut scratch.hits);
-        let mut l = todo;
-        while l != 0 {
-            let k = l.trailing_zeros() as usize;
-            l &= l - 1;
-            if let Some(h) = scratch.hits[k] {
-                let (best_t, best_i) = best[k];
-                if h.t < best_t || (h.t == best_t && i < best_i) {
-                    best[k] = (h.t, i);
-                    out[k] = Some(InstanceHit { instance: i, hit: h });
-                }
+        for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
+            let (best_t, best_i) = best[k];
+            if h.t < best_t || (h.t == best_t && i < best_i) {
+                best[k] = (h.t, i);
+                out[k] = Some(InstanceHit { instance: i, hit: h });
             }
         }
     }

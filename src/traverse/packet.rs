@@ -40,6 +40,18 @@ struct Frame {
     t1: Axes,
 }
 
+impl Frame {
+    /// Entry and exit planes on axis `a` of the child in the `upper` half there, for quad `q`.
+    #[inline(always)]
+    fn child(&self, a: usize, upper: bool, q: usize) -> (f32x4, f32x4) {
+        if upper {
+            (self.tm[a][q], self.t1[a][q])
+        } else {
+            (self.t0[a][q], self.tm[a][q])
+        }
+    }
+}
+
 const EMPTY: Frame =
     Frame { t0: [[f32x4::ZERO; QUADS]; 3], tm: [[f32x4::ZERO; QUADS]; 3], t1: [[f32x4::ZERO; QUADS]; 3] };
 
@@ -108,18 +120,11 @@ impl Pass<'_> {
             }
             let (up_x, up_y, up_z) = (c & 1 != 0, c & 2 != 0, c & 4 != 0);
             let f = &self.frames[level];
-            let pick = |a: usize, up: bool, q: usize| {
-                if up {
-                    (f.tm[a][q], f.t1[a][q])
-                } else {
-                    (f.t0[a][q], f.tm[a][q])
-                }
-            };
             let mut crossed = 0u64;
             let mut quads = quads_of(lanes);
             while quads != 0 {
                 let q = next_quad(&mut quads);
-                let ((x0, x1), (y0, y1), (z0, z1)) = (pick(0, up_x, q), pick(1, up_y, q), pick(2, up_z, q));
+                let ((x0, x1), (y0, y1), (z0, z1)) = (f.child(0, up_x, q), f.child(1, up_y, q), f.child(2, up_z, q));
                 let te = x0.fast_max(y0).fast_max(z0);
                 let tx = x1.fast_min(y1).fast_min(z1);
                 let ok = te.fast_max(self.t_min[q]).simd_le(tx) & te.simd_le(self.t_max[q]);
@@ -141,7 +146,7 @@ impl Pass<'_> {
             while quads != 0 {
                 let q = next_quad(&mut quads);
                 for (a, up) in [up_x, up_y, up_z].into_iter().enumerate() {
-                    let (t0, t1) = if up { (f.tm[a][q], f.t1[a][q]) } else { (f.t0[a][q], f.tm[a][q]) };
+                    let (t0, t1) = f.child(a, up, q);
                     g.t0[a][q] = t0;
                     g.t1[a][q] = t1;
                     // Revelles §3.1: the midplanes halfway in t (as the scalar loop).
@@ -164,7 +169,7 @@ impl Pass<'_> {
             let mut ct0 = [0f32; 3];
             let mut ct1 = [0f32; 3];
             for a in 0..3 {
-                let (t0, t1) = if c & (1 << a) != 0 { (f.tm[a][q], f.t1[a][q]) } else { (f.t0[a][q], f.tm[a][q]) };
+                let (t0, t1) = f.child(a, c & (1 << a) != 0, q);
                 ct0[a] = lane(t0, l);
                 ct1[a] = lane(t1, l);
             }
