@@ -7,7 +7,7 @@ use super::brdf;
 use super::bvh::Bvh;
 use super::emitters::{emitter_light, EmitterTable};
 use super::hitbuffer::{HitBuffer, HitRecord};
-use super::instances::{prepare, Prepared};
+use super::instances::{prepare_into, Prepared};
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
@@ -405,8 +405,10 @@ pub fn render_lit(
     camera.validate()?;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
-    let prepared = prepare(scene, camera.eye, plan.transform);
     let mut hits = hits;
+    // Last frame's instances' memory, refilled.
+    let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
+    prepare_into(scene, camera.eye, plan.transform, &mut prepared);
     let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
         Some(h) => h.take_bvh(&prepared),
         None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
@@ -616,6 +618,7 @@ pub fn render_lit(
             b.camera = None;
         }
         b.bvh = bvh;
+        b.prepared = prepared;
     }
     Ok((f, ambient_ms))
 }

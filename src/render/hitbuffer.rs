@@ -88,6 +88,8 @@ pub struct HitBuffer {
     pub spare: Option<super::cpu::Frame>,
     /// The parts' splat lists, for frames drawn with [`super::Renderer::Splat`].
     pub splats: super::splat::SplatCache,
+    /// The last frame's prepared instances: their memory is refilled by the next frame.
+    pub prepared: Vec<Prepared>,
 }
 
 /// What the current frame may reuse.

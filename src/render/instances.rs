@@ -66,48 +66,64 @@ pub struct Prepared {
 /// Prepares every instance for a camera at `eye`. `transform == false` (a frame plan that
 /// found only identity transforms) maps rays with the cube offset and scale alone.
 pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
+    let mut out = Vec::new();
+    prepare_into(scene, eye, transform, &mut out);
+    out
+}
+
+/// [`prepare`] into `out` (cleared first), keeping its memory: a renderer that prepares tens
+/// of thousands of instances every frame reuses last frame's vector instead of faulting in
+/// fresh pages.
+pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, out: &mut Vec<Prepared>) {
     let one = |i: usize| {
         let inst = &scene.instances()[i];
-        {
-            let cube = scene.parts[inst.part].bounds;
-            let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
-            let w = scene.world(i);
-            let to_unit = if transform {
-                let cube_from_world = DAffine3::from_scale(DVec3::splat(1.0 / size)) * DAffine3::from_translation(-min);
-                ToUnit::Affine(cube_from_world * w.inverse() * DAffine3::from_translation(eye))
-            } else {
-                ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
-            };
-            // The exact bounding sphere of the transformed cube about its transformed centre:
-            // the farthest points of a parallelepiped from its centre are corners.
-            let half = DVec3::splat(size * 0.5);
-            let centre_obj = min + half;
-            let mut radius = 0.0f64;
-            let mut max_stretch = 0.0f64;
-            for k in 0..4 {
-                let s = DVec3::new(if k & 1 == 0 { 1.0 } else { -1.0 }, if k & 2 == 0 { 1.0 } else { -1.0 }, 1.0);
-                radius = radius.max(w.transform_vector3(half * s).length());
-            }
-            for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-                max_stretch = max_stretch.max(w.transform_vector3(axis).length());
-            }
-            Prepared {
-                part: inst.part,
-                to_unit,
-                normal_to_world: w.matrix3.inverse().transpose(),
-                centre: w.transform_point3(centre_obj) - eye,
-                radius: radius * (1.0 + SPHERE_PAD) + f64::MIN_POSITIVE,
-                max_stretch,
-            }
+        let cube = scene.parts[inst.part].bounds;
+        let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
+        let w = scene.world(i);
+        // One inverse serves the ray map and the normals (the inverse transpose of the
+        // linear part is the transpose of the inverse's).
+        let inverse = w.inverse();
+        let to_unit = if transform {
+            // (scale 1/size) · (translate −min) · inverse · (translate eye), multiplied out.
+            let k = 1.0 / size;
+            let m = inverse.matrix3;
+            ToUnit::Affine(DAffine3 { matrix3: m * k, translation: (m * eye + inverse.translation - min) * k })
+        } else {
+            ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
+        };
+        // The exact bounding sphere of the transformed cube about its transformed centre:
+        // the farthest points of a parallelepiped from its centre are corners, h·(±c0 ± c1 +
+        // c2) for the linear part's columns c and the half size h.
+        let half = size * 0.5;
+        let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
+        let (a, b) = (c0 + c1, c0 - c1);
+        let corner2 = (c2 + a)
+            .length_squared()
+            .max((c2 - a).length_squared())
+            .max((c2 + b).length_squared())
+            .max((c2 - b).length_squared());
+        let radius = half * corner2.sqrt();
+        let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
+        let centre_obj = min + DVec3::splat(half);
+        Prepared {
+            part: inst.part,
+            to_unit,
+            normal_to_world: inverse.matrix3.transpose(),
+            centre: w.transform_point3(centre_obj) - eye,
+            radius: radius * (1.0 + SPHERE_PAD) + f64::MIN_POSITIVE,
+            max_stretch,
         }
     };
+    let n = scene.instances().len();
     // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
-    if scene.instances().len() >= 1024 {
+    if n >= 1024 {
         use rayon::prelude::*;
-        return (0..scene.instances().len()).into_par_iter().map(one).collect();
+        (0..n).into_par_iter().with_min_len(512).map(one).collect_into_vec(out);
+        return;
     }
-    (0..scene.instances().len()).map(one).collect()
+    out.clear();
+    out.extend((0..n).map(one));
 }
 
 /// Whether the eye (the camera-relative origin `prepared` was made for) lies inside a voxel

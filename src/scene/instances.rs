@@ -52,7 +52,7 @@ pub struct Scene {
 #[derive(Clone, Debug, Default)]
 struct Scratch {
     /// Validated local transforms waiting to be applied.
-    locals: Vec<Result<(usize, Transform), SceneError>>,
+    locals: Vec<(usize, Transform)>,
     /// New world transforms, valid where `changed`.
     next: Vec<DAffine3>,
     changed: Vec<bool>,
@@ -96,19 +96,6 @@ fn chunk_runs(starts: &[usize], n: usize) -> Vec<usize> {
     out
 }
 
-/// `out` cleared and refilled with `f(0..count)` flattened, in parallel for long lists when
-/// enabled; its capacity is kept from call to call.
-fn fill<R: Send, I: IntoIterator<Item = R>>(out: &mut Vec<R>, count: usize, f: impl Fn(usize) -> I + Sync + Send) {
-    out.clear();
-    #[cfg(feature = "parallel")]
-    if count >= PARALLEL_MIN / 8 {
-        use rayon::prelude::*;
-        out.par_extend((0..count).into_par_iter().flat_map_iter(f));
-        return;
-    }
-    out.extend((0..count).flat_map(f));
-}
-
 impl Scene {
     /// A scene over these parts, with no instances.
     pub fn new(parts: Vec<Arc<Svo>>) -> Self {
@@ -149,27 +136,44 @@ impl Scene {
     ) -> Result<(), SceneError> {
         let n = self.instances.len();
         let mut locals = std::mem::take(&mut self.scratch.locals);
-        fill(&mut locals, count, |k| {
-            make(k).map(|(i, t)| {
+        // Each group's transforms are written straight into its own N slots (moving whole
+        // arrays of them through iterator adapters copied kilobytes per car).
+        locals.resize(count * N, (0, Transform::IDENTITY));
+        let group = |k: usize, out: &mut [(usize, Transform)]| -> Result<(), SceneError> {
+            for (slot, (i, t)) in out.iter_mut().zip(make(k)) {
                 if i >= n {
                     return Err(SceneError::Instance(i));
                 }
-                Ok((i, Transform::new(t.translation, t.rotation, t.scale)?))
-            })
-        });
-        let result = match locals.iter().find_map(|r| r.as_ref().err()) {
-            Some(e) => Err::<(), SceneError>(e.clone()),
-            None => {
-                for &(i, t) in locals.iter().flatten() {
-                    let inst = &mut self.instances[i];
-                    if inst.local != t {
-                        inst.local = t;
-                        self.dirty[i] = true;
-                    }
-                }
-                Ok(())
+                *slot = (i, Transform::new(t.translation, t.rotation, t.scale)?);
             }
+            Ok(())
         };
+        let sequential = |locals: &mut [(usize, Transform)]| {
+            locals.chunks_mut(N.max(1)).enumerate().try_for_each(|(k, out)| group(k, out))
+        };
+        #[cfg(feature = "parallel")]
+        let mut result = if count >= PARALLEL_MIN / 8 && N > 0 {
+            use rayon::prelude::*;
+            locals.par_chunks_mut(N).enumerate().with_min_len(64).try_for_each(|(k, out)| group(k, out))
+        } else {
+            sequential(&mut locals)
+        };
+        #[cfg(not(feature = "parallel"))]
+        let mut result = sequential(&mut locals);
+        if result.is_err() {
+            // Threads stop at whichever bad transform they meet first: name the first one in
+            // order, as one thread would.
+            result = sequential(&mut locals);
+        }
+        if result.is_ok() {
+            for &(i, t) in &locals {
+                let inst = &mut self.instances[i];
+                if inst.local != t {
+                    inst.local = t;
+                    self.dirty[i] = true;
+                }
+            }
+        }
         self.scratch.locals = locals;
         result
     }
@@ -220,6 +224,8 @@ impl Scene {
                 let inst = &instances[i];
                 let parent_changed = inst.parent.is_some_and(|p| changed[p - start]);
                 if !(dirty[i] || parent_changed) {
+                    // Kept as it is: `next` becomes the world transforms whole.
+                    next[k] = world[i];
                     continue;
                 }
                 let local = inst.local.to_affine();
@@ -258,12 +264,10 @@ impl Scene {
             self.scratch = sc;
             return Err(TransformError::Singular(bad).into());
         }
-        for ((w, &new), &changed) in self.world.iter_mut().zip(&sc.next).zip(&sc.changed) {
-            if changed {
-                *w = new;
-            }
-        }
-        self.dirty.iter_mut().for_each(|d| *d = false);
+        // Every entry of `next` was written: it is the new world, and the old one's memory
+        // serves the next update.
+        std::mem::swap(&mut self.world, &mut sc.next);
+        self.dirty.fill(false);
         self.scratch = sc;
         Ok(())
     }
@@ -386,6 +390,23 @@ mod tests {
         let bad = Transform { scale: DVec3::ZERO, ..t(1) };
         assert!(s.set_locals(&[(0, t(9)), (1, bad)]).is_err());
         assert_eq!(s.instances()[0].local, t(0));
+    }
+
+    /// A batch long enough to be validated in parallel reports the first bad entry in order,
+    /// whichever thread meets which first, and applies nothing.
+    #[test]
+    fn a_parallel_batch_names_its_first_bad_entry() {
+        let n = 2 * PARALLEL_MIN;
+        let mut s = hierarchy(n);
+        s.update().unwrap();
+        let bad_at = [n / 2 + 1, n - 3];
+        let err = s.set_locals_from(n, |k| [(if bad_at.contains(&k) { n + k } else { k }, t(k + 2))]);
+        assert_eq!(err, Err(SceneError::Instance(n + bad_at[0])));
+        assert!(s.instances().iter().enumerate().all(|(i, inst)| inst.local == t(i)));
+        // Without the bad entries every transform lands.
+        s.set_locals_from(n, |k| [(k, t(k + 2))]).unwrap();
+        let valid = |k: usize| Transform::new(t(k).translation, t(k).rotation, t(k).scale).unwrap();
+        assert!(s.instances().iter().enumerate().all(|(i, inst)| inst.local == valid(i + 2)));
     }
 
     #[test]

@@ -97,7 +97,14 @@ impl Transform {
 /// [`MIN_SCALE`]³ (products of extreme scales through a hierarchy).
 pub fn is_well_conditioned(m: &DAffine3) -> bool {
     let l: DMat3 = m.matrix3;
-    m.translation.is_finite() && l.is_finite() && l.determinant().abs() > MIN_SCALE.powi(3) && l.inverse().is_finite()
+    if !(m.translation.is_finite() && l.is_finite() && l.determinant().abs() > MIN_SCALE.powi(3)) {
+        return false;
+    }
+    // With every entry below 10¹⁴⁰ the adjugate's entries (differences of products of two)
+    // stay below 2·10²⁸⁰, and divided by a determinant above 10⁻¹⁸ the inverse is finite:
+    // the inverse need only be formed for larger entries.
+    let largest = l.x_axis.abs().max(l.y_axis.abs()).max(l.z_axis.abs()).max_element();
+    largest < 1e140 || l.inverse().is_finite()
 }
 
 #[cfg(test)]
@@ -119,6 +126,36 @@ mod tests {
             Err(TransformError::NonFinite("scale"))
         ));
         assert!(Transform::new(DVec3::ZERO, q * 3.0, DVec3::new(1e-3, -2.0, 1e3)).is_ok());
+    }
+
+    /// The check forms the inverse only for entries past 10¹⁴⁰: it answers as the full
+    /// definition does, on both sides of that line and where the inverse overflows.
+    #[test]
+    fn conditioning_agrees_with_forming_the_inverse() {
+        let full = |m: &DAffine3| {
+            let l = m.matrix3;
+            m.translation.is_finite()
+                && l.is_finite()
+                && l.determinant().abs() > MIN_SCALE.powi(3)
+                && l.inverse().is_finite()
+        };
+        let diag = |a: f64, b: f64, c: f64| DAffine3::from_mat3(DMat3::from_diagonal(DVec3::new(a, b, c)));
+        let shear =
+            |a: f64, b: f64| DAffine3::from_mat3(DMat3::from_cols_array(&[a, 0.0, 0.0, a, b, 0.0, 0.0, 0.0, 1.0]));
+        let cases = [
+            (diag(1.0, 2.0, 3.0), true),
+            (diag(1e139, 1e139, 1e-259), true),
+            // Adjugate entries of 10³²⁰ overflow although the determinant is 10²⁰.
+            (diag(1e160, 1e160, 1e-300), false),
+            (diag(1e-7, 1e-7, 1e-7), false),
+            (shear(1e150, 1e-140), true),
+            (diag(f64::NAN, 1.0, 1.0), false),
+            (DAffine3 { translation: DVec3::INFINITY, ..diag(1.0, 1.0, 1.0) }, false),
+        ];
+        for (m, expected) in cases {
+            assert_eq!(full(&m), expected, "{m:?}");
+            assert_eq!(is_well_conditioned(&m), expected, "{m:?}");
+        }
     }
 
     #[test]
