@@ -529,7 +529,7 @@ pub struct TransformCase {
 /// Runs a transform case: each ray through the renderer's instance path, each compared with
 /// the DDA on the ray mapped into the unit cube in f64.
 pub fn run_transform_case(case: &TransformCase) -> CaseReport {
-    use crate::render::instances::prepare;
+    use crate::render::instances::prepare_into;
     use crate::render::visibility::{nearest, FrameInstances, Search};
     use crate::scene::{Instance, Scene};
     let mut report = CaseReport::default();
@@ -548,19 +548,33 @@ pub fn run_transform_case(case: &TransformCase) -> CaseReport {
         }
         let world = scene.world(leaf);
         let to_unit = world.inverse();
+        // Every ray also at a coarser level of detail, against the coarsened voxels: the
+        // instance's sphere (which culls here) must hold what each level can hit.
+        let coarse_level = case.part.depth.saturating_sub(2);
+        let coarse_set = case.set.coarsen(coarse_level);
         let one = |&(o, d): &(DVec3, DVec3)| {
-            let prepared = prepare(&scene, o, true);
-            // Only the instance under test (the parent of a hierarchy is a helper).
-            let fi =
-                FrameInstances { parts: &scene.parts, prepared: &prepared[leaf..leaf + 1], bvh: None, starts: None };
-            let got = nearest(&fi, DVec3::ZERO, d, Search::Plain, &TraceOptions::default()).map(|h| h.hit);
             let r = Ray64 {
                 origin: to_unit.transform_point3(o),
                 dir: to_unit.transform_vector3(d),
                 t_min: 0.0,
                 t_max: f64::INFINITY,
             };
-            check(&case.set, &r, got, 0, false)
+            let mut report = CaseReport::default();
+            for (max_level, set) in [(u32::MAX, &case.set), (coarse_level, &coarse_set)] {
+                let mut prepared = Vec::new();
+                prepare_into(&scene, o, true, max_level, &mut prepared);
+                // Only the instance under test (the parent of a hierarchy is a helper).
+                let fi = FrameInstances {
+                    parts: &scene.parts,
+                    prepared: &prepared[leaf..leaf + 1],
+                    bvh: None,
+                    starts: None,
+                };
+                let opts = TraceOptions { max_level, ..TraceOptions::default() };
+                let got = nearest(&fi, DVec3::ZERO, d, Search::Cull, &opts).map(|h| h.hit);
+                report = merge(report, check(set, &r, got, 0, false));
+            }
+            report
         };
         #[cfg(feature = "parallel")]
         let part = {

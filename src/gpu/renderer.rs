@@ -7,7 +7,7 @@
 use super::context::{GpuContext, GpuError};
 use super::layout::*;
 use crate::render::hitbuffer::{HitBuffer, HitRecord};
-use crate::render::instances::{prepare, Prepared, ToUnit};
+use crate::render::instances::{prepare_into, Prepared, ToUnit};
 use crate::render::visibility::Search;
 use crate::render::{Frame, FramePlan, RenderOptions};
 use crate::scene::{Camera, Lights, Scene};
@@ -213,6 +213,16 @@ pub(crate) fn plan_pipeline(
 
 fn f4(v: glam::DVec3, w: f64) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w as f32]
+}
+
+/// A bounding sphere as the shaders test it, in f32 from the camera: its radius grown by
+/// about what that test can lose (|oc|² − r² cancels to ~10⁻⁷·|oc|², the centre rounds by
+/// ~10⁻⁷·|oc|), so that a ray that only clips a corner of the occupied box the sphere is
+/// tight around still meets it. A larger sphere only culls less.
+fn gpu_sphere(centre: glam::DVec3, radius: f64) -> [f32; 4] {
+    let far = centre.length();
+    let grown = radius + 4e-7 * far * far / radius.max(f64::MIN_POSITIVE) + 1e-6 * far;
+    f4(centre, grown * (1.0 + 1e-6))
 }
 
 impl GpuRenderer {
@@ -569,7 +579,8 @@ impl GpuRenderer {
         self.upload_parts(&scene.parts)?;
         let (w, h) = (camera.width, camera.height);
         let n = (w * h) as usize;
-        let prepared = prepare(scene, camera.eye, plan.transform);
+        let mut prepared = Vec::new();
+        prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared);
         let splatting = opts.renderer == crate::render::Renderer::Splat;
         // Splatted records are not the ray tracer's: nothing is reused from them, or into them.
         let reuse = if plan.hit_buffer && !splatting && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
@@ -587,7 +598,7 @@ impl GpuRenderer {
                 .iter()
                 .enumerate()
                 .map(|(k, &(c, rad, rect))| GpuSphere {
-                    sphere: f4(c, rad),
+                    sphere: gpu_sphere(c, rad),
                     rect,
                     instance: r.moved_instances[k / 2],
                     pad: [0; 3],
@@ -598,9 +609,14 @@ impl GpuRenderer {
         let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), |b| {
             b.nodes
                 .iter()
-                .map(|nd| GpuBvhNode {
-                    lo: [nd.lo.x as f32, nd.lo.y as f32, nd.lo.z as f32, f32::from_bits(nd.first)],
-                    hi: [nd.hi.x as f32, nd.hi.y as f32, nd.hi.z as f32, f32::from_bits(nd.count)],
+                .map(|nd| {
+                    // Grown by more than the f32 slab test can lose, as the spheres are.
+                    let slack = glam::DVec3::splat(1e-6 * nd.lo.abs().max(nd.hi.abs()).max_element());
+                    let (lo, hi) = (nd.lo - slack, nd.hi + slack);
+                    GpuBvhNode {
+                        lo: [lo.x as f32, lo.y as f32, lo.z as f32, f32::from_bits(nd.first)],
+                        hi: [hi.x as f32, hi.y as f32, hi.z as f32, f32::from_bits(nd.count)],
+                    }
                 })
                 .collect()
         });
@@ -1102,7 +1118,7 @@ fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
         normal_x: nrow(0),
         normal_y: nrow(1),
         normal_z: nrow(2),
-        sphere: f4(p.centre, p.radius),
+        sphere: gpu_sphere(p.centre, p.radius),
         part: p.part as u32,
         stretch_size: (p.max_stretch * scene.parts[p.part].bounds.size as f64) as f32,
         moved: moved as u32,

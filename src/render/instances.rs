@@ -9,8 +9,9 @@
 use crate::scene::Scene;
 use glam::{DAffine3, DMat3, DVec3};
 
-/// Sphere radii are padded by this fraction so that hits computed in f32 never fall outside
-/// the sphere computed in f64 (culling, early-out and the hit buffer rely on it).
+/// Sphere radii are padded by this fraction of themselves and of the part cube's sphere, so
+/// that hits computed in f32 never fall outside the sphere computed in f64 (culling,
+/// early-out and the hit buffer rely on it).
 pub const SPHERE_PAD: f64 = 1e-6;
 
 /// How rays reach an instance's unit cube.
@@ -57,24 +58,36 @@ pub struct Prepared {
     pub normal_to_world: DMat3,
     /// Bounding-sphere centre, camera-relative.
     pub centre: DVec3,
-    /// Bounding-sphere radius (padded by [`SPHERE_PAD`]).
+    /// Bounding-sphere radius of the occupied cells (padded by [`SPHERE_PAD`]).
     pub radius: f64,
     /// Largest stretch of the world transform (object → world length factor).
     pub max_stretch: f64,
 }
 
-/// Prepares every instance for a camera at `eye`. `transform == false` (a frame plan that
-/// found only identity transforms) maps rays with the cube offset and scale alone.
+/// Prepares every instance for a camera at `eye`, for rays traced down to the voxels.
+/// `transform == false` (a frame plan that found only identity transforms) maps rays with the
+/// cube offset and scale alone.
 pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
     let mut out = Vec::new();
-    prepare_into(scene, eye, transform, &mut out);
+    prepare_into(scene, eye, transform, u32::MAX, &mut out);
     out
 }
 
-/// [`prepare`] into `out` (cleared first), keeping its memory: a renderer that prepares tens
-/// of thousands of instances every frame reuses last frame's vector instead of faulting in
-/// fresh pages.
-pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, out: &mut Vec<Prepared>) {
+/// [`prepare`] for rays traced down to `max_level` (their level of detail: the spheres hold
+/// what such rays can hit), into `out` (cleared first), keeping its memory: a renderer that
+/// prepares tens of thousands of instances every frame reuses last frame's vector instead of
+/// faulting in fresh pages.
+pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut Vec<Prepared>) {
+    // Per part (a handful, shared by thousands of instances): its occupied box's centre and
+    // half extents at the traced level.
+    let boxes: Vec<(DVec3, DVec3)> = scene
+        .parts
+        .iter()
+        .map(|svo| {
+            let (lo, hi) = svo.occupied_box(max_level);
+            ((lo + hi) * 0.5, (hi - lo) * 0.5)
+        })
+        .collect();
     let one = |i: usize| {
         let inst = &scene.instances()[i];
         let cube = scene.parts[inst.part].bounds;
@@ -91,26 +104,28 @@ pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, out: &mut Vec<Pr
         } else {
             ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
         };
-        // The exact bounding sphere of the transformed cube about its transformed centre:
-        // the farthest points of a parallelepiped from its centre are corners, h·(±c0 ± c1 +
-        // c2) for the linear part's columns c and the half size h.
-        let half = size * 0.5;
+        // The sphere holds the occupied cells at the traced level, not the whole cube (a
+        // car's body fills a third of its cube's height): about the transformed centre of
+        // their box, through its farthest corners e·(±x, ±y, z) mapped by the linear part's
+        // columns c, |±ex·c0 ± ey·c1 + ez·c2|.
         let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
-        let (a, b) = (c0 + c1, c0 - c1);
-        let corner2 = (c2 + a)
+        let (centre_obj, e) = boxes[inst.part];
+        let (a, b, z) = (c0 * e.x + c1 * e.y, c0 * e.x - c1 * e.y, c2 * e.z);
+        let corner2 = (z + a)
             .length_squared()
-            .max((c2 - a).length_squared())
-            .max((c2 + b).length_squared())
-            .max((c2 - b).length_squared());
-        let radius = half * corner2.sqrt();
+            .max((z - a).length_squared())
+            .max((z + b).length_squared())
+            .max((z - b).length_squared());
         let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
-        let centre_obj = min + DVec3::splat(half);
+        // Rounding in f32 traversal scales with the cube, not with the box: the padding is
+        // also a fraction of a bound on the cube's sphere (|M·(±h, ±h, h)| ≤ 3h·max stretch).
+        let radius = corner2.sqrt() * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
         Prepared {
             part: inst.part,
             to_unit,
             normal_to_world: inverse.matrix3.transpose(),
             centre: w.transform_point3(centre_obj) - eye,
-            radius: radius * (1.0 + SPHERE_PAD) + f64::MIN_POSITIVE,
+            radius: radius + f64::MIN_POSITIVE,
             max_stretch,
         }
     };
@@ -151,4 +166,82 @@ pub fn sphere_interval(centre: DVec3, radius: f64, o: DVec3, d: DVec3) -> Option
     let s = disc.sqrt();
     let (t0, t1) = (b - s, b + s);
     (t1 >= 0.0).then_some((t0, t1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::visibility::{nearest, FrameInstances, Search};
+    use crate::scene::{Instance, Transform};
+    use crate::svo::Cube;
+    use crate::traverse::TraceOptions;
+    use glam::{DQuat, Vec3};
+    use std::sync::Arc;
+
+    /// One voxel near a corner of a depth-6 cube: at coarse levels the node holding it
+    /// reaches far beyond the voxel. Rays aimed anywhere into each level's occupied box hit
+    /// the same with the sphere culling as without it, so each level's sphere holds what
+    /// that level can hit; and the voxel's own sphere is a small fraction of the cube's.
+    #[test]
+    fn spheres_hold_what_each_level_can_hit() {
+        let grid =
+            crate::voxelize::VoxelGrid::from_coords(6, Cube { min: Vec3::ZERO, size: 2.0 }, [[1, 2, 1]], Vec3::ONE);
+        let svo = Arc::new(crate::svo::build(&grid).unwrap());
+        let mut scene = Scene::new(vec![svo.clone()]);
+        let local = Transform::new(
+            DVec3::new(3.0, -1.0, 0.5),
+            DQuat::from_axis_angle(DVec3::new(1.0, 2.0, -0.5).normalize(), 0.7),
+            DVec3::new(0.5, 2.0, 1.25),
+        )
+        .unwrap();
+        scene.add(Instance { part: 0, parent: None, local }).unwrap();
+        scene.update().unwrap();
+        let eye = DVec3::new(-4.0, 6.0, 9.0);
+        let w = scene.world(0);
+        let mut rng = crate::rng::Rng::new(3);
+        for level in 0..=6u32 {
+            let mut prepared = Vec::new();
+            prepare_into(&scene, eye, true, level, &mut prepared);
+            if level == 6 {
+                let cube = prepare(&scene, eye, true)[0].radius;
+                assert!(prepared[0].radius < cube * 1.000_001);
+                assert!(prepared[0].radius * 20.0 < 2.0 * 3f64.sqrt() * 2.0, "{}", prepared[0].radius);
+            }
+            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
+            let opts = TraceOptions { max_level: level, ..TraceOptions::default() };
+            let (lo, hi) = svo.occupied_box(level);
+            let mut hits = 0;
+            for _ in 0..400 {
+                let target = lo + (hi - lo) * DVec3::new(rng.f64(), rng.f64(), rng.f64());
+                let d = (w.transform_point3(target) - eye).normalize();
+                let plain = nearest(&fi, DVec3::ZERO, d, Search::Plain, &opts);
+                assert_eq!(nearest(&fi, DVec3::ZERO, d, Search::Cull, &opts), plain, "level {level}");
+                hits += plain.is_some() as u32;
+            }
+            assert!(hits > 300, "level {level}: {hits} hits");
+            // Rays that only clip the box's farthest corner pass just inside the sphere, the
+            // closest calls a sphere makes.
+            let corner = (0..8)
+                .map(|k| DVec3::new([lo.x, hi.x][k & 1], [lo.y, hi.y][(k >> 1) & 1], [lo.z, hi.z][k >> 2]))
+                .map(|c| w.transform_point3(c))
+                .max_by(|a, b| {
+                    (*a - w.transform_point3((lo + hi) * 0.5))
+                        .length()
+                        .total_cmp(&(*b - w.transform_point3((lo + hi) * 0.5)).length())
+                })
+                .unwrap();
+            let centre = w.transform_point3((lo + hi) * 0.5);
+            let r = corner - centre;
+            let mut clipped = 0;
+            for _ in 0..200 {
+                let d = r.cross(rng.unit_vector().as_dvec3()).normalize();
+                let through = centre + r * (1.0 - 1e-5);
+                let o = through - d * 10.0 - eye;
+                let plain = nearest(&fi, o, d, Search::Plain, &opts);
+                assert_eq!(nearest(&fi, o, d, Search::Cull, &opts), plain, "level {level}, corner");
+                clipped += plain.is_some() as u32;
+            }
+            assert!(clipped > 20, "level {level}: {clipped} corner hits");
+        }
+    }
 }

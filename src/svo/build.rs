@@ -188,5 +188,6 @@ pub fn build(grid: &VoxelGrid) -> Result<Svo, BuildError> {
         attrs,
         voxel_count: grid.voxels.len() as u64,
         emitters: grid.emitters.clone(),
+        occupied: Default::default(),
     })
 }

@@ -250,6 +250,20 @@ pub struct Svo {
     pub voxel_count: u64,
     /// Emissive triangles of the part (object coordinates), for direct lighting.
     pub emitters: Vec<super::Emitter>,
+    /// The occupied boxes of [`Svo::occupied_cells`], found on first use.
+    pub occupied: Occupied,
+}
+
+/// Per level, the box of the occupied cells, worked out from the masks on first use and kept
+/// (`Svo::default()`-style construction leaves it empty: `Occupied::default()`). It is derived
+/// data: two octrees with the same masks are equal whether or not either has worked it out.
+#[derive(Clone, Debug, Default)]
+pub struct Occupied(std::sync::OnceLock<Vec<[[u32; 3]; 2]>>);
+
+impl PartialEq for Occupied {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// Size and memory figures of an [`Svo`].
@@ -290,6 +304,56 @@ impl Svo {
     /// Number of internal nodes.
     pub fn node_count(&self) -> usize {
         self.masks.len()
+    }
+
+    /// Per level 0 … depth, the smallest box of that level's cells holding every occupied
+    /// cell: `[lo, hi)` in cell coordinates (a level-`l` cell is 2⁻ˡ of the cube). A node
+    /// holds geometry, so the box of a coarser level holds every finer one's; a hit traced
+    /// down to level `l` lies in level `l`'s box. Worked out once, in one pass over the nodes.
+    pub fn occupied_cells(&self) -> &[[[u32; 3]; 2]] {
+        self.occupied.0.get_or_init(|| {
+            let d = self.depth as usize;
+            let mut boxes = vec![[[u32::MAX; 3], [0; 3]]; d + 1];
+            boxes[0] = [[0; 3], [1; 3]];
+            if d > 0 && !self.masks.is_empty() {
+                let mut stack = vec![(0usize, 0usize, [0u32; 3])];
+                while let Some((node, level, c)) = stack.pop() {
+                    let Some(&mask) = self.masks.get(node) else { continue };
+                    for oct in 0..8u32 {
+                        if mask & (1 << oct) == 0 {
+                            continue;
+                        }
+                        let cc = [0, 1, 2].map(|i| 2 * c[i] + ((oct >> i) & 1));
+                        let b = &mut boxes[level + 1];
+                        for i in 0..3 {
+                            b[0][i] = b[0][i].min(cc[i]);
+                            b[1][i] = b[1][i].max(cc[i] + 1);
+                        }
+                        if level + 1 < d && (node as u64) < self.links.len() as u64 {
+                            stack.push((self.child_node(node, oct), level + 1, cc));
+                        }
+                    }
+                }
+            }
+            // A level with no cell (an empty octree) keeps the whole cube.
+            for (l, b) in boxes.iter_mut().enumerate() {
+                if b[0][0] > b[1][0] {
+                    *b = [[0; 3], [1u32 << l.min(31); 3]];
+                }
+            }
+            boxes
+        })
+    }
+
+    /// The object-space box `(min, max)` of the cells occupied at `level` (capped at the
+    /// depth): what a ray traced down to that level can hit ([`Svo::occupied_cells`]).
+    pub fn occupied_box(&self, level: u32) -> (glam::DVec3, glam::DVec3) {
+        let l = level.min(self.depth);
+        let [lo, hi] = self.occupied_cells()[l as usize];
+        let cell = self.bounds.size as f64 / (1u64 << l) as f64;
+        let min = self.bounds.min.as_dvec3();
+        let at = |c: [u32; 3]| min + glam::DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * cell;
+        (at(lo), at(hi))
     }
 
     /// Number of the first node at the deepest internal level (depth − 1).
@@ -417,6 +481,43 @@ fn compact(v: u64) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The occupied boxes of every level are the boxes of the voxels' coordinates shifted
+    /// down to that level, for scattered sets, one voxel, and a set touching the far corner.
+    #[test]
+    fn occupied_cells_box_the_voxels_at_every_level() {
+        let mut rng = crate::rng::Rng::new(7);
+        let depth = 6u32;
+        let mut sets: Vec<Vec<[u32; 3]>> = vec![vec![[5, 0, 63]], vec![[63, 63, 63], [0, 1, 2]]];
+        for n in [3usize, 40, 500] {
+            sets.push((0..n).map(|_| [0; 3].map(|_| 8 + rng.below(40) as u32)).collect());
+        }
+        for coords in sets {
+            let grid = crate::voxelize::VoxelGrid::from_coords(
+                depth,
+                Cube { min: Vec3::new(-1.0, 2.0, 0.5), size: 4.0 },
+                coords.iter().copied(),
+                Vec3::ONE,
+            );
+            let svo = crate::svo::build(&grid).unwrap();
+            for level in 0..=depth {
+                let shift = depth - level;
+                let mut want = [[u32::MAX; 3], [0; 3]];
+                for c in &coords {
+                    for i in 0..3 {
+                        want[0][i] = want[0][i].min(c[i] >> shift);
+                        want[1][i] = want[1][i].max((c[i] >> shift) + 1);
+                    }
+                }
+                assert_eq!(svo.occupied_cells()[level as usize], want, "{coords:?} level {level}");
+            }
+            // Object space: the deepest box, and levels past the depth are the depth's.
+            let (lo, hi) = svo.occupied_box(99);
+            let cell = 4.0 / 64.0;
+            let lo_c = coords.iter().fold(u32::MAX, |m, c| m.min(c[0]));
+            assert!((lo.x - (-1.0 + lo_c as f64 * cell)).abs() < 1e-12 && hi.x <= 3.0 + 1e-12);
+        }
+    }
 
     #[test]
     fn morton_round_trip() {

@@ -361,7 +361,17 @@ pub fn from_masks(
             n + voxel_count
         )));
     }
-    Ok(Svo { bounds, depth, masks, links, level_start, attrs, voxel_count, emitters: Vec::new() })
+    Ok(Svo {
+        bounds,
+        depth,
+        masks,
+        links,
+        level_start,
+        attrs,
+        voxel_count,
+        emitters: Vec::new(),
+        occupied: Default::default(),
+    })
 }
 
 /// Checks an in-memory SVO: its links and level starts must be the ones its masks imply

@@ -8,6 +8,6 @@ pub mod part_id;
 
 pub use build::{build, BuildError};
 pub use emitter::Emitter;
-pub use format::{Attr, Cube, Svo, SvoStats, MAX_DEPTH, MAX_EMISSION};
+pub use format::{Attr, Cube, Occupied, Svo, SvoStats, MAX_DEPTH, MAX_EMISSION};
 pub use io::SvoFileError;
 pub use part_id::PartId;

@@ -59,6 +59,7 @@ mod tests {
                 attrs: vec![crate::svo::Attr::default()],
                 voxel_count: 0,
                 emitters: Vec::new(),
+                occupied: Default::default(),
             })
         };
         let a = svo();
