@@ -1109,8 +1109,14 @@ fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
         ToUnit::Scale { offset, inv_size } => (DMat3::from_diagonal(glam::DVec3::splat(inv_size)), offset),
     };
     let row = |i: usize| [m.col(0)[i] as f32, m.col(1)[i] as f32, m.col(2)[i] as f32, t[i] as f32];
-    let n = p.normal_to_world;
-    let nrow = |i: usize| [n.col(0)[i] as f32, n.col(1)[i] as f32, n.col(2)[i] as f32, 0.0];
+    // Normals map by the transpose of the ray map's linear part (Prepared::normal_to_world),
+    // scaled to entries about 1 so that f32 holds it at any instance scale: row i is column i.
+    let big = m.x_axis.abs().max(m.y_axis.abs()).max(m.z_axis.abs()).max_element();
+    let unit = if big > 0.0 && big.is_finite() { 1.0 / big } else { 1.0 };
+    let nrow = |i: usize| {
+        let c = m.col(i) * unit;
+        [c.x as f32, c.y as f32, c.z as f32, 0.0]
+    };
     GpuInstance {
         to_unit_x: row(0),
         to_unit_y: row(1),

@@ -224,7 +224,7 @@ fn sun_shadows(
 /// ray (surfaces are two-sided), the voxel's world size for offsets.
 pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
     let p = &prepared[h.instance];
-    let to_world = |n: Vec3| (p.normal_to_world * n.as_dvec3()).normalize_or_zero().as_vec3();
+    let to_world = |n: Vec3| p.normal_to_world(n.as_dvec3()).normalize_or_zero().as_vec3();
     let mut normal = to_world(h.hit.normal());
     let face_normal = to_world(h.hit.face_normal);
     if !(normal.length_squared() > 0.5) {

@@ -7,7 +7,7 @@
 //! origin).
 
 use crate::scene::Scene;
-use glam::{DAffine3, DMat3, DVec3};
+use glam::{DAffine3, DVec3};
 
 /// Sphere radii are padded by this fraction of themselves and of the part cube's sphere, so
 /// that hits computed in f32 never fall outside the sphere computed in f64 (culling,
@@ -54,14 +54,26 @@ pub struct Prepared {
     pub part: usize,
     /// Camera-relative world → SVO unit cube.
     pub to_unit: ToUnit,
-    /// Object → world for normals: the inverse transpose of the world linear part.
-    pub normal_to_world: DMat3,
     /// Bounding-sphere centre, camera-relative.
     pub centre: DVec3,
     /// Bounding-sphere radius of the occupied cells (padded by [`SPHERE_PAD`]).
     pub radius: f64,
     /// Largest stretch of the world transform (object → world length factor).
     pub max_stretch: f64,
+}
+
+impl Prepared {
+    /// A world vector along the normal of object-space normal `n` (not of unit length: the
+    /// callers normalize). Normals map by the inverse transpose of the world transform's
+    /// linear part; the ray map's linear part is that inverse times 1/size > 0, so its
+    /// transpose gives the same direction without keeping another matrix per instance.
+    #[inline]
+    pub fn normal_to_world(&self, n: DVec3) -> DVec3 {
+        match self.to_unit {
+            ToUnit::Scale { .. } => n,
+            ToUnit::Affine(m) => m.matrix3.transpose() * n,
+        }
+    }
 }
 
 /// Prepares every instance for a camera at `eye`, for rays traced down to the voxels.
@@ -123,7 +135,6 @@ pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, 
         Prepared {
             part: inst.part,
             to_unit,
-            normal_to_world: inverse.matrix3.transpose(),
             centre: w.transform_point3(centre_obj) - eye,
             radius: radius + f64::MIN_POSITIVE,
             max_stretch,
@@ -177,6 +188,45 @@ mod tests {
     use crate::traverse::TraceOptions;
     use glam::{DQuat, Vec3};
     use std::sync::Arc;
+
+    /// World normals stay perpendicular to the world images of the surface's tangents and on
+    /// the side the object normal points to, under rotations, anisotropic scales and
+    /// mirrors, and with the identity's offset-and-scale map.
+    #[test]
+    fn normals_stay_perpendicular_to_transformed_surfaces() {
+        let grid =
+            crate::voxelize::VoxelGrid::from_coords(2, Cube { min: Vec3::ZERO, size: 3.0 }, [[1, 2, 0]], Vec3::ONE);
+        let mut rng = crate::rng::Rng::new(11);
+        for k in 0..40 {
+            let mut scene = Scene::new(vec![Arc::new(crate::svo::build(&grid).unwrap())]);
+            let scale = DVec3::new(rng.range(-3.0, 3.0) as f64, 0.2 + rng.f64() * 4.0, 0.05 + rng.f64());
+            let local = match k {
+                0 => Transform::IDENTITY,
+                _ => Transform::new(
+                    DVec3::new(rng.f64(), -2.0, 5.0),
+                    DQuat::from_axis_angle(rng.unit_vector().as_dvec3(), rng.f64() * 6.0),
+                    if scale.x.abs() < 0.1 { DVec3::new(0.5, scale.y, scale.z) } else { scale },
+                )
+                .unwrap(),
+            };
+            scene.add(Instance { part: 0, parent: None, local }).unwrap();
+            scene.update().unwrap();
+            let w = scene.world(0).matrix3;
+            let p = prepare(&scene, DVec3::new(1.0, 2.0, 3.0), k != 0)[0];
+            assert_eq!(matches!(p.to_unit, ToUnit::Scale { .. }), k == 0);
+            for _ in 0..20 {
+                let n = rng.unit_vector().as_dvec3().normalize();
+                let t1 = n.any_orthonormal_vector();
+                let t2 = n.cross(t1);
+                let nw = p.normal_to_world(n).normalize();
+                for t in [t1, t2] {
+                    let tw = (w * t).normalize();
+                    assert!(nw.dot(tw).abs() < 1e-9, "{k}: {}", nw.dot(tw));
+                }
+                assert!(nw.dot(w * n) > 0.0, "{k}: the normal flipped");
+            }
+        }
+    }
 
     /// One voxel near a corner of a depth-6 cube: at coarse levels the node holding it
     /// reaches far beyond the voxel. Rays aimed anywhere into each level's occupied box hit

@@ -357,7 +357,7 @@ pub fn rasterize(
             let k = (id - first[i]) as usize;
             let d = camera.ray_dir(&basis, x as u32, y as u32);
             let attr = s.attrs[k];
-            let mut normal = (p.normal_to_world * attr.normal().as_dvec3()).normalize_or_zero().as_vec3();
+            let mut normal = p.normal_to_world(attr.normal().as_dvec3()).normalize_or_zero().as_vec3();
             if !(normal.length_squared() > 0.5) {
                 normal = -d.as_vec3();
             }
