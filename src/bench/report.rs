@@ -201,15 +201,18 @@ waits for the frame, so the frame time is the whole frame's):\n\n";
         md += "Each car drives its own figure-eight (8 instances per car), camera framing them all, \
 primary rays only, no hit buffer.\n\n";
         md += &provenance(&rs);
-        md += "\n| cars | instances | backend | BVH median ms | sorted spheres median ms | BVH speed-up |\n|---|---|---|---|---|---|\n";
+        md += "\n| cars | instances | backend | BVH median ms | BVH ÷ one car | sorted spheres median ms | BVH speed-up |\n|---|---|---|---|---|---|---|\n";
         for r in rs.iter().filter(|r| r.setting == "BVH") {
             let other = rs.iter().find(|o| o.setting != "BVH" && o.x == r.x && o.backend_kind == r.backend_kind);
+            // Issue 14's crowd goal: a crowd's frame over one car's, same backend and size.
+            let one = rs.iter().find(|o| o.setting == "BVH" && o.x == 1.0 && o.backend_kind == r.backend_kind);
             md += &format!(
-                "| {} | {} | {} | {:.1} | {} | {} |\n",
+                "| {} | {} | {} | {:.1} | {} | {} | {} |\n",
                 r.x,
                 r.instances,
                 r.backend_kind,
                 r.median_ms,
+                one.map_or("–".into(), |o| format!("{:.1}×", r.median_ms / o.median_ms.max(1e-9))),
                 other.map_or("–".into(), |o| format!("{:.1}", o.median_ms)),
                 other.map_or("–".into(), |o| format!("{:.2}×", o.median_ms / r.median_ms.max(1e-9))),
             );
@@ -562,6 +565,29 @@ mod tests {
         assert!(out.starts_with("intro\n") && out.ends_with("outro\n") && out.contains("new"));
         assert!(!out.contains("old"));
         assert_eq!(splice(&out, "newer").matches(BEGIN).count(), 1);
+    }
+
+    /// The instance table divides each crowd's BVH frame by one car's on the same backend.
+    #[test]
+    fn the_instance_table_gives_each_crowd_over_one_car() {
+        let row = |kind: &str, cars: f64, setting: &str, ms: f64| Record {
+            x: cars,
+            setting: setting.into(),
+            median_ms: ms,
+            instances: 8 * cars as usize,
+            ..rec("instances", kind, "row")
+        };
+        let rs = [
+            row("cpu", 1.0, "BVH", 2.0),
+            row("cpu", 1.0, "sorted spheres", 2.5),
+            row("cpu", 10000.0, "BVH", 15.0),
+            row("gpu", 10000.0, "BVH", 40.0),
+        ];
+        let md = markdown(&rs, &[]);
+        assert!(md.contains("| 10000 | 80000 | cpu | 15.0 | 7.5× | – | – |"), "{md}");
+        assert!(md.contains("| 1 | 8 | cpu | 2.0 | 1.0× | 2.5 | 1.25× |"), "{md}");
+        // No one-car row on the GPU: no ratio.
+        assert!(md.contains("| 10000 | 80000 | gpu | 40.0 | – | – | – |"), "{md}");
     }
 
     #[test]
