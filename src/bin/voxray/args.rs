@@ -298,7 +298,8 @@ pub(crate) struct BenchArgs {
     /// Untimed warm-up frames before each measurement.
     #[arg(long, default_value_t = 3)]
     pub(crate) warmup: usize,
-    /// Timed frames per measurement (paper, resolution, depth, peers).
+    /// Timed frames per measurement (paper, resolution, depth, peers, and the instance
+    /// sweep's BVH points).
     #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub(crate) frames: u64,
     /// Image width of the paper, depth and peers scenarios.
@@ -310,7 +311,8 @@ pub(crate) struct BenchArgs {
     /// Car counts of the instance sweep (8 instances per car).
     #[arg(long, value_delimiter = ',', default_value = "1,10,100,1000,10000")]
     pub(crate) sweep_cars: Vec<usize>,
-    /// Timed frames per instance-sweep point.
+    /// Timed frames per instance-sweep point with depth-sorted spheres (the BVH points time
+    /// --frames)
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub(crate) sweep_frames: u64,
     /// Image width of the instance sweep.
