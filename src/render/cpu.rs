@@ -405,19 +405,15 @@ pub fn render_lit(
     camera.validate()?;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
-    let __t0 = std::time::Instant::now();
-    let __t0 = std::time::Instant::now();
     let mut hits = hits;
     // Last frame's instances' memory, refilled.
     let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
     prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared);
-    let __t1 = std::time::Instant::now();
     let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
         Some(h) => h.take_bvh(&prepared),
         None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
     });
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
-    let __t2 = std::time::Instant::now();
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
     let splatting = opts.renderer == Renderer::Splat;
@@ -476,8 +472,6 @@ pub fn render_lit(
         })
     };
 
-    let __t3 = std::time::Instant::now();
-    let __t3 = std::time::Instant::now();
     // Pass 2: shading. A pixel keeps last frame's colour when it kept its hit record (it was
     // not traced), the lights and shadow switch are the same, and (with shadows) its shadow
     // ray crosses no moved instance's sphere, old or new: then every input of the colour is
@@ -609,26 +603,6 @@ pub fn render_lit(
         shade_reused.fetch_add(kept, Ordering::Relaxed);
         tick();
     });
-    let __t4 = std::time::Instant::now();
-    if std::env::var_os("TIMERS").is_some() {
-        eprintln!(
-            "prep {:.2} bvh {:.2} trace {:.2} shade {:.2}",
-            (__t1 - __t0).as_secs_f64() * 1e3,
-            (__t2 - __t1).as_secs_f64() * 1e3,
-            (__t3 - __t2).as_secs_f64() * 1e3,
-            (__t4 - __t3).as_secs_f64() * 1e3
-        );
-    }
-    let __t4 = std::time::Instant::now();
-    if std::env::var_os("TIMERS").is_some() {
-        eprintln!(
-            "prep {:.2} bvh {:.2} trace {:.2} shade {:.2}",
-            (__t1 - __t0).as_secs_f64() * 1e3,
-            (__t2 - __t1).as_secs_f64() * 1e3,
-            (__t3 - __t2).as_secs_f64() * 1e3,
-            (__t4 - __t3).as_secs_f64() * 1e3
-        );
-    }
     f.reused = n as u64 - traced.rays;
     f.shadow_rays = shadow_rays.into_inner();
     f.shade_reused = shade_reused.into_inner();
