@@ -231,7 +231,8 @@ mod tests {
     /// One voxel near a corner of a depth-6 cube: at coarse levels the node holding it
     /// reaches far beyond the voxel. Rays aimed anywhere into each level's occupied box hit
     /// the same with the sphere culling as without it, so each level's sphere holds what
-    /// that level can hit; and the voxel's own sphere is a small fraction of the cube's.
+    /// that level can hit; the spheres shrink level by level, the voxel's own to a small
+    /// fraction of the cube's, and `prepare` gives the voxels' sphere.
     #[test]
     fn spheres_hold_what_each_level_can_hit() {
         let grid =
@@ -249,14 +250,11 @@ mod tests {
         let eye = DVec3::new(-4.0, 6.0, 9.0);
         let w = scene.world(0);
         let mut rng = crate::rng::Rng::new(3);
+        let mut radii = Vec::new();
         for level in 0..=6u32 {
             let mut prepared = Vec::new();
             prepare_into(&scene, eye, true, level, &mut prepared);
-            if level == 6 {
-                let cube = prepare(&scene, eye, true)[0].radius;
-                assert!(prepared[0].radius < cube * 1.000_001);
-                assert!(prepared[0].radius * 20.0 < 2.0 * 3f64.sqrt() * 2.0, "{}", prepared[0].radius);
-            }
+            radii.push(prepared[0].radius);
             let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
             let opts = TraceOptions { max_level: level, ..TraceOptions::default() };
             let (lo, hi) = svo.occupied_box(level);
@@ -293,5 +291,8 @@ mod tests {
             }
             assert!(clipped > 20, "level {level}: {clipped} corner hits");
         }
+        assert!(radii.windows(2).all(|r| r[1] <= r[0]), "{radii:?}");
+        assert!(radii[6] * 10.0 < radii[0], "{radii:?}");
+        assert_eq!(prepare(&scene, eye, true)[0].radius.to_bits(), radii[6].to_bits());
     }
 }

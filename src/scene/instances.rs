@@ -53,7 +53,8 @@ pub struct Scene {
 struct Scratch {
     /// Validated local transforms waiting to be applied.
     locals: Vec<(usize, Transform)>,
-    /// New world transforms, valid where `changed`.
+    /// The next world transforms: an update writes every entry (the unchanged ones copied),
+    /// then swaps them with the current ones.
     next: Vec<DAffine3>,
     changed: Vec<bool>,
 }

@@ -255,8 +255,8 @@ pub struct Svo {
 }
 
 /// Per level, the box of the occupied cells, worked out from the masks on first use and kept
-/// (`Svo::default()`-style construction leaves it empty: `Occupied::default()`). It is derived
-/// data: two octrees with the same masks are equal whether or not either has worked it out.
+/// (build an [`Svo`] with `Occupied::default()`). It is derived data: two octrees with the same
+/// masks are equal whether or not either has worked it out.
 #[derive(Clone, Debug, Default)]
 pub struct Occupied(std::sync::OnceLock<Vec<[[u32; 3]; 2]>>);
 
@@ -329,7 +329,7 @@ impl Svo {
                             b[0][i] = b[0][i].min(cc[i]);
                             b[1][i] = b[1][i].max(cc[i] + 1);
                         }
-                        if level + 1 < d && (node as u64) < self.links.len() as u64 {
+                        if level + 1 < d && node < self.links.len() {
                             stack.push((self.child_node(node, oct), level + 1, cc));
                         }
                     }
