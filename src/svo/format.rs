@@ -402,7 +402,14 @@ impl Svo {
     /// points at its voxels' attributes.
     #[inline]
     pub fn child_attr(&self, node: usize, octant: u32) -> Attr {
-        self.attrs[(self.links[node] + rank(self.masks[node], octant)) as usize]
+        self.attrs[self.child_attr_index(node, octant)]
+    }
+
+    /// Index in `attrs` of valid child `octant` of internal node `node` (see
+    /// [`Svo::child_attr`]).
+    #[inline]
+    pub fn child_attr_index(&self, node: usize, octant: u32) -> usize {
+        (self.links[node] + rank(self.masks[node], octant)) as usize
     }
 
     /// Every node at `level` (clamped to the depth; leaves at the depth) with its integer

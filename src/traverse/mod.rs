@@ -235,7 +235,7 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
             }
         }
     }
-    let mut cell = Cell::new::<PAR>(&planes, [0; 3], 1.0);
+    let cell = Cell::new::<PAR>(&planes, [0; 3], 1.0);
     let (t_enter, t_exit) = (cell.t0.max_element(), cell.t1.min_element());
     if t_enter > t_exit || t_exit < t_min || t_enter > t_max {
         return miss(0);
@@ -245,6 +245,87 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
         return Traced { hit: finish(ray, t_enter, t_min, 0, [0; 3], svo.attrs[0], t0), steps: 1, aborted: false };
     }
 
+    let mut steps = 0u32;
+    let walked = walk::<PAR>(
+        svo,
+        ray,
+        &planes,
+        Below { level: 0, node: 0, coord: [0; 3], cell },
+        t_min,
+        t_max,
+        max_level,
+        &mut steps,
+    );
+    match walked {
+        Walk::Reached(r) => {
+            let attr = svo.attrs[r.attr];
+            Traced { hit: finish(ray, r.te, t_min, r.level, r.coord, attr, r.ct0.to_array()), steps, aborted: false }
+        }
+        Walk::Left => miss(steps),
+        Walk::Aborted => Traced { hit: None, steps, aborted: true },
+    }
+}
+
+/// A node to walk below: its level, number, mirrored coordinates and t-values.
+#[derive(Clone, Copy)]
+pub(crate) struct Below {
+    pub(crate) level: u32,
+    pub(crate) node: usize,
+    pub(crate) coord: [u32; 3],
+    cell: Cell,
+}
+
+impl Below {
+    /// A node whose t-values per axis are `t0` (entry planes) and `t1` (exit planes), with
+    /// its midplanes halfway in t as Revelles §3.1 (for rays without parallel axes).
+    #[inline(always)]
+    pub(crate) fn new(level: u32, node: usize, coord: [u32; 3], t0: [f32; 3], t1: [f32; 3]) -> Below {
+        let (t0, t1) = (Vec3A::from(t0), Vec3A::from(t1));
+        Below { level, node, coord, cell: Cell { t0, tm: (t0 + t1) * 0.5, t1 } }
+    }
+}
+
+/// The first leaf (or node at the level limit) a walk reached.
+#[derive(Clone, Copy)]
+pub(crate) struct Reached {
+    /// Its entry t (the largest entry plane).
+    pub(crate) te: f32,
+    /// Its exit t (the smallest exit plane).
+    pub(crate) tx: f32,
+    pub(crate) level: u32,
+    /// Mirrored coordinates.
+    pub(crate) coord: [u32; 3],
+    /// Index of its attributes in `attrs`.
+    pub(crate) attr: usize,
+    /// Its entry planes.
+    ct0: Vec3A,
+}
+
+/// How a walk below a node ended.
+pub(crate) enum Walk {
+    /// The first leaf on the ray's chain below the node.
+    Reached(Reached),
+    /// The ray left the node (or passed `t_max`) without reaching a leaf.
+    Left,
+    /// The loop reached [`step_bound`] (never observed).
+    Aborted,
+}
+
+/// Revelles' chain below `start` for a ray whose t-values there are `start.cell`: the same
+/// steps, in the same order and with the same arithmetic, as the walk from the root takes
+/// below that node when it enters it. `steps` counts the loop's iterations.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn walk<const PAR: bool>(
+    svo: &Svo,
+    ray: &UnitRay,
+    planes: &Planes,
+    start: Below,
+    t_min: f32,
+    t_max: f32,
+    max_level: u32,
+    steps: &mut u32,
+) -> Walk {
     // Frames of the levels above the current node: its number, which of its children is
     // being visited, and per axis the one t-value of it that this child's t-values do not
     // repeat (its exit plane where the child is the lower half, its entry plane where the
@@ -252,19 +333,19 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
     let mut stack_node = [0u32; STACK];
     let mut stack_child = [0u8; STACK];
     let mut stack_keep = [Vec3A::ZERO; STACK];
-    let (mut level, mut node, mut coord) = (0u32, 0usize, [0u32; 3]);
-    let mut child = first_node(cell.tm, max(t_enter, t_min));
+    let Below { mut level, mut node, mut coord, mut cell } = start;
+    let base = level;
+    let mut child = first_node(cell.tm, max(cell.t0.max_element(), t_min));
     let bound = step_bound(svo.depth);
-    let mut steps = 0u32;
     loop {
-        steps += 1;
-        if steps > bound {
-            return Traced { hit: None, steps, aborted: true };
+        *steps += 1;
+        if *steps > bound {
+            return Walk::Aborted;
         }
         let (ct0, ct1) = cell.child(child);
         let te = ct0.max_element();
         if te > t_max {
-            return miss(steps); // children come front to back: nothing later can be closer
+            return Walk::Left; // children come front to back: nothing later can be closer
         }
         let octant = child ^ ray.mirror;
         let mask = svo.masks[node];
@@ -272,12 +353,9 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
             let child_level = level + 1;
             let c = [0, 1, 2].map(|i| 2 * coord[i] + ((child >> i) & 1));
             if child_level >= max_level {
-                let attr = svo.child_attr(node, octant);
-                return Traced {
-                    hit: finish(ray, te, t_min, child_level, c, attr, ct0.to_array()),
-                    steps,
-                    aborted: false,
-                };
+                let attr = svo.child_attr_index(node, octant);
+                let tx = ct1.min_element();
+                return Walk::Reached(Reached { te, tx, level: child_level, coord: c, attr, ct0 });
             }
             stack_node[level as usize] = node as u32;
             stack_child[level as usize] = child as u8;
@@ -300,10 +378,10 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
         // Revelles Table 2: leave through the exit plane; leaving the parent if that bit is set.
         let mut exit_bit = exit_plane(ct1);
         while child & exit_bit != 0 {
-            if level == 0 {
-                return miss(steps);
+            if level == base {
+                return Walk::Left;
             }
-            steps += 1;
+            *steps += 1;
             level -= 1;
             // The parent's t-values from this node's and the kept ones.
             let k = stack_child[level as usize] as u32;
@@ -322,6 +400,13 @@ fn trace_impl<const PAR: bool>(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) ->
         }
         child |= exit_bit;
     }
+}
+
+/// Walks the chain of a ray without parallel axes below `start` (see [`walk`]).
+pub(crate) fn walk_below(svo: &Svo, ray: &UnitRay, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
+    let planes = Planes { origin: Vec3A::from(ray.origin), inv_dir: Vec3A::from(ray.inv_dir), parallel: 0 };
+    let mut steps = 0;
+    walk::<false>(svo, ray, &planes, start, t_min, t_max, max_level, &mut steps)
 }
 
 /// Converts a mirrored-space hit back to object space. `te` is the voxel's entry t from the

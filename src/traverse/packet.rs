@@ -19,14 +19,16 @@
 //! and being the first in the same order, it is the scalar answer. A leaf of zero length
 //! is handed to the scalar loop for that ray.
 
-use super::{finish, trace_unit, Hit, TraceOptions};
+use super::{finish, trace_unit, walk_below, Below, Hit, TraceOptions, Walk};
 use crate::ray::UnitRay;
-use crate::svo::{Svo, MAX_DEPTH};
+use crate::svo::{Attr, Svo, MAX_DEPTH};
 use wide::f32x4;
 
 /// Rays in a packet.
 pub const LANES: usize = 64;
 const QUADS: usize = LANES / 4;
+/// Crossed children with at most this many of the packet's rays are walked ray by ray.
+const SOLO: u32 = 1;
 
 /// Per axis, four rays' values for each quad of the packet.
 type Axes = [[f32x4; QUADS]; 3];
@@ -82,6 +84,10 @@ struct Pass<'a> {
     max_level: u32,
     /// Rays still without an answer.
     active: u64,
+    /// Answers whose attributes are still to be read, from `attr_at`: read together after
+    /// the walk, so their cache misses overlap instead of stalling it one by one.
+    pending: u64,
+    attr_at: [u32; LANES],
 }
 
 /// Quads holding a ray of `lanes`: bit 4q set when quad q has one.
@@ -140,6 +146,10 @@ impl Pass<'_> {
                 self.hits(level, node, c, cc, crossed);
                 continue;
             }
+            if crossed.count_ones() <= SOLO {
+                self.solo(level, node, c, cc, crossed);
+                continue;
+            }
             let (lo, hi) = self.frames.split_at_mut(level + 1);
             let (f, g) = (&lo[level], &mut hi[0]);
             let mut quads = quads_of(crossed);
@@ -157,9 +167,46 @@ impl Pass<'_> {
         }
     }
 
+    /// Walks each ray of `lanes` alone below child `c` of `node` (mirrored coordinates `cc`),
+    /// from its t-values there: Revelles' chain below a node the ray crosses is the scalar
+    /// loop's (see the module notes), so a leaf of non-zero length it reaches is the answer;
+    /// a ray that leaves the child stays in the packet.
+    fn solo(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
+        let child = self.svo.child_node(node, c ^ self.mirror);
+        while lanes != 0 {
+            let k = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            let Some(ray) = self.rays[k].as_ref() else { continue };
+            let (q, l) = (k / 4, k % 4);
+            let f = &self.frames[level];
+            let mut t0 = [0f32; 3];
+            let mut t1 = [0f32; 3];
+            for a in 0..3 {
+                let (a0, a1) = f.child(a, c & (1 << a) != 0, q);
+                t0[a] = lane(a0, l);
+                t1[a] = lane(a1, l);
+            }
+            let (t_min, t_max) = (lane(self.t_min[q], l), lane(self.t_max[q], l));
+            let start = Below::new(level as u32 + 1, child, cc, t0, t1);
+            let answer = match walk_below(self.svo, ray, start, t_min, t_max, self.max_level) {
+                Walk::Left => continue,
+                // Zero length: the chain from the root may not enter this child at all.
+                Walk::Reached(r) if r.te.max(t_min) == r.tx => trace_unit(self.svo, ray, &self.opts[k]).hit,
+                Walk::Reached(r) => {
+                    self.pending |= 1 << k;
+                    self.attr_at[k] = r.attr as u32;
+                    finish(ray, r.te, t_min, r.level, r.coord, Attr::default(), r.ct0.to_array())
+                }
+                Walk::Aborted => trace_unit(self.svo, ray, &self.opts[k]).hit,
+            };
+            self.active &= !(1 << k);
+            self.out[k] = answer;
+        }
+    }
+
     /// Reports child `c` of `node` as the hit of the rays `lanes`.
     fn hits(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
-        let attr = self.svo.child_attr(node, c ^ self.mirror);
+        let attr = self.svo.child_attr_index(node, c ^ self.mirror) as u32;
         let f = &self.frames[level];
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
@@ -181,7 +228,9 @@ impl Pass<'_> {
                 // Zero length: Revelles' chain may pass this leaf by (see the module notes).
                 trace_unit(self.svo, ray, &self.opts[k]).hit
             } else {
-                finish(ray, te, t_min, level as u32 + 1, cc, attr, ct0)
+                self.pending |= 1 << k;
+                self.attr_at[k] = attr;
+                finish(ray, te, t_min, level as u32 + 1, cc, Attr::default(), ct0)
             };
         }
     }
@@ -256,6 +305,8 @@ fn run_pass(
         mirror,
         max_level,
         active: 0,
+        pending: 0,
+        attr_at: [0; LANES],
     };
     let set = |v: &mut f32x4, j: usize, x: f32| bytemuck::cast_mut::<f32x4, [f32; 4]>(v)[j] = x;
     let mut l = lanes;
@@ -300,6 +351,14 @@ fn run_pass(
     if entered != 0 {
         pass.visit(0, 0, [0; 3], entered);
     }
+    let mut l = pass.pending;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        if let Some(hit) = pass.out[k].as_mut() {
+            hit.attr = svo.attrs[pass.attr_at[k] as usize];
+        }
+    }
 }
 
 #[cfg(test)]
@@ -307,6 +366,7 @@ mod tests {
     use super::*;
     use crate::rng::Rng;
     use crate::stability::{make_case, scene_blobs, standard_cases, Case, CaseRay};
+    use crate::voxelize::VoxelGrid;
     use glam::Vec3;
 
     fn opts_of(case: &Case, r: &CaseRay) -> TraceOptions {
@@ -352,7 +412,15 @@ mod tests {
     #[test]
     fn coherent_tiles_through_voxel_corners_answer_as_the_scalar_loop() {
         let depth = 6;
-        let case = make_case("blobs", depth, scene_blobs(depth, 7), Vec::new(), None);
+        let mut case = make_case("blobs", depth, scene_blobs(depth, 7), Vec::new(), None);
+        // Every voxel its own colour, so an answer with another voxel's attributes differs.
+        let coords = scene_blobs(depth, 7);
+        let mut grid = VoxelGrid::from_coords(depth, case.svo.bounds, coords, Vec3::ONE);
+        for v in &mut grid.voxels {
+            let c = v.code.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
+            v.albedo = Vec3::new((c & 255) as f32, ((c >> 8) & 255) as f32, (c >> 16) as f32) / 255.0;
+        }
+        case.svo = crate::svo::build(&grid).expect("blobs are not empty");
         let mut rng = Rng::new(5);
         let cell = 1.0 / (1u32 << depth) as f32;
         let mut rays = Vec::new();
