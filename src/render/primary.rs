@@ -148,9 +148,11 @@ pub fn trace_tiles<T: Send, S>(
             if p.beams {
                 // The tile's rays as packets through each instance: the same answers as one by
                 // one (below).
+                // `ray_dir` with each column's and row's share formed once.
+                let sx: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_x(&basis, (x0 + i) as u32));
+                let sy: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_y(&basis, (y0 + i) as u32));
                 for k in each(todo | partial) {
-                    let (x, y) = pixel(k);
-                    dirs[k] = p.camera.ray_dir(&basis, x, y);
+                    dirs[k] = basis.dir(sx[k % TILE as usize], sy[k / TILE as usize]);
                 }
                 if todo != 0 {
                     nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, &mut scratch, &mut hits);

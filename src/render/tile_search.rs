@@ -42,7 +42,13 @@ impl TileScratch {
     /// Sets lane `k` to the ray `o + t·d`, mapped into instance `p`'s unit cube, traced with
     /// `opts`.
     fn set(&mut self, k: usize, p: &Prepared, o: DVec3, d: DVec3, opts: TraceOptions) {
-        self.rays[k] = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d));
+        self.set_mapped(k, p, p.to_unit.point(o), d, opts);
+    }
+
+    /// [`Self::set`] with the origin already mapped into the unit cube (`unit_o`): rays from
+    /// one point map it once per instance.
+    fn set_mapped(&mut self, k: usize, p: &Prepared, unit_o: DVec3, d: DVec3, opts: TraceOptions) {
+        self.rays[k] = UnitRay::from_unit(unit_o, p.to_unit.vector(d));
         self.opts[k] = opts;
     }
 
@@ -103,6 +109,7 @@ pub fn nearest_tile(
     for &(start, i) in order.iter() {
         let p = &fi.prepared[i];
         let t_min = if start > opts.t_min { start } else { opts.t_min };
+        let unit_o = p.to_unit.point(o);
         let mut todo = 0u64;
         for k in each(lanes) {
             let d = dirs[k];
@@ -120,7 +127,7 @@ pub fn nearest_tile(
                 continue;
             }
             work.traced += 1;
-            scratch.set(k, p, o, d, TraceOptions { t_min, t_max: widen(bound), ..*opts });
+            scratch.set_mapped(k, p, unit_o, d, TraceOptions { t_min, t_max: widen(bound), ..*opts });
             todo |= 1 << k;
         }
         for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
@@ -217,6 +224,7 @@ pub fn nearest_moved_tile(
             work.culled += lanes.count_ones() as u64;
             continue;
         }
+        let unit_o = p.to_unit.point(o);
         let mut todo = 0u64;
         for k in each(lanes) {
             let Some((t0, _)) = sphere_interval(p.centre, p.radius, o, dirs[k]) else {
@@ -230,7 +238,7 @@ pub fn nearest_moved_tile(
             work.traced += 1;
             let start = fi.starts.map_or(opts.t_min, |s| s[i]);
             let t_min = if start > opts.t_min { start } else { opts.t_min };
-            scratch.set(k, p, o, dirs[k], TraceOptions { t_min, t_max: widen(t_max), ..*opts });
+            scratch.set_mapped(k, p, unit_o, dirs[k], TraceOptions { t_min, t_max: widen(t_max), ..*opts });
             todo |= 1 << k;
         }
         for (k, h) in scratch.trace(&fi.parts[p.part], todo) {

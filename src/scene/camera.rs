@@ -64,6 +64,15 @@ pub struct Basis {
     pub tan_half: f64,
 }
 
+impl Basis {
+    /// The unit direction `sx` right and `sy` up of the view axis per unit forward (see
+    /// [`Camera::screen_x`]).
+    #[inline]
+    pub fn dir(&self, sx: f64, sy: f64) -> DVec3 {
+        (self.forward + self.right * sx + self.up * sy).normalize()
+    }
+}
+
 impl Camera {
     /// A camera looking at a bounding box from the front-left, three-quarters above, framed
     /// to fit it.
@@ -126,10 +135,23 @@ impl Camera {
 
     /// Unit direction of the ray through the centre of pixel (px, py).
     pub fn ray_dir(&self, b: &Basis, px: u32, py: u32) -> DVec3 {
+        b.dir(self.screen_x(b, px), self.screen_y(b, py))
+    }
+
+    /// How far right of the view axis the rays of pixel column `px` go per unit forward:
+    /// [`Self::ray_dir`] is `b.dir(screen_x(px), screen_y(py))`, so a loop over a block of
+    /// pixels can form each column's and row's share once (three divisions fewer per ray).
+    #[inline]
+    pub fn screen_x(&self, b: &Basis, px: u32) -> f64 {
         let (w, h) = (self.width as f64, self.height as f64);
-        let sx = (2.0 * (px as f64 + 0.5) / w - 1.0) * b.tan_half * w / h;
-        let sy = (1.0 - 2.0 * (py as f64 + 0.5) / h) * b.tan_half;
-        (b.forward + b.right * sx + b.up * sy).normalize()
+        (2.0 * (px as f64 + 0.5) / w - 1.0) * b.tan_half * w / h
+    }
+
+    /// How far above the view axis the rays of pixel row `py` go per unit forward (see
+    /// [`Self::screen_x`]).
+    #[inline]
+    pub fn screen_y(&self, b: &Basis, py: u32) -> f64 {
+        (1.0 - 2.0 * (py as f64 + 0.5) / self.height as f64) * b.tan_half
     }
 
     /// Parses the camera JSON of DESIGN.md and validates it.
