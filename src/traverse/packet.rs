@@ -52,6 +52,19 @@ impl Frame {
             (self.t0[a][q], self.tm[a][q])
         }
     }
+
+    /// Entry and exit planes per axis of child `c` for the ray in lane `l` of quad `q`.
+    #[inline(always)]
+    fn lane_child(&self, c: u32, q: usize, l: usize) -> ([f32; 3], [f32; 3]) {
+        let mut t0 = [0f32; 3];
+        let mut t1 = [0f32; 3];
+        for a in 0..3 {
+            let (a0, a1) = self.child(a, c & (1 << a) != 0, q);
+            t0[a] = lane(a0, l);
+            t1[a] = lane(a1, l);
+        }
+        (t0, t1)
+    }
 }
 
 const EMPTY: Frame =
@@ -178,14 +191,7 @@ impl Pass<'_> {
             lanes &= lanes - 1;
             let Some(ray) = self.rays[k].as_ref() else { continue };
             let (q, l) = (k / 4, k % 4);
-            let f = &self.frames[level];
-            let mut t0 = [0f32; 3];
-            let mut t1 = [0f32; 3];
-            for a in 0..3 {
-                let (a0, a1) = f.child(a, c & (1 << a) != 0, q);
-                t0[a] = lane(a0, l);
-                t1[a] = lane(a1, l);
-            }
+            let (t0, t1) = self.frames[level].lane_child(c, q, l);
             let (t_min, t_max) = (lane(self.t_min[q], l), lane(self.t_max[q], l));
             let start = Below::new(level as u32 + 1, child, cc, t0, t1);
             let answer = match walk_below(self.svo, ray, start, t_min, t_max, self.max_level) {
@@ -193,8 +199,7 @@ impl Pass<'_> {
                 // Zero length: the chain from the root may not enter this child at all.
                 Walk::Reached(r) if r.te.max(t_min) == r.tx => trace_unit(self.svo, ray, &self.opts[k]).hit,
                 Walk::Reached(r) => {
-                    self.pending |= 1 << k;
-                    self.attr_at[k] = r.attr as u32;
+                    self.defer_attr(k, r.attr as u32);
                     finish(ray, r.te, t_min, r.level, r.coord, Attr::default(), r.ct0.to_array())
                 }
                 Walk::Aborted => trace_unit(self.svo, ray, &self.opts[k]).hit,
@@ -204,22 +209,22 @@ impl Pass<'_> {
         }
     }
 
+    /// Notes that lane `k`'s answer takes the attributes at `attrs[at]`, read after the walk.
+    #[inline(always)]
+    fn defer_attr(&mut self, k: usize, at: u32) {
+        self.pending |= 1 << k;
+        self.attr_at[k] = at;
+    }
+
     /// Reports child `c` of `node` as the hit of the rays `lanes`.
     fn hits(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
         let attr = self.svo.child_attr_index(node, c ^ self.mirror) as u32;
-        let f = &self.frames[level];
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
             self.active &= !(1 << k);
             let (q, l) = (k / 4, k % 4);
-            let mut ct0 = [0f32; 3];
-            let mut ct1 = [0f32; 3];
-            for a in 0..3 {
-                let (t0, t1) = f.child(a, c & (1 << a) != 0, q);
-                ct0[a] = lane(t0, l);
-                ct1[a] = lane(t1, l);
-            }
+            let (ct0, ct1) = self.frames[level].lane_child(c, q, l);
             let te = ct0[0].max(ct0[1]).max(ct0[2]);
             let tx = ct1[0].min(ct1[1]).min(ct1[2]);
             let t_min = lane(self.t_min[q], l);
@@ -228,8 +233,7 @@ impl Pass<'_> {
                 // Zero length: Revelles' chain may pass this leaf by (see the module notes).
                 trace_unit(self.svo, ray, &self.opts[k]).hit
             } else {
-                self.pending |= 1 << k;
-                self.attr_at[k] = attr;
+                self.defer_attr(k, attr);
                 finish(ray, te, t_min, level as u32 + 1, cc, Attr::default(), ct0)
             };
         }
