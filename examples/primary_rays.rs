@@ -5,7 +5,8 @@
 //!
 //! `cargo run --release --example primary_rays [-- DEPTH [WIDTH HEIGHT]]` (default 9, 1280×768);
 //! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement, `BEAMS=on` or `off`
-//! for one of the two, `VIEW=default` or `close-up` for one view.
+//! for one of the two, `VIEW=default` or `close-up` for one view, `WHOLE=on` to also time whole
+//! frames (traced and shaded).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -13,6 +14,7 @@ use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::instances::prepare;
 use voxray::render::primary::{trace_tiles, Primary, Todo};
 use voxray::render::visibility::{FrameInstances, Search};
+use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
 use voxray::scene::{Camera, Instance, Scene, Transform};
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 
@@ -42,6 +44,26 @@ fn main() -> Result<(), voxray::Error> {
     for (name, camera) in [("default", default), ("close-up", close)] {
         if std::env::var("VIEW").is_ok_and(|v| v != name) {
             continue;
+        }
+        if std::env::var("WHOLE").is_ok_and(|w| w == "on") {
+            // The same rays traced and shaded into a frame (sky and sun, no shadows, no hit
+            // buffer), as the peers' whole-frame row renders them.
+            let lights = voxray::scene::Lights::default();
+            let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
+            // Finished frames go back to the buffer, as a session recycles them.
+            let mut kept = HitBuffer::new();
+            let mut best = f64::INFINITY;
+            for _ in 0..reps {
+                let start = Instant::now();
+                let plan = FramePlan::new(&scene, &camera, &lights, &features, None);
+                let frame =
+                    render(&scene, &camera, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {})
+                        .map_err(voxray::Error::from)?;
+                best = best.min(start.elapsed().as_secs_f64());
+                kept.recycle(std::hint::black_box(frame));
+            }
+            let n = (camera.width * camera.height) as f64;
+            println!("{name:9} whole frame: {:7.1} ms, {:6.2} Mrays/s", best * 1e3, n / best / 1e6);
         }
         let prepared = prepare(&scene, camera.eye, false);
         let instances = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };

@@ -291,18 +291,22 @@ fn a_recycled_frame_renders_like_a_fresh_one() {
     let lights = Lights::default();
     let near = Camera { eye: DVec3::new(0.0, 1.2, 0.0), ..top_down(48) };
     let far = Camera { eye: DVec3::new(0.0, 30.0, 0.0), ..top_down(48) };
-    let mut hits = voxray::render::HitBuffer::new();
-    let render_with = |cam: &Camera, hits: &mut voxray::render::HitBuffer| {
-        let plan = FramePlan::new(&s, cam, &lights, &Features::default(), None);
-        render(&s, cam, &lights, &plan, &RenderOptions::default(), Some(hits), &|_, _| {}).unwrap()
-    };
-    let first = render_with(&near, &mut hits);
-    assert!(first.instance.iter().filter(|&&i| i >= 0).count() > first.instance.len() / 2);
-    hits.recycle(first);
-    let reused = render_with(&far, &mut hits);
-    let fresh = frame(&parts, &far, &lights, Features::default());
-    assert!(fresh.instance.iter().filter(|&&i| i < 0).count() > fresh.instance.len() / 2);
-    assert_eq!(reused, fresh);
+    // With the hit buffer on, the records are kept for reuse; with it off, only their memory
+    // is kept for the next frame to overwrite.
+    for features in [Features::default(), Features { hit_buffer: false, ..Features::default() }] {
+        let mut hits = voxray::render::HitBuffer::new();
+        let render_with = |cam: &Camera, hits: &mut voxray::render::HitBuffer| {
+            let plan = FramePlan::new(&s, cam, &lights, &features, Some(&*hits));
+            render(&s, cam, &lights, &plan, &RenderOptions::default(), Some(hits), &|_, _| {}).unwrap()
+        };
+        let first = render_with(&near, &mut hits);
+        assert!(first.instance.iter().filter(|&&i| i >= 0).count() > first.instance.len() / 2);
+        hits.recycle(first);
+        let reused = render_with(&far, &mut hits);
+        let fresh = frame(&parts, &far, &lights, features);
+        assert!(fresh.instance.iter().filter(|&&i| i < 0).count() > fresh.instance.len() / 2);
+        assert_eq!(reused, fresh);
+    }
 }
 
 /// `Svo::contains` and `instances::eye_inside` against the voxel set they were built from:

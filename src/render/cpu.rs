@@ -614,8 +614,11 @@ pub fn render_lit(
             b.keep_shading(lights, plan.shadows, &f.radiance, &f.ao);
             b.lit_by_gi = ambient.is_some();
         } else {
-            // Nothing to keep: a later frame with the buffer switched on starts afresh.
+            // Nothing to keep: a later frame with the buffer switched on starts afresh. The
+            // records' memory stays for the next frame to overwrite (every pixel is written
+            // when nothing is reused), which spares the page faults of fresh memory.
             b.camera = None;
+            b.records = records;
         }
         b.bvh = bvh;
         b.prepared = prepared;
