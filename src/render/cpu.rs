@@ -148,17 +148,6 @@ pub(crate) fn par_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -
     (0..n).map(f).collect()
 }
 
-/// Runs `f(row, row_slice)` over the rows of a per-pixel buffer, in parallel when enabled.
-fn for_rows<T: Send>(buf: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + Sync + Send) {
-    #[cfg(feature = "parallel")]
-    {
-        use rayon::prelude::*;
-        buf.par_chunks_mut(width).enumerate().for_each(|(y, row)| f(y, row));
-    }
-    #[cfg(not(feature = "parallel"))]
-    buf.chunks_mut(width).enumerate().for_each(|(y, row)| f(y, row));
-}
-
 /// A pixel's shadow ray towards the sun, traced before shading ([`sun_shadows`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum SunRay {
@@ -238,50 +227,64 @@ pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, 
     HitRecord { t: h.hit.t, instance: h.instance as i32, normal, face_normal, attr: h.hit.attr, voxel: voxel as f32 }
 }
 
-/// Fills a frame's per-pixel surface data from the hit records, rows in parallel.
-fn aovs(f: &mut Frame, records: &[HitRecord]) {
+/// One row of a frame's per-pixel buffers.
+struct FrameRow<'a> {
+    radiance: &'a mut [Vec3],
+    t: &'a mut [f32],
+    instance: &'a mut [i32],
+    normal: &'a mut [Vec3],
+    albedo: &'a mut [Vec3],
+    specular: &'a mut [f32],
+    shininess: &'a mut [f32],
+}
+
+impl FrameRow<'_> {
+    /// Writes pixel `x`'s surface data (the AOVs) from its hit record. Every pixel is
+    /// written: the buffers may be a recycled frame's.
+    #[inline]
+    fn surface(&mut self, x: usize, r: &HitRecord) {
+        self.t[x] = r.t;
+        self.instance[x] = r.instance;
+        self.normal[x] = r.normal;
+        (self.albedo[x], self.specular[x]) =
+            if r.instance >= 0 { (r.attr.albedo_linear(), r.attr.specular()) } else { (Vec3::ZERO, 0.0) };
+        self.shininess[x] = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
+    }
+}
+
+/// Runs `f(y, row)` over the rows of a frame's per-pixel buffers, in parallel when enabled.
+fn for_frame_rows(f: &mut Frame, each: impl Fn(usize, FrameRow) + Sync + Send) {
     let w = f.width as usize;
-    let row = |y: usize,
-               t: &mut [f32],
-               instance: &mut [i32],
-               normal: &mut [Vec3],
-               albedo: &mut [Vec3],
-               specular: &mut [f32],
-               shininess: &mut [f32]| {
-        for (x, r) in records[y * w..(y + 1) * w].iter().enumerate() {
-            t[x] = r.t;
-            instance[x] = r.instance;
-            normal[x] = r.normal;
-            // Every pixel is written: the buffers may be a recycled frame's.
-            (albedo[x], specular[x]) =
-                if r.instance >= 0 { (r.attr.albedo_linear(), r.attr.specular()) } else { (Vec3::ZERO, 0.0) };
-            shininess[x] = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
-        }
-    };
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;
-        f.t.par_chunks_mut(w)
+        f.radiance
+            .par_chunks_mut(w)
+            .zip(f.t.par_chunks_mut(w))
             .zip(f.instance.par_chunks_mut(w))
             .zip(f.normal.par_chunks_mut(w))
             .zip(f.albedo.par_chunks_mut(w))
             .zip(f.specular.par_chunks_mut(w))
             .zip(f.shininess.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(y, (((((t, i), n), a), s), sh))| row(y, t, i, n, a, s, sh));
+            .for_each(|(y, ((((((radiance, t), instance), normal), albedo), specular), shininess))| {
+                each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess })
+            });
     }
     #[cfg(not(feature = "parallel"))]
-    for y in 0..f.height as usize {
-        let r = y * w..(y + 1) * w;
-        row(
-            y,
-            &mut f.t[r.clone()],
-            &mut f.instance[r.clone()],
-            &mut f.normal[r.clone()],
-            &mut f.albedo[r.clone()],
-            &mut f.specular[r.clone()],
-            &mut f.shininess[r],
-        );
+    {
+        let rows = f
+            .radiance
+            .chunks_mut(w)
+            .zip(f.t.chunks_mut(w))
+            .zip(f.instance.chunks_mut(w))
+            .zip(f.normal.chunks_mut(w))
+            .zip(f.albedo.chunks_mut(w))
+            .zip(f.specular.chunks_mut(w))
+            .zip(f.shininess.chunks_mut(w));
+        for (y, ((((((radiance, t), instance), normal), albedo), specular), shininess)) in rows.enumerate() {
+            each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess });
+        }
     }
 }
 
@@ -510,7 +513,6 @@ pub fn render_lit(
         spheres_culled: traced.work.culled,
         ..Frame::buffers(spare, camera.width, camera.height)
     };
-    aovs(&mut f, &records);
     // Pass 2a (GI): the ambient term of every hit to be shaded, from the G-buffer alone.
     let ambient_start = std::time::Instant::now();
     let kept_colour = |x: usize, y: usize| shade_from.is_some() && kept_hit(x, y);
@@ -558,11 +560,15 @@ pub fn render_lit(
         }
         _ => Vec::new(),
     };
-    for_rows(&mut f.radiance, w, |y, row| {
+    // Shading, with each pixel's surface data (the AOVs) written in the same pass over the
+    // records: one read of them instead of two.
+    for_frame_rows(&mut f, |y, mut row| {
         let mut kept = 0;
-        for (x, out) in row.iter_mut().enumerate() {
+        for x in 0..w {
             let k = y * w + x;
             let r = &records[k];
+            row.surface(x, r);
+            let out = &mut row.radiance[x];
             if let Some((reuse, prev)) = shade_from {
                 if kept_hit(x, y)
                     && (!plan.shadows || reuse.shadow_valid(r, lights, camera, &basis, x as u32, y as u32))
@@ -576,8 +582,8 @@ pub fn render_lit(
                 *out = sky;
                 continue;
             }
-            let albedo = r.attr.albedo_linear();
-            let ks = r.attr.specular();
+            // The surface data written above: this hit's albedo and specular reflectance.
+            let (albedo, ks) = (row.albedo[x], row.specular[x]);
             let ambient_term = match ambient {
                 Some(_) => ambient_terms[k],
                 // The sky is uniform, so the ambient term of either lobe is its reflectance × sky.
