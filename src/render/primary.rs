@@ -142,17 +142,17 @@ pub fn trace_tiles<T: Send, S>(
             } else {
                 p.instances
             };
-            // Lane k of the tile: its index in `rows`, and its pixel.
+            // Lane k of the tile: its index in `rows`.
             let at = |k: usize| (k / TILE as usize) * w + x0 + k % TILE as usize;
-            let pixel = |k: usize| ((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+            // `ray_dir` of the tile's pixels, with each column's and row's share formed once.
+            let sx: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_x(&basis, (x0 + i) as u32));
+            let sy: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_y(&basis, (y0 + i) as u32));
+            let dir = |k: usize| basis.dir(sx[k % TILE as usize], sy[k / TILE as usize]);
             if p.beams {
                 // The tile's rays as packets through each instance: the same answers as one by
                 // one (below).
-                // `ray_dir` with each column's and row's share formed once.
-                let sx: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_x(&basis, (x0 + i) as u32));
-                let sy: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_y(&basis, (y0 + i) as u32));
                 for k in each(todo | partial) {
-                    dirs[k] = basis.dir(sx[k % TILE as usize], sy[k / TILE as usize]);
+                    dirs[k] = dir(k);
                 }
                 if todo != 0 {
                     nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, &mut scratch, &mut hits);
@@ -183,14 +183,12 @@ pub fn trace_tiles<T: Send, S>(
                 continue;
             }
             for k in each(todo) {
-                let (x, y) = pixel(k);
-                let d = p.camera.ray_dir(&basis, x, y);
+                let d = dir(k);
                 let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
                 store(&mut rows[at(k)], hit.map(|h| (h, d)));
             }
             for k in each(partial) {
-                let (x, y) = pixel(k);
-                let d = p.camera.ray_dir(&basis, x, y);
+                let d = dir(k);
                 let (t, instance) = bounds[k];
                 if let Some(hit) = nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work) {
                     store(&mut rows[at(k)], Some((hit, d)));
