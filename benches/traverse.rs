@@ -103,7 +103,7 @@ fn car_primary_rays(c: &mut Criterion) {
                         trace_tiles(
                             &primary,
                             &mut t_hit,
-                            |_| (),
+                            |_| Some(()),
                             |_, _, _, _| Todo::All,
                             |t, h| *t = h.map_or(f32::INFINITY, |h| h.0.hit.t),
                             |_| {},

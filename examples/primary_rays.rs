@@ -86,7 +86,7 @@ fn main() -> Result<(), voxray::Error> {
                 let store = |t: &mut f32, h: Option<(voxray::render::visibility::InstanceHit, glam::DVec3)>| {
                     *t = h.map_or(f32::INFINITY, |h| h.0.hit.t)
                 };
-                trace_tiles(&primary, &mut t_hit, |_| (), |_, _, _, _| Todo::All, store, |_| {});
+                trace_tiles(&primary, &mut t_hit, |_| Some(()), |_, _, _, _| Todo::All, store, |_| {});
                 best = best.min(start.elapsed().as_secs_f64());
             }
             let n = (camera.width * camera.height) as f64;

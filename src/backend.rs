@@ -127,6 +127,16 @@ impl Backend {
         }
     }
 
+    /// [`Backend::recycle`] for a frame exactly as this backend rendered it: the CPU's next
+    /// frame then writes only the pixels that changed into it.
+    pub(crate) fn recycle_as_rendered(&mut self, frame: Frame) {
+        match self {
+            Backend::Cpu(h) => h.recycle_as_rendered(frame),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(_) => drop(frame),
+        }
+    }
+
     /// Sets the GI knobs for the following frames (None: GI off). Returns true when the
     /// backend runs GI itself (the GPU: transform, injection, levels and cones in WGSL, dense
     /// or sparse volume); false when the caller adds it to each frame with `gi::apply` (the CPU).

@@ -36,6 +36,9 @@ pub struct Session {
     /// The next frame has no previous one to reuse.
     first: bool,
     frame: Option<Frame>,
+    /// `frame` is as the backend rendered it (the caller only ever saw it borrowed), so the
+    /// next frame may leave its unchanged pixels as they are.
+    frame_as_rendered: bool,
 }
 
 impl Session {
@@ -49,6 +52,7 @@ impl Session {
             gi_caches: GiCaches::new(),
             first: true,
             frame: None,
+            frame_as_rendered: false,
         }
     }
 
@@ -136,7 +140,11 @@ impl Session {
         let mut plan = self.backend.plan(scene, camera, lights, features, self.first);
         // The last frame's memory is refilled instead of fresh pages faulted in.
         if let Some(old) = self.frame.take() {
-            self.backend.recycle(old);
+            if self.frame_as_rendered {
+                self.backend.recycle_as_rendered(old);
+            } else {
+                self.backend.recycle(old);
+            }
         }
         let (mut gi, mut gi_reuse) = (None, None);
         let frame = match (&self.gi, self.gi_in_backend, &mut self.backend) {
@@ -175,6 +183,7 @@ impl Session {
             }
         }
         self.frame = Some(frame);
+        self.frame_as_rendered = true;
         let (gpu_traffic, gpu_pass_ms) = (self.backend.gpu_traffic(), self.backend.pass_times());
         Ok(FrameReport { plan, gi, gi_reuse, gpu_traffic, gpu_pass_ms })
     }
@@ -207,5 +216,7 @@ impl Session {
     /// the next frame reuses its memory.
     pub fn give_back(&mut self, frame: Frame) {
         self.frame = Some(frame);
+        // The caller may have changed it: its memory is reused, its pixels are not.
+        self.frame_as_rendered = false;
     }
 }

@@ -538,3 +538,93 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
         assert!(moved_only > 0, "mover {mover}: the moved-only search never ran");
     }
 }
+
+/// Every per-pixel buffer of `a` and `b`, bit for bit.
+fn assert_same_pixels(a: &Frame, b: &Frame, what: &str) {
+    let bits = |v: &[Vec3]| v.iter().flat_map(|c| c.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+    let bits1 = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a.radiance), bits(&b.radiance), "{what}: image");
+    assert_eq!(bits1(&a.t), bits1(&b.t), "{what}: t");
+    assert_eq!(a.instance, b.instance, "{what}: instance");
+    assert_eq!(bits(&a.normal), bits(&b.normal), "{what}: normal");
+    assert_eq!(bits(&a.albedo), bits(&b.albedo), "{what}: albedo");
+    assert_eq!(bits1(&a.specular), bits1(&b.specular), "{what}: specular");
+    assert_eq!(bits1(&a.shininess), bits1(&b.shininess), "{what}: shininess");
+}
+
+/// A session hands its own last frame back to the renderer, which then writes only the
+/// pixels that changed into it; every frame must still equal one rendered afresh, with and
+/// without shadow rays, and a frame the caller changed (taken and given back) must be
+/// rewritten in full.
+#[test]
+fn session_frames_written_only_where_pixels_changed_match_fresh_frames() {
+    use voxray::backend::Backend;
+    use voxray::scene::lights::Sun;
+    use voxray::session::Session;
+    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
+    let lights = Lights {
+        sun: Some(Sun { to_sun: glam::Vec3::new(0.6, 0.5, 0.3).normalize(), irradiance: glam::Vec3::splat(3.0) }),
+        ..Lights::default()
+    };
+    let (lo, hi) = st.bounds;
+    let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
+    for shadows in [false, true] {
+        let features = Features { shadows, ..Features::default() };
+        let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
+        let mut kept = 0;
+        for f in 0..10 {
+            voxray::scene::car::pose_all(&mut st.scene, &st.cars, f as f64 * 0.1).unwrap();
+            st.scene.update().unwrap();
+            session.frame(&st.scene, &cam, &lights, &features, &RenderOptions::default(), &|_, _| {}).unwrap();
+            let plain = FramePlan::new(&st.scene, &cam, &lights, &Features { shadows, ..Features::NONE }, None);
+            let fresh = render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+            let frame = session.last_frame().unwrap();
+            assert_same_pixels(frame, &fresh, &format!("shadows {shadows}, frame {f}"));
+            kept += frame.shade_reused;
+            if f == 5 {
+                // The caller scribbles over the frame: nothing of it may show in the next one.
+                let mut taken = session.take_frame().unwrap();
+                taken.radiance.fill(Vec3::splat(-1.0));
+                taken.t.fill(0.0);
+                taken.instance.fill(7);
+                taken.albedo.fill(Vec3::ONE);
+                session.give_back(taken);
+            }
+        }
+        assert!(kept > 0, "shadows {shadows}: no colour was kept");
+    }
+}
+
+/// A tile is kept without looking at its records only when none of them is on a moved
+/// instance: here the buffer's stored spheres of the parts, which then move, are shrunk to a
+/// point far away, so no moved sphere covers the pixels that still show the parts where they
+/// were. They must be traced again all the same.
+#[test]
+fn a_kept_tile_has_no_record_on_a_moved_instance() {
+    let (mut scene, cars) = cars_scene(0);
+    let lights = Lights::default();
+    let cam = camera();
+    let features = Features { shadows: false, ..Features::default() };
+    let mut hits = HitBuffer::new();
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, None);
+    render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
+    // The car (the body and its children) leaves the picture: its old pixels show the sky.
+    let body = &cars[0];
+    let lifted = scene.instances()[body.body].local;
+    // Far ahead and high above: in front of the eye (a sphere reaching behind it would cover
+    // the whole image) and above the picture.
+    let ahead = (cam.target - cam.eye).normalize() * 1000.0 + DVec3::Y * 1000.0;
+    let moved = voxray::scene::Transform { translation: lifted.translation + ahead, ..lifted };
+    scene.set_local(body.body, moved).unwrap();
+    scene.update().unwrap();
+    // (Camera-relative centres, in front of the eye and above the picture like the new ones.)
+    for s in &mut hits.spheres {
+        *s = (ahead * 10.0, 1e-3);
+    }
+    let plan = FramePlan::new(&scene, &cam, &lights, &features, Some(&hits));
+    let fast = render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
+    let plain = FramePlan::new(&scene, &cam, &lights, &Features::NONE, None);
+    let fresh = render(&scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+    assert!(fast.reused > 0);
+    assert_same_pixels(&fast, &fresh, "lifted body");
+}

@@ -142,7 +142,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 trace_tiles(
                     &primary,
                     &mut t_hit,
-                    |_| (),
+                    |_| Some(()),
                     |_, _, _, _| Todo::All,
                     |t, hit| *t = hit.map_or(f32::INFINITY, |h| h.0.hit.t),
                     |_| {},

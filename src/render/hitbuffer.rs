@@ -10,9 +10,13 @@
 //! instances that did not move, so the ray is searched among the moved instances alone
 //! ([`super::visibility::nearest_moved`]) and the nearer of the two wins.
 //!
-//! Only primary visibility is cached; shading and shadow rays run every frame, so rendering
-//! with the buffer gives the same image as rendering without it.
+//! A pixel whose record was kept also keeps its colour when every input of it is the same
+//! ([`Reuse::shadow_valid`], [`HitBuffer::keep_shading`]), so rendering with the buffer gives
+//! the same image as rendering without it. Per 8×8 tile, a mask of the instances its records
+//! hit ([`HitBuffer::tiles`]) lets a tile far from every moving part keep all its records
+//! without reading them ([`Reuse::tile_kept`]).
 
+use super::beam::TILE;
 use super::instances::{sphere_interval, Prepared};
 use super::primary::Todo;
 use crate::scene::{Camera, Lights, Scene};
@@ -90,6 +94,28 @@ pub struct HitBuffer {
     pub splats: super::splat::SplatCache,
     /// The last frame's prepared instances: their memory is refilled by the next frame.
     pub prepared: Vec<Prepared>,
+    /// Per [`TILE`]×[`TILE`] tile of the stored records (row-major), the instances they hit
+    /// as [`instance_bit`]s: a tile whose mask holds no moved instance's bit has no record
+    /// on a moved instance. Empty when not known.
+    pub tiles: Vec<u64>,
+    /// Where the pixels of the frame made with the stored colours live (the address of its
+    /// radiance buffer; never read through): when that very frame comes back unmodified
+    /// ([`HitBuffer::recycle_as_rendered`]), the next frame writes only the pixels that
+    /// changed.
+    rendered: Option<usize>,
+    /// The spare frame came back as it was rendered.
+    spare_as_rendered: bool,
+}
+
+/// A record's instance as a bit of a [`HitBuffer::tiles`] mask (instance mod 64; none for a
+/// miss).
+#[inline]
+pub fn instance_bit(instance: i32) -> u64 {
+    if instance < 0 {
+        0
+    } else {
+        1 << (instance as u32 % 64)
+    }
 }
 
 /// What the current frame may reuse.
@@ -101,6 +127,8 @@ pub struct Reuse {
     pub moved_spheres: Vec<(DVec3, f64, [u32; 4])>,
     /// The moved instances, ascending (their spheres are `moved_spheres` 2k and 2k + 1).
     pub moved_instances: Vec<u32>,
+    /// The moved instances' [`instance_bit`]s.
+    pub moved_bits: u64,
 }
 
 /// Above this many moved instances, a pixel that a moved sphere crosses is searched among
@@ -172,6 +200,28 @@ impl HitBuffer {
     /// size is written into its buffers instead of fresh memory.
     pub fn recycle(&mut self, frame: super::cpu::Frame) {
         self.spare = Some(frame);
+        self.spare_as_rendered = false;
+    }
+
+    /// [`HitBuffer::recycle`] for a frame that nobody could have changed since the renderer
+    /// returned it (a session's own last frame): if it is the frame of the stored colours,
+    /// the next frame leaves the pixels that keep their colour as they are.
+    pub(crate) fn recycle_as_rendered(&mut self, frame: super::cpu::Frame) {
+        self.spare = Some(frame);
+        self.spare_as_rendered = true;
+    }
+
+    /// Takes the spare frame, and whether it holds the stored frame's pixels unchanged.
+    pub(crate) fn take_spare(&mut self) -> (Option<super::cpu::Frame>, bool) {
+        let spare = self.spare.take();
+        let as_rendered = std::mem::take(&mut self.spare_as_rendered)
+            && spare.as_ref().is_some_and(|f| self.rendered == Some(f.radiance.as_ptr() as usize));
+        (spare, as_rendered)
+    }
+
+    /// Remembers the frame made with the stored colours (see [`HitBuffer::take_spare`]).
+    pub(crate) fn rendered(&mut self, frame: Option<&super::cpu::Frame>) {
+        self.rendered = frame.map(|f| f.radiance.as_ptr() as usize);
     }
 
     /// Whether the stored frame was seen by exactly this camera.
@@ -198,7 +248,8 @@ impl HitBuffer {
                 }
             }
         }
-        Some(Reuse { moved, moved_spheres, moved_instances })
+        let moved_bits = moved_instances.iter().fold(0, |m, &i| m | instance_bit(i as i32));
+        Some(Reuse { moved, moved_spheres, moved_instances, moved_bits })
     }
 
     /// Keeps a frame's colours, its ambient occlusion (GI) and what they were lit by, for
@@ -208,6 +259,27 @@ impl HitBuffer {
         self.shadows = shadows;
         self.radiance.clear();
         self.radiance.extend_from_slice(radiance);
+        self.ao.clear();
+        self.ao.extend_from_slice(ao);
+    }
+
+    /// [`HitBuffer::keep_shading`] for a frame whose kept colours came from this buffer (under
+    /// the same lights and shadow switch): only the pixels shaded afresh (`shaded`, per tile
+    /// as in [`super::primary::Traced::stored`]) are copied.
+    pub fn keep_shading_changed(&mut self, radiance: &[Vec3], ao: &[f32], width: usize, shaded: &[u64]) {
+        let tiles_x = width.div_ceil(TILE as usize);
+        for (t, &mask) in shaded.iter().enumerate() {
+            for k in super::tile_search::each(mask) {
+                let (x, y) = (
+                    (t % tiles_x) * TILE as usize + k % TILE as usize,
+                    (t / tiles_x) * TILE as usize + k / TILE as usize,
+                );
+                let i = y * width + x;
+                if let (Some(dst), Some(src)) = (self.radiance.get_mut(i), radiance.get(i)) {
+                    *dst = *src;
+                }
+            }
+        }
         self.ao.clear();
         self.ao.extend_from_slice(ao);
     }
@@ -231,6 +303,8 @@ impl HitBuffer {
         self.camera = Some(*camera);
         self.pixels = (camera.width * camera.height) as usize;
         self.records.clear();
+        self.tiles.clear();
+        self.rendered = None;
         self.max_level = max_level;
         // Refilled in place: with tens of thousands of instances, fresh vectors every frame
         // cost more in page faults than the copies themselves.
@@ -262,6 +336,14 @@ impl Reuse {
                 a < x1 && c >= x0 && b < y1 && d >= y0
             })
             .collect()
+    }
+
+    /// Whether every pixel of a tile keeps its stored hit ([`Todo::Keep`]) without looking at
+    /// its records: no moved sphere reaches it (`spheres`, [`Reuse::spheres_in`]) and its
+    /// records' mask (`tile`, [`HitBuffer::tiles`]) holds no moved instance.
+    #[inline]
+    pub fn tile_kept(&self, tile: u64, spheres: &[u32]) -> bool {
+        spheres.is_empty() && tile & self.moved_bits == 0
     }
 
     /// What pixel (x, y) with stored record `r` needs this frame. `spheres` lists the moved

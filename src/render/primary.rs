@@ -63,13 +63,14 @@ pub enum Todo {
 /// Traces every pixel of `out` (row-major, `camera.width` wide) as `pending(&tile, x, y,
 /// item)` says ([`Todo`]), and hands a new hit to `store(item, hit)` (the hit with its ray's
 /// unit direction); `tile` is what `tile_setup([x0, y0, x1, y1])` made once for the tile
-/// holding the pixel (pixels x0..x1 × y0..y1). A [`Todo::Moved`] pixel is stored only when a
+/// holding the pixel (pixels x0..x1 × y0..y1), and a tile for which it returns None keeps
+/// every pixel's stored hit without `pending` being asked. A [`Todo::Moved`] pixel is stored only when a
 /// moved instance beats its bound. `rows_done(n)` hears of each band of rows as it finishes.
 /// Returns what was traced and which pixels were stored ([`Traced`]).
 pub fn trace_tiles<T: Send, S>(
     p: &Primary,
     out: &mut [T],
-    tile_setup: impl Fn([u32; 4]) -> S + Sync + Send,
+    tile_setup: impl Fn([u32; 4]) -> Option<S> + Sync + Send,
     pending: impl Fn(&S, u32, u32, &mut T) -> Todo + Sync + Send,
     store: impl Fn(&mut T, Option<(InstanceHit, DVec3)>) + Sync + Send,
     rows_done: impl Fn(usize) + Sync + Send,
@@ -93,7 +94,9 @@ pub fn trace_tiles<T: Send, S>(
         let tile_h = rows.len() / w;
         for x0 in (0..w).step_by(TILE as usize) {
             let x1 = (x0 + TILE as usize).min(w);
-            let setup = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]);
+            let Some(setup) = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]) else {
+                continue;
+            };
             // Pixels to search among all instances, and among the moved ones with their bounds.
             let mut todo = 0u64;
             let mut partial = 0u64;
@@ -227,6 +230,6 @@ pub fn trace_tiles<T: Send, S>(
 /// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
 pub fn nearest_hits(p: &Primary) -> Vec<Option<InstanceHit>> {
     let mut out = vec![None; (p.camera.width * p.camera.height) as usize];
-    trace_tiles(p, &mut out, |_| (), |_, _, _, _| Todo::All, |o, hit| *o = hit.map(|h| h.0), |_| {});
+    trace_tiles(p, &mut out, |_| Some(()), |_, _, _, _| Todo::All, |o, hit| *o = hit.map(|h| h.0), |_| {});
     out
 }
