@@ -2,11 +2,11 @@
 //! (or reuses it from the hit buffer), **shade** lights it with the sun (with a shadow ray),
 //! the sky and MTL emitters (glowing, and as area lights sampled with shadow rays). Rays start at the camera in camera-relative f64 coordinates.
 
-use super::beam::TILE;
+use super::beam::{TileRays, TILE};
 use super::brdf;
 use super::bvh::Bvh;
 use super::emitters::{emitter_light, EmitterTable};
-use super::hitbuffer::{instance_bit, HitBuffer, HitRecord};
+use super::hitbuffer::{HitBuffer, HitRecord, TileSummary};
 use super::instances::{prepare_into, Prepared};
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
@@ -225,6 +225,46 @@ pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, 
     }
     let voxel = scene.parts[p.part].bounds.voxel_size(h.hit.level) as f64 * p.max_stretch;
     HitRecord { t: h.hit.t, instance: h.instance as i32, normal, face_normal, attr: h.hit.attr, voxel: voxel as f32 }
+}
+
+/// A [`TileSummary`] that the rows of a tile, shaded on any thread, add to.
+struct TileAcc {
+    instances: AtomicU64,
+    t_lo: AtomicU32,
+    t_hi: AtomicU32,
+    voxel: AtomicU32,
+}
+
+impl TileAcc {
+    fn new(s: TileSummary) -> TileAcc {
+        TileAcc {
+            instances: AtomicU64::new(s.instances),
+            t_lo: AtomicU32::new(s.t_lo.to_bits()),
+            t_hi: AtomicU32::new(s.t_hi.to_bits()),
+            voxel: AtomicU32::new(s.voxel.to_bits()),
+        }
+    }
+
+    /// Adds a part of the tile. Its values are non-negative (or +∞), whose bits order as
+    /// the numbers do.
+    fn add(&self, s: &TileSummary) {
+        if s.instances == 0 {
+            return;
+        }
+        self.instances.fetch_or(s.instances, Ordering::Relaxed);
+        self.t_lo.fetch_min(s.t_lo.to_bits(), Ordering::Relaxed);
+        self.t_hi.fetch_max(s.t_hi.to_bits(), Ordering::Relaxed);
+        self.voxel.fetch_max(s.voxel.to_bits(), Ordering::Relaxed);
+    }
+
+    fn load(&self) -> TileSummary {
+        TileSummary {
+            instances: self.instances.load(Ordering::Relaxed),
+            t_lo: f32::from_bits(self.t_lo.load(Ordering::Relaxed)),
+            t_hi: f32::from_bits(self.t_hi.load(Ordering::Relaxed)),
+            voxel: f32::from_bits(self.voxel.load(Ordering::Relaxed)),
+        }
+    }
 }
 
 /// One row of a frame's per-pixel buffers.
@@ -457,7 +497,7 @@ pub fn render_lit(
             let spheres = r.spheres_in(rect);
             let t = (rect[1] / TILE) as usize * tiles_x + (rect[0] / TILE) as usize;
             match old_tiles.get(t) {
-                Some(&mask) if r.tile_kept(mask, &spheres) => None,
+                Some(tile) if r.tile_kept(tile, &spheres) => None,
                 _ => Some(spheres),
             }
         }
@@ -565,9 +605,12 @@ pub fn render_lit(
     // answers as one by one); kept hits whose colour turns out not to be kept ask later.
     let sun_rays = match lights.sun {
         Some(sun) if plan.shadows && plan.beams && prepared.len() <= super::beam::MAX_INSTANCES => {
+            // (A kept colour's record is not read: most of the frame's records stay untouched.)
             let needs = |x: usize, y: usize| {
-                let r = &records[y * w + x];
-                r.instance >= 0 && !kept_colour(x, y) && r.normal.dot(sun.to_sun) > 0.0
+                !kept_colour(x, y) && {
+                    let r = &records[y * w + x];
+                    r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0
+                }
             };
             let origin = |x: usize, y: usize| {
                 let r = &records[y * w + x];
@@ -583,10 +626,24 @@ pub fn render_lit(
     // This frame's tile masks, when its records are kept: a tile none of whose records
     // changed keeps last frame's.
     let keeping = plan.keep_hits && !splatting && hits.is_some();
-    let fresh = |t: usize| keeping && (old_tiles.is_empty() || traced.stored[t] != 0);
-    let new_tiles: Vec<AtomicU64> = match keeping {
-        true => (0..tile_count).map(|t| AtomicU64::new(if fresh(t) { 0 } else { old_tiles[t] })).collect(),
+    // Tile t's records are last frame's.
+    let same_records = |t: usize| !old_tiles.is_empty() && traced.stored[t] == 0;
+    let fresh = |t: usize| keeping && !same_records(t);
+    let new_tiles: Vec<TileAcc> = match keeping {
+        true => {
+            (0..tile_count).map(|t| TileAcc::new(if fresh(t) { TileSummary::NONE } else { old_tiles[t] })).collect()
+        }
         false => Vec::new(),
+    };
+    // Per tile whose records were kept: no shadow ray from it can meet a moved sphere, so its
+    // kept records need no test of their own.
+    let shadows_valid: Vec<bool> = match (shade_from, lights.sun) {
+        (Some((reuse, _)), Some(sun)) if plan.shadows => par_map(tile_count, |t| {
+            let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
+            let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
+            same_records(t) && reuse.tile_shadows_valid(&old_tiles[t], &rays, sun.to_sun.as_dvec3())
+        }),
+        _ => Vec::new(),
     };
     // Per tile, the pixels shaded afresh, when the buffer's colours are to be updated there.
     let shaded: Vec<AtomicU64> = match shade_from {
@@ -601,17 +658,19 @@ pub fn render_lit(
         for tx in 0..tiles_x {
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
-            let (mut mask, mut shaded_here) = (0u64, 0u64);
+            let shadows_checked = shadows_valid.get(t) == Some(&true);
+            let (mut summary, mut shaded_here) = (TileSummary::NONE, 0u64);
             for x in tx * TILE as usize..((tx + 1) * TILE as usize).min(w) {
                 let k = y * w + x;
                 if let Some((reuse, prev)) = shade_from {
                     if kept_hit(x, y)
                         && (!plan.shadows
+                            || shadows_checked
                             || reuse.shadow_valid(&records[k], lights, camera, &basis, x as u32, y as u32))
                     {
                         kept += 1;
                         if fresh {
-                            mask |= instance_bit(records[k].instance);
+                            summary = summary.with(&records[k]);
                         }
                         if !patch {
                             row.surface(x, &records[k]);
@@ -621,7 +680,7 @@ pub fn render_lit(
                     }
                 }
                 let r = &records[k];
-                mask |= instance_bit(r.instance);
+                summary = summary.with(r);
                 shaded_here |= 1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize);
                 row.surface(x, r);
                 row.radiance[x] = if r.instance < 0 {
@@ -654,8 +713,8 @@ pub fn render_lit(
                     ambient_term + radiance
                 };
             }
-            if fresh && mask != 0 {
-                new_tiles[t].fetch_or(mask, Ordering::Relaxed);
+            if fresh {
+                new_tiles[t].add(&summary);
             }
             if shaded_here != 0 && shade_from.is_some() {
                 shaded[t].fetch_or(shaded_here, Ordering::Relaxed);
@@ -673,7 +732,7 @@ pub fn render_lit(
         b.splats = splat_cache;
         if plan.keep_hits && !splatting {
             b.store(camera, scene, &prepared, records, opts.max_level);
-            b.tiles = new_tiles.into_iter().map(AtomicU64::into_inner).collect();
+            b.tiles = new_tiles.iter().map(TileAcc::load).collect();
             if colours_from_buffer {
                 // Its colours are this frame's but where pixels were shaded afresh.
                 let shaded: Vec<u64> = shaded.into_iter().map(AtomicU64::into_inner).collect();

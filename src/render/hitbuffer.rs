@@ -94,10 +94,9 @@ pub struct HitBuffer {
     pub splats: super::splat::SplatCache,
     /// The last frame's prepared instances: their memory is refilled by the next frame.
     pub prepared: Vec<Prepared>,
-    /// Per [`TILE`]×[`TILE`] tile of the stored records (row-major), the instances they hit
-    /// as [`instance_bit`]s: a tile whose mask holds no moved instance's bit has no record
-    /// on a moved instance. Empty when not known.
-    pub tiles: Vec<u64>,
+    /// Per [`TILE`]×[`TILE`] tile of the stored records (row-major), what they hit
+    /// ([`TileSummary`]). Empty when not known.
+    pub tiles: Vec<TileSummary>,
     /// Where the pixels of the frame made with the stored colours live (the address of its
     /// radiance buffer; never read through): when that very frame comes back unmodified
     /// ([`HitBuffer::recycle_as_rendered`]), the next frame writes only the pixels that
@@ -107,7 +106,52 @@ pub struct HitBuffer {
     spare_as_rendered: bool,
 }
 
-/// A record's instance as a bit of a [`HitBuffer::tiles`] mask (instance mod 64; none for a
+/// What the records of one tile hit, for decisions about the whole tile.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TileSummary {
+    /// The instances hit, as [`instance_bit`]s: a tile whose mask holds no moved instance's
+    /// bit has no record on a moved instance.
+    pub instances: u64,
+    /// The least t of a hit (+∞ for none).
+    pub t_lo: f32,
+    /// The greatest t of a hit (0 for none).
+    pub t_hi: f32,
+    /// The largest voxel edge of a hit (0 for none): how far its shadow ray starts from it.
+    pub voxel: f32,
+}
+
+impl TileSummary {
+    /// A tile of misses.
+    pub const NONE: TileSummary = TileSummary { instances: 0, t_lo: f32::INFINITY, t_hi: 0.0, voxel: 0.0 };
+
+    /// The summary with one more record.
+    #[inline]
+    pub fn with(self, r: &HitRecord) -> TileSummary {
+        if r.instance < 0 {
+            return self;
+        }
+        // Kept non-negative (+∞ for NaN, which then bounds nothing), so that the values
+        // order as their bits do for atomic min and max.
+        let clean = |v: f32| {
+            if v > 0.0 {
+                v
+            } else if v.is_nan() {
+                f32::INFINITY
+            } else {
+                0.0
+            }
+        };
+        let (t, voxel) = (clean(r.t), clean(r.voxel));
+        TileSummary {
+            instances: self.instances | instance_bit(r.instance),
+            t_lo: self.t_lo.min(t),
+            t_hi: self.t_hi.max(t),
+            voxel: self.voxel.max(voxel),
+        }
+    }
+}
+
+/// A record's instance as a bit of a [`TileSummary::instances`] mask (instance mod 64; none for a
 /// miss).
 #[inline]
 pub fn instance_bit(instance: i32) -> u64 {
@@ -342,8 +386,40 @@ impl Reuse {
     /// its records: no moved sphere reaches it (`spheres`, [`Reuse::spheres_in`]) and its
     /// records' mask (`tile`, [`HitBuffer::tiles`]) holds no moved instance.
     #[inline]
-    pub fn tile_kept(&self, tile: u64, spheres: &[u32]) -> bool {
-        spheres.is_empty() && tile & self.moved_bits == 0
+    pub fn tile_kept(&self, tile: &TileSummary, spheres: &[u32]) -> bool {
+        spheres.is_empty() && tile.instances & self.moved_bits == 0
+    }
+
+    /// Whether every kept record of a tile passes [`Reuse::shadow_valid`] towards `to_sun`
+    /// without being looked at: the tile's hits (`tile`, on the rays `rays` of its pixels)
+    /// and the points their shadow rays start from lie in one ball, and the shadow rays from
+    /// that ball cannot meet any moved sphere. Conservative: margins far above the rounding
+    /// of [`sphere_interval`] keep a sphere that any of those rays could meet.
+    pub fn tile_shadows_valid(&self, tile: &TileSummary, rays: &super::beam::TileRays, to_sun: DVec3) -> bool {
+        if !(tile.t_lo <= tile.t_hi) {
+            return true; // misses only: no shadow rays
+        }
+        let (lo, hi) = (tile.t_lo as f64, tile.t_hi as f64);
+        let axis = rays.corners.iter().copied().sum::<DVec3>().normalize_or_zero();
+        if axis == DVec3::ZERO {
+            return false;
+        }
+        // A pixel's hit is d·t with d inside the corners' spherical quadrilateral (no farther
+        // from the axis than its farthest corner) and t in [lo, hi]; its shadow ray starts at
+        // most 1.1 voxels from there (cpu::leave: a unit normal and a tenth of a unit face
+        // normal).
+        let spread = rays.corners.iter().map(|d| (*d - axis).length()).fold(0.0, f64::max);
+        let mid = axis * (0.5 * (lo + hi));
+        let ball = (hi * spread + 0.5 * (hi - lo) + 1.1 * tile.voxel as f64) * (1.0 + 1e-6) + 1e-9 * hi;
+        self.moved_spheres.iter().all(|&(c, r, _)| {
+            let oc = c - mid;
+            let along = oc.dot(to_sun);
+            let across = (oc - to_sun * along).length();
+            let margin = (r + ball) * 1e-6 + 1e-7 * (oc.length() + ball);
+            // Every shadow ray from the ball passes wide of the sphere, or the sphere lies
+            // wholly behind where each of them starts.
+            across > r + ball + margin || along + r + ball + margin < 0.0
+        })
     }
 
     /// What pixel (x, y) with stored record `r` needs this frame. `spheres` lists the moved
@@ -393,5 +469,78 @@ impl Reuse {
         let from = super::cpu::leave(r, d * r.t as f64);
         let to_sun = sun.to_sun.as_dvec3();
         !self.moved_spheres.iter().any(|&(c, rad, _)| sphere_interval(c, rad, from, to_sun).is_some())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::scene::lights::Sun;
+
+    /// Whenever a tile's shadow rays are taken as valid at once, every kept record of the
+    /// tile passes its own test: random tiles, hits and moved spheres, many of the spheres
+    /// placed to graze the hits' shadow rays.
+    #[test]
+    fn a_tile_passed_whole_passes_pixel_by_pixel() {
+        let mut rng = Rng::new(7);
+        let camera = Camera {
+            eye: DVec3::new(3.0, 2.0, 9.0),
+            target: DVec3::ZERO,
+            up: DVec3::Y,
+            vfov_deg: 50.0,
+            width: 96,
+            height: 64,
+        };
+        let basis = camera.basis();
+        let (mut whole, mut blocked, mut grazing) = (0, 0, 0);
+        for _ in 0..3000 {
+            let to_sun = rng.unit_vector();
+            let lights = Lights { sun: Some(Sun { to_sun, irradiance: Vec3::ONE }), ..Lights::default() };
+            let (x0, y0) = (rng.below(12) as u32 * TILE, rng.below(8) as u32 * TILE);
+            let t_base = rng.range(2.0, 20.0);
+            // Voxels from far below to far above the tile's spread in t and across.
+            let (t_spread, voxel_max) = (rng.range(0.0, 0.1), [0.01, 0.3, 2.0][rng.below(3) as usize]);
+            let records: Vec<(u32, u32, HitRecord)> = (0..TILE * TILE)
+                .map(|k| {
+                    let (x, y) = (x0 + k % TILE, y0 + k / TILE);
+                    let n = rng.unit_vector();
+                    let r = HitRecord {
+                        t: t_base * (1.0 + rng.range(-t_spread, t_spread)),
+                        instance: 0,
+                        // Facing the sun, so every record has a shadow ray.
+                        normal: if n.dot(to_sun) > 0.0 { n } else { -n },
+                        face_normal: rng.unit_vector(),
+                        attr: Attr { albedo: 0, normal: 0, emission: 0 },
+                        voxel: rng.range(0.0, voxel_max),
+                    };
+                    (x, y, r)
+                })
+                .collect();
+            let tile = records.iter().fold(TileSummary::NONE, |s, (_, _, r)| s.with(r));
+            // A sphere near one record's shadow ray, just off it or just across it.
+            let (x, y, r) = records[rng.below(records.len() as u64) as usize];
+            let from = super::super::cpu::leave(&r, camera.ray_dir(&basis, x, y) * r.t as f64);
+            let radius = rng.range(0.01, 1.0) as f64;
+            let side = rng.unit_vector().as_dvec3().cross(to_sun.as_dvec3()).normalize_or_zero();
+            let off = radius * rng.range(0.5, 6.0) as f64;
+            let centre = from + to_sun.as_dvec3() * rng.range(-2.0, 8.0) as f64 + side * off;
+            let reuse = Reuse {
+                moved: vec![false],
+                moved_spheres: vec![(centre, radius, [0, 0, 0, 0])],
+                moved_instances: vec![1],
+                moved_bits: 2,
+            };
+            let rays = super::super::beam::TileRays::new(&camera, &basis, x0, y0, x0 + TILE, y0 + TILE);
+            let each_valid = records.iter().all(|(x, y, r)| reuse.shadow_valid(r, &lights, &camera, &basis, *x, *y));
+            if reuse.tile_shadows_valid(&tile, &rays, to_sun.as_dvec3()) {
+                whole += 1;
+                assert!(each_valid, "a tile passed whole has a record whose shadow ray meets a moved sphere");
+            } else if !each_valid {
+                blocked += 1;
+            }
+            grazing += (off < radius * 1.5) as u32;
+        }
+        assert!(whole > 300 && blocked > 300 && grazing > 100, "{whole} tiles passed whole, {blocked} blocked");
     }
 }
