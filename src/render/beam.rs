@@ -108,6 +108,16 @@ impl Cone {
     }
 }
 
+/// Whether some ray of the tile (from the camera-relative origin) may meet the ball: false
+/// only when the tile's cone, which holds all its rays, passes wide of the ball grown by a
+/// millionth (far above the rounding of a ray's own sphere test).
+pub fn tile_meets_ball(tile: &TileRays, centre: DVec3, radius: f64) -> bool {
+    match Cone::around(DVec3::ZERO, tile.corners) {
+        Some(cone) => cone.meets_ball(centre, radius * (1.0 + 1e-6) + 1e-9 * centre.length()),
+        None => true,
+    }
+}
+
 /// Squared Euclidean distance from `p` to the axis-aligned box `lo..hi` (0 inside).
 fn box_distance2(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length_squared()

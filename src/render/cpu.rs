@@ -494,7 +494,17 @@ pub fn render_lit(
     // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).
     let tile_spheres = |rect: [u32; 4]| match &reuse {
         Some(r) => {
-            let spheres = r.spheres_in(rect);
+            let mut spheres = r.spheres_in(rect);
+            if !spheres.is_empty() {
+                // The rectangles are loose (a box's projection, a pixel wider): the tile's
+                // cone drops the spheres none of its rays can meet.
+                let [x0, y0, x1, y1] = rect;
+                let rays = TileRays::new(camera, &basis, x0, y0, x1, y1);
+                spheres.retain(|&k| {
+                    let (c, radius, _) = r.moved_spheres[k as usize];
+                    super::beam::tile_meets_ball(&rays, c, radius)
+                });
+            }
             let t = (rect[1] / TILE) as usize * tiles_x + (rect[0] / TILE) as usize;
             match old_tiles.get(t) {
                 Some(tile) if r.tile_kept(tile, &spheres) => None,
