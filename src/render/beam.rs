@@ -108,13 +108,22 @@ impl Cone {
     }
 }
 
-/// Whether some ray of the tile (from the camera-relative origin) may meet the ball: false
-/// only when the tile's cone, which holds all its rays, passes wide of the ball grown by a
-/// millionth (far above the rounding of a ray's own sphere test).
-pub fn tile_meets_ball(tile: &TileRays, centre: DVec3, radius: f64) -> bool {
-    match Cone::around(DVec3::ZERO, tile.corners) {
-        Some(cone) => cone.meets_ball(centre, radius * (1.0 + 1e-6) + 1e-9 * centre.length()),
-        None => true,
+/// The cone that holds a tile's rays (from the camera-relative origin), for testing balls.
+pub struct TileCone(Option<Cone>);
+
+impl TileCone {
+    /// The cone of `tile`'s rays.
+    pub fn new(tile: &TileRays) -> TileCone {
+        TileCone(Cone::around(DVec3::ZERO, tile.corners))
+    }
+
+    /// Whether some ray of the tile may meet the ball: false only when the cone passes wide
+    /// of the ball grown by a millionth (far above the rounding of a ray's own sphere test).
+    pub fn meets_ball(&self, centre: DVec3, radius: f64) -> bool {
+        match &self.0 {
+            Some(cone) => cone.meets_ball(centre, radius * (1.0 + 1e-6) + 1e-9 * centre.length()),
+            None => true,
+        }
     }
 }
 

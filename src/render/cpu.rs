@@ -499,10 +499,10 @@ pub fn render_lit(
                 // The rectangles are loose (a box's projection, a pixel wider): the tile's
                 // cone drops the spheres none of its rays can meet.
                 let [x0, y0, x1, y1] = rect;
-                let rays = TileRays::new(camera, &basis, x0, y0, x1, y1);
+                let cone = super::beam::TileCone::new(&TileRays::new(camera, &basis, x0, y0, x1, y1));
                 spheres.retain(|&k| {
                     let (c, radius, _) = r.moved_spheres[k as usize];
-                    super::beam::tile_meets_ball(&rays, c, radius)
+                    cone.meets_ball(c, radius)
                 });
             }
             let t = (rect[1] / TILE) as usize * tiles_x + (rect[0] / TILE) as usize;
@@ -669,8 +669,18 @@ pub fn render_lit(
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
             let shadows_checked = shadows_valid.get(t) == Some(&true);
+            let span = tx * TILE as usize..((tx + 1) * TILE as usize).min(w);
+            if patch
+                && !fresh
+                && (traced.stored[t] >> ((y % TILE as usize) * TILE as usize)) & ((1 << TILE) - 1) == 0
+                && (!plan.shadows || shadows_checked)
+            {
+                // Every pixel of this tile row keeps its colour, which the frame holds.
+                kept += span.len() as u64;
+                continue;
+            }
             let (mut summary, mut shaded_here) = (TileSummary::NONE, 0u64);
-            for x in tx * TILE as usize..((tx + 1) * TILE as usize).min(w) {
+            for x in span {
                 let k = y * w + x;
                 if let Some((reuse, prev)) = shade_from {
                     if kept_hit(x, y)
