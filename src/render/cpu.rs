@@ -534,6 +534,7 @@ pub fn render_lit(
             rays: (w * h) as u64,
             moved_only: 0,
             stored: vec![u64::MAX; tiles],
+            missed: Vec::new(),
         }
     } else {
         trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
@@ -677,6 +678,19 @@ pub fn render_lit(
             {
                 // Every pixel of this tile row keeps its colour, which the frame holds.
                 kept += span.len() as u64;
+                continue;
+            }
+            let row_bits = ((1u64 << span.len()) - 1) << ((y % TILE as usize) * TILE as usize);
+            if traced.missed.get(t).is_some_and(|&m| m & row_bits == row_bits) {
+                // The tile's beam met no instance: these pixels were stored as misses, and
+                // their records need not be read back.
+                for x in span {
+                    row.surface(x, &HitRecord::MISS);
+                    row.radiance[x] = sky;
+                }
+                if shade_from.is_some() {
+                    shaded[t].fetch_or(row_bits, Ordering::Relaxed);
+                }
                 continue;
             }
             let (mut summary, mut shaded_here) = (TileSummary::NONE, 0u64);

@@ -40,6 +40,9 @@ pub struct Traced {
     /// Per tile (row-major, `width.div_ceil(TILE)` tiles to a row), a mask of the pixels
     /// stored: bit `ty·TILE + tx` for the pixel at (tx, ty) in the tile.
     pub stored: Vec<u64>,
+    /// Per tile as `stored`, the pixels stored as misses without a search because their
+    /// tile's beam met no instance (a subset of `stored`; empty without beams).
+    pub missed: Vec<u64>,
 }
 
 /// What a pixel's primary ray needs this frame.
@@ -77,11 +80,12 @@ pub fn trace_tiles<T: Send, S>(
 ) -> Traced {
     let w = p.camera.width as usize;
     let tiles_x = w.div_ceil(TILE as usize);
-    let mut masks = vec![0u64; tiles_x * (p.camera.height as usize).div_ceil(TILE as usize)];
+    // Per tile: the pixels stored, and of those the ones stored as misses by a beam.
+    let mut masks = vec![[0u64; 2]; tiles_x * (p.camera.height as usize).div_ceil(TILE as usize)];
     let basis = p.camera.basis();
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let moved_only = AtomicU64::new(0);
-    let band = |y0: usize, rows: &mut [T], masks: &mut [u64]| {
+    let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| {
         let mut work = Work::default();
         let mut band_rays = 0u64;
         let mut band_moved = 0u64;
@@ -117,7 +121,7 @@ pub fn trace_tiles<T: Send, S>(
             if todo | partial == 0 {
                 continue;
             }
-            masks[x0 / TILE as usize] = todo;
+            masks[x0 / TILE as usize][0] = todo;
             band_rays += (todo | partial).count_ones() as u64;
             band_moved += partial.count_ones() as u64;
             let fi = if p.beams {
@@ -134,6 +138,7 @@ pub fn trace_tiles<T: Send, S>(
                     // The tile's cone meets no instance's voxels: every pending ray misses (and
                     // no moved instance beats a bound).
                     work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
+                    masks[x0 / TILE as usize][1] = todo;
                     while todo != 0 {
                         let k = todo.trailing_zeros() as usize;
                         todo &= todo - 1;
@@ -179,7 +184,7 @@ pub fn trace_tiles<T: Send, S>(
                     for k in each(partial) {
                         if let Some(hit) = hits[k] {
                             store(&mut rows[at(k)], Some((hit, dirs[k])));
-                            masks[x0 / TILE as usize] |= 1 << k;
+                            masks[x0 / TILE as usize][0] |= 1 << k;
                         }
                     }
                 }
@@ -195,7 +200,7 @@ pub fn trace_tiles<T: Send, S>(
                 let (t, instance) = bounds[k];
                 if let Some(hit) = nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work) {
                     store(&mut rows[at(k)], Some((hit, d)));
-                    masks[x0 / TILE as usize] |= 1 << k;
+                    masks[x0 / TILE as usize][0] |= 1 << k;
                 }
             }
         }
@@ -223,7 +228,8 @@ pub fn trace_tiles<T: Send, S>(
         work: Work { traced: traced.into_inner(), culled: culled.into_inner() },
         rays: rays.into_inner(),
         moved_only: moved_only.into_inner(),
-        stored: masks,
+        stored: masks.iter().map(|m| m[0]).collect(),
+        missed: if p.beams { masks.iter().map(|m| m[1]).collect() } else { Vec::new() },
     }
 }
 
