@@ -6,7 +6,7 @@ use super::beam::{TileRays, TILE};
 use super::brdf;
 use super::bvh::Bvh;
 use super::emitters::{emitter_light, EmitterTable};
-use super::hitbuffer::{HitBuffer, HitRecord, TileSummary};
+use super::hitbuffer::{HitBuffer, HitRecord, Rendered, TileSummary};
 use super::instances::{prepare_into, Prepared};
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
@@ -481,7 +481,7 @@ pub fn render_lit(
     // a moved instance, and that no moved sphere reaches, keeps them without their being read.
     let old_tiles = hits.as_deref_mut().map(|h| std::mem::take(&mut h.tiles)).unwrap_or_default();
     let old_tiles = if reuse.is_some() && old_tiles.len() == tile_count { old_tiles } else { Vec::new() };
-    let (spare, as_rendered) = hits.as_deref_mut().map(|b| b.take_spare()).unwrap_or((None, false));
+    let (spare, as_rendered) = hits.as_deref_mut().map(|b| b.take_spare()).unwrap_or((None, None));
     let spare_at = spare.as_ref().map(|f| f.radiance.as_ptr() as usize);
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
     let done = AtomicU32::new(0);
@@ -633,7 +633,14 @@ pub fn render_lit(
     };
     // A frame that is the stored colours' own frame, back unchanged, already holds every
     // kept pixel's colour and surface data: only the other pixels are written.
-    let patch = as_rendered && shade_from.is_some() && spare_at == Some(f.radiance.as_ptr() as usize);
+    let same_buffers = as_rendered.is_some() && spare_at == Some(f.radiance.as_ptr() as usize);
+    let patch = same_buffers && shade_from.is_some();
+    // Per tile, the pixels that the frame being refilled showed as the same misses (the same
+    // sky) that this frame's beams store: those need no writing either.
+    let missed_before: &[u64] = match &as_rendered {
+        Some(r) if same_buffers && r.width == camera.width && r.height == camera.height && r.sky == sky => &r.missed,
+        _ => &[],
+    };
     // This frame's tile masks, when its records are kept: a tile none of whose records
     // changed keeps last frame's.
     let keeping = plan.keep_hits && !splatting && hits.is_some();
@@ -684,9 +691,11 @@ pub fn render_lit(
             if traced.missed.get(t).is_some_and(|&m| m & row_bits == row_bits) {
                 // The tile's beam met no instance: these pixels were stored as misses, and
                 // their records need not be read back.
-                for x in span {
-                    row.surface(x, &HitRecord::MISS);
-                    row.radiance[x] = sky;
+                if missed_before.get(t).is_none_or(|&m| m & row_bits != row_bits) {
+                    for x in span {
+                        row.surface(x, &HitRecord::MISS);
+                        row.radiance[x] = sky;
+                    }
                 }
                 if shade_from.is_some() {
                     shaded[t].fetch_or(row_bits, Ordering::Relaxed);
@@ -775,15 +784,14 @@ pub fn render_lit(
                 b.keep_shading(lights, plan.shadows, &f.radiance, &f.ao);
             }
             b.lit_by_gi = ambient.is_some();
-            b.rendered(Some(&f));
         } else {
             // Nothing to keep: a later frame with the buffer switched on starts afresh. The
             // records' memory stays for the next frame to overwrite (every pixel is written
             // when nothing is reused), which spares the page faults of fresh memory.
             b.camera = None;
             b.records = records;
-            b.rendered(None);
         }
+        b.rendered(Some(Rendered::of(&f, sky, traced.missed)));
         b.bvh = bvh;
         b.prepared = prepared;
     }

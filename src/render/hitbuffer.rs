@@ -97,13 +97,35 @@ pub struct HitBuffer {
     /// Per [`TILE`]×[`TILE`] tile of the stored records (row-major), what they hit
     /// ([`TileSummary`]). Empty when not known.
     pub tiles: Vec<TileSummary>,
-    /// Where the pixels of the frame made with the stored colours live (the address of its
-    /// radiance buffer; never read through): when that very frame comes back unmodified
+    /// The last frame rendered with this buffer: when that very frame comes back unmodified
     /// ([`HitBuffer::recycle_as_rendered`]), the next frame writes only the pixels that
     /// changed.
-    rendered: Option<usize>,
+    rendered: Option<Rendered>,
     /// The spare frame came back as it was rendered.
     spare_as_rendered: bool,
+}
+
+/// What a frame handed back as rendered still holds ([`HitBuffer::take_spare`]).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Rendered {
+    /// The address of its radiance buffer (never read through): which frame it is.
+    at: usize,
+    /// Its size.
+    pub width: u32,
+    /// Its size.
+    pub height: u32,
+    /// The sky colour its misses show.
+    pub sky: Vec3,
+    /// Per tile, the pixels it wrote as misses without reading their records
+    /// ([`super::primary::Traced::missed`]).
+    pub missed: Vec<u64>,
+}
+
+impl Rendered {
+    /// What `frame` holds, `sky` in its misses and `missed` as its tiles' beam misses.
+    pub(crate) fn of(frame: &super::cpu::Frame, sky: Vec3, missed: Vec<u64>) -> Rendered {
+        Rendered { at: frame.radiance.as_ptr() as usize, width: frame.width, height: frame.height, sky, missed }
+    }
 }
 
 /// What the records of one tile hit, for decisions about the whole tile.
@@ -255,17 +277,19 @@ impl HitBuffer {
         self.spare_as_rendered = true;
     }
 
-    /// Takes the spare frame, and whether it holds the stored frame's pixels unchanged.
-    pub(crate) fn take_spare(&mut self) -> (Option<super::cpu::Frame>, bool) {
+    /// Takes the spare frame and, when it is the last frame rendered, unchanged, what it
+    /// holds. (With kept colours, that frame is the one they were stored from.)
+    pub(crate) fn take_spare(&mut self) -> (Option<super::cpu::Frame>, Option<Rendered>) {
         let spare = self.spare.take();
+        let rendered = self.rendered.take();
         let as_rendered = std::mem::take(&mut self.spare_as_rendered)
-            && spare.as_ref().is_some_and(|f| self.rendered == Some(f.radiance.as_ptr() as usize));
-        (spare, as_rendered)
+            && spare.as_ref().zip(rendered.as_ref()).is_some_and(|(f, r)| r.at == f.radiance.as_ptr() as usize);
+        (spare, rendered.filter(|_| as_rendered))
     }
 
-    /// Remembers the frame made with the stored colours (see [`HitBuffer::take_spare`]).
-    pub(crate) fn rendered(&mut self, frame: Option<&super::cpu::Frame>) {
-        self.rendered = frame.map(|f| f.radiance.as_ptr() as usize);
+    /// Remembers the last frame rendered (see [`HitBuffer::take_spare`]).
+    pub(crate) fn rendered(&mut self, frame: Option<Rendered>) {
+        self.rendered = frame;
     }
 
     /// Whether the stored frame was seen by exactly this camera.
