@@ -95,6 +95,7 @@ fn car_primary_rays(c: &mut Criterion) {
                 opts: Default::default(),
                 beams,
                 moved: &[],
+                missed_before: &[],
             };
             let name = format!("{}_{threads}_threads", if beams { "beams_packets" } else { "no_beams_one_by_one" });
             g.bench_function(name, |b| {

@@ -10,12 +10,14 @@
 
 use std::sync::Arc;
 use std::time::Instant;
+use voxray::backend::Backend;
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::render::instances::prepare;
 use voxray::render::primary::{trace_tiles, Primary, Todo};
 use voxray::render::visibility::{FrameInstances, Search};
-use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+use voxray::render::{Features, RenderOptions};
 use voxray::scene::{Camera, Instance, Scene, Transform};
+use voxray::session::Session;
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 
 fn main() -> Result<(), voxray::Error> {
@@ -50,17 +52,14 @@ fn main() -> Result<(), voxray::Error> {
             // buffer), as the peers' whole-frame row renders them.
             let lights = voxray::scene::Lights::default();
             let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
-            // Finished frames go back to the buffer, as a session recycles them.
-            let mut kept = HitBuffer::new();
+            // Through a session, as the harness renders it: each frame refills the last one.
+            let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
             let mut best = f64::INFINITY;
             for _ in 0..reps {
                 let start = Instant::now();
-                let plan = FramePlan::new(&scene, &camera, &lights, &features, None);
-                let frame =
-                    render(&scene, &camera, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {})
-                        .map_err(voxray::Error::from)?;
+                session.frame(&scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
                 best = best.min(start.elapsed().as_secs_f64());
-                kept.recycle(std::hint::black_box(frame));
+                std::hint::black_box(session.last_frame());
             }
             let n = (camera.width * camera.height) as f64;
             println!("{name:9} whole frame: {:7.1} ms, {:6.2} Mrays/s", best * 1e3, n / best / 1e6);
@@ -78,6 +77,7 @@ fn main() -> Result<(), voxray::Error> {
                 opts: Default::default(),
                 beams,
                 moved: &[],
+                missed_before: &[],
             };
             let mut t_hit = vec![f32::INFINITY; (camera.width * camera.height) as usize];
             let mut best = f64::INFINITY;

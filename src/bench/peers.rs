@@ -136,6 +136,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 opts: Default::default(),
                 beams: true,
                 moved: &[],
+                missed_before: &[],
             };
             let mut t_hit = vec![f32::INFINITY; (view.camera.width * view.camera.height) as usize];
             let mut run = || {

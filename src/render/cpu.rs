@@ -470,11 +470,12 @@ pub fn render_lit(
         .and_then(|b| b.reuse(camera, scene, &prepared, opts.max_level));
     // Last frame's records are updated in place: a kept pixel is not touched at all, and no
     // fresh pages are faulted in every frame. With reuse on, they are this camera's size.
-    let mut records = hits.as_deref_mut().map(|h| std::mem::take(&mut h.records)).unwrap_or_default();
-    if records.len() != w * h {
-        records.clear();
-        records.resize(w * h, HitRecord::MISS);
-    }
+    // Of those, per tile, the misses that last frame's beams stored: a beam miss there is
+    // already in place.
+    let (mut records, records_missed) = match hits.as_deref_mut() {
+        Some(b) => b.take_records(camera.width, camera.height),
+        None => (vec![HitRecord::MISS; w * h], Vec::new()),
+    };
     let tiles_x = w.div_ceil(TILE as usize);
     let tile_count = tiles_x * h.div_ceil(TILE as usize);
     // Last frame's per-tile instance masks (with reuse): a tile none of whose records is on
@@ -490,7 +491,15 @@ pub fn render_lit(
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are decided first, so a tile that reuses all traces nothing.
     let moved = reuse.as_ref().map_or(&[][..], |r| r.moved_search());
-    let primary = Primary { instances: fi, camera, search, opts: trace_opts, beams: plan.beams, moved };
+    let primary = Primary {
+        instances: fi,
+        camera,
+        search,
+        opts: trace_opts,
+        beams: plan.beams,
+        moved,
+        missed_before: &records_missed,
+    };
     // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).
     let tile_spheres = |rect: [u32; 4]| match &reuse {
         Some(r) => {
@@ -791,6 +800,7 @@ pub fn render_lit(
             b.camera = None;
             b.records = records;
         }
+        b.records_missed(traced.missed.clone(), camera.width, camera.height);
         b.rendered(Some(Rendered::of(&f, sky, traced.missed)));
         b.bvh = bvh;
         b.prepared = prepared;

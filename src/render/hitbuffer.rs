@@ -103,6 +103,9 @@ pub struct HitBuffer {
     rendered: Option<Rendered>,
     /// The spare frame came back as it was rendered.
     spare_as_rendered: bool,
+    /// Per tile of `records`, the records that the last frame's beams stored as misses, and
+    /// the frame's size (see [`HitBuffer::take_records`]).
+    records_missed: (Vec<u64>, u32, u32),
 }
 
 /// What a frame handed back as rendered still holds ([`HitBuffer::take_spare`]).
@@ -287,6 +290,26 @@ impl HitBuffer {
         (spare, rendered.filter(|_| as_rendered))
     }
 
+    /// Takes the records for a `width` × `height` frame to update in place (MISS records when
+    /// they are not that size), with per tile the ones known to be misses stored by the last
+    /// frame's beams (empty when not known).
+    pub(crate) fn take_records(&mut self, width: u32, height: u32) -> (Vec<HitRecord>, Vec<u64>) {
+        let mut records = std::mem::take(&mut self.records);
+        let (missed, w, h) = std::mem::take(&mut self.records_missed);
+        let n = width as usize * height as usize;
+        if records.len() != n {
+            records.clear();
+            records.resize(n, HitRecord::MISS);
+        }
+        (records, if (w, h) == (width, height) { missed } else { Vec::new() })
+    }
+
+    /// Notes which of the records the frame's beams stored as misses (per tile, for a
+    /// `width` × `height` frame), after the records are put back.
+    pub(crate) fn records_missed(&mut self, missed: Vec<u64>, width: u32, height: u32) {
+        self.records_missed = (missed, width, height);
+    }
+
     /// Remembers the last frame rendered (see [`HitBuffer::take_spare`]).
     pub(crate) fn rendered(&mut self, frame: Option<Rendered>) {
         self.rendered = frame;
@@ -371,6 +394,7 @@ impl HitBuffer {
         self.camera = Some(*camera);
         self.pixels = (camera.width * camera.height) as usize;
         self.records.clear();
+        self.records_missed = Default::default();
         self.tiles.clear();
         self.rendered = None;
         self.max_level = max_level;

@@ -26,6 +26,9 @@ pub struct Primary<'a> {
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
     pub moved: &'a [u32],
+    /// Per tile (as [`Traced::stored`]), the pixels whose item already holds a miss (the
+    /// last frame's beams stored one there): a beam miss is not stored again.
+    pub missed_before: &'a [u64],
 }
 
 /// What [`trace_tiles`] did.
@@ -139,6 +142,8 @@ pub fn trace_tiles<T: Send, S>(
                     // no moved instance beats a bound).
                     work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
                     masks[x0 / TILE as usize][1] = todo;
+                    todo &=
+                        !p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
                     while todo != 0 {
                         let k = todo.trailing_zeros() as usize;
                         todo &= todo - 1;
