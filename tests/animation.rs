@@ -471,18 +471,24 @@ fn the_refitted_bvh_gives_the_plain_answers() {
     assert!(hits.bvh_builds <= 2);
 }
 
-/// A driving car's shadow sweeps over the ground, which does not move: those ground pixels
-/// keep their hits but must not keep their colours. Kept colours equal recomputed ones.
-#[test]
-fn kept_colours_follow_moving_shadows() {
+/// Two cars driving over a ground lit by a low sun, and a camera framing their clip (96×64).
+fn two_cars_on_ground_under_sun() -> (voxray::scene::Staged, Lights, Camera) {
     use voxray::scene::lights::Sun;
-    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
+    let st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
     let lights = Lights {
         sun: Some(Sun { to_sun: glam::Vec3::new(0.6, 0.5, 0.3).normalize(), irradiance: glam::Vec3::splat(3.0) }),
         ..Lights::default()
     };
     let (lo, hi) = st.bounds;
     let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
+    (st, lights, cam)
+}
+
+/// A driving car's shadow sweeps over the ground, which does not move: those ground pixels
+/// keep their hits but must not keep their colours. Kept colours equal recomputed ones.
+#[test]
+fn kept_colours_follow_moving_shadows() {
+    let (mut st, lights, cam) = two_cars_on_ground_under_sun();
     let mut hits = HitBuffer::new();
     let mut kept_on_ground = 0;
     for f in 0..8 {
@@ -559,15 +565,8 @@ fn assert_same_pixels(a: &Frame, b: &Frame, what: &str) {
 #[test]
 fn session_frames_written_only_where_pixels_changed_match_fresh_frames() {
     use voxray::backend::Backend;
-    use voxray::scene::lights::Sun;
     use voxray::session::Session;
-    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
-    let lights = Lights {
-        sun: Some(Sun { to_sun: glam::Vec3::new(0.6, 0.5, 0.3).normalize(), irradiance: glam::Vec3::splat(3.0) }),
-        ..Lights::default()
-    };
-    let (lo, hi) = st.bounds;
-    let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
+    let (mut st, lights, cam) = two_cars_on_ground_under_sun();
     for shadows in [false, true] {
         let features = Features { shadows, ..Features::default() };
         let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());

@@ -645,9 +645,10 @@ pub fn render_lit(
     let same_buffers = as_rendered.is_some() && spare_at == Some(f.radiance.as_ptr() as usize);
     let patch = same_buffers && shade_from.is_some();
     // Per tile, the pixels that the frame being refilled showed as the same misses (the same
-    // sky) that this frame's beams store: those need no writing either.
-    let missed_before: &[u64] = match &as_rendered {
-        Some(r) if same_buffers && r.width == camera.width && r.height == camera.height && r.sky == sky => &r.missed,
+    // sky) that this frame's beams store: those need no writing either. (That frame's beam
+    // misses are the records'.)
+    let shown_missed: &[u64] = match &as_rendered {
+        Some(r) if same_buffers && r.sky == sky => &records_missed,
         _ => &[],
     };
     // This frame's tile masks, when its records are kept: a tile none of whose records
@@ -666,9 +667,11 @@ pub fn render_lit(
     // kept records need no test of their own.
     let shadows_valid: Vec<bool> = match (shade_from, lights.sun) {
         (Some((reuse, _)), Some(sun)) if plan.shadows => par_map(tile_count, |t| {
-            let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
-            let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
-            same_records(t) && reuse.tile_shadows_valid(&old_tiles[t], &rays, sun.to_sun.as_dvec3())
+            same_records(t) && {
+                let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
+                let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
+                reuse.tile_shadows_valid(&old_tiles[t], &rays, sun.to_sun.as_dvec3())
+            }
         }),
         _ => Vec::new(),
     };
@@ -681,7 +684,8 @@ pub fn render_lit(
     // records: one read of them instead of two.
     for_frame_rows(&mut f, |y, mut row| {
         let mut kept = 0;
-        let ty = y / TILE as usize;
+        // This row's bits in a tile's pixel masks.
+        let (ty, row_shift) = (y / TILE as usize, (y % TILE as usize) * TILE as usize);
         for tx in 0..tiles_x {
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
@@ -689,18 +693,18 @@ pub fn render_lit(
             let span = tx * TILE as usize..((tx + 1) * TILE as usize).min(w);
             if patch
                 && !fresh
-                && (traced.stored[t] >> ((y % TILE as usize) * TILE as usize)) & ((1 << TILE) - 1) == 0
+                && (traced.stored[t] >> row_shift) & ((1 << TILE) - 1) == 0
                 && (!plan.shadows || shadows_checked)
             {
                 // Every pixel of this tile row keeps its colour, which the frame holds.
                 kept += span.len() as u64;
                 continue;
             }
-            let row_bits = ((1u64 << span.len()) - 1) << ((y % TILE as usize) * TILE as usize);
+            let row_bits = ((1u64 << span.len()) - 1) << row_shift;
             if traced.missed.get(t).is_some_and(|&m| m & row_bits == row_bits) {
                 // The tile's beam met no instance: these pixels were stored as misses, and
                 // their records need not be read back.
-                if missed_before.get(t).is_none_or(|&m| m & row_bits != row_bits) {
+                if shown_missed.get(t).is_none_or(|&m| m & row_bits != row_bits) {
                     for x in span {
                         row.surface(x, &HitRecord::MISS);
                         row.radiance[x] = sky;
@@ -733,7 +737,7 @@ pub fn render_lit(
                 }
                 let r = &records[k];
                 summary = summary.with(r);
-                shaded_here |= 1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize);
+                shaded_here |= 1 << (row_shift + x % TILE as usize);
                 row.surface(x, r);
                 row.radiance[x] = if r.instance < 0 {
                     sky
@@ -800,8 +804,8 @@ pub fn render_lit(
             b.camera = None;
             b.records = records;
         }
-        b.records_missed(traced.missed.clone(), camera.width, camera.height);
-        b.rendered(Some(Rendered::of(&f, sky, traced.missed)));
+        b.records_missed(traced.missed, camera.width, camera.height);
+        b.rendered(Some(Rendered::of(&f, sky)));
         b.bvh = bvh;
         b.prepared = prepared;
     }

@@ -108,26 +108,20 @@ pub struct HitBuffer {
     records_missed: (Vec<u64>, u32, u32),
 }
 
-/// What a frame handed back as rendered still holds ([`HitBuffer::take_spare`]).
-#[derive(Clone, Debug, Default)]
+/// The last frame rendered with a buffer ([`HitBuffer::take_spare`]). Its beam misses are
+/// the records' ([`HitBuffer::take_records`]): both come from the same frame.
+#[derive(Clone, Debug)]
 pub(crate) struct Rendered {
     /// The address of its radiance buffer (never read through): which frame it is.
     at: usize,
-    /// Its size.
-    pub width: u32,
-    /// Its size.
-    pub height: u32,
     /// The sky colour its misses show.
     pub sky: Vec3,
-    /// Per tile, the pixels it wrote as misses without reading their records
-    /// ([`super::primary::Traced::missed`]).
-    pub missed: Vec<u64>,
 }
 
 impl Rendered {
-    /// What `frame` holds, `sky` in its misses and `missed` as its tiles' beam misses.
-    pub(crate) fn of(frame: &super::cpu::Frame, sky: Vec3, missed: Vec<u64>) -> Rendered {
-        Rendered { at: frame.radiance.as_ptr() as usize, width: frame.width, height: frame.height, sky, missed }
+    /// `frame`, whose misses show `sky`.
+    pub(crate) fn of(frame: &super::cpu::Frame, sky: Vec3) -> Rendered {
+        Rendered { at: frame.radiance.as_ptr() as usize, sky }
     }
 }
 
