@@ -30,6 +30,28 @@ const QUADS: usize = LANES / 4;
 /// Crossed children with at most this many of the packet's rays are walked ray by ray.
 const SOLO: u32 = 1;
 
+/// `MIRRORED[m][mask]`: the child mask `mask` renumbered for mirror bits `m` (bit c set when
+/// octant `c ^ m` is set), so a node's children are visited front to back in numeric order.
+const MIRRORED: [[u8; 256]; 8] = {
+    let mut t = [[0u8; 256]; 8];
+    let mut m = 0;
+    while m < 8 {
+        let mut mask = 0;
+        while mask < 256 {
+            let mut c = 0;
+            while c < 8 {
+                if mask & (1 << (c ^ m)) != 0 {
+                    t[m][mask] |= 1 << c;
+                }
+                c += 1;
+            }
+            mask += 1;
+        }
+        m += 1;
+    }
+    t
+};
+
 /// Per axis, four rays' values for each quad of the packet.
 type Axes = [[f32x4; QUADS]; 3];
 
@@ -127,32 +149,23 @@ impl Pass<'_> {
     /// Visits the children of `node` (level `level`, mirrored coordinates `coord`) for the rays
     /// `lanes`, whose t-values for the node are `frames[level]`.
     fn visit(&mut self, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
-        let mask = self.svo.masks[node] as u32;
-        for c in 0..8u32 {
-            let octant = c ^ self.mirror;
-            if mask & (1 << octant) == 0 {
-                continue;
-            }
+        // Occupied children in mirrored numbering (bit c: octant c ^ mirror holds geometry).
+        let occupied = MIRRORED[self.mirror as usize][self.svo.masks[node] as usize] as u32;
+        let crossed = self.crossed(level, lanes, occupied);
+        let mut todo = occupied;
+        while todo != 0 {
+            let c = todo.trailing_zeros();
+            todo &= todo - 1;
             let lanes = lanes & self.active;
             if lanes == 0 {
                 return;
             }
-            let (up_x, up_y, up_z) = (c & 1 != 0, c & 2 != 0, c & 4 != 0);
-            let f = &self.frames[level];
-            let mut crossed = 0u64;
-            let mut quads = quads_of(lanes);
-            while quads != 0 {
-                let q = next_quad(&mut quads);
-                let ((x0, x1), (y0, y1), (z0, z1)) = (f.child(0, up_x, q), f.child(1, up_y, q), f.child(2, up_z, q));
-                let te = x0.fast_max(y0).fast_max(z0);
-                let tx = x1.fast_min(y1).fast_min(z1);
-                let ok = te.fast_max(self.t_min[q]).simd_le(tx) & te.simd_le(self.t_max[q]);
-                crossed |= (ok.to_bitmask() as u64) << (4 * q);
-            }
-            crossed &= lanes;
+            let crossed = crossed[c as usize] & lanes;
             if crossed == 0 {
                 continue;
             }
+            let octant = c ^ self.mirror;
+            let (up_x, up_y, up_z) = (c & 1 != 0, c & 2 != 0, c & 4 != 0);
             let child_level = level as u32 + 1;
             let cc = [2 * coord[0] + up_x as u32, 2 * coord[1] + up_y as u32, 2 * coord[2] + up_z as u32];
             if child_level >= self.max_level {
@@ -178,6 +191,43 @@ impl Pass<'_> {
             }
             self.visit(level + 1, self.svo.child_node(node, octant), cc, crossed);
         }
+    }
+
+    /// Per child c (mirrored numbering) of the node whose t-values are `frames[level]`, the rays
+    /// of `lanes` that cross it: the closed interval `[max(entry, t_min), exit]` is not empty
+    /// and `entry ≤ t_max`. Only the children of `occupied` are filled in.
+    ///
+    /// All children at once, sharing the work: a child's entry is the largest of its three
+    /// axes' entry planes, so the x-and-y maxima are formed once for the four (x, y) halves
+    /// and `t_min` is folded into the two z entries; exits likewise with `t_max`. The values
+    /// compared are the same maxima and minima as child by child (max and min are exact), and
+    /// `max(entry, t_min) ≤ min(exit, t_max)` is `max(entry, t_min) ≤ exit` and
+    /// `entry ≤ t_max` because every live ray has `t_min ≤ t_max`.
+    #[inline(always)]
+    fn crossed(&self, level: usize, lanes: u64, occupied: u32) -> [u64; 8] {
+        let f = &self.frames[level];
+        let mut crossed = [0u64; 8];
+        let mut quads = quads_of(lanes);
+        while quads != 0 {
+            let q = next_quad(&mut quads);
+            let (x0, xm, x1) = (f.t0[0][q], f.tm[0][q], f.t1[0][q]);
+            let (y0, ym, y1) = (f.t0[1][q], f.tm[1][q], f.t1[1][q]);
+            let (z0, zm, z1) = (f.t0[2][q], f.tm[2][q], f.t1[2][q]);
+            let (t_min, t_max) = (self.t_min[q], self.t_max[q]);
+            let entry_xy = [x0.fast_max(y0), xm.fast_max(y0), x0.fast_max(ym), xm.fast_max(ym)];
+            let exit_xy = [xm.fast_min(ym), x1.fast_min(ym), xm.fast_min(y1), x1.fast_min(y1)];
+            let entry_z = [z0.fast_max(t_min), zm.fast_max(t_min)];
+            let exit_z = [zm.fast_min(t_max), z1.fast_min(t_max)];
+            for (c, out) in crossed.iter_mut().enumerate() {
+                if occupied & (1 << c) == 0 {
+                    continue;
+                }
+                let te = entry_xy[c & 3].fast_max(entry_z[c >> 2]);
+                let tx = exit_xy[c & 3].fast_min(exit_z[c >> 2]);
+                *out |= (te.simd_le(tx).to_bitmask() as u64) << (4 * q);
+            }
+        }
+        crossed
     }
 
     /// Walks each ray of `lanes` alone below child `c` of `node` (mirrored coordinates `cc`),
