@@ -140,6 +140,20 @@ fn next_quad(quads: &mut u64) -> usize {
     q
 }
 
+/// Asks the cache for the line at `p` without waiting for it (no-op off x86-64): the walk
+/// goes on while a hit's attributes load.
+#[inline(always)]
+fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: SSE is part of x86-64's baseline, and a prefetch reads nothing and cannot fault,
+    // whatever the address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p.cast())
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
 #[inline(always)]
 fn lane(v: f32x4, k: usize) -> f32 {
     v.to_array()[k]
@@ -264,6 +278,7 @@ impl Pass<'_> {
     fn defer_attr(&mut self, k: usize, at: u32) {
         self.pending |= 1 << k;
         self.attr_at[k] = at;
+        prefetch(self.svo.attrs.as_ptr().wrapping_add(at as usize));
     }
 
     /// Reports child `c` of `node` as the hit of the rays `lanes`.
