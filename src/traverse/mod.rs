@@ -402,13 +402,6 @@ fn walk<const PAR: bool>(
     }
 }
 
-/// Walks the chain of a ray without parallel axes below `start` (see [`walk`]).
-pub(crate) fn walk_below(svo: &Svo, ray: &UnitRay, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
-    let planes = Planes { origin: Vec3A::from(ray.origin), inv_dir: Vec3A::from(ray.inv_dir), parallel: 0 };
-    let mut steps = 0;
-    walk::<false>(svo, ray, &planes, start, t_min, t_max, max_level, &mut steps)
-}
-
 /// Converts a mirrored-space hit back to object space. `te` is the voxel's entry t from the
 /// traversal's f32 arithmetic (it decides whether the ray started inside); the reported t is
 /// recomputed in f64 from the unrounded ray and the voxel's own entry planes, so neither the
