@@ -15,7 +15,8 @@ use super::bvh_wide::{WideRay, WideStack};
 use super::instances::{sphere_interval, Prepared};
 use crate::ray::UnitRay;
 use crate::svo::Svo;
-use crate::traverse::{trace_unit, Hit, TraceOptions};
+use crate::traverse::packet::trace_single;
+use crate::traverse::{Hit, TraceOptions};
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -74,7 +75,7 @@ fn trace_one(fi: &FrameInstances, i: usize, o: DVec3, d: DVec3, opts: &TraceOpti
 fn trace_unit_at(fi: &FrameInstances, i: usize, o: DVec3, d: DVec3, opts: &TraceOptions) -> Option<Hit> {
     let p = &fi.prepared[i];
     let ur = UnitRay::from_unit(p.to_unit.point(o), p.to_unit.vector(d))?;
-    trace_unit(&fi.parts[p.part], &ur, opts).hit
+    trace_single(&fi.parts[p.part], &ur, opts)
 }
 
 /// Whether the ray's tile beam rules instance `i` out (see [`FrameInstances::starts`]).
