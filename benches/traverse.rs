@@ -7,17 +7,24 @@
 //! - `car_1280x768_trace_only`: the car merged into one SVO, nearest hits only through
 //!   `render::primary` (8×8 tiles), with beams (each tile then goes through the octree as one
 //!   packet, `traverse::packet`) and without (one ray at a time, from the eye).
+//! - `car_single_rays`: the same camera's rays through the merged car one at a time on one
+//!   thread, every fourth pixel per axis: `traverse::trace_unit` (Revelles' loop) against
+//!   `traverse::packet::trace_single` (the packet-of-one walk that shadow rays and the per-ray
+//!   search take; the same answers).
 //!
 //! `cargo bench --bench traverse`
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::sync::Arc;
 use voxray::pipeline::{build_part, shared_resolution};
+use voxray::ray::{Ray, UnitRay};
 use voxray::render::instances::prepare;
 use voxray::render::primary::{trace_tiles, Primary, Todo};
 use voxray::render::visibility::{FrameInstances, Search};
 use voxray::render::{render, Features, FramePlan, RenderOptions};
 use voxray::scene::{lights::Ambient, Camera, Instance, Lights, Scene, Transform};
+use voxray::traverse::packet::trace_single;
+use voxray::traverse::{trace_unit, TraceOptions};
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 
 fn car_primary_rays(c: &mut Criterion) {
@@ -114,6 +121,28 @@ fn car_primary_rays(c: &mut Criterion) {
             });
         }
     }
+    g.finish();
+
+    // One ray at a time: every fourth pixel per axis, in object space (the car's own frame).
+    let svo = &single.parts[0];
+    let basis = camera.basis();
+    let rays: Vec<UnitRay> = (0..768 / 4)
+        .flat_map(|y| (0..1280 / 4).map(move |x| (4 * x, 4 * y)))
+        .filter_map(|(x, y)| {
+            let ray = Ray::new(camera.eye.as_vec3(), camera.ray_dir(&basis, x, y).as_vec3());
+            UnitRay::from_object(&svo.bounds, &ray)
+        })
+        .collect();
+    let opts = TraceOptions::default();
+    let mut g = c.benchmark_group("car_single_rays");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    g.sample_size(10);
+    g.bench_function("trace_unit", |b| {
+        b.iter(|| rays.iter().filter(|r| trace_unit(svo, r, &opts).hit.is_some()).count())
+    });
+    g.bench_function("trace_single", |b| {
+        b.iter(|| rays.iter().filter(|r| trace_single(svo, r, &opts).is_some()).count())
+    });
     g.finish();
 }
 

@@ -89,9 +89,10 @@ pub fn step_bound(depth: u32) -> u32 {
     (5 * (3 * ((1u64 << d) - 1) + d) + 1) as u32
 }
 
-/// Traces an object-space ray through an SVO. Returns the nearest hit in `[t_min, t_max]`.
+/// Traces an object-space ray through an SVO. Returns the nearest hit in `[t_min, t_max]`:
+/// [`trace_unit`]'s answer, found by the faster [`packet::trace_single`].
 pub fn trace(svo: &Svo, ray: &Ray, opts: &TraceOptions) -> Option<Hit> {
-    UnitRay::from_object(&svo.bounds, ray).and_then(|r| trace_unit(svo, &r, opts).hit)
+    UnitRay::from_object(&svo.bounds, ray).and_then(|r| packet::trace_single(svo, &r, opts))
 }
 
 /// Stack depth needed: one frame per level above the leaves.
