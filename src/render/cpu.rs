@@ -805,7 +805,7 @@ pub fn render_lit(
             b.records = records;
         }
         b.records_missed(traced.missed, camera.width, camera.height);
-        b.rendered(Some(Rendered::of(&f, sky)));
+        b.rendered(Rendered::of(&f, sky));
         b.bvh = bvh;
         b.prepared = prepared;
     }

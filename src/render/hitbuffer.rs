@@ -305,8 +305,8 @@ impl HitBuffer {
     }
 
     /// Remembers the last frame rendered (see [`HitBuffer::take_spare`]).
-    pub(crate) fn rendered(&mut self, frame: Option<Rendered>) {
-        self.rendered = frame;
+    pub(crate) fn rendered(&mut self, frame: Rendered) {
+        self.rendered = Some(frame);
     }
 
     /// Whether the stored frame was seen by exactly this camera.

@@ -109,6 +109,15 @@ fn max(a: f32, b: f32) -> f32 {
     }
 }
 
+#[inline(always)]
+fn min(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
 /// The ray's t at planes: `(p − o)·inv` per axis, three lanes at a time.
 #[derive(Clone, Copy)]
 struct Planes {

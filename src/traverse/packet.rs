@@ -19,7 +19,7 @@
 //! and being the first in the same order, it is the scalar answer. A leaf of zero length
 //! is handed to the scalar loop for that ray.
 
-use super::{finish, trace_unit, Below, Cell, Hit, Reached, TraceOptions, Walk};
+use super::{finish, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, TraceOptions, Walk};
 use crate::ray::UnitRay;
 use crate::svo::{Attr, Svo, MAX_DEPTH};
 use glam::{Vec3A, Vec4};
@@ -247,9 +247,9 @@ impl Pass<'_> {
     }
 
     /// Walks each ray of `lanes` alone below child `c` of `node` (mirrored coordinates `cc`),
-    /// from its t-values there: Revelles' chain below a node the ray crosses is the scalar
-    /// loop's (see the module notes), so a leaf of non-zero length it reaches is the answer;
-    /// a ray that leaves the child stays in the packet.
+    /// from its t-values there, as a packet of one ([`walk_alone`]): a leaf of non-zero
+    /// length it reaches is the answer (see the module notes); a ray that leaves the child
+    /// stays in the packet.
     fn solo(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
         let child = self.svo.child_node(node, c ^ self.mirror);
         while lanes != 0 {
@@ -268,6 +268,7 @@ impl Pass<'_> {
                     self.defer_attr(k, r.attr as u32);
                     finish(ray, r.te, t_min, r.level, r.coord, Attr::default(), r.ct0.to_array())
                 }
+                // (Not returned by `walk_alone`, whose stack is bounded by the depth.)
                 Walk::Aborted => trace_unit(self.svo, ray, &self.opts[k]).hit,
             };
             self.active &= !(1 << k);
@@ -318,24 +319,6 @@ fn crossed_alone(cell: &Cell, t_min: f32, t_max: f32, occupied: u32) -> u32 {
     let low = entry_xy.max(Vec4::splat(max(t0.z, t_min))).cmple(exit_xy.min(Vec4::splat(min(tm.z, t_max))));
     let high = entry_xy.max(Vec4::splat(max(tm.z, t_min))).cmple(exit_xy.min(Vec4::splat(min(t1.z, t_max))));
     (low.bitmask() | (high.bitmask() << 4)) & occupied
-}
-
-#[inline(always)]
-fn max(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
-#[inline(always)]
-fn min(a: f32, b: f32) -> f32 {
-    if a < b {
-        a
-    } else {
-        b
-    }
 }
 
 /// One ray's walk below `start` as a packet of one: depth first, each node's crossed occupied
@@ -397,9 +380,9 @@ pub fn trace_single(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Option<Hit
     if !(t_min <= t_max) {
         return None;
     }
-    // The root's planes as the packet and the scalar loop compute them: (p − o)·inv at p = 0, ½, 1.
-    let (o, inv) = (Vec3A::from(ray.origin), Vec3A::from(ray.inv_dir));
-    let cell = Cell { t0: (Vec3A::ZERO - o) * inv, tm: (Vec3A::splat(0.5) - o) * inv, t1: (Vec3A::ONE - o) * inv };
+    // The root's planes as the scalar loop computes them.
+    let planes = Planes { origin: Vec3A::from(ray.origin), inv_dir: Vec3A::from(ray.inv_dir), parallel: 0 };
+    let cell = Cell::new::<false>(&planes, [0; 3], 1.0);
     let (te, tx) = (cell.t0.max_element(), cell.t1.min_element());
     if !(te <= tx && t_min <= tx && te <= t_max) {
         // A miss of the cube: the children's test would cross none either; this leaves early.
