@@ -5,8 +5,8 @@
 //! ray of a frame. voxray answers the same queries through its primary-ray API
 //! ([`crate::render::primary`]: 8×8 tiles with beams, each tile a packet) on the SVO of the same triangles, and
 //! renders whole frames of the default view too. Every caster runs on one thread and on all
-//! threads, on several views; the hit fraction of each is recorded so a reader can see they
-//! trace the same thing.
+//! threads, on several views, the casters' frames in turn (one frame each per round); the hit
+//! fraction of each is recorded so a reader can see they trace the same thing.
 
 use super::{summarize, Record};
 use crate::backend::Backend;
@@ -71,42 +71,70 @@ struct Timing<'a> {
     frames: usize,
 }
 
-fn timed(t: &Timing<'_>, name: &str, kind: &str, what: &str, run: &mut FrameFn<'_>) -> Result<Record, crate::Error> {
+/// One caster's frame, with what its record says of it.
+struct Caster<'f> {
+    name: &'static str,
+    kind: &'static str,
+    what: String,
+    run: Box<FrameFn<'f>>,
+}
+
+/// In which order round `f` of a round robin visits `n` casters: from caster `f mod n` on,
+/// so that each is timed first, second, … equally often (the one after a slow caster meets
+/// its caches cold).
+fn round_order(f: usize, n: usize) -> impl Iterator<Item = usize> {
+    (0..n).map(move |k| (f + k) % n.max(1))
+}
+
+/// Times every caster on one pool of `t.threads` threads, frame by frame in turn: round `f`
+/// runs one frame of each (warm-up rounds first, untimed). A shared machine's slow spells
+/// (another tenant, a frequency drop) then fall on every caster alike instead of on
+/// whichever was being timed at the time, so the ratios between them hold from run to run.
+fn timed(t: &Timing<'_>, casters: &mut [Caster<'_>]) -> Result<Vec<Record>, crate::Error> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(t.threads)
         .build()
         .map_err(|e| crate::Error::Io { path: "thread pool".into(), source: std::io::Error::other(e.to_string()) })?;
-    let mut times = Vec::new();
-    let mut hits = 0;
+    let n = casters.len();
+    let mut times = vec![Vec::new(); n];
+    let mut hits = vec![0; n];
     for f in 0..t.warmup + t.frames.max(1) {
-        let start = Instant::now();
-        let h = pool.install(&mut *run);
-        if f >= t.warmup {
-            times.push(start.elapsed().as_secs_f64() * 1e3);
-            hits = h;
+        for c in round_order(f, n) {
+            let start = Instant::now();
+            let h = pool.install(&mut *casters[c].run);
+            if f >= t.warmup {
+                times[c].push(start.elapsed().as_secs_f64() * 1e3);
+                hits[c] = h;
+            }
         }
     }
-    let (median_ms, p95_ms, min_ms) = summarize(&times);
     let camera = &t.view.camera;
     let pixels = (camera.width * camera.height) as f64;
-    Ok(Record {
-        group: "peers".into(),
-        name: name.into(),
-        setting: format!("{}: {what}; hits {:.1}% of pixels", t.view.name, 100.0 * hits as f64 / pixels),
-        x: t.threads as f64,
-        backend_kind: kind.into(),
-        backend: format!("CPU, {} threads", t.threads),
-        width: camera.width,
-        height: camera.height,
-        warmup: t.warmup,
-        frames: t.frames.max(1),
-        instances: 1,
-        median_ms,
-        p95_ms,
-        min_ms,
-        mrays_per_s: pixels / (median_ms.max(1e-9) * 1e-3) / 1e6,
-        ..Record::default()
-    })
+    Ok(casters
+        .iter()
+        .zip(times.iter().zip(hits))
+        .map(|(c, (times, hits))| {
+            let (median_ms, p95_ms, min_ms) = summarize(times);
+            Record {
+                group: "peers".into(),
+                name: c.name.into(),
+                setting: format!("{}: {}; hits {:.1}% of pixels", t.view.name, c.what, 100.0 * hits as f64 / pixels),
+                x: t.threads as f64,
+                backend_kind: c.kind.into(),
+                backend: format!("CPU, {} threads", t.threads),
+                width: camera.width,
+                height: camera.height,
+                warmup: t.warmup,
+                frames: t.frames.max(1),
+                instances: 1,
+                median_ms,
+                p95_ms,
+                min_ms,
+                mrays_per_s: pixels / (median_ms.max(1e-9) * 1e-3) / 1e6,
+                ..Record::default()
+            }
+        })
+        .collect())
 }
 
 /// Runs voxray and every peer on every view and thread count.
@@ -139,7 +167,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 missed_before: &[],
             };
             let mut t_hit = vec![f32::INFINITY; (view.camera.width * view.camera.height) as usize];
-            let mut run = || {
+            let run = move || {
                 trace_tiles(
                     &primary,
                     &mut t_hit,
@@ -150,9 +178,14 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 );
                 t_hit.iter().filter(|t| t.is_finite()).count() as u64
             };
-            let what = format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams, as packets");
-            out.push(timed(&t, "voxray (trace only)", "voxray-trace", &what, &mut run)?);
-            peers.time(&t, &tris, &mut out)?;
+            let mut casters = vec![Caster {
+                name: "voxray (trace only)",
+                kind: "voxray-trace",
+                what: format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams, as packets"),
+                run: Box::new(run),
+            }];
+            casters.extend(peers.casters(&view.camera, &tris));
+            out.extend(timed(&t, &mut casters)?);
         }
     }
     for r in &mut out {
@@ -279,22 +312,21 @@ impl Peers {
         })
     }
 
-    fn time(&self, t: &Timing<'_>, tris: &str, out: &mut Vec<Record>) -> Result<(), crate::Error> {
+    /// The peers' frames on `camera`, one caster each.
+    fn casters<'f>(&'f self, camera: &'f Camera, tris: &str) -> Vec<Caster<'f>> {
         use parry3d::math::Vector;
         use parry3d::query::{Ray, RayCast};
-        let camera = &t.view.camera;
         let committed = &self.embree.committed;
 
-        let one = |o: DVec3, d: DVec3| {
+        let one = move |o: DVec3, d: DVec3| {
             let mut ctx = embree::IntersectContext::coherent();
             let mut rh = embree_ray(o, d);
             committed.intersect(&mut ctx, &mut rh);
             rh.hit.hit()
         };
-        out.push(timed(t, "Embree 3", "embree", &format!("{tris}, one ray at a time"), &mut || frame(camera, &one))?);
 
         // Embree's coherent stream API over the same 8×8 tiles voxray uses.
-        let mut stream = || {
+        let stream = move || {
             let b = camera.basis();
             let tiles_x = camera.width.div_ceil(8);
             let tiles = tiles_x * camera.height.div_ceil(8);
@@ -314,24 +346,16 @@ impl Peers {
                 })
                 .sum()
         };
-        out.push(timed(
-            t,
-            "Embree 3 (stream)",
-            "embree-stream",
-            &format!("{tris}, coherent 8×8 streams"),
-            &mut stream,
-        )?);
 
-        let tri = |o: DVec3, d: DVec3| {
+        let tri = move |o: DVec3, d: DVec3| {
             let ray = Ray::new(
                 Vector::new(o.x as f32, o.y as f32, o.z as f32),
                 Vector::new(d.x as f32, d.y as f32, d.z as f32),
             );
             self.trimesh.cast_local_ray(&ray, f32::MAX, true).is_some()
         };
-        out.push(timed(t, "parry3d TriMesh", "parry-trimesh", tris, &mut || frame(camera, &tri))?);
 
-        let vox = |o: DVec3, d: DVec3| {
+        let vox = move |o: DVec3, d: DVec3| {
             // The grid's own frame: voxel k covers [k·size, (k+1)·size) from the cube corner.
             let l = o - self.grid_min;
             let ray = Ray::new(
@@ -340,9 +364,32 @@ impl Peers {
             );
             self.voxels.cast_local_ray(&ray, f32::MAX, true).is_some()
         };
-        let what = format!("the same {} voxels, chunks + BVH", self.voxel_count);
-        out.push(timed(t, "parry3d Voxels", "parry-voxels", &what, &mut || frame(camera, &vox))?);
-        Ok(())
+        vec![
+            Caster {
+                name: "Embree 3",
+                kind: "embree",
+                what: format!("{tris}, one ray at a time"),
+                run: Box::new(move || frame(camera, &one)),
+            },
+            Caster {
+                name: "Embree 3 (stream)",
+                kind: "embree-stream",
+                what: format!("{tris}, coherent 8×8 streams"),
+                run: Box::new(stream),
+            },
+            Caster {
+                name: "parry3d TriMesh",
+                kind: "parry-trimesh",
+                what: tris.into(),
+                run: Box::new(move || frame(camera, &tri)),
+            },
+            Caster {
+                name: "parry3d Voxels",
+                kind: "parry-voxels",
+                what: format!("the same {} voxels, chunks + BVH", self.voxel_count),
+                run: Box::new(move || frame(camera, &vox)),
+            },
+        ]
     }
 }
 
@@ -355,6 +402,59 @@ mod tests {
     fn hits(r: &Record) -> f64 {
         let tail = r.setting.rsplit("hits ").next().unwrap_or("");
         tail.trim_end_matches("% of pixels").parse().unwrap_or(f64::NAN)
+    }
+
+    /// Frames alternate between the casters, each in every position of a round equally
+    /// often, and every caster gets its warm-up and timed frames (the hits of its last).
+    #[test]
+    fn casters_are_timed_in_turn() {
+        for n in 1..6 {
+            let mut position = vec![vec![0; n]; n];
+            for f in 0..n {
+                let order: Vec<usize> = round_order(f, n).collect();
+                let mut sorted = order.clone();
+                sorted.sort();
+                assert_eq!(sorted, (0..n).collect::<Vec<_>>(), "round {f} of {n}");
+                for (k, &c) in order.iter().enumerate() {
+                    position[c][k] += 1;
+                }
+            }
+            assert!(position.iter().flatten().all(|&p| p == 1), "{n}: {position:?}");
+        }
+        let grid = crate::voxelize::VoxelGrid::from_coords(
+            1,
+            crate::svo::Cube { min: Vec3::ZERO, size: 1.0 },
+            [[0, 0, 0]],
+            Vec3::ONE,
+        );
+        let svo = Arc::new(crate::svo::build(&grid).unwrap());
+        let camera = Camera::framing(Vec3::ZERO, Vec3::ONE, 4, 2);
+        let view = PeerView { name: "one".into(), triangles: &[], svo, camera, whole_frame: false };
+        let t = Timing { view: &view, threads: 1, warmup: 2, frames: 3 };
+        let log = std::sync::Mutex::new(Vec::new());
+        let caster = |c: u64| {
+            let log = &log;
+            let mut calls = 0;
+            Caster {
+                name: "fake",
+                kind: "fake",
+                what: String::new(),
+                run: Box::new(move || {
+                    log.lock().unwrap().push(c);
+                    calls += 1;
+                    calls * 2 + c
+                }),
+            }
+        };
+        let mut casters = vec![caster(0), caster(1), caster(2)];
+        let records = timed(&t, &mut casters).unwrap();
+        drop(casters);
+        let log = log.into_inner().unwrap();
+        assert_eq!(log, [0, 1, 2, 1, 2, 0, 2, 0, 1, 0, 1, 2, 1, 2, 0]);
+        // 5 calls each: the last returned 10 + c of the 8 pixels.
+        let hits: Vec<f64> = records.iter().map(hits).collect();
+        assert_eq!(hits, [125.0, 137.5, 150.0]);
+        assert!(records.iter().all(|r| r.frames == 3 && r.median_ms >= 0.0));
     }
 
     /// Every caster traces the same thing: the triangle casters agree with each other, the
