@@ -319,8 +319,10 @@ object, seen whole and close up, and its body alone voxelized at depth 11. Embre
 only)` answers the same nearest-hit queries through its primary-ray API (8×8 tiles, each started \
 at its beam and traced as one packet per instance, see traversal.md), `voxray (whole frame)` also shades them into the frame buffer. Embree runs one ray \
 at a time and, as `Embree 3 (stream)`, on coherent streams of the same 8×8 tiles. Every caster \
-runs on one thread and on all threads; the ratio columns divide voxray's trace-only rays per \
-second by each row's at the same thread count. Ratio > 1: voxray is faster.\n\n";
+runs on one thread and on all threads, the casters' frames in turn (one frame of each per \
+round, so that a slow spell of a shared machine falls on all of them alike); the ratio columns \
+divide voxray's trace-only rays per second by each row's at the same thread count. Ratio > 1: \
+voxray is faster.\n\n";
         md += &provenance(&rs);
         let view_of = |r: &Record| r.setting.split_once(": ").map_or(String::new(), |(v, _)| v.to_string());
         let mut views: Vec<String> = Vec::new();
