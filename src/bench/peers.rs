@@ -12,7 +12,7 @@ use super::{summarize, Record};
 use crate::backend::Backend;
 use crate::render::primary::{trace_tiles, Primary, Todo};
 use crate::render::visibility::{FrameInstances, Search};
-use crate::render::Features;
+use crate::render::{Features, RenderOptions};
 use crate::scene::Camera;
 use crate::session::Session;
 use crate::svo::Svo;
@@ -62,7 +62,7 @@ fn frame(camera: &Camera, hit: &(dyn Fn(DVec3, DVec3) -> bool + Sync)) -> u64 {
 }
 
 /// How one caster answers a frame: the number of pixels that hit.
-type FrameFn<'f> = dyn FnMut() -> u64 + Send + 'f;
+type FrameFn<'f> = dyn FnMut() -> Result<u64, crate::Error> + Send + 'f;
 
 struct Timing<'a> {
     view: &'a PeerView<'a>,
@@ -101,7 +101,7 @@ fn timed(t: &Timing<'_>, casters: &mut [Caster<'_>]) -> Result<Vec<Record>, crat
     for f in 0..t.warmup + t.frames.max(1) {
         for c in round_order(f, n) {
             let start = Instant::now();
-            let h = pool.install(&mut *casters[c].run);
+            let h = pool.install(&mut *casters[c].run)?;
             if f >= t.warmup {
                 times[c].push(start.elapsed().as_secs_f64() * 1e3);
                 hits[c] = h;
@@ -149,9 +149,6 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
         for &threads in &scene.threads {
             let t = Timing { view, threads, warmup: scene.warmup, frames: scene.frames };
             progress(&format!("peers: {}, {threads} threads", view.name));
-            if view.whole_frame {
-                out.push(whole_frame(&t, &voxray_scene, &voxels)?);
-            }
             // voxray's primary-ray API: 8×8 tiles, beams, nearest hit only (no shading), the
             // hit t of every pixel into a buffer made once, as Embree fills its rays' tfar.
             let prepared = crate::render::instances::prepare(&voxray_scene, view.camera.eye, false);
@@ -176,14 +173,18 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                     |t, hit| *t = hit.map_or(f32::INFINITY, |h| h.0.hit.t),
                     |_| {},
                 );
-                t_hit.iter().filter(|t| t.is_finite()).count() as u64
+                Ok(t_hit.iter().filter(|t| t.is_finite()).count() as u64)
             };
-            let mut casters = vec![Caster {
+            let mut casters = Vec::new();
+            if view.whole_frame {
+                casters.push(whole_frame(&voxray_scene, &view.camera, &voxels));
+            }
+            casters.push(Caster {
                 name: "voxray (trace only)",
                 kind: "voxray-trace",
                 what: format!("SVO, {voxels}, nearest hit, 8×8 tiles with beams, as packets"),
                 run: Box::new(run),
-            }];
+            });
             casters.extend(peers.casters(&view.camera, &tris));
             out.extend(timed(&t, &mut casters)?);
         }
@@ -195,45 +196,27 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
     Ok(out)
 }
 
-/// voxray's whole frame (trace + shade into the frame buffer), primary rays only.
-fn whole_frame(t: &Timing<'_>, scene: &crate::scene::Scene, voxels: &str) -> Result<Record, crate::Error> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(t.threads)
-        .build()
-        .map_err(|e| crate::Error::Io { path: "thread pool".into(), source: std::io::Error::other(e.to_string()) })?;
-    let mut scene = scene.clone();
-    let clip = super::Clip {
-        scene: &mut scene,
-        cars: &[],
-        animated: None,
-        renderer: crate::render::Renderer::Trace,
-        camera: &t.view.camera,
-        lights: &crate::scene::Lights::default(),
-        features: Features { hit_buffer: false, shadows: false, ..Features::default() },
-        lod: u32::MAX,
-        warmup: t.warmup,
-        frames: t.frames,
-        fps: 30.0,
+/// voxray's whole frame (trace + shade into the frame buffer of a session, which keeps it
+/// from frame to frame), primary rays only: no reuse, no shadows.
+fn whole_frame<'f>(scene: &crate::scene::Scene, camera: &'f Camera, voxels: &str) -> Caster<'f> {
+    let scene = scene.clone();
+    let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
+    let lights = crate::scene::Lights::default();
+    let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
+    let run = move || -> Result<u64, crate::Error> {
+        session.frame(&scene, camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
+        let frame = session.last_frame().ok_or_else(|| crate::Error::Io {
+            path: "bench".into(),
+            source: std::io::Error::other("the session kept no frame"),
+        })?;
+        Ok(frame.instance.iter().filter(|&&i| i >= 0).count() as u64)
     };
-    let backend_name = format!("CPU, {} threads", t.threads);
-    // The backend lives inside the pool (a GPU backend could not cross threads).
-    let (mut r, f) = pool.install(|| {
-        super::run_clip(&mut Session::new(Backend::Cpu(Box::default()), "CPU".into()), &backend_name, clip)
-    })?;
-    let hits = f.instance.iter().filter(|&&i| i >= 0).count();
-    let pixels = (t.view.camera.width * t.view.camera.height) as f64;
-    r.group = "peers".into();
-    r.name = "voxray (whole frame)".into();
-    r.backend_kind = "voxray".into();
-    r.x = t.threads as f64;
-    r.setting = format!(
-        "{}: SVO, {voxels}, traced and shaded; hits {:.1}% of pixels",
-        t.view.name,
-        100.0 * hits as f64 / pixels
-    );
-    // Primary rays only (no reuse, no shadows): rays per second of the median frame.
-    r.mrays_per_s = pixels / (r.median_ms.max(1e-9) * 1e-3) / 1e6;
-    Ok(r)
+    Caster {
+        name: "voxray (whole frame)",
+        kind: "voxray",
+        what: format!("SVO, {voxels}, traced and shaded"),
+        run: Box::new(run),
+    }
 }
 
 /// The peers' acceleration structures for one view, built once.
@@ -326,7 +309,7 @@ impl Peers {
         };
 
         // Embree's coherent stream API over the same 8×8 tiles voxray uses.
-        let stream = move || {
+        let stream = move || -> u64 {
             let b = camera.basis();
             let tiles_x = camera.width.div_ceil(8);
             let tiles = tiles_x * camera.height.div_ceil(8);
@@ -369,25 +352,25 @@ impl Peers {
                 name: "Embree 3",
                 kind: "embree",
                 what: format!("{tris}, one ray at a time"),
-                run: Box::new(move || frame(camera, &one)),
+                run: Box::new(move || Ok(frame(camera, &one))),
             },
             Caster {
                 name: "Embree 3 (stream)",
                 kind: "embree-stream",
                 what: format!("{tris}, coherent 8×8 streams"),
-                run: Box::new(stream),
+                run: Box::new(move || Ok(stream())),
             },
             Caster {
                 name: "parry3d TriMesh",
                 kind: "parry-trimesh",
                 what: tris.into(),
-                run: Box::new(move || frame(camera, &tri)),
+                run: Box::new(move || Ok(frame(camera, &tri))),
             },
             Caster {
                 name: "parry3d Voxels",
                 kind: "parry-voxels",
                 what: format!("the same {} voxels, chunks + BVH", self.voxel_count),
-                run: Box::new(move || frame(camera, &vox)),
+                run: Box::new(move || Ok(frame(camera, &vox))),
             },
         ]
     }
@@ -442,7 +425,7 @@ mod tests {
                 run: Box::new(move || {
                     log.lock().unwrap().push(c);
                     calls += 1;
-                    calls * 2 + c
+                    Ok(calls * 2 + c)
                 }),
             }
         };
@@ -455,6 +438,14 @@ mod tests {
         let hits: Vec<f64> = records.iter().map(hits).collect();
         assert_eq!(hits, [125.0, 137.5, 150.0]);
         assert!(records.iter().all(|r| r.frames == 3 && r.median_ms >= 0.0));
+        // A caster that fails fails the measurement instead of recording a frame.
+        let failing = Caster {
+            name: "failing",
+            kind: "failing",
+            what: String::new(),
+            run: Box::new(|| Err(crate::Error::Io { path: "x".into(), source: std::io::Error::other("no frame") })),
+        };
+        assert!(timed(&t, &mut [failing]).is_err());
     }
 
     /// Every caster traces the same thing: the triangle casters agree with each other, the
