@@ -41,9 +41,13 @@ pub const MAX_UNIT_ORIGIN: f32 = (1u64 << 40) as f32;
 /// and part; `log2` was a fifth of the render time).
 fn inverse_pow2_floor(m: f64) -> f64 {
     let biased = ((m.to_bits() >> 52) & 0x7FF) as i64;
-    if (2..2046).contains(&biased) {
+    if (1..2046).contains(&biased) {
         // m = 1.f × 2^(biased − 1023)  →  2^(1023 − biased) has biased exponent 2046 − biased.
         f64::from_bits(((2046 - biased) as u64) << 52)
+    } else if biased == 2046 {
+        // 2^-1023 is subnormal (bit 51 alone). `powi(-1024)` below, which the log2 of m ≥
+        // (2 − 2⁻⁵²)·2¹⁰²³ rounds to, would give 0 and make every t infinite.
+        f64::from_bits(1 << 51)
     } else {
         2f64.powi(-(m.log2().floor() as i32))
     }
@@ -215,6 +219,21 @@ mod tests {
             assert_eq!(inverse_pow2_floor(m), 2f64.powi(-(m.log2().floor() as i32)), "{m}");
             assert!((1.0..2.0).contains(&(m * inverse_pow2_floor(m))), "{m}");
         }
+        for m in [f64::MAX, 2f64.powi(1023), 1.999 * 2f64.powi(1023)] {
+            assert_eq!(inverse_pow2_floor(m), f64::from_bits(1 << 51), "{m}");
+            assert!((1.0..2.0).contains(&(m * inverse_pow2_floor(m))), "{m}");
+        }
+    }
+
+    #[test]
+    fn the_largest_directions_keep_finite_t() {
+        // |d| near f64::MAX: the rescale is 2^-1023 (it was 0 once, and every t infinite).
+        let r = UnitRay::from_unit(DVec3::new(-1.0, 0.5, 0.5), DVec3::new(f64::MAX, 0.0, 0.0)).unwrap();
+        assert!(r.t_scale > 0.0 && r.inv_dir[0] > 0.0 && r.inv_dir[0].is_finite());
+        // It enters the cube at world t = 1 / f64::MAX (about 5.6e-309); the rescaled
+        // direction is about 2 long, so the origin is half a unit of internal t behind.
+        assert!((r.t_offset - 1.0 / f64::MAX).abs() <= 1e-323);
+        assert_eq!(r.to_internal(0.0), -0.5);
     }
 
     #[test]
