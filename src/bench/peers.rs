@@ -83,7 +83,7 @@ struct Caster<'f> {
 /// so that each is timed first, second, … equally often (the one after a slow caster meets
 /// its caches cold).
 fn round_order(f: usize, n: usize) -> impl Iterator<Item = usize> {
-    (0..n).map(move |k| (f + k) % n.max(1))
+    (0..n).map(move |k| (f + k) % n)
 }
 
 /// Times every caster on one pool of `t.threads` threads, frame by frame in turn: round `f`
@@ -186,7 +186,14 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 run: Box::new(run),
             });
             casters.extend(peers.casters(&view.camera, &tris));
-            out.extend(timed(&t, &mut casters)?);
+            let mut records = timed(&t, &mut casters)?;
+            // voxray's rows carry the size of the octree they traced, as the clip runner's do.
+            let stats = svo.stats();
+            for r in records.iter_mut().filter(|r| r.backend_kind.starts_with("voxray")) {
+                (r.geometry_bytes, r.attribute_bytes) = (stats.geometry_bytes, stats.attribute_bytes);
+                (r.svo_bytes, r.voxels) = (stats.geometry_bytes + stats.attribute_bytes, stats.voxels);
+            }
+            out.extend(records);
         }
     }
     for r in &mut out {
@@ -481,5 +488,17 @@ mod tests {
         assert_eq!(voxray, whole, "voxray's trace-only and whole frame");
         assert!((voxray - voxels).abs() <= 0.2, "voxray {voxray}% vs parry3d Voxels {voxels}%");
         assert!(voxray >= embree && voxray - embree < 8.0, "voxels {voxray}% vs triangles {embree}%");
+        // voxray's rows name the octree they traced; the peers' rows hold no octree.
+        let stats = scene.views[0].svo.stats();
+        for r in &records {
+            let want = if r.backend_kind.starts_with("voxray") { stats.voxels } else { 0 };
+            assert_eq!(r.voxels, want, "{}", r.name);
+            assert_eq!(
+                r.svo_bytes,
+                if want > 0 { stats.geometry_bytes + stats.attribute_bytes } else { 0 },
+                "{}",
+                r.name
+            );
+        }
     }
 }
