@@ -72,24 +72,44 @@ impl Bvh {
     }
 
     /// Recomputes every box from `spheres` (same tree), children before parents.
+    ///
+    /// The leaves first, in parallel for large trees (each reads its own spheres, which is
+    /// most of the work: the spheres are in instance order, not the tree's), then the inner
+    /// nodes bottom-up from their children. Every box is the same min and max over the same
+    /// values as node by node.
     pub fn refit(&mut self, spheres: &[(DVec3, f64)]) {
-        for n in (0..self.nodes.len()).rev() {
-            let node = self.nodes[n];
-            let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let items = &self.items;
+        let leaf = |node: &mut Node| {
             if node.count > 0 {
-                for &i in &self.items[node.first as usize..(node.first + node.count) as usize] {
+                let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+                for &i in &items[node.first as usize..(node.first + node.count) as usize] {
                     let (c, r) = spheres[i as usize];
                     lo = lo.min(c - r);
                     hi = hi.max(c + r);
                 }
-            } else {
-                for child in [node.first, node.first + 1] {
-                    lo = lo.min(self.nodes[child as usize].lo);
-                    hi = hi.max(self.nodes[child as usize].hi);
-                }
+                (node.lo, node.hi) = (lo, hi);
             }
-            self.nodes[n].lo = lo;
-            self.nodes[n].hi = hi;
+        };
+        #[cfg(feature = "parallel")]
+        let done = if self.nodes.len() >= super::bvh_wide::PARALLEL_NODES {
+            use rayon::prelude::*;
+            self.nodes.par_iter_mut().with_min_len(1024).for_each(leaf);
+            true
+        } else {
+            false
+        };
+        #[cfg(not(feature = "parallel"))]
+        let done = false;
+        if !done {
+            self.nodes.iter_mut().for_each(leaf);
+        }
+        for n in (0..self.nodes.len()).rev() {
+            let node = self.nodes[n];
+            if node.count == 0 {
+                let (a, b) = (self.nodes[node.first as usize], self.nodes[node.first as usize + 1]);
+                self.nodes[n].lo = DVec3::INFINITY.min(a.lo).min(b.lo);
+                self.nodes[n].hi = DVec3::NEG_INFINITY.max(a.hi).max(b.hi);
+            }
         }
         self.refits += 1;
         self.wide.refit(&self.nodes);
@@ -195,6 +215,48 @@ mod tests {
                 (DVec3::new(cluster as f64 * 10.0 + (i % 4) as f64 * 0.1, 0.0, 0.0), 0.5)
             })
             .collect()
+    }
+
+    /// Refitting leaves first (in parallel for a tree this large) and inner nodes after gives
+    /// every box bit for bit as the node-by-node pass from the last node to the root.
+    #[test]
+    fn refits_as_node_by_node() {
+        let mut rng = crate::rng::Rng::new(4);
+        let mut random = |n: usize| -> Vec<(DVec3, f64)> {
+            (0..n)
+                .map(|_| {
+                    let c = DVec3::new(rng.f64() * 1e3 - 500.0, rng.f64() * 3.0, rng.f64() * 1e3 - 500.0);
+                    (c, 0.1 + rng.f64() * 2.0)
+                })
+                .collect()
+        };
+        let spheres = random(40_000);
+        let mut bvh = Bvh::build(&spheres);
+        assert!(bvh.nodes.len() >= 4096, "{}", bvh.nodes.len());
+        let moved = random(40_000);
+        let mut want = bvh.nodes.clone();
+        for n in (0..want.len()).rev() {
+            let node = want[n];
+            let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+            if node.count > 0 {
+                for &i in &bvh.items[node.first as usize..(node.first + node.count) as usize] {
+                    let (c, r) = moved[i as usize];
+                    lo = lo.min(c - r);
+                    hi = hi.max(c + r);
+                }
+            } else {
+                for child in [node.first, node.first + 1] {
+                    lo = lo.min(want[child as usize].lo);
+                    hi = hi.max(want[child as usize].hi);
+                }
+            }
+            (want[n].lo, want[n].hi) = (lo, hi);
+        }
+        bvh.refit(&moved);
+        let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+        for (n, (a, b)) in bvh.nodes.iter().zip(&want).enumerate() {
+            assert_eq!((bits(a.lo), bits(a.hi)), (bits(b.lo), bits(b.hi)), "node {n}");
+        }
     }
 
     #[test]

@@ -45,7 +45,7 @@ pub struct WideBvh {
 
 /// Trees with at least this many nodes are refitted in parallel.
 #[cfg(feature = "parallel")]
-const PARALLEL_NODES: usize = 4096;
+pub(crate) const PARALLEL_NODES: usize = 4096;
 
 /// Rays whose direction has a zero component get this for its reciprocal: finite, so that a
 /// slab plane through the origin gives 0 or ±∞ and never NaN.

@@ -78,6 +78,9 @@ pub struct HitBuffer {
     pub bvh: Option<super::bvh::Bvh>,
     /// Instance BVHs built from scratch for frames rendered with this buffer.
     pub bvh_builds: u64,
+    /// The instances' spheres of the last [`HitBuffer::take_bvh`], kept for the next frame's
+    /// (their memory, not their values: a crowd's were megabytes allocated every frame).
+    bvh_spheres: Vec<(DVec3, f64)>,
     /// Each pixel's colour in the stored frame.
     pub radiance: Vec<Vec3>,
     /// Each pixel's ambient occlusion in the stored frame (empty without GI).
@@ -251,8 +254,9 @@ impl HitBuffer {
     /// This frame's instance BVH: the stored frame's refitted, or a new one (counted in
     /// [`HitBuffer::bvh_builds`]). Store it back with `self.bvh = Some(..)` after the frame.
     pub fn take_bvh(&mut self, prepared: &[Prepared]) -> super::bvh::Bvh {
-        let spheres: Vec<(DVec3, f64)> = prepared.iter().map(|p| (p.centre, p.radius)).collect();
-        let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), &spheres);
+        self.bvh_spheres.clear();
+        self.bvh_spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
+        let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), &self.bvh_spheres);
         if bvh.refits == 0 {
             self.bvh_builds += 1;
         }
