@@ -146,6 +146,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
         let voxels = format!("{} voxels (depth {})", svo.voxel_count, svo.depth);
         let tris = format!("{} triangles, BVH", view.triangles.len());
         let peers = Peers::new(view)?;
+        let stats = svo.stats();
         for &threads in &scene.threads {
             let t = Timing { view, threads, warmup: scene.warmup, frames: scene.frames };
             progress(&format!("peers: {}, {threads} threads", view.name));
@@ -188,7 +189,6 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
             casters.extend(peers.casters(&view.camera, &tris));
             let mut records = timed(&t, &mut casters)?;
             // voxray's rows carry the size of the octree they traced, as the clip runner's do.
-            let stats = svo.stats();
             for r in records.iter_mut().filter(|r| r.backend_kind.starts_with("voxray")) {
                 (r.geometry_bytes, r.attribute_bytes) = (stats.geometry_bytes, stats.attribute_bytes);
                 (r.svo_bytes, r.voxels) = (stats.geometry_bytes + stats.attribute_bytes, stats.voxels);

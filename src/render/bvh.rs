@@ -106,6 +106,7 @@ impl Bvh {
         for n in (0..self.nodes.len()).rev() {
             let node = self.nodes[n];
             if node.count == 0 {
+                // From ±∞ as a leaf starts, so that even a NaN box folds in as it always did.
                 let (a, b) = (self.nodes[node.first as usize], self.nodes[node.first as usize + 1]);
                 self.nodes[n].lo = DVec3::INFINITY.min(a.lo).min(b.lo);
                 self.nodes[n].hi = DVec3::NEG_INFINITY.max(a.hi).max(b.hi);
