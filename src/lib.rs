@@ -59,6 +59,7 @@ pub mod session;
 pub mod stability;
 pub mod svo;
 pub mod traverse;
+pub mod uninit_stack;
 #[cfg(feature = "viewer")]
 pub mod viewer;
 pub mod voxelize;

@@ -11,7 +11,6 @@
 
 use super::bvh::Bvh;
 use glam::{BVec4A, DVec3, Vec4};
-use std::mem::MaybeUninit;
 
 /// Widening of every box, relative to the largest coordinate magnitude of the scene's boxes.
 /// The slab arithmetic in f32 errs by a few units in 2⁻²⁴ of that magnitude.
@@ -199,43 +198,8 @@ fn area(bvh: &Bvh, n: u32) -> f64 {
 /// A walk's stack: the tree is at most 32 binary levels deep and a four-wide node leaves at
 /// most three siblings waiting, so 128 entries always suffice.
 ///
-/// Its storage is left uninitialized: every ray's walk makes one, and zeroing its kilobyte
-/// was about 3 % of a crowd frame's samples (a `memset` per ray).
-pub struct WideStack {
-    items: [MaybeUninit<(u32, f32)>; 128],
-    len: usize,
-}
-
-impl WideStack {
-    /// An empty stack.
-    #[inline]
-    pub fn new() -> Self {
-        WideStack { items: [const { MaybeUninit::uninit() }; 128], len: 0 }
-    }
-    /// Pushes a node and its entry t.
-    #[inline]
-    pub fn push(&mut self, v: (u32, f32)) {
-        debug_assert!(self.len < self.items.len(), "BVH deeper than median splits allow");
-        if self.len < self.items.len() {
-            self.items[self.len] = MaybeUninit::new(v);
-            self.len += 1;
-        }
-    }
-    /// Pops the last pushed node.
-    #[inline]
-    pub fn pop(&mut self) -> Option<(u32, f32)> {
-        self.len = self.len.checked_sub(1)?;
-        // SAFETY: `len` grows only in `push`, after the entry at the old `len` is written, so
-        // every entry below it, this one included, holds a value (a plain `Copy` pair).
-        Some(unsafe { self.items[self.len].assume_init() })
-    }
-}
-
-impl Default for WideStack {
-    fn default() -> Self {
-        Self::new()
-    }
-}
+/// Its storage is left uninitialized (every ray's walk makes one).
+pub type WideStack = crate::uninit_stack::UninitStack<(u32, f32), 128>;
 
 #[cfg(test)]
 mod tests {

@@ -23,7 +23,6 @@ use super::{finish, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, Tra
 use crate::ray::UnitRay;
 use crate::svo::{Attr, Svo, MAX_DEPTH};
 use glam::{Vec3A, Vec4};
-use std::mem::MaybeUninit;
 use wide::f32x4;
 
 /// Rays in a packet.
@@ -363,41 +362,10 @@ fn walk_alone(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_
     }
 }
 
-/// The ancestors [`walk_alone`] returns to: node, children still to visit, t-values. Its
-/// storage is left uninitialized: a lone walk starts for every ray that leaves its packet,
-/// and zeroing the kilobyte of a depth-20 stack was 4 % of the samples of a depth-11 frame
-/// (a `memset` per walk).
-struct AloneStack {
-    items: [MaybeUninit<(u32, u8, Cell)>; MAX_DEPTH as usize],
-    len: usize,
-}
-
-impl AloneStack {
-    #[inline(always)]
-    fn new() -> Self {
-        AloneStack { items: [const { MaybeUninit::uninit() }; MAX_DEPTH as usize], len: 0 }
-    }
-
-    /// Pushes one level's entry. A walk descends at most to the tree's depth (≤
-    /// [`MAX_DEPTH`]), one entry per level, so the stack cannot fill.
-    #[inline(always)]
-    fn push(&mut self, v: (u32, u8, Cell)) {
-        debug_assert!(self.len < self.items.len(), "walk deeper than MAX_DEPTH");
-        if self.len < self.items.len() {
-            self.items[self.len] = MaybeUninit::new(v);
-            self.len += 1;
-        }
-    }
-
-    /// Pops the entry pushed last; `None` when the walk is back at its start.
-    #[inline(always)]
-    fn pop(&mut self) -> Option<(u32, u8, Cell)> {
-        self.len = self.len.checked_sub(1)?;
-        // SAFETY: `len` grows only in `push`, after the entry at the old `len` is written, so
-        // every entry below it, this one included, holds a value (plain `Copy` data).
-        Some(unsafe { self.items[self.len].assume_init() })
-    }
-}
+/// The ancestors [`walk_alone`] returns to: node, children still to visit, t-values; one
+/// entry per level, so the tree's depth bounds it. Uninitialized storage: a lone walk starts
+/// for every ray that leaves its packet.
+type AloneStack = crate::uninit_stack::UninitStack<(u32, u8, Cell), { MAX_DEPTH as usize }>;
 
 /// `trace_unit(svo, ray, opts).hit`, found as a packet of one ray ([`walk_alone`] from the
 /// root): the same answer (module notes), at a lower cost per node than Revelles' chain.
