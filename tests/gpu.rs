@@ -597,6 +597,53 @@ fn gpu_splats_match_the_cpu_splats() {
     }
 }
 
+/// The rasterizer's quads keep the same splat per pixel as the compute passes, bit for bit:
+/// the quads cover exactly the pixel centres the compute passes' squares cover, their depths
+/// order as the compute passes' keys, and the depth test keeps the earlier (lower-numbered)
+/// splat at equal depth, as the compute passes' lowest number does.
+#[test]
+fn gpu_splat_quads_draw_what_the_compute_passes_draw() {
+    let Some(ctx) = context() else { return };
+    let (mut s, cars) = scene(3);
+    let lights = Lights::default();
+    let compute = RenderOptions { renderer: voxray::render::Renderer::Splat, ..RenderOptions::default() };
+    let quads = RenderOptions { splat_draw: voxray::render::SplatDraw::Quads, ..compute };
+    let features = Features { beams: false, ..Features::default() };
+    let (mut by_compute, mut by_quads) = (GpuRenderer::new(ctx.clone()), GpuRenderer::new(ctx));
+    let base = street_camera(160, 100);
+    // A driving clip from an orbiting camera, a close-up whose squares span many pixels, a
+    // level-of-detail cap, and a second image size (the quads' targets are remade).
+    for f in 0..5 {
+        let t = f as f64 / 30.0;
+        for c in &cars {
+            pose(&mut s, c, t).unwrap();
+        }
+        s.update().unwrap();
+        let q = DQuat::from_rotation_y((20.0 * t).to_radians());
+        let mut cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
+        let (mut a, mut b) = (compute, quads);
+        if f == 2 {
+            cam.eye = DVec3::new(2.5, 1.5, 6.0);
+        }
+        if f == 3 {
+            (a.max_level, b.max_level) = (4, 4);
+        }
+        if f == 4 {
+            (cam.width, cam.height) = (97, 61);
+        }
+        let plan = FramePlan::new(&s, &cam, &lights, &features, None);
+        let c = by_compute.render(&s, &cam, &lights, &plan, &a).unwrap();
+        let g = by_quads.render(&s, &cam, &lights, &plan, &b).unwrap();
+        let what = format!("quads, frame {f}");
+        let n = c.instance.len();
+        let covered = c.instance.iter().filter(|&&i| i >= 0).count();
+        assert!(covered > n / 20, "{what}: the splats cover {covered} of {n} pixels");
+        let differ = (0..n).filter(|&k| c.instance[k] != g.instance[k] || c.t[k].to_bits() != g.t[k].to_bits()).count();
+        assert_eq!(differ, 0, "{what}: {differ} of {n} pixels keep another splat");
+        assert!(c.radiance == g.radiance && c.normal == g.normal, "{what}: the shading differs");
+    }
+}
+
 /// A traced frame after a splat frame traces afresh: the splatted records never stand in for
 /// the rays' hits.
 #[test]

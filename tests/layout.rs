@@ -245,6 +245,10 @@ fn wgsl_structs_match_rust() {
                 ("total", offset_of!(GpuSplatFrame, total)),
                 ("row_threads", offset_of!(GpuSplatFrame, row_threads)),
                 ("near", offset_of!(GpuSplatFrame, near)),
+                ("width", offset_of!(GpuSplatFrame, width)),
+                ("height", offset_of!(GpuSplatFrame, height)),
+                ("tan_half", offset_of!(GpuSplatFrame, tan_half)),
+                ("aspect", offset_of!(GpuSplatFrame, aspect)),
             ],
         ),
         (

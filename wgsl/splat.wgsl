@@ -5,6 +5,13 @@
 // first (splat_depth_main), then the lowest splat number among the squares at that depth
 // (splat_id_main). Both store complements with atomicMax, so a buffer cleared to zero is
 // empty. splat_resolve_main turns each pixel's winner into the hit record the shading reads.
+//
+// RenderOptions::splat_draw Quads draws the same squares with the rasterizer instead of the
+// first two passes: splat_quad_vertex makes one quad per splat over exactly the pixels whose
+// centres splat_square covers, with a depth that orders as the compute passes' key;
+// splat_quad_fragment writes the pixel's (key, complemented number) into an Rg32Uint target
+// that the depth test keeps nearest-first (ties to the earlier primitive, the lower number);
+// splat_copy_main moves that target into splat_depth and splat_ids for the resolve.
 
 @group(2) @binding(B_SPLAT_FRAME) var<uniform> splat_frame: SplatFrame;
 @group(2) @binding(B_SPLAT_ENTRIES) var<storage, read> splat_entries: array<SplatEntry>;
@@ -53,10 +60,10 @@ fn splat_square(id: u32) -> Square {
     if !(c.z > near) {
         return s;
     }
-    let w = f32(frame.width);
-    let h = f32(frame.height);
-    let tan_half = frame.forward.w;
-    let aspect_half = tan_half * frame.right.w;
+    let w = f32(splat_frame.width);
+    let h = f32(splat_frame.height);
+    let tan_half = splat_frame.tan_half;
+    let aspect_half = tan_half * splat_frame.aspect;
     let px = (c.x / (c.z * aspect_half) + 1.0) * 0.5 * w;
     let py = (1.0 - c.y / (c.z * tan_half)) * 0.5 * h;
     let half = clamp(e.half_px / c.z, 0.5, w + h);
@@ -159,4 +166,67 @@ fn splat_resolve_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         h.fx = n.x; h.fy = n.y; h.fz = n.z;
     }
     hits[idx] = h;
+}
+
+// The quads' colour target (RenderOptions::splat_draw Quads), read by splat_copy_main.
+@group(3) @binding(B_SPLAT_RASTER) var splat_raster: texture_2d<u32>;
+
+struct SplatQuad {
+    @builtin(position) position: vec4<f32>,
+    // The compute passes' depth key and complemented splat number, the same for every corner.
+    @location(0) @interpolate(flat) word: vec2<u32>,
+}
+
+// A depth in [0, 1) that orders as the key and is as injective: the bits of a positive float
+// order as its value, so the front's bits less the near plane's, moved past the subnormals
+// (a depth buffer may flush them), are a float in [2^-126, 1) for fronts up to 2^126 times
+// the near plane; farther ones (none in a scene of finite size) share the largest depth.
+fn splat_quad_depth(key: u32) -> f32 {
+    let offset = ~key - bitcast<u32>(splat_frame.near);
+    return bitcast<f32>(min(offset, 0x3F000000u - 1u) + 0x00800000u);
+}
+
+// Instance `id` is splat number `id`; its six corners (two triangles) span the pixel edges
+// around the covered pixel centres, so the rasterizer covers exactly those pixels (their
+// centres lie half a pixel inside, whatever its fill rule). A splat that draws nothing gets a
+// triangle outside the clip volume.
+@vertex
+fn splat_quad_vertex(@builtin(vertex_index) v: u32, @builtin(instance_index) id: u32) -> SplatQuad {
+    var out: SplatQuad;
+    out.word = vec2<u32>(0u, 0u);
+    out.position = vec4<f32>(2.0, 2.0, 2.0, 1.0);
+    if id >= splat_frame.total {
+        return out;
+    }
+    let s = splat_square(id);
+    if !s.ok {
+        return out;
+    }
+    // Corners 0 1 2 / 2 1 3 of the rectangle, bit 0 right, bit 1 down.
+    let corner = array<u32, 6>(0u, 1u, 2u, 2u, 1u, 3u)[v % 6u];
+    let x = select(f32(s.x0), f32(s.x1 + 1u), (corner & 1u) != 0u);
+    let y = select(f32(s.y0), f32(s.y1 + 1u), (corner & 2u) != 0u);
+    let w = f32(splat_frame.width);
+    let h = f32(splat_frame.height);
+    out.position = vec4<f32>(2.0 * x / w - 1.0, 1.0 - 2.0 * y / h, splat_quad_depth(s.key), 1.0);
+    out.word = vec2<u32>(s.key, ~id);
+    return out;
+}
+
+@fragment
+fn splat_quad_fragment(in: SplatQuad) -> @location(0) vec2<u32> {
+    return in.word;
+}
+
+// The quads' winners into the compute passes' buffers (zero where nothing was drawn: the
+// target is cleared to zero), so splat_resolve_main reads either the same way.
+@compute @workgroup_size(8, 8, 1)
+fn splat_copy_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= splat_frame.width || gid.y >= splat_frame.height {
+        return;
+    }
+    let word = textureLoad(splat_raster, vec2<i32>(gid.xy), 0).xy;
+    let k = gid.y * splat_frame.width + gid.x;
+    atomicStore(&splat_depth[k], word.x);
+    atomicStore(&splat_ids[k], word.y);
 }

@@ -447,4 +447,13 @@ pub struct GpuSplatFrame {
     pub row_threads: u32,
     /// The near plane's view depth.
     pub near: f32,
+    /// Image width in pixels (the frame's, here for the rasterizer's vertex stage, which
+    /// cannot see the tracer's group 0).
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Tangent of half the vertical field of view (the frame's `forward.w`).
+    pub tan_half: f32,
+    /// Width over height (the frame's `right.w`).
+    pub aspect: f32,
 }

@@ -71,8 +71,10 @@ pub mod binding {
     pub const SPLAT_DEPTH: u32 = 4;
     /// Tracer group 2: `splat_ids`.
     pub const SPLAT_IDS: u32 = 5;
+    /// Tracer group 3 (the splat quads' copy): `splat_raster`.
+    pub const SPLAT_RASTER: u32 = 0;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 33] = [
+    pub const ALL: [(&str, u32); 34] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -106,6 +108,7 @@ pub mod binding {
         ("B_SPLAT_ATTRS", SPLAT_ATTRS),
         ("B_SPLAT_DEPTH", SPLAT_DEPTH),
         ("B_SPLAT_IDS", SPLAT_IDS),
+        ("B_SPLAT_RASTER", SPLAT_RASTER),
     ];
 }
 

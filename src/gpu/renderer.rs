@@ -692,7 +692,7 @@ impl GpuRenderer {
         self.gi_stats = gi_work.as_ref().map(|w| w.stats);
         let splat_work = if splatting {
             let sp = self.splat.get_or_insert_with(|| super::splat::GpuSplat::new(&self.ctx));
-            sp.build_pipelines(&self.ctx.device, &self.module, &self.layout);
+            sp.build_pipelines(&self.ctx.device, &self.module, &self.layout, opts.splat_draw);
             Some(sp.prepare(&self.ctx, scene, &prepared, camera, opts.max_level, opts.splat_factor)?)
         } else {
             None
@@ -846,7 +846,7 @@ impl GpuRenderer {
         }
         let groups = (w.div_ceil(8), h.div_ceil(8));
         match (&splat_work, self.splat.as_mut()) {
-            (Some(work), Some(sp)) => sp.encode(&ctx, &mut enc, bind, work, (w, h), ts(0))?,
+            (Some(work), Some(sp)) => sp.encode(&ctx, &mut enc, bind, work, (w, h), opts.splat_draw, ts(0))?,
             _ => {
                 let mut pass = enc
                     .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: ts(0) });

@@ -5,15 +5,26 @@
 //! [`Projection`](crate::render::splat::Projection) the CPU uses) and runs three passes: the
 //! nearest depth per pixel, the lowest splat number at that depth, and the resolve into the
 //! tracer's hit buffer, which the shading pass then reads as if the rays had written it.
+//! With [`SplatDraw::Quads`] the rasterizer draws the squares instead of the first two
+//! passes (one instanced quad per splat, a depth test) and a copy pass hands its winners to
+//! the same resolve.
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{GpuSplatEntry, GpuSplatFrame};
 use super::renderer::ensure;
 use crate::render::instances::Prepared;
 use crate::render::splat::{Projection, SplatCache, Splats};
+use crate::render::SplatDraw;
 use crate::scene::{Camera, Scene};
 use crate::svo::Attr;
 use std::sync::Arc;
+
+/// The quads' colour target: the depth key and the complemented splat number per pixel.
+const WORD_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Uint;
+
+/// The quads' depth buffer: f32, so the depths of `splat_quad_depth` (`wgsl/splat.wgsl`) keep
+/// every key apart.
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
 /// Threads per group of the per-splat passes (`@workgroup_size(256)` in `splat.wgsl`).
 const GROUP: u32 = 256;
@@ -25,6 +36,12 @@ const MAX_GROUPS: u32 = 65_535;
 pub(crate) struct GpuSplat {
     layout: wgpu::BindGroupLayout,
     pipelines: Option<[wgpu::ComputePipeline; 3]>,
+    /// The rasterizer's layout of the quads' target (group 3 of the copy pass).
+    raster_layout: wgpu::BindGroupLayout,
+    /// The quads' pipeline and the pass that copies their target into the buffers.
+    raster: Option<(wgpu::RenderPipeline, wgpu::ComputePipeline)>,
+    /// The quads' colour and depth targets, the copy's bind group, and their size.
+    targets: Option<(wgpu::TextureView, wgpu::TextureView, wgpu::BindGroup, (u32, u32))>,
     cache: SplatCache,
     /// The lists in the pools, in pool order, with their first element there.
     pooled: Vec<(Arc<Splats>, u32)>,
@@ -41,14 +58,22 @@ pub(crate) struct GpuSplat {
 pub(crate) struct SplatWork {
     /// Workgroups of the per-splat passes (x, y); (0, 0) when nothing is drawn.
     groups: (u32, u32),
+    /// Splats drawn (the quads' instance count).
+    total: u32,
     /// Bytes of the splat buffers.
     pub bytes: u64,
 }
 
 fn entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    // What the quads' vertex stage reads is visible to it too (it may not see writable
+    // storage).
+    let visibility = match ty {
+        wgpu::BufferBindingType::Storage { read_only: false } => wgpu::ShaderStages::COMPUTE,
+        _ => wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::VERTEX,
+    };
     wgpu::BindGroupLayoutEntry {
         binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
+        visibility,
         ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
         count: None,
     }
@@ -69,9 +94,25 @@ impl GpuSplat {
                 entry(b::SPLAT_IDS, Storage { read_only: false }),
             ],
         });
+        let raster_layout = ctx.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("splat quads' target (group 3)"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: super::prelude::binding::SPLAT_RASTER,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Uint,
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            }],
+        });
         GpuSplat {
             layout,
             pipelines: None,
+            raster_layout,
+            raster: None,
+            targets: None,
             cache: SplatCache::default(),
             pooled: Vec::new(),
             centres: None,
@@ -84,13 +125,18 @@ impl GpuSplat {
         }
     }
 
-    /// Builds (once) the three passes from the tracer's module, whose group 0 they share.
+    /// Builds (once) the three passes from the tracer's module, whose group 0 they share, and
+    /// (once) the quads' pipelines when `draw` asks for them.
     pub(crate) fn build_pipelines(
         &mut self,
         device: &wgpu::Device,
         module: &wgpu::ShaderModule,
         trace_layout: &wgpu::BindGroupLayout,
+        draw: SplatDraw,
     ) {
+        if draw == SplatDraw::Quads {
+            self.build_raster(device, module, trace_layout);
+        }
         if self.pipelines.is_some() {
             return;
         }
@@ -101,6 +147,99 @@ impl GpuSplat {
         });
         let make = |entry: &str| super::renderer::plan_pipeline(device, &layout, module, entry, &[]);
         self.pipelines = Some([make("splat_depth_main"), make("splat_id_main"), make("splat_resolve_main")]);
+    }
+
+    /// Builds (once) the quads' pipeline and their copy pass from the tracer's module.
+    fn build_raster(
+        &mut self,
+        device: &wgpu::Device,
+        module: &wgpu::ShaderModule,
+        trace_layout: &wgpu::BindGroupLayout,
+    ) {
+        if self.raster.is_some() {
+            return;
+        }
+        let quads_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("splat quads"),
+            bind_group_layouts: &[None, None, Some(&self.layout)],
+            immediate_size: 0,
+        });
+        let quads = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("splat quads"),
+            layout: Some(&quads_layout),
+            vertex: wgpu::VertexState {
+                module,
+                entry_point: Some("splat_quad_vertex"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                // Strictly nearer: at equal depth the earlier quad, the lower splat number,
+                // keeps the pixel (primitives are depth-tested in order).
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module,
+                entry_point: Some("splat_quad_fragment"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: WORD_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let copy_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("splat quads' copy"),
+            bind_group_layouts: &[Some(trace_layout), None, Some(&self.layout), Some(&self.raster_layout)],
+            immediate_size: 0,
+        });
+        let copy = super::renderer::plan_pipeline(device, &copy_layout, module, "splat_copy_main", &[]);
+        self.raster = Some((quads, copy));
+    }
+
+    /// The quads' targets at `size`, made when the size changes.
+    fn targets(&mut self, ctx: &GpuContext, (width, height): (u32, u32)) {
+        if self.targets.as_ref().is_some_and(|t| t.3 == (width, height)) {
+            return;
+        }
+        let texture = |label, format, usage| {
+            ctx.device
+                .create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
+                .create_view(&Default::default())
+        };
+        let word = texture(
+            "splat quads' words",
+            WORD_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
+        let depth = texture("splat quads' depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("splat quads' words"),
+            layout: &self.raster_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: super::prelude::binding::SPLAT_RASTER,
+                resource: wgpu::BindingResource::TextureView(&word),
+            }],
+        });
+        self.targets = Some((word, depth, bind, (width, height)));
     }
 
     /// Uploads what this frame draws: the lists it needs (when the pool lacks one), one row
@@ -170,11 +309,17 @@ impl GpuSplat {
                 limit: GROUP as u64 * MAX_GROUPS as u64 * MAX_GROUPS as u64,
             });
         }
+        let basis = camera.basis();
         let uniforms = GpuSplatFrame {
             entries: rows.len() as u32,
             total: total as u32,
             row_threads: gx * GROUP,
             near: proj.near as f32,
+            width: camera.width,
+            height: camera.height,
+            // As the frame's forward.w and right.w, so the squares are the same.
+            tan_half: basis.tan_half as f32,
+            aspect: (camera.width as f64 / camera.height as f64) as f32,
         };
         if rows.is_empty() {
             rows.push(GpuSplatEntry::default());
@@ -204,7 +349,7 @@ impl GpuSplat {
             .iter()
             .filter_map(|b| b.as_ref().map(|b| b.size()))
             .sum();
-        Ok(SplatWork { groups: (gx, gy as u32), bytes })
+        Ok(SplatWork { groups: (gx, gy as u32), total: total as u32, bytes })
     }
 
     /// Replaces the pools with the lists `needed` (each once).
@@ -255,8 +400,9 @@ impl GpuSplat {
         Ok(())
     }
 
-    /// Records the passes: clear, nearest depth, lowest splat number, resolve into the hit
-    /// buffer (group 0's), timed as one pass.
+    /// Records the passes: clear, nearest depth, lowest splat number (or the quads and their
+    /// copy), resolve into the hit buffer (group 0's), timed as one pass.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode(
         &mut self,
         ctx: &GpuContext,
@@ -264,6 +410,7 @@ impl GpuSplat {
         group0: &wgpu::BindGroup,
         work: &SplatWork,
         (width, height): (u32, u32),
+        draw: SplatDraw,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
         let missing = || GpuError::Device("splat passes not prepared".into());
@@ -289,6 +436,9 @@ impl GpuSplat {
                 ],
             }));
         }
+        if draw == SplatDraw::Quads {
+            return self.encode_quads(ctx, enc, group0, work, (width, height), timestamps);
+        }
         let bind = self.bind.as_ref().ok_or_else(missing)?;
         // Zero is "nothing drawn here" for both (they hold complements).
         enc.clear_buffer(depth, 0, None);
@@ -305,6 +455,78 @@ impl GpuSplat {
             }
         }
         pass.set_pipeline(resolve_pipe);
+        pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        Ok(())
+    }
+
+    /// [`Self::encode`] with the rasterizer: the quads into their cleared targets (the
+    /// timestamps' start), then one compute pass that copies the winners into the depth and
+    /// id buffers and resolves them (the timestamps' end).
+    fn encode_quads(
+        &mut self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        group0: &wgpu::BindGroup,
+        work: &SplatWork,
+        (width, height): (u32, u32),
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) -> Result<(), GpuError> {
+        self.targets(ctx, (width, height));
+        let missing = || GpuError::Device("splat quads not prepared".into());
+        let (quads, copy) = self.raster.as_ref().ok_or_else(missing)?;
+        let resolve = self.pipelines.as_ref().ok_or_else(missing)?[2].clone();
+        let (word, depth, raster_bind, _) = self.targets.as_ref().ok_or_else(missing)?;
+        let bind = self.bind.as_ref().ok_or_else(missing)?;
+        let (query_set, start, end) = match &timestamps {
+            Some(t) => (Some(t.query_set), t.beginning_of_pass_write_index, t.end_of_pass_write_index),
+            None => (None, None, None),
+        };
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("splat quads"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: word,
+                    depth_slice: None,
+                    resolve_target: None,
+                    // Zero is "nothing drawn here", as in the compute passes' buffers.
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: depth,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: query_set.map(|query_set| wgpu::RenderPassTimestampWrites {
+                    query_set,
+                    beginning_of_pass_write_index: start,
+                    end_of_pass_write_index: None,
+                }),
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            if work.total > 0 {
+                pass.set_pipeline(quads);
+                pass.set_bind_group(2, bind, &[]);
+                pass.draw(0..6, 0..work.total);
+            }
+        }
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("splat quads' copy and resolve"),
+            timestamp_writes: query_set.map(|query_set| wgpu::ComputePassTimestampWrites {
+                query_set,
+                beginning_of_pass_write_index: None,
+                end_of_pass_write_index: end,
+            }),
+        });
+        pass.set_bind_group(0, group0, &[]);
+        pass.set_bind_group(2, bind, &[]);
+        pass.set_bind_group(3, raster_bind, &[]);
+        pass.set_pipeline(copy);
+        pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        pass.set_pipeline(&resolve);
         pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
         Ok(())
     }

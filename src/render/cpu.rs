@@ -27,6 +27,18 @@ pub enum Renderer {
     Splat,
 }
 
+/// How the GPU draws square splats ([`Renderer::Splat`]); the CPU has one way.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SplatDraw {
+    /// Compute passes: one thread per splat writes its square with atomics (nearest depth,
+    /// then the lowest splat number at that depth).
+    #[default]
+    Compute,
+    /// The rasterizer: one instanced quad per splat, a depth test keeping the nearest (the
+    /// earlier splat at equal depth, as the compute passes), then a copy into their buffers.
+    Quads,
+}
+
 /// Renderer settings that are not part of the frame plan.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderOptions {
@@ -36,11 +48,19 @@ pub struct RenderOptions {
     pub renderer: Renderer,
     /// Splats: the square-size factor ([`super::splat::DEFAULT_FACTOR`]).
     pub splat_factor: f32,
+    /// Splats on the GPU: compute passes or the rasterizer (the same winners; the CPU
+    /// ignores it).
+    pub splat_draw: SplatDraw,
 }
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        RenderOptions { max_level: u32::MAX, renderer: Renderer::Trace, splat_factor: super::splat::DEFAULT_FACTOR }
+        RenderOptions {
+            max_level: u32::MAX,
+            renderer: Renderer::Trace,
+            splat_factor: super::splat::DEFAULT_FACTOR,
+            splat_draw: SplatDraw::Compute,
+        }
     }
 }
 

@@ -18,7 +18,7 @@ pub mod splat;
 pub mod tile_search;
 pub mod visibility;
 
-pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions, Renderer};
+pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions, Renderer, SplatDraw};
 pub use gather::Gather;
 pub use hitbuffer::HitBuffer;
 pub use plan::{Features, FramePlan};

@@ -54,7 +54,8 @@ impl App {
             session.set_gi(None).map_err(other)?;
         }
         let renderer = if self.ui.splat { crate::render::Renderer::Splat } else { crate::render::Renderer::Trace };
-        let opts = RenderOptions { max_level: self.ui.lod, renderer, ..Default::default() };
+        let opts =
+            RenderOptions { max_level: self.ui.lod, renderer, splat_draw: self.ui.splat_draw, ..Default::default() };
         let features = self.opts.features;
         let report = match session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}) {
             Ok(r) => r,

@@ -68,6 +68,8 @@ pub struct DemoOptions {
     pub animated: Option<crate::scene::Animated>,
     /// Start with square splats for primary visibility (switchable in the panel).
     pub splat: bool,
+    /// How the GPU draws the splats (switchable in the panel).
+    pub splat_draw: crate::render::SplatDraw,
 }
 
 /// What the demo needs to re-stage the cars when their number changes.
@@ -221,6 +223,7 @@ pub fn run(
     let home = Orbit::of(&camera);
     let cars_n = cars.len().max(1);
     let splat = opts.splat;
+    let splat_draw = opts.splat_draw;
     let gi_gather = opts.gi_gather;
     let mut app = App {
         opts,
@@ -256,6 +259,7 @@ pub fn run(
             travel: false,
             lod: u32::MAX,
             splat,
+            splat_draw,
             frame_ms: VecDeque::new(),
             plan: None,
             reused: 0.0,

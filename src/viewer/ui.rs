@@ -17,6 +17,8 @@ pub(super) struct Ui {
     pub(super) lod: u32,
     /// Primary visibility: rays or square splats.
     pub(super) splat: bool,
+    /// How the GPU draws them.
+    pub(super) splat_draw: crate::render::SplatDraw,
     pub(super) frame_ms: VecDeque<f32>,
     pub(super) plan: Option<FramePlan>,
     pub(super) reused: f64,
@@ -100,6 +102,14 @@ impl App {
                         row.radio_value(&mut ui.splat, false, "rays");
                         row.radio_value(&mut ui.splat, true, "square splats");
                     });
+                    if ui.splat && ui.backend == BackendKind::Gpu {
+                        ui_.horizontal(|row| {
+                            use crate::render::SplatDraw;
+                            row.label("GPU splats:");
+                            row.radio_value(&mut ui.splat_draw, SplatDraw::Compute, "compute");
+                            row.radio_value(&mut ui.splat_draw, SplatDraw::Quads, "quads");
+                        });
+                    }
                     ui_.separator();
                     ui_.strong("Scene");
                     if can_restage {

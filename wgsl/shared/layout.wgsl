@@ -297,4 +297,10 @@ struct SplatFrame {
     row_threads: u32,
     // The near plane's view depth.
     near: f32,
+    // The frame's width, height, forward.w and right.w (the rasterizer's vertex stage
+    // cannot see group 0).
+    width: u32,
+    height: u32,
+    tan_half: f32,
+    aspect: f32,
 }

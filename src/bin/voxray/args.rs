@@ -134,6 +134,10 @@ pub(crate) struct RenderArgs {
     /// Splats: the square's side in units of a voxel's projected edge (at least one pixel).
     #[arg(long, default_value_t = voxray::render::splat::DEFAULT_FACTOR)]
     pub(crate) splat_factor: f32,
+    /// Splats on the GPU: compute (atomics in compute passes) or quads (the rasterizer, one
+    /// quad per splat and a depth test); the same image. The CPU has one way.
+    #[arg(long, default_value = "compute", value_parser = ["compute", "quads"])]
+    pub(crate) splat_draw: String,
     /// Frames of the clip (the car, a glTF animation or a .vox flip-book animates; other scenes stay still).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub(crate) frames: u32,
@@ -378,6 +382,9 @@ pub(crate) struct DemoArgs {
     /// Primary visibility at start: trace or splat (switchable in the panel).
     #[arg(long, default_value = "trace", value_parser = ["trace", "splat"])]
     pub(crate) renderer: String,
+    /// GPU splats at start: compute or quads (switchable in the panel; the same image).
+    #[arg(long, default_value = "compute", value_parser = ["compute", "quads"])]
+    pub(crate) splat_draw: String,
     /// Draw this many frames (the clip advances 1/30 s per frame), then stop with --exit.
     #[arg(long)]
     pub(crate) frames: Option<u64>,

@@ -1,6 +1,7 @@
 //! `voxray demo`: the interactive window.
 
 use super::*;
+use voxray::render::SplatDraw;
 
 pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
     use voxray::viewer::{check_display, run, CarParts, DemoOptions};
@@ -32,6 +33,7 @@ pub(crate) fn demo_cmd(a: DemoArgs) -> Result<(), Error> {
         gpu_stats: a.gpu_stats,
         animated: st.animated.clone(),
         splat: a.renderer == "splat",
+        splat_draw: if a.splat_draw == "quads" { SplatDraw::Quads } else { SplatDraw::Compute },
     };
     let report = run(opts, st.scene, st.cars, lights, camera)?;
     eprintln!("demo: {} frames on {}, median {:.1} ms/frame", report.frames, report.backend, report.median_ms);

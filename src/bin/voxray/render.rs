@@ -183,7 +183,10 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     }
     let renderer =
         if a.renderer == "splat" { voxray::render::Renderer::Splat } else { voxray::render::Renderer::Trace };
-    let opts = RenderOptions { max_level: a.lod.unwrap_or(u32::MAX), renderer, splat_factor: a.splat_factor };
+    use voxray::render::SplatDraw;
+    let splat_draw = if a.splat_draw == "quads" { SplatDraw::Quads } else { SplatDraw::Compute };
+    let opts =
+        RenderOptions { max_level: a.lod.unwrap_or(u32::MAX), renderer, splat_factor: a.splat_factor, splat_draw };
     let gi = a.gi.then(|| voxray::gi::GiSettings {
         res: a.gi_res,
         filter: a.gi_filter,
