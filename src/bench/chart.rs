@@ -322,7 +322,7 @@ fn splat(rs: &[&Record], path: &Path) -> Res<()> {
     let mut series = Vec::new();
     for k in kinds(rs) {
         for (key, unit) in [("level ", "one car by voxel count"), (" cars: ", "cars")] {
-            for setting in ["trace", "splat"] {
+            for setting in ["trace", "splat", "splat (quads)"] {
                 let p: Vec<(f64, f64, String)> = rs
                     .iter()
                     .filter(|r| r.backend_kind == k && r.setting == setting && r.name.contains(key))

@@ -4,7 +4,7 @@
 //! against the full-depth reference, so error can be read against run time).
 
 use super::{metrics, run_clip, Clip, Record};
-use crate::render::{Features, Frame, Renderer};
+use crate::render::{Features, Frame, Renderer, SplatDraw};
 use crate::scene::{stage_cars, Camera, Instance, Lights, Scene, Transform};
 use crate::session::Session;
 use crate::svo::Svo;
@@ -182,6 +182,7 @@ pub fn run(
 ) -> Result<Vec<Record>, crate::Error> {
     let lights = Lights::default();
     let mut out = Vec::new();
+    let gpu = session.backend().kind_name() == "gpu";
     let mut measure = |group: &str,
                        name: String,
                        setting: String,
@@ -224,12 +225,19 @@ pub fn run(
                                 progress: &mut dyn FnMut(&str)|
                  -> Result<(), crate::Error> {
                     let mut traced: Option<Frame> = None;
-                    for renderer in [Renderer::Trace, Renderer::Splat] {
+                    // On the GPU the splats are drawn both ways: compute passes and quads.
+                    let ways = [
+                        (Renderer::Trace, SplatDraw::Compute, "trace"),
+                        (Renderer::Splat, SplatDraw::Compute, "splat"),
+                        (Renderer::Splat, SplatDraw::Quads, "splat (quads)"),
+                    ];
+                    for (renderer, splat_draw, setting) in ways.into_iter().take(if gpu { 3 } else { 2 }) {
                         let clip = Clip {
                             scene: &mut st.scene,
                             cars: &st.cars,
                             animated: None,
                             renderer,
+                            splat_draw,
                             camera,
                             lights: &lights,
                             features,
@@ -238,8 +246,7 @@ pub fn run(
                             frames: cfg.sweep_frames,
                             fps: 30.0,
                         };
-                        let name = format!("{what}: {}", if renderer == Renderer::Trace { "trace" } else { "splat" });
-                        let setting = if renderer == Renderer::Trace { "trace" } else { "splat" };
+                        let name = format!("{what}: {setting}");
                         let (mut r, frame) = measure(group, name, setting.into(), x, clip, progress)?;
                         match &traced {
                             None => traced = Some(frame),
@@ -308,6 +315,7 @@ pub fn run(
                         cars,
                         animated: rig,
                         renderer: crate::render::Renderer::Trace,
+                        splat_draw: SplatDraw::Compute,
                         camera: &camera,
                         lights: &lights,
                         features,
@@ -332,6 +340,7 @@ pub fn run(
                             cars: &st.cars,
                             animated: None,
                             renderer: crate::render::Renderer::Trace,
+                            splat_draw: SplatDraw::Compute,
                             camera: &camera,
                             lights: &lights,
                             features,
@@ -360,6 +369,7 @@ pub fn run(
                         cars: &st.cars,
                         animated: st.animated.as_ref(),
                         renderer: crate::render::Renderer::Trace,
+                        splat_draw: SplatDraw::Compute,
                         camera: &camera,
                         lights: &lights,
                         features: Features::default(),
@@ -391,6 +401,7 @@ pub fn run(
                         cars: &st.cars,
                         animated: st.animated.as_ref(),
                         renderer: crate::render::Renderer::Trace,
+                        splat_draw: SplatDraw::Compute,
                         camera: &camera,
                         lights: &lights,
                         features: Features { hit_buffer: false, ..Features::default() },

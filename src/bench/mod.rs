@@ -132,6 +132,8 @@ pub struct Clip<'a> {
     pub animated: Option<&'a crate::scene::Animated>,
     /// Ray tracing or square splats for primary visibility.
     pub renderer: crate::render::Renderer,
+    /// How the GPU draws splats (compute passes or quads).
+    pub splat_draw: crate::render::SplatDraw,
     /// The (static) camera.
     pub camera: &'a Camera,
     /// The lights.
@@ -185,7 +187,12 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
             clip.camera,
             clip.lights,
             &clip.features,
-            &RenderOptions { max_level: clip.lod, renderer: clip.renderer, ..Default::default() },
+            &RenderOptions {
+                max_level: clip.lod,
+                renderer: clip.renderer,
+                splat_draw: clip.splat_draw,
+                ..Default::default()
+            },
             &|_, _| {},
         )?;
         let secs = start.elapsed().as_secs_f64();

@@ -276,7 +276,9 @@ voxel splatted as a screen-aligned square (side = its projected edge, at least a
 buffer, each instance at the level whose voxels are about a pixel (`--renderer splat`, CPU). Shading \
 (sun, shadow rays into the SVOs, sky) is the same; no hit buffer. Error of the splat frame against the \
 traced one of the same pose: FLIP of the displayed images and the fraction of pixels whose coverage \
-(hit/miss or instance) differs.\n\n";
+(hit/miss or instance) differs. On the GPU the splats are drawn twice, by compute passes (\
+\"splat ms\") and by the rasterizer as one quad per splat (`--splat-draw quads`, \"quads ms\"; the \
+same image).\n\n";
         md += &provenance(&rs);
         let flip = |r: &Record| r.error.and_then(|e| e.flip).map_or("–".into(), |f| format!("{f:.4}"));
         let mismatch = |r: &Record| r.error.map_or("–".into(), |e| format!("{:.2}%", 100.0 * e.mismatch));
@@ -287,7 +289,7 @@ traced one of the same pose: FLIP of the displayed images and the fraction of pi
             if rows.is_empty() {
                 continue;
             }
-            md += &format!("\n#### {title}\n\n| {unit} | backend | trace ms | splat ms | splat ÷ trace | FLIP | coverage mismatch |\n|---|---|---|---|---|---|---|\n");
+            md += &format!("\n#### {title}\n\n| {unit} | backend | trace ms | splat ms | splat ÷ trace | quads ms | FLIP | coverage mismatch |\n|---|---|---|---|---|---|---|---|\n");
             for s in rows.iter().filter(|r| r.setting == "splat") {
                 let what = s.name.trim_end_matches(": splat");
                 let t = rows.iter().find(|r| {
@@ -295,13 +297,19 @@ traced one of the same pose: FLIP of the displayed images and the fraction of pi
                         && r.name.trim_end_matches(": trace") == what
                         && r.backend_kind == s.backend_kind
                 });
+                let quads = rows.iter().find(|r| {
+                    r.setting == "splat (quads)"
+                        && r.name.trim_end_matches(": splat (quads)") == what
+                        && r.backend_kind == s.backend_kind
+                });
                 md += &format!(
-                    "| {} | {} | {} | {:.1} | {} | {} | {} |\n",
+                    "| {} | {} | {} | {:.1} | {} | {} | {} | {} |\n",
                     what,
                     s.backend_kind,
                     t.map_or("–".into(), |t| format!("{:.1}", t.median_ms)),
                     s.median_ms,
                     t.map_or("–".into(), |t| format!("{:.2}", s.median_ms / t.median_ms.max(1e-9))),
+                    quads.map_or("–".into(), |q| format!("{:.1}", q.median_ms)),
                     flip(s),
                     mismatch(s)
                 );
