@@ -329,7 +329,7 @@ fn splat(rs: &[&Record], path: &Path) -> Res<()> {
                     .map(|r| (r.x, r.median_ms, String::new()))
                     .collect();
                 if !p.is_empty() {
-                    series.push((format!("{setting}, {unit}"), p));
+                    series.push((format!("{k}: {setting}, {unit}"), p));
                 }
             }
         }
