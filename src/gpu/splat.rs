@@ -206,10 +206,18 @@ impl GpuSplat {
         self.raster = Some((quads, copy));
     }
 
-    /// The quads' targets at `size`, made when the size changes.
-    fn targets(&mut self, ctx: &GpuContext, (width, height): (u32, u32)) {
+    /// The quads' targets at `size`, made when the size changes; an image wider or taller
+    /// than the device's textures is refused.
+    fn targets(&mut self, ctx: &GpuContext, (width, height): (u32, u32)) -> Result<(), GpuError> {
         if self.targets.as_ref().is_some_and(|t| t.3 == (width, height)) {
-            return;
+            return Ok(());
+        }
+        let max = ctx.limits.max_texture_dimension_2d;
+        if width.max(height) > max {
+            return Err(GpuError::Device(format!(
+                "splat quads draw into a {width}×{height} target, and this device's textures have at most \
+                 {max} pixels per side: use --splat-draw compute"
+            )));
         }
         let texture = |label, format, usage| {
             ctx.device
@@ -240,6 +248,7 @@ impl GpuSplat {
             }],
         });
         self.targets = Some((word, depth, bind, (width, height)));
+        Ok(())
     }
 
     /// Uploads what this frame draws: the lists it needs (when the pool lacks one), one row
@@ -471,7 +480,7 @@ impl GpuSplat {
         (width, height): (u32, u32),
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
-        self.targets(ctx, (width, height));
+        self.targets(ctx, (width, height))?;
         let missing = || GpuError::Device("splat quads not prepared".into());
         let (quads, copy) = self.raster.as_ref().ok_or_else(missing)?;
         let resolve = self.pipelines.as_ref().ok_or_else(missing)?[2].clone();
