@@ -422,6 +422,9 @@ impl GpuSplat {
         draw: SplatDraw,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
+        if draw == SplatDraw::Quads {
+            self.targets(ctx, (width, height))?;
+        }
         let missing = || GpuError::Device("splat passes not prepared".into());
         let [depth_pipe, id_pipe, resolve_pipe] = self.pipelines.as_ref().ok_or_else(missing)?;
         let (depth, ids) = (self.depth.as_ref().ok_or_else(missing)?, self.ids.as_ref().ok_or_else(missing)?);
@@ -445,10 +448,10 @@ impl GpuSplat {
                 ],
             }));
         }
-        if draw == SplatDraw::Quads {
-            return self.encode_quads(ctx, enc, group0, work, (width, height), timestamps);
-        }
         let bind = self.bind.as_ref().ok_or_else(missing)?;
+        if draw == SplatDraw::Quads {
+            return self.encode_quads(enc, group0, bind, resolve_pipe, work, (width, height), timestamps);
+        }
         // Zero is "nothing drawn here" for both (they hold complements).
         enc.clear_buffer(depth, 0, None);
         enc.clear_buffer(ids, 0, None);
@@ -468,24 +471,23 @@ impl GpuSplat {
         Ok(())
     }
 
-    /// [`Self::encode`] with the rasterizer: the quads into their cleared targets (the
-    /// timestamps' start), then one compute pass that copies the winners into the depth and
-    /// id buffers and resolves them (the timestamps' end).
+    /// [`Self::encode`] with the rasterizer (its targets made for this size): the quads into
+    /// their cleared targets (the timestamps' start), then one compute pass that copies the
+    /// winners into the depth and id buffers and resolves them (the timestamps' end).
+    #[allow(clippy::too_many_arguments)]
     fn encode_quads(
-        &mut self,
-        ctx: &GpuContext,
+        &self,
         enc: &mut wgpu::CommandEncoder,
         group0: &wgpu::BindGroup,
+        bind: &wgpu::BindGroup,
+        resolve: &wgpu::ComputePipeline,
         work: &SplatWork,
         (width, height): (u32, u32),
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
-        self.targets(ctx, (width, height))?;
         let missing = || GpuError::Device("splat quads not prepared".into());
         let (quads, copy) = self.raster.as_ref().ok_or_else(missing)?;
-        let resolve = self.pipelines.as_ref().ok_or_else(missing)?[2].clone();
         let (word, depth, raster_bind, _) = self.targets.as_ref().ok_or_else(missing)?;
-        let bind = self.bind.as_ref().ok_or_else(missing)?;
         let (query_set, start, end) = match &timestamps {
             Some(t) => (Some(t.query_set), t.beginning_of_pass_write_index, t.end_of_pass_write_index),
             None => (None, None, None),
@@ -535,7 +537,7 @@ impl GpuSplat {
         pass.set_bind_group(3, raster_bind, &[]);
         pass.set_pipeline(copy);
         pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
-        pass.set_pipeline(&resolve);
+        pass.set_pipeline(resolve);
         pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
         Ok(())
     }
