@@ -783,3 +783,82 @@ fn radiance_caches_light_the_box_about_as_well_as_the_per_pixel_gather() {
         assert!(c.ao.iter().all(|a| (0.0..=1.0).contains(a)));
     }
 }
+
+/// A wall two cells thick across a 16³ volume at x = 8 and 9: the cells at x = 9 (the far
+/// side, seen travelling +x) lit `lit`, those at x = 8 dark; both opaque.
+fn thick_wall_level(lit: Vec3) -> voxray::gi::levels::Level {
+    let res = 16u32;
+    let mut rgba = vec![glam::Vec4::ZERO; (res as usize).pow(3)];
+    for z in 0..res {
+        for y in 0..res {
+            rgba[(8 + res * (y + res * z)) as usize] = glam::Vec4::new(0.0, 0.0, 0.0, 1.0);
+            rgba[(9 + res * (y + res * z)) as usize] = lit.extend(1.0);
+        }
+    }
+    voxray::gi::levels::Level { res, cell: 1.0, rgba }
+}
+
+#[test]
+fn anisotropic_levels_keep_a_walls_lit_far_side_behind_its_dark_near_side() {
+    use voxray::gi::levels::{build_aniso_from, build_from, Chain};
+    let lit = Vec3::new(0.8, 0.6, 0.2);
+    let iso = build_from(thick_wall_level(lit), DVec3::ZERO);
+    let aniso = build_aniso_from(thick_wall_level(lit), DVec3::ZERO);
+    assert_eq!(aniso.count(), iso.count());
+    for l in 0..iso.count() {
+        assert_eq!((aniso.res(l), aniso.cell(l)), (iso.res(l), iso.cell(l)), "level {l}");
+    }
+    // Level 0 is the injected volume itself, whatever the direction.
+    let p = DVec3::new(8.7, 5.5, 5.5);
+    assert_eq!(aniso.trilinear_dir(0, p, DVec3::X), iso.trilinear(0, p));
+    // Level 1's cell 4 holds the whole wall; level 2's cell 2 the wall and empty space after
+    // it. The isotropic average shows half the lit side to a cone coming from the dark side.
+    for (l, x) in [(1usize, 9.0), (2, 10.0)] {
+        let centre = DVec3::new(x, 2.5 * iso.cell(l), 2.5 * iso.cell(l));
+        let i = iso.trilinear(l, centre);
+        assert!(i.w == 1.0 && (i.truncate() - lit * 0.5).abs().max_element() < 1e-6, "level {l}: isotropic {i}");
+        // Travelling +x the dark side is in front: opaque and black.
+        let from_dark = aniso.trilinear_dir(l, centre, DVec3::X);
+        assert_eq!(from_dark, glam::Vec4::new(0.0, 0.0, 0.0, 1.0), "level {l}");
+        // Travelling −x the lit side is in front.
+        let from_lit = aniso.trilinear_dir(l, centre, -DVec3::X);
+        assert!((from_lit - lit.extend(1.0)).abs().max_element() < 1e-6, "level {l}: {from_lit}");
+        // Along the wall each column is all dark or all lit, and at level 2 half the columns
+        // pass beside the wall.
+        let along = aniso.trilinear_dir(l, centre, DVec3::Y);
+        let expect = if l == 1 { (lit * 0.5).extend(1.0) } else { (lit * 0.25).extend(0.5) };
+        assert!((along - expect).abs().max_element() < 1e-6, "level {l}: {along}");
+    }
+    // A cone leaving the dark side through the wall: the isotropic chain lets lit light through,
+    // the anisotropic one (almost) none.
+    let o = DVec3::new(0.5, 8.0, 8.0);
+    let through_iso = voxray::gi::cone::trace(&iso, o, DVec3::X, DVec3::X, 90f64.to_radians(), f64::INFINITY);
+    let through_aniso = voxray::gi::cone::trace(&aniso, o, DVec3::X, DVec3::X, 90f64.to_radians(), f64::INFINITY);
+    assert!(through_aniso.truncate().length() < 0.3 * through_iso.truncate().length(), "{through_iso} {through_aniso}");
+}
+
+#[test]
+fn a_lone_child_covers_a_quarter_from_every_side_as_in_the_isotropic_chain() {
+    use voxray::gi::levels::{coarsen, coarsen_faces};
+    let c = glam::Vec4::new(0.4, 0.2, 0.1, 1.0);
+    for k in 0..8u32 {
+        let faces = coarsen_faces(|_, child| if child == k { c } else { glam::Vec4::ZERO });
+        for (f, v) in faces.iter().enumerate() {
+            assert_eq!(*v, coarsen(c), "child {k}, face {f}");
+        }
+    }
+    // Eight opaque children: opaque from every side.
+    let full = coarsen_faces(|_, _| c);
+    assert!(full.iter().all(|v| *v == c), "{full:?}");
+}
+
+#[test]
+fn anisotropic_gi_settings_keep_to_the_dense_volume() {
+    use voxray::gi::shade::VolumeChoice;
+    use voxray::gi::{GiSettings, Layout};
+    let s = GiSettings { res: 256, anisotropic: true, ..Default::default() };
+    assert_eq!(s.layout(), Layout::Dense);
+    assert_eq!(GiSettings { anisotropic: false, ..s }.layout(), Layout::Sparse);
+    let e = GiSettings { volume: VolumeChoice::Sparse, ..s }.validated().unwrap_err().to_string();
+    assert!(e.contains("dense volume"), "{e}");
+}

@@ -334,6 +334,9 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
     assert!(gpu.set_gi(Some(GiSettings { res: 16, extent: Some(f64::NAN), ..Default::default() })).is_err());
     let e = gpu.set_gi(Some(GiSettings { bounces: 9, ..Default::default() })).unwrap_err().to_string();
     assert!(e.contains("bounces"), "{e}");
+    // Anisotropic levels have no WGSL passes: a clear refusal, not an isotropic image.
+    let e = gpu.set_gi(Some(GiSettings { anisotropic: true, ..Default::default() })).unwrap_err().to_string();
+    assert!(e.contains("CPU passes only"), "{e}");
     // `auto` stays dense on the GPU (no readback) while this device can bind a dense volume's
     // cells and up to 512³, sparse past it; a sparse volume needs a multiple of 8 cells per side.
     let limit = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);

@@ -86,7 +86,7 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
     register_font();
     std::fs::create_dir_all(dir).map_err(|e| ChartError { path: dir.display().to_string(), msg: e.to_string() })?;
     let mut out = Vec::new();
-    let jobs: [(&str, &str, Drawer); 10] = [
+    let jobs: [(&str, &str, Drawer); 11] = [
         ("paper", "bench-paper.png", paper),
         ("instances", "bench-instances.png", instances),
         ("splat", "bench-splat.png", splat),
@@ -97,6 +97,7 @@ pub fn draw_all(records: &[Record], dir: &Path) -> Result<Vec<(String, String)>,
         ("gi-accuracy", "accuracy-gi.png", gi_accuracy),
         ("gi-accuracy", "accuracy-gi-panel.png", gi_accuracy_panel),
         ("gi-accuracy", "accuracy-gi-car.png", gi_accuracy_car),
+        ("gi-accuracy", "accuracy-gi-thick.png", gi_accuracy_thick),
     ];
     for (group, file, draw) in jobs {
         let rs: Vec<&Record> = records.iter().filter(|r| r.group == group).collect();
@@ -366,7 +367,7 @@ const CAR: &str = super::gi::CAR;
 
 fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
     let rs: Vec<&Record> =
-        rs.iter().copied().filter(|r| !r.name.starts_with(PANEL) && !r.name.starts_with(CAR)).collect();
+        rs.iter().copied().filter(|r| ![PANEL, CAR, THICK].iter().any(|p| r.name.starts_with(p))).collect();
     accuracy_chart(&rs, "", path, "GI error against run time (box scene; bounces against the all-bounce reference)")
 }
 
@@ -382,6 +383,17 @@ fn gi_accuracy_car(rs: &[&Record], path: &Path) -> Res<()> {
         return Ok(());
     }
     accuracy_chart(&rs, CAR, path, "GI error against run time (the car on its ground, sun and sky)")
+}
+
+/// Prefix of the accuracy records measured on the thick-walled box ([`crate::bench::gi::THICK`]).
+const THICK: &str = super::gi::THICK;
+
+fn gi_accuracy_thick(rs: &[&Record], path: &Path) -> Res<()> {
+    let rs: Vec<&Record> = rs.iter().copied().filter(|r| r.name.starts_with(THICK)).collect();
+    if rs.is_empty() {
+        return Ok(());
+    }
+    accuracy_chart(&rs, THICK, path, "GI error against run time (the box with thick walls, sunlit outside)")
 }
 
 /// Every knob of the accuracy records `rs` (names after `prefix`) as a curve.

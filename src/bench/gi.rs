@@ -203,6 +203,11 @@ pub fn room_scene(depth: u32) -> Result<Scene, crate::Error> {
     scene_of(&crate::model::room::mesh(), depth)
 }
 
+/// The box with thick walls ([`crate::model::room::thick_mesh`]): the light-leak scene.
+pub fn thick_room_scene(depth: u32) -> Result<Scene, crate::Error> {
+    scene_of(&crate::model::room::thick_mesh(), depth)
+}
+
 /// [`room_scene`] with glossy white surfaces ([`crate::model::room::glossy_mesh`]).
 pub fn glossy_room_scene(depth: u32) -> Result<Scene, crate::Error> {
     scene_of(&crate::model::room::glossy_mesh(), depth)
@@ -484,6 +489,7 @@ pub fn panel_room_scene(depth: u32) -> Result<Scene, crate::Error> {
 pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec<Record>, crate::Error> {
     let mut out = accuracy_on(
         "",
+        false,
         &room_scene(cfg.depth)?,
         Some(&crate::model::room::mesh()),
         &crate::model::room::camera(cfg.size.0, cfg.size.1),
@@ -494,12 +500,24 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     // The car on its ground under the sun and sky: the outdoor case.
     let (car, camera) = car_on_ground(cfg)?;
     // (Its ground is made as voxels, with no triangles: no triangle reference.)
-    out.extend(accuracy_on(CAR, &car, None, &camera, &crate::scene::Lights::default(), cfg, progress)?);
+    out.extend(accuracy_on(CAR, false, &car, None, &camera, &crate::scene::Lights::default(), cfg, progress)?);
     let panel = panel_room_scene(cfg.depth)?;
     let camera = crate::model::panel_room::camera(cfg.size.0, cfg.size.1);
     let lights = crate::model::panel_room::lights();
     let panel_mesh = crate::model::panel_room::mesh();
-    out.extend(accuracy_on("panel room: ", &panel, Some(&panel_mesh), &camera, &lights, cfg, progress)?);
+    out.extend(accuracy_on("panel room: ", false, &panel, Some(&panel_mesh), &camera, &lights, cfg, progress)?);
+    // The box with thick walls, sunlit outside: what leaks through them.
+    let thick = thick_room_scene(cfg.depth)?;
+    out.extend(accuracy_on(
+        THICK,
+        true,
+        &thick,
+        Some(&crate::model::room::thick_mesh()),
+        &crate::model::room::camera(cfg.size.0, cfg.size.1),
+        &crate::model::room::lights(),
+        cfg,
+        progress,
+    )?);
     // Light samples: the whole frame's time (they are drawn by the shading and injection).
     let reference = one_bounce_reference(&panel, &camera, &lights, cfg)?.0;
     let plan = FramePlan::new(&panel, &camera, &lights, &Features::default(), None);
@@ -574,9 +592,12 @@ fn one_bounce_reference_on(
     Ok((pt.frame(), t0.elapsed().as_secs_f64() * 1e3))
 }
 
-/// [`accuracy`] on one scene; `label` starts every record's name.
+/// [`accuracy`] on one scene; `label` starts every record's name. `leak_only` stops after the
+/// baseline rows and the anisotropic knob (the thick-walled box measures only the leak).
+#[allow(clippy::too_many_arguments)]
 fn accuracy_on(
     label: &str,
+    leak_only: bool,
     scene: &Scene,
     mesh: Option<&Mesh>,
     camera: &crate::scene::Camera,
@@ -624,6 +645,20 @@ fn accuracy_on(
         push("reference (triangles)", format!("{} spp, 1 bounce", cfg.spp), cfg.spp as f64, *ms, None, t)?;
     }
     let default = GiSettings::default();
+    // Anisotropic levels, with per-pixel cones and with the radiance caches.
+    let caches_gather = crate::render::Gather::Caches(crate::render::radiance_cache::CacheSettings::default());
+    for (knob, gather) in [("anisotropic", default.gather), ("anisotropic, caches gather", caches_gather)] {
+        for anisotropic in [false, true] {
+            progress(&format!("gi-accuracy: {label}{knob} {}", if anisotropic { "on" } else { "off" }));
+            let s = GiSettings { anisotropic, gather, ..default };
+            let (ms, g, f) = gi_frame_timed(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
+            let setting = if anisotropic { "on" } else { "off" };
+            push(knob, setting.into(), anisotropic as u32 as f64, ms, Some(g), &f)?;
+        }
+    }
+    if leak_only {
+        return Ok(out);
+    }
     for &res in &cfg.resolutions {
         progress(&format!("gi-accuracy: {res}³"));
         let (ms, g, f) = gi_frame_timed(scene, &camera, &lights, &plan, &GiSettings { res, ..default }, cfg.repeats)?;
@@ -788,6 +823,9 @@ pub fn layouts(cfg: &LayoutConfig, progress: &mut dyn FnMut(&str)) -> Result<Vec
 
 /// Prefix of the accuracy records of the car on its ground.
 pub const CAR: &str = "car on ground: ";
+
+/// Name prefix of the accuracy records of the thick-walled box ([`thick_room_scene`]).
+pub const THICK: &str = "thick walls: ";
 
 /// The default car standing on its ground, at `cfg`'s depth, and a camera that frames it
 /// from the front quarter at `cfg`'s size.

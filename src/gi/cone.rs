@@ -100,6 +100,20 @@ pub fn sample<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64) -> Vec4 {
     a * (1.0 - f) + sample_level(levels, hi, p) * f
 }
 
+/// [`sample`] as a cone travelling along unit `dir` sees it ([`Chain::trilinear_dir`]).
+pub fn sample_dir<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64, dir: DVec3) -> Vec4 {
+    let top = (levels.count() - 1) as f64;
+    let l = level.clamp(0.0, top);
+    let lo = l.floor() as usize;
+    let hi = (lo + 1).min(levels.count() - 1);
+    let f = (l - lo as f64) as f32;
+    let a = levels.trilinear_dir(lo, p, dir);
+    if f == 0.0 || hi == lo {
+        return a;
+    }
+    a * (1.0 - f) + levels.trilinear_dir(hi, p, dir) * f
+}
+
 /// Cells of clearance a sample needs from the surface a cone starts on: voxelization puts a
 /// surface's occupancy up to half a cell off it and split filtering spreads it one cell more,
 /// and a trilinear sample reaches one cell further.
@@ -148,7 +162,7 @@ pub fn trace<C: Chain + ?Sized>(
         let clear_level = (clear_size(t) / cell0).max(1.0).log2().floor();
         let level = (diameter / cell0).log2().min(clear_level).min(max_level);
         let size = cell0 * level.exp2();
-        let s = sample(levels, o + dir * t, level);
+        let s = sample_dir(levels, o + dir * t, level, dir);
         let sa = s.w.clamp(0.0, 1.0);
         if sa > 0.0 {
             c += (1.0 - a) * s.truncate() * (sa / s.w);

@@ -55,6 +55,13 @@ pub trait Chain: Sync {
     fn trilinear(&self, l: usize, p: DVec3) -> Vec4 {
         trilinear_with(self.min(), self.cell(l), self.res(l), p, |c| self.value(l, c))
     }
+    /// Trilinear sample of level `l` at `p` as a cone travelling along unit `dir` sees it: the
+    /// same as [`Chain::trilinear`] for an isotropic chain; an anisotropic one blends the
+    /// faces `dir` looks through.
+    fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> Vec4 {
+        let _ = dir;
+        self.trilinear(l, p)
+    }
 }
 
 /// The trilinear sample at `p` of a level with corner `min`, cell edge `cell` and `res` cells
@@ -140,4 +147,163 @@ pub fn build_from(finest: Level, min: DVec3) -> Levels {
         levels.push(coarse);
     }
     Levels { min, levels }
+}
+
+/// The six directions a cone can travel along an axis, in face order: +x, −x, +y, −y, +z, −z.
+pub const FACES: usize = 6;
+
+/// One coarse level of an anisotropic chain: per cell, what a cone travelling along each of
+/// the six axis directions sees through it — the cell's 2×2×2 children composited front to
+/// back along that direction, column by column, and the four columns averaged. A wall's lit
+/// outer face then stays behind its dark inner face for a cone leaving the room, where the
+/// isotropic average blends the two (the leak through walls thinner than a coarse cell).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaceLevel {
+    /// Cells per side.
+    pub res: u32,
+    /// Cell edge (world units).
+    pub cell: f64,
+    /// (radiance × alpha, alpha) per face ([`FACES`] order) and cell, x fastest within a face.
+    pub faces: [Vec<Vec4>; FACES],
+}
+
+/// A level chain with directional coarse levels: level 0 (the injected volume, isotropic) and
+/// [`FaceLevel`]s down to one cell.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AnisoLevels {
+    /// World corner shared by all levels.
+    pub min: DVec3,
+    /// Level 0.
+    pub finest: Level,
+    /// Levels 1 and coarser.
+    pub coarse: Vec<FaceLevel>,
+}
+
+/// Bytes the directional levels of a `res`³ chain take beyond an isotropic chain's: six
+/// values instead of one in every coarse cell.
+pub fn aniso_extra_bytes(res: u32) -> u64 {
+    let mut cells = 0u64;
+    let mut r = res as u64;
+    while r > 1 {
+        r = r.div_ceil(2);
+        cells += r * r * r;
+    }
+    cells * (FACES as u64 - 1) * std::mem::size_of::<Vec4>() as u64
+}
+
+/// `front` over `back`, premultiplied.
+fn over(front: Vec4, back: Vec4) -> Vec4 {
+    front + back * (1.0 - front.w)
+}
+
+/// The faces of one coarse cell from its children's values: `fetch(face, child)` gives child
+/// `child` (x + 2y + 4z) as seen along face `face` (empty outside the finer level).
+pub fn coarsen_faces(mut fetch: impl FnMut(usize, u32) -> Vec4) -> [Vec4; FACES] {
+    std::array::from_fn(|face| {
+        let axis = face / 2;
+        // Travelling +axis, the child at the lower coordinate is in front.
+        let front_bit = if face % 2 == 0 { 0 } else { 1u32 };
+        let mut sum = Vec4::ZERO;
+        for k in 0..8u32 {
+            if (k >> axis) & 1 != front_bit {
+                continue;
+            }
+            let back = k ^ (1 << axis);
+            sum += over(fetch(face, k), fetch(face, back));
+        }
+        sum * 0.25
+    })
+}
+
+/// Builds the anisotropic chain from its finest level, down to one cell.
+pub fn build_aniso_from(finest: Level, min: DVec3) -> AnisoLevels {
+    let mut coarse: Vec<FaceLevel> = Vec::new();
+    let (mut res, mut cell) = (finest.res, finest.cell);
+    while res > 1 {
+        let fine_res = res;
+        res = res.div_ceil(2);
+        cell *= 2.0;
+        let n = (res as usize).pow(3);
+        let prev = coarse.last();
+        let mut faces: [Vec<Vec4>; FACES] = std::array::from_fn(|_| vec![Vec4::ZERO; n]);
+        let r = res as usize;
+        let fr = fine_res as usize;
+        let cells: Vec<[Vec4; FACES]> = crate::render::cpu::par_map(n, |i| {
+            let (x, y, z) = ((i % r) as u32, ((i / r) % r) as u32, (i / (r * r)) as u32);
+            coarsen_faces(|face, k| {
+                let c = [2 * x + (k & 1), 2 * y + ((k >> 1) & 1), 2 * z + (k >> 2)];
+                if c.iter().any(|&v| v >= fine_res) {
+                    return Vec4::ZERO;
+                }
+                let j = c[0] as usize + fr * (c[1] as usize + fr * c[2] as usize);
+                match prev {
+                    Some(p) => p.faces[face][j],
+                    None => finest.rgba[j],
+                }
+            })
+        });
+        for (i, c) in cells.into_iter().enumerate() {
+            for f in 0..FACES {
+                faces[f][i] = c[f];
+            }
+        }
+        coarse.push(FaceLevel { res, cell, faces });
+    }
+    AnisoLevels { min, finest, coarse }
+}
+
+/// The three faces a cone along unit `dir` reads and their weights (the direction's squared
+/// components, summing to 1).
+pub fn face_weights(dir: DVec3) -> [(usize, f32); 3] {
+    let d = dir.as_vec3();
+    [
+        (if d.x >= 0.0 { 0 } else { 1 }, d.x * d.x),
+        (if d.y >= 0.0 { 2 } else { 3 }, d.y * d.y),
+        (if d.z >= 0.0 { 4 } else { 5 }, d.z * d.z),
+    ]
+}
+
+impl Chain for AnisoLevels {
+    fn min(&self) -> DVec3 {
+        self.min
+    }
+    fn count(&self) -> usize {
+        1 + self.coarse.len()
+    }
+    fn res(&self, l: usize) -> u32 {
+        if l == 0 {
+            self.finest.res
+        } else {
+            self.coarse[l - 1].res
+        }
+    }
+    fn cell(&self, l: usize) -> f64 {
+        if l == 0 {
+            self.finest.cell
+        } else {
+            self.coarse[l - 1].cell
+        }
+    }
+    /// The mean of the six faces (what a cone sees averaged over the axis directions).
+    fn value(&self, l: usize, c: [u32; 3]) -> Vec4 {
+        if l == 0 {
+            return self.finest.rgba[self.finest.index(c)];
+        }
+        let level = &self.coarse[l - 1];
+        let r = level.res as usize;
+        let i = c[0] as usize + r * (c[1] as usize + r * c[2] as usize);
+        level.faces.iter().map(|f| f[i]).sum::<Vec4>() / FACES as f32
+    }
+    fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> Vec4 {
+        if l == 0 {
+            return self.trilinear(0, p);
+        }
+        let level = &self.coarse[l - 1];
+        let r = level.res as usize;
+        let w = face_weights(dir);
+        trilinear_with(self.min, level.cell, level.res, p, |c| {
+            let i = c[0] as usize + r * (c[1] as usize + r * c[2] as usize);
+            level.faces[w[0].0][i] * w[0].1 + level.faces[w[1].0][i] * w[1].1 + level.faces[w[2].0][i] * w[2].1
+        })
+    }
 }

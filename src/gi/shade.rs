@@ -38,8 +38,9 @@ type StageHook = Box<dyn Fn(&str) + Send + Sync>;
 struct LastVolume {
     key: VolumeKey,
     lights: Lights,
-    // Bounces and the cones they were gathered with (the chain depends on both past one bounce).
-    bounces: (u32, ConeSettings),
+    // Bounces and the cones they were gathered with (the chain depends on both past one bounce),
+    // and whether the chain is anisotropic.
+    bounces: (u32, ConeSettings, bool),
     // The cones the pixels gathered with (their light changes with them, the chain does not).
     cones: ConeSettings,
     volume: WorldVolume,
@@ -72,8 +73,12 @@ impl WorldVolume {
         }
     }
     /// The level chain over this volume's cells lit to `rgba`.
-    fn chain(&self, rgba: Vec<glam::Vec4>) -> WorldChain {
+    fn chain(&self, rgba: Vec<glam::Vec4>, anisotropic: bool) -> WorldChain {
         match self {
+            WorldVolume::Dense(v) if anisotropic => WorldChain::DenseAniso(levels::build_aniso_from(
+                levels::Level { res: v.spec.res, cell: v.spec.cell, rgba },
+                v.spec.min,
+            )),
             WorldVolume::Dense(v) => WorldChain::Dense(levels::build_from(
                 levels::Level { res: v.spec.res, cell: v.spec.cell, rgba },
                 v.spec.min,
@@ -101,6 +106,7 @@ impl<T: Cells> CellsDyn for T {
 /// A level chain of either layout.
 enum WorldChain {
     Dense(Levels),
+    DenseAniso(levels::AnisoLevels),
     Sparse(SparseLevels),
 }
 
@@ -108,30 +114,35 @@ impl Chain for WorldChain {
     fn min(&self) -> DVec3 {
         match self {
             WorldChain::Dense(c) => c.min(),
+            WorldChain::DenseAniso(c) => c.min(),
             WorldChain::Sparse(c) => c.min(),
         }
     }
     fn count(&self) -> usize {
         match self {
             WorldChain::Dense(c) => c.count(),
+            WorldChain::DenseAniso(c) => c.count(),
             WorldChain::Sparse(c) => c.count(),
         }
     }
     fn res(&self, l: usize) -> u32 {
         match self {
             WorldChain::Dense(c) => c.res(l),
+            WorldChain::DenseAniso(c) => c.res(l),
             WorldChain::Sparse(c) => c.res(l),
         }
     }
     fn cell(&self, l: usize) -> f64 {
         match self {
             WorldChain::Dense(c) => c.cell(l),
+            WorldChain::DenseAniso(c) => c.cell(l),
             WorldChain::Sparse(c) => c.cell(l),
         }
     }
     fn value(&self, l: usize, c: [u32; 3]) -> glam::Vec4 {
         match self {
             WorldChain::Dense(ch) => ch.value(l, c),
+            WorldChain::DenseAniso(ch) => ch.value(l, c),
             WorldChain::Sparse(ch) => ch.value(l, c),
         }
     }
@@ -139,6 +150,14 @@ impl Chain for WorldChain {
     fn trilinear(&self, l: usize, p: DVec3) -> glam::Vec4 {
         match self {
             WorldChain::Dense(ch) => ch.trilinear(l, p),
+            WorldChain::DenseAniso(ch) => ch.trilinear(l, p),
+            WorldChain::Sparse(ch) => ch.trilinear(l, p),
+        }
+    }
+    fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> glam::Vec4 {
+        match self {
+            WorldChain::Dense(ch) => ch.trilinear(l, p),
+            WorldChain::DenseAniso(ch) => ch.trilinear_dir(l, p, dir),
             WorldChain::Sparse(ch) => ch.trilinear(l, p),
         }
     }
@@ -350,12 +369,19 @@ pub struct GiSettings {
     pub levels: LevelStore,
     /// Where the diffuse cones are gathered: every pixel or half resolution (both backends).
     pub gather: crate::render::Gather,
+    /// Directional (six-face) coarse levels: cones read what is seen along their direction,
+    /// so a wall's lit far side does not leak through its dark near side.
+    pub anisotropic: bool,
 }
 
 impl GiSettings {
-    /// The volume layout these settings use.
+    /// The volume layout these settings use (anisotropic levels are built over the dense
+    /// volume only, so `auto` stays dense with them).
     pub fn layout(&self) -> Layout {
-        self.volume.pick(self.res)
+        match self.volume {
+            VolumeChoice::Auto if self.anisotropic => Layout::Dense,
+            v => v.pick(self.res),
+        }
     }
 }
 
@@ -373,6 +399,7 @@ impl Default for GiSettings {
             volume: VolumeChoice::Auto,
             levels: LevelStore::Buffer,
             gather: crate::render::Gather::Pixels,
+            anisotropic: false,
         }
     }
 }
@@ -390,6 +417,20 @@ impl GiSettings {
         }
         if let Some(e) = self.extent.filter(|e| !(e.is_finite() && *e > 0.0)) {
             return Err(GiError::Settings(format!("volume extent {e} must be finite and positive")));
+        }
+        if self.anisotropic {
+            if self.layout() == Layout::Sparse {
+                return Err(GiError::Settings(
+                    "anisotropic GI levels are built over the dense volume only: use --gi-volume dense (up to 512³) \
+                     or leave out --gi-anisotropic"
+                        .into(),
+                ));
+            }
+            crate::memory::check(
+                &format!("the six directional levels of an anisotropic {}³ GI chain", self.res),
+                levels::aniso_extra_bytes(self.res),
+                "lower the GI resolution, leave out --gi-anisotropic, or raise the memory budget",
+            )?;
         }
         Ok(self)
     }
@@ -506,7 +547,7 @@ pub fn prepare_light(
     let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
     let last = caches.last.take();
     let same_cones = last.as_ref().is_some_and(|l| l.cones == cones);
-    let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
+    let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() }, s.anisotropic);
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
     if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
         stats.reuse = GiReuse::Volume;
@@ -558,14 +599,14 @@ pub fn prepare_light(
             // The direct light is kept apart only when bounces add to it (at 1024³ it is hundreds
             // of MiB).
             let chain = if s.bounces > 1 {
-                let mut chain = vol.chain(direct.clone());
+                let mut chain = vol.chain(direct.clone(), s.anisotropic);
                 for b in 1..s.bounces {
                     caches.stage(&format!("GI: bounce {} of {} over {} cells", b + 1, s.bounces, stats.occupied));
-                    chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones));
+                    chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones), s.anisotropic);
                 }
                 chain
             } else {
-                vol.chain(direct)
+                vol.chain(direct, s.anisotropic)
             };
             (chain, t3)
         }

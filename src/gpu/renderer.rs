@@ -381,6 +381,14 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
+            if asked.anisotropic {
+                return Err(crate::gi::GiError::Settings(
+                    "anisotropic GI levels are built by the CPU passes only (the WGSL passes have no six-face \
+                     levels yet): use --backend cpu or leave out --gi-anisotropic"
+                        .into(),
+                )
+                .into());
+            }
             let border = self.ctx.device.features().contains(wgpu::Features::ADDRESS_MODE_CLAMP_TO_BORDER);
             if asked.levels == crate::gi::shade::LevelStore::Texture && !border {
                 return Err(crate::gi::GiError::Settings(

@@ -59,9 +59,10 @@ pub(crate) enum Cmd {
     Demo(DemoArgs),
     /// Regenerate a built-in model's files.
     Model {
-        /// Which model: `car` (the default car), `box` (the coloured-wall box of the GI tests)
+        /// Which model: `car` (the default car), `box` (the coloured-wall box of the GI tests),
+        /// `thick-box` (the box with walls 12 cm thick, sunlit outside: GI's light-leak scene)
         /// or `panel-room` (a closed room lit only by an emissive ceiling panel).
-        #[arg(value_parser = ["car", "box", "panel-room"])]
+        #[arg(value_parser = ["car", "box", "thick-box", "panel-room"])]
         name: String,
         /// Output folder (default: models/NAME).
         #[arg(long)]
@@ -213,6 +214,11 @@ pub(crate) struct RenderArgs {
     /// (clustered radiance caches, diffuse and glossy; docs/gi.md).
     #[arg(long, default_value = "pixels", requires = "gi")]
     pub(crate) gi_gather: voxray::render::Gather,
+    /// Anisotropic GI levels: each coarse cell keeps what is seen through it along each of the
+    /// six axis directions, so light on a wall's far side does not leak through it (CPU, dense
+    /// volume; about 30 % more cone time; docs/gi.md).
+    #[arg(long, requires = "gi")]
+    pub(crate) gi_anisotropic: bool,
     /// Radiance caches: tile edge in pixels.
     #[arg(long, default_value_t = 16, requires = "gi")]
     pub(crate) gi_cache_tile: u32,

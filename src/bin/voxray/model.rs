@@ -7,6 +7,7 @@ pub(crate) fn model_cmd(model: &str, out_dir: Option<&Path>) -> Result<(), Error
     std::fs::create_dir_all(&out_dir).map_err(|source| Error::Io { path: out_dir.display().to_string(), source })?;
     let files = match model {
         "box" => voxray::model::room::files(),
+        "thick-box" => voxray::model::room::thick_files(),
         "panel-room" => voxray::model::panel_room::files(),
         _ => voxray::model::car::files(),
     };

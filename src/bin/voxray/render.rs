@@ -195,6 +195,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         bounces: a.gi_bounces,
         volume: a.gi_volume,
         levels: a.gi_levels,
+        anisotropic: a.gi_anisotropic,
         gather: match a.gi_gather {
             voxray::render::Gather::Caches(_) => {
                 voxray::render::Gather::Caches(voxray::render::radiance_cache::CacheSettings {
