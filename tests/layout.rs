@@ -316,7 +316,7 @@ fn wgsl_structs_match_rust() {
                 ("dst_res", offset_of!(GpuGiLevelStep, dst_res)),
                 ("bricks", offset_of!(GpuGiLevelStep, bricks)),
                 ("row_threads", offset_of!(GpuGiLevelStep, row_threads)),
-                ("pad0", offset_of!(GpuGiLevelStep, pad0)),
+                ("src_faces", offset_of!(GpuGiLevelStep, src_faces)),
                 ("pad1", offset_of!(GpuGiLevelStep, pad1)),
             ],
         ),

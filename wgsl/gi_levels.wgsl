@@ -33,6 +33,44 @@ fn levels_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     levels[step.dst_offset + gid.x + step.dst_res * (gid.y + step.dst_res * gid.z)] = coarsen(sum);
 }
 
+// gi::levels::build_aniso_from, one step: a thread per coarser cell writes its six faces
+// (gi::levels::coarsen_faces: per face, the children composited front to back along its
+// direction, column by column, the four columns averaged). Face f of a level starts at
+// offset + f * res³; step.src_faces says whether the finer level has faces (level 0 has not).
+fn child_face(face: u32, c: vec3<u32>) -> vec4<f32> {
+    if any(c >= vec3<u32>(step.src_res)) {
+        return vec4<f32>(0.0);
+    }
+    let i = c.x + step.src_res * (c.y + step.src_res * c.z);
+    let n = step.src_res * step.src_res * step.src_res;
+    return levels[step.src_offset + select(0u, face * n, step.src_faces != 0u) + i];
+}
+
+@compute @workgroup_size(4, 4, 4)
+fn levels_aniso_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if any(gid >= vec3<u32>(step.dst_res)) {
+        return;
+    }
+    let n = step.dst_res * step.dst_res * step.dst_res;
+    let dst = gid.x + step.dst_res * (gid.y + step.dst_res * gid.z);
+    for (var face = 0u; face < 6u; face++) {
+        let axis = face / 2u;
+        // Travelling +axis, the child at the lower coordinate is in front.
+        let front_bit = face % 2u;
+        var sum = vec4<f32>(0.0);
+        for (var k = 0u; k < 8u; k++) {
+            if ((k >> axis) & 1u) != front_bit {
+                continue;
+            }
+            let back = k ^ (1u << axis);
+            let front = child_face(face, 2u * gid + vec3<u32>(k & 1u, (k >> 1u) & 1u, k >> 2u));
+            let behind = child_face(face, 2u * gid + vec3<u32>(back & 1u, (back >> 1u) & 1u, back >> 2u));
+            sum += front + behind * (1.0 - front.w);
+        }
+        levels[step.dst_offset + face * n + dst] = sum * 0.25;
+    }
+}
+
 // One mip of the level texture (LevelStore::Texture).
 @group(0) @binding(3) var level_tex: texture_storage_3d<rgba16float, write>;
 

@@ -10,6 +10,9 @@ override GI_SPARSE: bool = false;
 // LevelStore::Texture: cones read the chain from gi_tex with the sampler's quadrilinear
 // filtering (border: transparent black, as outside the volume is empty).
 override GI_TEXTURE: bool = false;
+// GiSettings::anisotropic (dense buffer store): levels 1 and coarser hold six faces each
+// (gi::levels::FaceLevel), face f of level l at gi_levels[offset_l + f * res_l³ + cell].
+override GI_ANISO: bool = false;
 
 @group(1) @binding(B_GI_ACCUM) var<storage, read> gi_accum: array<u32>;
 @group(1) @binding(B_GI_LEVELS) var<storage, read_write> gi_levels: array<vec4<f32>>;
@@ -179,8 +182,19 @@ fn gi_level_index(l: u32, c: vec3<u32>, r: u32, off: u32) -> u32 {
     return off + c.x + r * (c.y + r * c.z);
 }
 
-// cone::sample_level: trilinear, cell centres hold the values, outside is empty.
-fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
+// gi::levels::face_weights: the faces a cone along unit dir reads (+x, -x, +y, -y, +z, -z
+// order) and their weights, the direction's squared components.
+fn gi_face_weights(dir: vec3<f32>) -> array<vec2<f32>, 3> {
+    return array<vec2<f32>, 3>(
+        vec2<f32>(select(1.0, 0.0, dir.x >= 0.0), dir.x * dir.x),
+        vec2<f32>(select(3.0, 2.0, dir.y >= 0.0), dir.y * dir.y),
+        vec2<f32>(select(5.0, 4.0, dir.z >= 0.0), dir.z * dir.z),
+    );
+}
+
+// cone::sample_level (Chain::trilinear_dir): trilinear, cell centres hold the values, outside
+// is empty; with GI_ANISO a coarse level blends the faces a cone along unit dir looks through.
+fn gi_sample_level(l: u32, p: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
     let cell = gi.min_cell.w * f32(1u << l);
     let g = (p - gi.min_cell.xyz) / cell - 0.5;
     let base = floor(g);
@@ -200,13 +214,20 @@ fn gi_sample_level(l: u32, p: vec3<f32>) -> vec4<f32> {
             continue;
         }
         let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
-        out += gi_levels[idx] * (w3.x * w3.y * w3.z);
+        var v = gi_levels[idx];
+        if GI_ANISO && l > 0u {
+            let n = u32(r) * u32(r) * u32(r);
+            let fw = gi_face_weights(dir);
+            v = gi_levels[idx + u32(fw[0].x) * n] * fw[0].y + gi_levels[idx + u32(fw[1].x) * n] * fw[1].y
+                + gi_levels[idx + u32(fw[2].x) * n] * fw[2].y;
+        }
+        out += v * (w3.x * w3.y * w3.z);
     }
     return out;
 }
 
-// cone::sample: quadrilinear.
-fn gi_sample(p: vec3<f32>, level: f32) -> vec4<f32> {
+// cone::sample_dir: quadrilinear, as a cone along unit dir sees it.
+fn gi_sample(p: vec3<f32>, level: f32, dir: vec3<f32>) -> vec4<f32> {
     let top = f32(gi.levels - 1u);
     let l = clamp(level, 0.0, top);
     if GI_TEXTURE {
@@ -216,11 +237,11 @@ fn gi_sample(p: vec3<f32>, level: f32) -> vec4<f32> {
     let lo = u32(floor(l));
     let hi = min(lo + 1u, gi.levels - 1u);
     let f = l - f32(lo);
-    let a = gi_sample_level(lo, p);
+    let a = gi_sample_level(lo, p, dir);
     if f == 0.0 || hi == lo {
         return a;
     }
-    return a * (1.0 - f) + gi_sample_level(hi, p) * f;
+    return a * (1.0 - f) + gi_sample_level(hi, p, dir) * f;
 }
 
 // cone::trace: one cone from a surface point; (radiance, opacity).
@@ -241,7 +262,7 @@ fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -
         let clear_size = (lift + t * cosv - GI_CLEARANCE * cell0) / GI_CLEARANCE;
         let clear_level = floor(log2(max(clear_size / cell0, 1.0)));
         let level = min(min(log2(diameter / cell0), clear_level), max_level);
-        let s = gi_sample(o + dir * t, level);
+        let s = gi_sample(o + dir * t, level, dir);
         let sa = clamp(s.w, 0.0, 1.0);
         if sa > 0.0 {
             c += (1.0 - a) * s.xyz * (sa / s.w);

@@ -387,8 +387,8 @@ pub struct GpuGiLevelStep {
     pub bricks: u32,
     /// Threads per dispatch row of a brick step (spread over y past 65 535 groups).
     pub row_threads: u32,
-    /// Padding.
-    pub pad0: u32,
+    /// Anisotropic steps: 1 when the finer level holds six faces (every level but level 0).
+    pub src_faces: u32,
     /// Padding.
     pub pad1: u32,
 }

@@ -152,7 +152,7 @@ pub struct GpuRenderer {
     gi: Option<super::gi::GpuGi>,
     gi_settings: Option<crate::gi::GiSettings>,
     gi_pipeline_layout: Option<wgpu::PipelineLayout>,
-    gi_pipelines: HashMap<(u32, bool, bool, bool), super::gi::GiPipelines>,
+    gi_pipelines: HashMap<(u32, bool, bool, bool, bool), super::gi::GiPipelines>,
     /// What GI did in the last frame (None without GI).
     pub gi_stats: Option<super::gi::GpuGiStats>,
     /// Buffers of the trace and shade passes kept between frames.
@@ -381,10 +381,10 @@ impl GpuRenderer {
     pub fn set_gi(&mut self, settings: Option<crate::gi::GiSettings>) -> Result<(), GpuError> {
         if let Some(asked) = &settings {
             asked.validated()?;
-            if asked.anisotropic {
+            if asked.anisotropic && asked.levels == crate::gi::shade::LevelStore::Texture {
                 return Err(crate::gi::GiError::Settings(
-                    "anisotropic GI levels are built by the CPU passes only (the WGSL passes have no six-face \
-                     levels yet): use --backend cpu or leave out --gi-anisotropic"
+                    "anisotropic GI levels are read from the level buffer only: use --gi-levels buffer or leave out \
+                     --gi-anisotropic"
                         .into(),
                 )
                 .into());
@@ -408,6 +408,14 @@ impl GpuRenderer {
             },
             ..s
         });
+        if let Some(s) = settings.filter(|s| s.anisotropic && s.layout() == crate::gi::Layout::Sparse) {
+            return Err(crate::gi::GiError::Settings(format!(
+                "anisotropic GI levels need the dense volume, and {}³ is sparse on this device: lower --gi-res or \
+                 leave out --gi-anisotropic",
+                s.res
+            ))
+            .into());
+        }
         if let Some(s) = settings.filter(|s| s.levels == crate::gi::shade::LevelStore::Texture) {
             if s.layout() == crate::gi::Layout::Sparse {
                 return Err(crate::gi::GiError::Settings(format!(
@@ -463,16 +471,24 @@ impl GpuRenderer {
     }
 
     /// Builds (once) the injection and GI shading pipelines of a plan variant.
-    fn gi_pipeline(&mut self, search: u32, shadows: bool, sparse: bool, texture: bool) -> Result<(), GpuError> {
+    fn gi_pipeline(
+        &mut self,
+        search: u32,
+        shadows: bool,
+        sparse: bool,
+        texture: bool,
+        aniso: bool,
+    ) -> Result<(), GpuError> {
         let (node_split, attr_split) = self.splits();
         let layout = self.gi_pipeline_layout.as_ref().ok_or_else(|| GpuError::Device("GI is off".into()))?;
         let (device, module) = (&self.ctx.device, &self.module);
-        self.gi_pipelines.entry((search, shadows, sparse, texture)).or_insert_with(|| {
+        self.gi_pipelines.entry((search, shadows, sparse, texture, aniso)).or_insert_with(|| {
             let constants = [
                 ("SEARCH", search as f64),
                 ("SHADOWS", shadows as u32 as f64),
                 ("GI_SPARSE", sparse as u32 as f64),
                 ("GI_TEXTURE", texture as u32 as f64),
+                ("GI_ANISO", aniso as u32 as f64),
                 ("NODE_SPLIT", node_split as f64),
                 ("ATTR_SPLIT", attr_split as f64),
             ];
@@ -691,7 +707,7 @@ impl GpuRenderer {
                 let settings = *settings;
                 let sparse = settings.layout() == crate::gi::Layout::Sparse;
                 let texture = settings.levels == crate::gi::shade::LevelStore::Texture;
-                self.gi_pipeline(search, plan.shadows, sparse, texture)?;
+                self.gi_pipeline(search, plan.shadows, sparse, texture, settings.anisotropic)?;
                 let gi = self.gi.as_mut().ok_or_else(|| GpuError::Device("GI state missing".into()))?;
                 Some(gi.prepare(&self.ctx, scene, camera, lights, &settings)?)
             }
@@ -707,7 +723,8 @@ impl GpuRenderer {
         };
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
         let gi_pipes = gi_work.as_ref().map(|w| {
-            &self.gi_pipelines[&(search, plan.shadows, w.stats.layout == crate::gi::Layout::Sparse, w.texture)]
+            let sparse = w.stats.layout == crate::gi::Layout::Sparse;
+            &self.gi_pipelines[&(search, plan.shadows, sparse, w.texture, w.aniso)]
         });
         let ctx = self.ctx.clone();
         let device = &ctx.device;

@@ -186,8 +186,9 @@ impl App {
                             row.radio_value(&mut ui.gi.levels, LevelStore::Buffer, "buffer");
                             row.radio_value(&mut ui.gi.levels, LevelStore::Texture, "texture");
                         });
-                        // The GPU refuses it with its reason (shown below as "GI off: …").
-                        ui_.checkbox(&mut ui.gi.anisotropic, "GI anisotropic levels (CPU, dense)");
+                        // Dense volume and level buffer only: other choices turn GI off with
+                        // the reason (shown below as "GI off: …").
+                        ui_.checkbox(&mut ui.gi.anisotropic, "GI anisotropic levels (stops leaks through walls)");
                     }
                     if let Some(e) = &ui.gi_error {
                         ui_.colored_label(egui::Color32::from_rgb(230, 110, 90), format!("GI off: {e}"));

@@ -253,7 +253,8 @@ struct GiLevelStep {
     // Brick steps: bricks, and threads per dispatch row.
     bricks: u32,
     row_threads: u32,
-    pad0: u32,
+    // Anisotropic steps: whether the finer level holds six faces.
+    src_faces: u32,
     pad1: u32,
 }
 

@@ -215,8 +215,8 @@ pub(crate) struct RenderArgs {
     #[arg(long, default_value = "pixels", requires = "gi")]
     pub(crate) gi_gather: voxray::render::Gather,
     /// Anisotropic GI levels: each coarse cell keeps what is seen through it along each of the
-    /// six axis directions, so light on a wall's far side does not leak through it (CPU, dense
-    /// volume; about 30 % more cone time; docs/gi.md).
+    /// six axis directions, so less light on a wall's far side leaks through it (both backends;
+    /// dense volume, level buffer; about 1.5× the cone time; docs/gi.md).
     #[arg(long, requires = "gi")]
     pub(crate) gi_anisotropic: bool,
     /// Radiance caches: tile edge in pixels.

@@ -157,6 +157,8 @@ pub(crate) struct GiWork {
     /// Whether the chain is copied into the level texture after each levels pass (and the
     /// cones sample it there).
     pub texture: bool,
+    /// The chain's coarse levels hold six faces (`GiSettings::anisotropic`).
+    pub aniso: bool,
     /// Bind group 1 of the tracer's GI entry points.
     pub group1: wgpu::BindGroup,
     /// The diffuse cones are gathered at half resolution (`gather_half_main` runs first).
@@ -177,6 +179,8 @@ pub(crate) struct GpuGi {
     pool: Option<Pool>,
     splat_pipe: wgpu::ComputePipeline,
     levels_pipe: wgpu::ComputePipeline,
+    /// One step down an anisotropic chain (six faces per coarse cell).
+    levels_aniso_pipe: wgpu::ComputePipeline,
     /// The sparse volume's mark/accumulate and allocate passes, and its brick level steps.
     sparse_splat_pipe: wgpu::ComputePipeline,
     sparse_alloc_pipe: wgpu::ComputePipeline,
@@ -201,7 +205,7 @@ pub(crate) struct GpuGi {
     placeholder_ro: wgpu::Buffer,
     /// What the volume on the GPU was made from, and the bounces (with their cones) its chain
     /// was gathered with.
-    last: Option<(VolumeKey, Lights, (u32, ConeSettings))>,
+    last: Option<(VolumeKey, Lights, (u32, ConeSettings, bool))>,
     /// Per-frame inputs and bind groups kept between frames.
     kept: GiFrameBuffers,
     /// Most bytes of a brick pool sized by the bound ([`UNREAD_LIMIT`] unless a test lowers it).
@@ -433,6 +437,7 @@ impl GpuGi {
             pool: None,
             splat_pipe: make("gi_transform.wgsl", transform_source(), "splat_main"),
             levels_pipe: make("gi_levels.wgsl", levels_source(), "levels_main"),
+            levels_aniso_pipe: make("gi_levels.wgsl", levels_source(), "levels_aniso_main"),
             sparse_splat_pipe,
             sparse_alloc_pipe,
             sparse_dispatch_pipe,
@@ -524,12 +529,12 @@ impl GpuGi {
         let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
         // Decided before any upload: a changed pool or volume size changes the key too.
         let mut reuse = GiReuse::decide(self.last.as_ref().map(|(k, l, _)| (k, l)), &key, lights);
-        let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() });
+        let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() }, s.anisotropic);
         if reuse == GiReuse::Levels && self.last.as_ref().is_some_and(|l| l.2 != bounce_key) {
             reuse = GiReuse::Volume; // the chain was gathered with other bounces
         }
         let texture = s.levels == LevelStore::Texture;
-        if self.volume.as_ref().is_some_and(|v| v.texture.is_some() != texture) {
+        if self.volume.as_ref().is_some_and(|v| v.texture.is_some() != texture || v.aniso != s.anisotropic) {
             reuse = GiReuse::Nothing; // the buffers are allocated afresh
         }
         self.last = None; // until this frame's passes are encoded
@@ -607,7 +612,7 @@ impl GpuGi {
                 }
             };
         }
-        self.volume_buffers(ctx, layout, spec.res, capacity, texture)?;
+        self.volume_buffers(ctx, layout, spec.res, capacity, texture, s.anisotropic)?;
         if s.bounces > 1 {
             self.bounce_buffers(ctx)?;
         }
@@ -858,6 +863,7 @@ impl GpuGi {
             allocation,
             count_to,
             texture,
+            aniso: s.anisotropic,
             group1,
             half,
             caches: cache_dispatch.map(|d| d.2),
@@ -945,7 +951,7 @@ impl GpuGi {
                     None => pass.dispatch_workgroups(g.0, g.1, 1),
                 }
             }
-            pass.set_pipeline(&self.levels_pipe);
+            pass.set_pipeline(if vol.aniso { &self.levels_aniso_pipe } else { &self.levels_pipe });
             let first = vol.resolutions.len() - vol.steps.len();
             for (l, step) in vol.steps.iter().enumerate() {
                 let g = vol.resolutions[first + l].div_ceil(4);

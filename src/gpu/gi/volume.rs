@@ -7,6 +7,8 @@ pub(super) struct VolumeBuffers {
     pub(super) layout: Layout,
     /// The chain's texture copy, when the cones read it from a texture.
     pub(super) texture: Option<LevelTexture>,
+    /// Levels 1 and coarser hold six faces each (`GiSettings::anisotropic`; dense only).
+    pub(super) aniso: bool,
     pub(super) res: u32,
     /// Bricks the sparse buffers hold (0 for dense).
     pub(super) capacity: u32,
@@ -79,9 +81,19 @@ impl GpuGi {
         res: u32,
         capacity: u32,
         texture: bool,
+        aniso: bool,
     ) -> Result<(), GpuError> {
+        if aniso && (layout != Layout::Dense || texture) {
+            return Err(
+                GiError::Settings("anisotropic GI levels need the dense volume and the buffer store".into()).into()
+            );
+        }
         if self.volume.as_ref().is_some_and(|v| {
-            v.layout == layout && v.res == res && v.capacity == capacity && v.texture.is_some() == texture
+            v.layout == layout
+                && v.res == res
+                && v.capacity == capacity
+                && v.texture.is_some() == texture
+                && v.aniso == aniso
         }) {
             return Ok(());
         }
@@ -104,7 +116,9 @@ impl GpuGi {
         loop {
             offsets.push(total as u32);
             resolutions.push(r);
-            total += (r as u64).pow(3);
+            // An anisotropic chain's coarse levels hold six faces, one after another.
+            let faces = if aniso && offsets.len() > 1 { 6 } else { 1 };
+            total += faces * (r as u64).pow(3);
             if r == 1 {
                 break;
             }
@@ -140,9 +154,11 @@ impl GpuGi {
                     src_res: resolutions[l - 1],
                     dst_offset: offsets[l],
                     dst_res: resolutions[l],
+                    src_faces: (aniso && l > 1) as u32,
                     ..Default::default()
                 };
-                level_step_bind(ctx, &self.levels_pipe, &levels, &step)
+                let pipe = if aniso { &self.levels_aniso_pipe } else { &self.levels_pipe };
+                level_step_bind(ctx, pipe, &levels, &step)
             })
             .collect();
         let texture = match texture {
@@ -152,6 +168,7 @@ impl GpuGi {
         self.volume = Some(VolumeBuffers {
             layout,
             texture,
+            aniso,
             res,
             capacity,
             accum,
