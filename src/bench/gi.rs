@@ -429,6 +429,8 @@ pub fn accuracy_gpu(
         ("gather (GPU, 128³)", "half", 0.5, GiSettings { gather: half, ..dense }),
         ("gather (GPU, 128³)", "caches", 0.25, GiSettings { gather: caches, ..dense }),
         ("gather (GPU, 128³)", "caches 8²", 0.125, GiSettings { gather: caches8, ..dense }),
+        ("anisotropic (GPU, 128³)", "off", 0.0, dense),
+        ("anisotropic (GPU, 128³)", "on", 1.0, GiSettings { anisotropic: true, ..dense }),
     ];
     for (knob, name, x, s) in runs {
         progress(&format!("gi-accuracy (GPU): {knob}, {name}"));
