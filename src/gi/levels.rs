@@ -163,8 +163,9 @@ pub struct FaceLevel {
     pub res: u32,
     /// Cell edge (world units).
     pub cell: f64,
-    /// (radiance × alpha, alpha) per face ([`FACES`] order) and cell, x fastest within a face.
-    pub faces: [Vec<Vec4>; FACES],
+    /// Per cell (x fastest), its (radiance × alpha, alpha) per face in [`FACES`] order (a
+    /// cell's faces side by side: a sample reads three of them).
+    pub cells: Vec<[Vec4; FACES]>,
 }
 
 /// A level chain with directional coarse levels: level 0 (the injected volume, isotropic) and
@@ -225,29 +226,23 @@ pub fn build_aniso_from(finest: Level, min: DVec3) -> AnisoLevels {
         cell *= 2.0;
         let n = (res as usize).pow(3);
         let prev = coarse.last();
-        let mut faces: [Vec<Vec4>; FACES] = std::array::from_fn(|_| vec![Vec4::ZERO; n]);
         let r = res as usize;
         let fr = fine_res as usize;
         let cells: Vec<[Vec4; FACES]> = crate::render::cpu::par_map(n, |i| {
             let (x, y, z) = ((i % r) as u32, ((i / r) % r) as u32, (i / (r * r)) as u32);
-            coarsen_faces(|face, k| {
+            // The children's indices once (each is read once per face).
+            let child: [Option<usize>; 8] = std::array::from_fn(|k| {
+                let k = k as u32;
                 let c = [2 * x + (k & 1), 2 * y + ((k >> 1) & 1), 2 * z + (k >> 2)];
-                if c.iter().any(|&v| v >= fine_res) {
-                    return Vec4::ZERO;
-                }
-                let j = c[0] as usize + fr * (c[1] as usize + fr * c[2] as usize);
-                match prev {
-                    Some(p) => p.faces[face][j],
-                    None => finest.rgba[j],
-                }
+                c.iter().all(|&v| v < fine_res).then(|| c[0] as usize + fr * (c[1] as usize + fr * c[2] as usize))
+            });
+            coarsen_faces(|face, k| match (child[k as usize], prev) {
+                (None, _) => Vec4::ZERO,
+                (Some(j), Some(p)) => p.cells[j][face],
+                (Some(j), None) => finest.rgba[j],
             })
         });
-        for (i, c) in cells.into_iter().enumerate() {
-            for f in 0..FACES {
-                faces[f][i] = c[f];
-            }
-        }
-        coarse.push(FaceLevel { res, cell, faces });
+        coarse.push(FaceLevel { res, cell, cells });
     }
     AnisoLevels { min, finest, coarse }
 }
@@ -292,7 +287,7 @@ impl Chain for AnisoLevels {
         let level = &self.coarse[l - 1];
         let r = level.res as usize;
         let i = c[0] as usize + r * (c[1] as usize + r * c[2] as usize);
-        level.faces.iter().map(|f| f[i]).sum::<Vec4>() / FACES as f32
+        level.cells[i].iter().sum::<Vec4>() / FACES as f32
     }
     fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> Vec4 {
         if l == 0 {
@@ -303,7 +298,8 @@ impl Chain for AnisoLevels {
         let w = face_weights(dir);
         trilinear_with(self.min, level.cell, level.res, p, |c| {
             let i = c[0] as usize + r * (c[1] as usize + r * c[2] as usize);
-            level.faces[w[0].0][i] * w[0].1 + level.faces[w[1].0][i] * w[1].1 + level.faces[w[2].0][i] * w[2].1
+            let v = &level.cells[i];
+            v[w[0].0] * w[0].1 + v[w[1].0] * w[1].1 + v[w[2].0] * w[2].1
         })
     }
 }
