@@ -88,30 +88,27 @@ pub fn sample_level<C: Chain + ?Sized>(levels: &C, level: usize, p: DVec3) -> Ve
 
 /// Quadrilinear sample: trilinear in the levels either side of the fractional `level`.
 pub fn sample<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64) -> Vec4 {
-    let top = (levels.count() - 1) as f64;
-    let l = level.clamp(0.0, top);
-    let lo = l.floor() as usize;
-    let hi = (lo + 1).min(levels.count() - 1);
-    let f = (l - lo as f64) as f32;
-    let a = sample_level(levels, lo, p);
-    if f == 0.0 || hi == lo {
-        return a;
-    }
-    a * (1.0 - f) + sample_level(levels, hi, p) * f
+    quadrilinear(levels, level, |l| sample_level(levels, l, p))
 }
 
 /// [`sample`] as a cone travelling along unit `dir` sees it ([`Chain::trilinear_dir`]).
 pub fn sample_dir<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64, dir: DVec3) -> Vec4 {
+    quadrilinear(levels, level, |l| levels.trilinear_dir(l, p, dir))
+}
+
+/// The blend of `at(l)` over the two levels either side of the fractional `level` (clamped to
+/// the chain).
+fn quadrilinear<C: Chain + ?Sized>(levels: &C, level: f64, at: impl Fn(usize) -> Vec4) -> Vec4 {
     let top = (levels.count() - 1) as f64;
     let l = level.clamp(0.0, top);
     let lo = l.floor() as usize;
     let hi = (lo + 1).min(levels.count() - 1);
     let f = (l - lo as f64) as f32;
-    let a = levels.trilinear_dir(lo, p, dir);
+    let a = at(lo);
     if f == 0.0 || hi == lo {
         return a;
     }
-    a * (1.0 - f) + levels.trilinear_dir(hi, p, dir) * f
+    a * (1.0 - f) + at(hi) * f
 }
 
 /// Cells of clearance a sample needs from the surface a cone starts on: voxelization puts a
