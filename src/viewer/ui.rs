@@ -188,7 +188,9 @@ impl App {
                         });
                         // Dense volume and level buffer only: other choices turn GI off with
                         // the reason (shown below as "GI off: …").
-                        ui_.checkbox(&mut ui.gi.anisotropic, "GI anisotropic levels (stops leaks through walls)");
+                        ui_.checkbox(&mut ui.gi.anisotropic, "GI anisotropic levels").on_hover_text(
+                            "six faces per coarse cell: less light leaks through walls lit on their far side",
+                        );
                     }
                     if let Some(e) = &ui.gi_error {
                         ui_.colored_label(egui::Color32::from_rgb(230, 110, 90), format!("GI off: {e}"));
