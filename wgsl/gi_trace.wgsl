@@ -183,12 +183,16 @@ fn gi_level_index(l: u32, c: vec3<u32>, r: u32, off: u32) -> u32 {
 }
 
 // gi::levels::face_weights: the faces a cone along unit dir reads (+x, -x, +y, -y, +z, -z
-// order) and their weights, the direction's squared components.
+// order) and their weights, the direction's components to the eighth power, normalized.
 fn gi_face_weights(dir: vec3<f32>) -> array<vec2<f32>, 3> {
+    let d2 = dir * dir;
+    let d4 = d2 * d2;
+    let e = d4 * d4;
+    let sum = e.x + e.y + e.z;
     return array<vec2<f32>, 3>(
-        vec2<f32>(select(1.0, 0.0, dir.x >= 0.0), dir.x * dir.x),
-        vec2<f32>(select(3.0, 2.0, dir.y >= 0.0), dir.y * dir.y),
-        vec2<f32>(select(5.0, 4.0, dir.z >= 0.0), dir.z * dir.z),
+        vec2<f32>(select(1.0, 0.0, dir.x >= 0.0), e.x / sum),
+        vec2<f32>(select(3.0, 2.0, dir.y >= 0.0), e.y / sum),
+        vec2<f32>(select(5.0, 4.0, dir.z >= 0.0), e.z / sum),
     );
 }
 

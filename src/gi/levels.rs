@@ -247,14 +247,27 @@ pub fn build_aniso_from(finest: Level, min: DVec3) -> AnisoLevels {
     AnisoLevels { min, finest, coarse }
 }
 
-/// The three faces a cone along unit `dir` reads and their weights (the direction's squared
-/// components, summing to 1).
+/// The three faces a cone along unit `dir` reads and their weights: the direction's
+/// components to the eighth power, normalized to sum to 1. A face holds what is seen along
+/// its axis, so the faces across a cone's direction show what lies beside each other there
+/// as if side by side in its path (half dark, half sunlit through a ceiling and the roof
+/// above it); leaning on the nearest axis lets less of that through than the squared
+/// components do (thick-walled box, 160×120, 128³, against a 256-spp reference: mean FLIP
+/// 0.353 / 0.339 / 0.322 / 0.314 / 0.314 for powers 1 / 2 / 4 / 8 / 16; the plain box 0.239 /
+/// 0.231 / 0.226 / 0.225 / 0.226, the panel room 0.143 / 0.141 / 0.139 / 0.139 / 0.139).
 pub fn face_weights(dir: DVec3) -> [(usize, f32); 3] {
     let d = dir.as_vec3();
+    let eighth = |v: f32| {
+        let v2 = v * v;
+        let v4 = v2 * v2;
+        v4 * v4
+    };
+    let (x, y, z) = (eighth(d.x), eighth(d.y), eighth(d.z));
+    let sum = x + y + z;
     [
-        (if d.x >= 0.0 { 0 } else { 1 }, d.x * d.x),
-        (if d.y >= 0.0 { 2 } else { 3 }, d.y * d.y),
-        (if d.z >= 0.0 { 4 } else { 5 }, d.z * d.z),
+        (if d.x >= 0.0 { 0 } else { 1 }, x / sum),
+        (if d.y >= 0.0 { 2 } else { 3 }, y / sum),
+        (if d.z >= 0.0 { 4 } else { 5 }, z / sum),
     ]
 }
 
