@@ -216,7 +216,7 @@ pub(crate) struct RenderArgs {
     pub(crate) gi_gather: voxray::render::Gather,
     /// Anisotropic GI levels: each coarse cell keeps what is seen through it along each of the
     /// six axis directions, so less light on a wall's far side leaks through it (both backends;
-    /// dense volume, level buffer; about 1.3× the GI time; docs/gi.md).
+    /// dense volume, level buffer; 1.1–1.3× the GI time; docs/gi.md).
     #[arg(long, requires = "gi")]
     pub(crate) gi_anisotropic: bool,
     /// Radiance caches: tile edge in pixels.
