@@ -118,3 +118,52 @@ fn beams_keep_the_specks_at_tile_corners() {
     }
     assert!(hits > 500, "the specks should show ({hits} pixels)");
 }
+
+/// A crowd at the beams' instance limit (`beam::MAX_INSTANCES`: 16 driving cars, 128
+/// instances, with shadows): beams on and off give the same hits, normals and image bit for
+/// bit, and the crowd one car more is past the limit.
+#[test]
+fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
+    let parts = car_parts();
+    let cars = voxray::render::beam::MAX_INSTANCES / parts.len();
+    let mut st = voxray::scene::stage_cars(&parts, cars, true, false).unwrap();
+    voxray::scene::car::pose_all(&mut st.scene, &st.cars, 0.37).unwrap();
+    st.scene.update().unwrap();
+    assert!(st.scene.instances().len() <= voxray::render::beam::MAX_INSTANCES);
+    // The whole crowd from afar, and one car from close by with others behind it (where a
+    // late start shows: its surfaces lie just past the tiles' bounds).
+    let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
+    let near = st.scene.world(0).translation;
+    let close = Camera {
+        eye: near + DVec3::new(1.2, 1.0, 2.4),
+        target: near + DVec3::new(0.0, 0.6, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 60.0,
+        width: 96,
+        height: 64,
+    };
+    for (name, cam) in [("crowd", Camera::framing(lo, hi, 192, 128)), ("one car close", close)] {
+        check_crowd_frame(&st.scene, &cam, name);
+    }
+    let more = voxray::scene::stage_cars(&parts, cars + 1, true, false).unwrap();
+    let plan = FramePlan::new(&more.scene, &close, &Lights::default(), &Features::default(), None);
+    assert!(!plan.beams, "{}", plan.explain());
+}
+
+fn check_crowd_frame(scene: &Scene, cam: &Camera, name: &str) {
+    let with = frame(scene, cam, true, u32::MAX);
+    let without = frame(scene, cam, false, u32::MAX);
+    let covered = with.instance.iter().filter(|&&i| i >= 0).count();
+    assert!(covered > 200, "{name}: the crowd covers only {covered} pixels");
+    for k in 0..with.t.len() {
+        assert_eq!(with.t[k].to_bits(), without.t[k].to_bits(), "{name}, pixel {k}: t");
+        assert_eq!(with.instance[k], without.instance[k], "{name}, pixel {k}: instance");
+        assert_eq!(
+            with.normal[k].to_array().map(f32::to_bits),
+            without.normal[k].to_array().map(f32::to_bits),
+            "{name}, pixel {k}: normal"
+        );
+    }
+    assert_eq!(with.radiance, without.radiance, "{name}: image");
+    assert!(with.instances_traced < without.instances_traced, "{name}: beams ruled no instance out");
+}

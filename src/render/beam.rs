@@ -25,8 +25,10 @@ pub const TILE: u32 = 8;
 pub const BEAM_WIDTH: u32 = 4 * TILE;
 
 /// Instances above this count get no beams (a per-tile start for every instance would cost
-/// more than it saves; the BVH culls them instead).
-pub const MAX_INSTANCES: usize = 64;
+/// more than it saves; the BVH culls them instead). Measured on crowds of driving cars
+/// (docs/benchmarks.md, step 36): beams save a third at 80 instances, break even near 150
+/// and cost three times over at 800.
+pub const MAX_INSTANCES: usize = 128;
 
 /// Unit-cube distance by which node cubes are grown and start distances shrunk: far above the
 /// f32 rounding of traversal (~2⁻²³) and its touching tolerance (2⁻²⁰), so a voxel that the
