@@ -30,14 +30,9 @@ pub const SKYLIGHT: ([f32; 2], [f32; 2]) = ([-0.45, 0.75], [-0.7, 0.4]);
 
 /// A rectangle (corners in order around it) facing the room's centre.
 pub(crate) fn inward(b: &mut Builder, q: [Vec3; 4], mat: &'static str) {
-    let centre = Vec3::new(0.0, HALF, 0.0);
-    let normal = (q[2] - q[0]).cross(q[3] - q[1]);
+    // Facing a point is facing away from its mirror image through the rectangle's middle.
     let mid = (q[0] + q[1] + q[2] + q[3]) * 0.25;
-    if normal.dot(centre - mid) >= 0.0 {
-        b.quad(q[0], q[1], q[2], q[3], mat);
-    } else {
-        b.quad(q[3], q[2], q[1], q[0], mat);
-    }
+    facing_away(b, q, mid * 2.0 - Vec3::new(0.0, HALF, 0.0), mat);
 }
 
 /// The parts: `room` (walls, floor, ceiling), `tall_block`, `short_block`.
