@@ -10,7 +10,8 @@ pub struct GiCapture {
     pub volume: Volume,
     /// Weight that fell outside the volume.
     pub outside: f64,
-    /// The injected light and the level chain.
+    /// The injected light and the level chain (with anisotropic levels, each coarse level as
+    /// its +x face: the other five follow it in the GPU's buffer and are not read back).
     pub levels: Levels,
 }
 
