@@ -46,6 +46,21 @@ fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
     render(s, cam, &lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
 }
 
+/// The frames with and without beams agree bit for bit: every pixel's t, instance and normal,
+/// and the image.
+fn assert_same_frames(with: &Frame, without: &Frame, what: &str) {
+    for k in 0..with.t.len() {
+        assert_eq!(with.t[k].to_bits(), without.t[k].to_bits(), "{what}, pixel {k}: t");
+        assert_eq!(with.instance[k], without.instance[k], "{what}, pixel {k}: instance");
+        assert_eq!(
+            with.normal[k].to_array().map(f32::to_bits),
+            without.normal[k].to_array().map(f32::to_bits),
+            "{what}, pixel {k}: normal"
+        );
+    }
+    assert_eq!(with.radiance, without.radiance, "{what}: image");
+}
+
 #[test]
 fn beams_find_exactly_the_hits_rays_from_the_eye_find() {
     let s = scene();
@@ -71,16 +86,7 @@ fn beams_find_exactly_the_hits_rays_from_the_eye_find() {
         for max_level in [u32::MAX, 3] {
             let with = frame(&s, c, true, max_level);
             let without = frame(&s, c, false, max_level);
-            for k in 0..with.t.len() {
-                assert_eq!(with.t[k].to_bits(), without.t[k].to_bits(), "{name}, level {max_level}, pixel {k}: t");
-                assert_eq!(with.instance[k], without.instance[k], "{name}, level {max_level}, pixel {k}: instance");
-                assert_eq!(
-                    with.normal[k].to_array().map(f32::to_bits),
-                    without.normal[k].to_array().map(f32::to_bits),
-                    "{name}, level {max_level}, pixel {k}: normal"
-                );
-            }
-            assert_eq!(with.radiance, without.radiance, "{name}, level {max_level}: image");
+            assert_same_frames(&with, &without, &format!("{name}, level {max_level}"));
             assert!(with.instances_traced <= without.instances_traced, "{name}: beams traced more");
             skipped += without.instances_traced - with.instances_traced;
         }
@@ -155,15 +161,6 @@ fn check_crowd_frame(scene: &Scene, cam: &Camera, name: &str) {
     let without = frame(scene, cam, false, u32::MAX);
     let covered = with.instance.iter().filter(|&&i| i >= 0).count();
     assert!(covered > 200, "{name}: the crowd covers only {covered} pixels");
-    for k in 0..with.t.len() {
-        assert_eq!(with.t[k].to_bits(), without.t[k].to_bits(), "{name}, pixel {k}: t");
-        assert_eq!(with.instance[k], without.instance[k], "{name}, pixel {k}: instance");
-        assert_eq!(
-            with.normal[k].to_array().map(f32::to_bits),
-            without.normal[k].to_array().map(f32::to_bits),
-            "{name}, pixel {k}: normal"
-        );
-    }
-    assert_eq!(with.radiance, without.radiance, "{name}: image");
+    assert_same_frames(&with, &without, name);
     assert!(with.instances_traced < without.instances_traced, "{name}: beams ruled no instance out");
 }

@@ -800,7 +800,7 @@ fn thick_wall_level(lit: Vec3) -> voxray::gi::levels::Level {
 
 #[test]
 fn anisotropic_levels_keep_a_walls_lit_far_side_behind_its_dark_near_side() {
-    use voxray::gi::levels::{build_aniso_from, build_from, Chain};
+    use voxray::gi::levels::{build_aniso_from, build_from, face_weights, Chain};
     let lit = Vec3::new(0.8, 0.6, 0.2);
     let iso = build_from(thick_wall_level(lit), DVec3::ZERO);
     let aniso = build_aniso_from(thick_wall_level(lit), DVec3::ZERO);
@@ -810,7 +810,7 @@ fn anisotropic_levels_keep_a_walls_lit_far_side_behind_its_dark_near_side() {
     }
     // Level 0 is the injected volume itself, whatever the direction.
     let p = DVec3::new(8.7, 5.5, 5.5);
-    assert_eq!(aniso.trilinear_dir(0, p, DVec3::X), iso.trilinear(0, p));
+    assert_eq!(aniso.trilinear_dir(0, p, &face_weights(DVec3::X)), iso.trilinear(0, p));
     // Level 1's cell 4 holds the whole wall; level 2's cell 2 the wall and empty space after
     // it. The isotropic average shows half the lit side to a cone coming from the dark side.
     for (l, x) in [(1usize, 9.0), (2, 10.0)] {
@@ -818,14 +818,14 @@ fn anisotropic_levels_keep_a_walls_lit_far_side_behind_its_dark_near_side() {
         let i = iso.trilinear(l, centre);
         assert!(i.w == 1.0 && (i.truncate() - lit * 0.5).abs().max_element() < 1e-6, "level {l}: isotropic {i}");
         // Travelling +x the dark side is in front: opaque and black.
-        let from_dark = aniso.trilinear_dir(l, centre, DVec3::X);
+        let from_dark = aniso.trilinear_dir(l, centre, &face_weights(DVec3::X));
         assert_eq!(from_dark, glam::Vec4::new(0.0, 0.0, 0.0, 1.0), "level {l}");
         // Travelling −x the lit side is in front.
-        let from_lit = aniso.trilinear_dir(l, centre, -DVec3::X);
+        let from_lit = aniso.trilinear_dir(l, centre, &face_weights(-DVec3::X));
         assert!((from_lit - lit.extend(1.0)).abs().max_element() < 1e-6, "level {l}: {from_lit}");
         // Along the wall each column is all dark or all lit, and at level 2 half the columns
         // pass beside the wall.
-        let along = aniso.trilinear_dir(l, centre, DVec3::Y);
+        let along = aniso.trilinear_dir(l, centre, &face_weights(DVec3::Y));
         let expect = if l == 1 { (lit * 0.5).extend(1.0) } else { (lit * 0.25).extend(0.5) };
         assert!((along - expect).abs().max_element() < 1e-6, "level {l}: {along}");
     }

@@ -197,8 +197,8 @@ fn gi_face_weights(dir: vec3<f32>) -> array<vec2<f32>, 3> {
 }
 
 // cone::sample_level (Chain::trilinear_dir): trilinear, cell centres hold the values, outside
-// is empty; with GI_ANISO a coarse level blends the faces a cone along unit dir looks through.
-fn gi_sample_level(l: u32, p: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
+// is empty; with GI_ANISO a coarse level blends the faces fw (gi_face_weights, one per cone).
+fn gi_sample_level(l: u32, p: vec3<f32>, fw: array<vec2<f32>, 3>) -> vec4<f32> {
     let cell = gi.min_cell.w * f32(1u << l);
     let g = (p - gi.min_cell.xyz) / cell - 0.5;
     let base = floor(g);
@@ -206,6 +206,12 @@ fn gi_sample_level(l: u32, p: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
     let b = vec3<i32>(base);
     let r = i32(gi_per_level(gi.res_a, gi.res_b, gi.res_c, l));
     let off = gi_per_level(gi.offsets_a, gi.offsets_b, gi.offsets_c, l);
+    // An anisotropic coarse level: the three faces' offsets from a cell's first face.
+    let faced = GI_ANISO && l > 0u;
+    let n = u32(r) * u32(r) * u32(r);
+    let face0 = u32(fw[0].x) * n;
+    let face1 = u32(fw[1].x) * n;
+    let face2 = u32(fw[2].x) * n;
     var out = vec4<f32>(0.0);
     for (var k = 0u; k < 8u; k++) {
         let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, k >> 2u);
@@ -218,20 +224,19 @@ fn gi_sample_level(l: u32, p: vec3<f32>, dir: vec3<f32>) -> vec4<f32> {
             continue;
         }
         let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
-        var v = gi_levels[idx];
-        if GI_ANISO && l > 0u {
-            let n = u32(r) * u32(r) * u32(r);
-            let fw = gi_face_weights(dir);
-            v = gi_levels[idx + u32(fw[0].x) * n] * fw[0].y + gi_levels[idx + u32(fw[1].x) * n] * fw[1].y
-                + gi_levels[idx + u32(fw[2].x) * n] * fw[2].y;
+        var v: vec4<f32>;
+        if faced {
+            v = gi_levels[idx + face0] * fw[0].y + gi_levels[idx + face1] * fw[1].y + gi_levels[idx + face2] * fw[2].y;
+        } else {
+            v = gi_levels[idx];
         }
         out += v * (w3.x * w3.y * w3.z);
     }
     return out;
 }
 
-// cone::sample_dir: quadrilinear, as a cone along unit dir sees it.
-fn gi_sample(p: vec3<f32>, level: f32, dir: vec3<f32>) -> vec4<f32> {
+// cone::sample_dir: quadrilinear, as a cone with the face weights fw sees it.
+fn gi_sample(p: vec3<f32>, level: f32, fw: array<vec2<f32>, 3>) -> vec4<f32> {
     let top = f32(gi.levels - 1u);
     let l = clamp(level, 0.0, top);
     if GI_TEXTURE {
@@ -241,11 +246,11 @@ fn gi_sample(p: vec3<f32>, level: f32, dir: vec3<f32>) -> vec4<f32> {
     let lo = u32(floor(l));
     let hi = min(lo + 1u, gi.levels - 1u);
     let f = l - f32(lo);
-    let a = gi_sample_level(lo, p, dir);
+    let a = gi_sample_level(lo, p, fw);
     if f == 0.0 || hi == lo {
         return a;
     }
-    return a * (1.0 - f) + gi_sample_level(hi, p, dir) * f;
+    return a * (1.0 - f) + gi_sample_level(hi, p, fw) * f;
 }
 
 // cone::trace: one cone from a surface point; (radiance, opacity).
@@ -256,6 +261,8 @@ fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -
     let lift = cell0;
     let o = origin + normal * lift;
     let cosv = max(dot(dir, normal), 0.05);
+    // The faces an anisotropic chain shows this cone: one direction, found once.
+    let fw = gi_face_weights(dir);
     var c = vec3<f32>(0.0);
     var a = 0.0;
     var t = max((GI_CLEARANCE * (cell0 + cell0) - lift) / cosv, cell0);
@@ -266,7 +273,7 @@ fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -
         let clear_size = (lift + t * cosv - GI_CLEARANCE * cell0) / GI_CLEARANCE;
         let clear_level = floor(log2(max(clear_size / cell0, 1.0)));
         let level = min(min(log2(diameter / cell0), clear_level), max_level);
-        let s = gi_sample(o + dir * t, level, dir);
+        let s = gi_sample(o + dir * t, level, fw);
         let sa = clamp(s.w, 0.0, 1.0);
         if sa > 0.0 {
             c += (1.0 - a) * s.xyz * (sa / s.w);

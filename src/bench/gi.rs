@@ -650,11 +650,10 @@ fn accuracy_on(
     // Anisotropic levels, with per-pixel cones and with the radiance caches.
     let caches_gather = crate::render::Gather::Caches(crate::render::radiance_cache::CacheSettings::default());
     for (knob, gather) in [("anisotropic", default.gather), ("anisotropic, caches gather", caches_gather)] {
-        for anisotropic in [false, true] {
-            progress(&format!("gi-accuracy: {label}{knob} {}", if anisotropic { "on" } else { "off" }));
+        for (anisotropic, setting) in [(false, "off"), (true, "on")] {
+            progress(&format!("gi-accuracy: {label}{knob} {setting}"));
             let s = GiSettings { anisotropic, gather, ..default };
             let (ms, g, f) = gi_frame_timed(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
-            let setting = if anisotropic { "on" } else { "off" };
             push(knob, setting.into(), anisotropic as u32 as f64, ms, Some(g), &f)?;
         }
     }

@@ -6,7 +6,7 @@
 //! corrected for the overlap: with the correction a cone through a wall one cell thick kept
 //! only 0.82 of its opacity (light leaks through walls), without it 0.97 or more.
 
-use super::levels::Chain;
+use super::levels::{face_weights, Chain, FaceWeights};
 use glam::{DVec3, Vec3, Vec4};
 
 /// How indirect light is gathered.
@@ -91,9 +91,9 @@ pub fn sample<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64) -> Vec4 {
     quadrilinear(levels, level, |l| sample_level(levels, l, p))
 }
 
-/// [`sample`] as a cone travelling along unit `dir` sees it ([`Chain::trilinear_dir`]).
-pub fn sample_dir<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64, dir: DVec3) -> Vec4 {
-    quadrilinear(levels, level, |l| levels.trilinear_dir(l, p, dir))
+/// [`sample`] as a cone with the face weights `faces` sees it ([`Chain::trilinear_dir`]).
+pub fn sample_dir<C: Chain + ?Sized>(levels: &C, p: DVec3, level: f64, faces: &FaceWeights) -> Vec4 {
+    quadrilinear(levels, level, |l| levels.trilinear_dir(l, p, faces))
 }
 
 /// The blend of `at(l)` over the two levels either side of the fractional `level` (clamped to
@@ -148,6 +148,8 @@ pub fn trace<C: Chain + ?Sized>(
     let lift = cell0;
     let o = origin + normal * lift;
     let cos = dir.dot(normal).max(0.05);
+    // The faces an anisotropic chain shows this cone: one direction, found once.
+    let faces = face_weights(dir);
     let clear_size = |t: f64| (lift + t * cos - CLEARANCE * cell0) / CLEARANCE;
     let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
     // The first t at which a one-cell (level 0) sample is clear of the surface.
@@ -159,7 +161,7 @@ pub fn trace<C: Chain + ?Sized>(
         let clear_level = (clear_size(t) / cell0).max(1.0).log2().floor();
         let level = (diameter / cell0).log2().min(clear_level).min(max_level);
         let size = cell0 * level.exp2();
-        let s = sample_dir(levels, o + dir * t, level, dir);
+        let s = sample_dir(levels, o + dir * t, level, &faces);
         let sa = s.w.clamp(0.0, 1.0);
         if sa > 0.0 {
             c += (1.0 - a) * s.truncate() * (sa / s.w);

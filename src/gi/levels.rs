@@ -55,11 +55,11 @@ pub trait Chain: Sync {
     fn trilinear(&self, l: usize, p: DVec3) -> Vec4 {
         trilinear_with(self.min(), self.cell(l), self.res(l), p, |c| self.value(l, c))
     }
-    /// Trilinear sample of level `l` at `p` as a cone travelling along unit `dir` sees it: the
-    /// same as [`Chain::trilinear`] for an isotropic chain; an anisotropic one blends the
-    /// faces `dir` looks through.
-    fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> Vec4 {
-        let _ = dir;
+    /// Trilinear sample of level `l` at `p` as a cone whose direction has the face weights
+    /// `faces` ([`face_weights`], found once per cone) sees it: the same as
+    /// [`Chain::trilinear`] for an isotropic chain; an anisotropic one blends those faces.
+    fn trilinear_dir(&self, l: usize, p: DVec3, faces: &FaceWeights) -> Vec4 {
+        let _ = faces;
         self.trilinear(l, p)
     }
 }
@@ -202,8 +202,8 @@ fn over(front: Vec4, back: Vec4) -> Vec4 {
 pub fn coarsen_faces(mut fetch: impl FnMut(usize, u32) -> Vec4) -> [Vec4; FACES] {
     std::array::from_fn(|face| {
         let axis = face / 2;
-        // Travelling +axis, the child at the lower coordinate is in front.
-        let front_bit = if face % 2 == 0 { 0 } else { 1u32 };
+        // Travelling +axis (even faces), the child at the lower coordinate is in front.
+        let front_bit = (face % 2) as u32;
         let mut sum = Vec4::ZERO;
         for k in 0..8u32 {
             if (k >> axis) & 1 != front_bit {
@@ -247,6 +247,9 @@ pub fn build_aniso_from(finest: Level, min: DVec3) -> AnisoLevels {
     AnisoLevels { min, finest, coarse }
 }
 
+/// The three faces a cone reads ([`FACES`] order) and their weights (summing to 1).
+pub type FaceWeights = [(usize, f32); 3];
+
 /// The three faces a cone along unit `dir` reads and their weights: the direction's
 /// components to the eighth power, normalized to sum to 1. A face holds what is seen along
 /// its axis, so the faces across a cone's direction show what lies beside each other there
@@ -255,7 +258,7 @@ pub fn build_aniso_from(finest: Level, min: DVec3) -> AnisoLevels {
 /// components do (thick-walled box, 160×120, 128³, against a 256-spp reference: mean FLIP
 /// 0.353 / 0.339 / 0.322 / 0.314 / 0.314 for powers 1 / 2 / 4 / 8 / 16; the plain box 0.239 /
 /// 0.231 / 0.226 / 0.225 / 0.226, the panel room 0.143 / 0.141 / 0.139 / 0.139 / 0.139).
-pub fn face_weights(dir: DVec3) -> [(usize, f32); 3] {
+pub fn face_weights(dir: DVec3) -> FaceWeights {
     let d = dir.as_vec3();
     let eighth = |v: f32| {
         let v2 = v * v;
@@ -302,13 +305,12 @@ impl Chain for AnisoLevels {
         let i = c[0] as usize + r * (c[1] as usize + r * c[2] as usize);
         level.cells[i].iter().sum::<Vec4>() / FACES as f32
     }
-    fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> Vec4 {
+    fn trilinear_dir(&self, l: usize, p: DVec3, w: &FaceWeights) -> Vec4 {
         if l == 0 {
             return self.trilinear(0, p);
         }
         let level = &self.coarse[l - 1];
         let r = level.res as usize;
-        let w = face_weights(dir);
         trilinear_with(self.min, level.cell, level.res, p, |c| {
             let i = c[0] as usize + r * (c[1] as usize + r * c[2] as usize);
             let v = &level.cells[i];

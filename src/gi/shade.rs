@@ -154,10 +154,10 @@ impl Chain for WorldChain {
             WorldChain::Sparse(ch) => ch.trilinear(l, p),
         }
     }
-    fn trilinear_dir(&self, l: usize, p: DVec3, dir: DVec3) -> glam::Vec4 {
+    fn trilinear_dir(&self, l: usize, p: DVec3, faces: &levels::FaceWeights) -> glam::Vec4 {
         match self {
             WorldChain::Dense(ch) => ch.trilinear(l, p),
-            WorldChain::DenseAniso(ch) => ch.trilinear_dir(l, p, dir),
+            WorldChain::DenseAniso(ch) => ch.trilinear_dir(l, p, faces),
             WorldChain::Sparse(ch) => ch.trilinear(l, p),
         }
     }

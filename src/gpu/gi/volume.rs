@@ -73,7 +73,8 @@ pub(super) fn level_step_bind(
 
 impl GpuGi {
     /// Allocates the accumulation and level buffers for `res` cells per side: every cell
-    /// (dense) or `capacity` bricks (sparse).
+    /// (dense) or `capacity` bricks (sparse); `aniso` (dense buffer store only, which
+    /// `GpuRenderer::set_gi` ensures) gives each coarse level six faces.
     pub(super) fn volume_buffers(
         &mut self,
         ctx: &GpuContext,
@@ -83,11 +84,6 @@ impl GpuGi {
         texture: bool,
         aniso: bool,
     ) -> Result<(), GpuError> {
-        if aniso && (layout != Layout::Dense || texture) {
-            return Err(
-                GiError::Settings("anisotropic GI levels need the dense volume and the buffer store".into()).into()
-            );
-        }
         if self.volume.as_ref().is_some_and(|v| {
             v.layout == layout
                 && v.res == res
