@@ -255,9 +255,8 @@ pub type FaceWeights = [(usize, f32); 3];
 /// its axis, so the faces across a cone's direction show what lies beside each other there
 /// as if side by side in its path (half dark, half sunlit through a ceiling and the roof
 /// above it); leaning on the nearest axis lets less of that through than the squared
-/// components do (thick-walled box, 160×120, 128³, against a 256-spp reference: mean FLIP
-/// 0.353 / 0.339 / 0.322 / 0.314 / 0.314 for powers 1 / 2 / 4 / 8 / 16; the plain box 0.239 /
-/// 0.231 / 0.226 / 0.225 / 0.226, the panel room 0.143 / 0.141 / 0.139 / 0.139 / 0.139).
+/// components do (thick-walled box: mean FLIP 0.339 with squares, 0.314 with eighth powers;
+/// the powers measured in docs/gi.md, "Anisotropic levels").
 pub fn face_weights(dir: DVec3) -> FaceWeights {
     let d = dir.as_vec3();
     let eighth = |v: f32| {
