@@ -33,7 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
 
     // The same caches again, from the frame's G-buffer, to draw them.
-    let (_, _, cone) = caches.ambient(&lights).ok_or("no GI light")?;
+    let (_, _, cone, _) = caches.ambient(&lights).ok_or("no GI light")?;
     let basis = camera.basis();
     let w = camera.width as usize;
     let hit = |x: u32, y: u32| {

@@ -13,6 +13,9 @@ override GI_TEXTURE: bool = false;
 // GiSettings::anisotropic (dense buffer store): levels 1 and coarser hold six faces each
 // (gi::levels::FaceLevel), face f of level l at gi_levels[offset_l + f * res_l³ + cell].
 override GI_ANISO: bool = false;
+// GiSettings::cone_shadows: the emitters' shadows in shade_gi_main are cones through the
+// level chain (gi_emitter_light), not shadow rays (direct_light leaves the emitters out).
+override GI_CONE_SHADOWS: bool = false;
 
 @group(1) @binding(B_GI_ACCUM) var<storage, read> gi_accum: array<u32>;
 @group(1) @binding(B_GI_LEVELS) var<storage, read_write> gi_levels: array<vec4<f32>>;
@@ -255,8 +258,14 @@ fn gi_sample(p: vec3<f32>, level: f32, fw: array<vec2<f32>, 3>) -> vec4<f32> {
 
 // cone::trace: one cone from a surface point; (radiance, opacity).
 fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -> vec4<f32> {
+    return gi_march(origin, normal, dir, spread, gi.max_distance, -1.0);
+}
+
+// cone::march: with end_cos > 0 each sample keeps clear of the surface the cone ends on,
+// `end` along it (cone::ConeEnd), as it keeps clear of the one it starts from.
+fn gi_march(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32, max_distance: f32, end_cos: f32) -> vec4<f32> {
     let cell0 = gi.min_cell.w;
-    let end = min(gi.max_distance, cell0 * f32(gi.res) * 1.75);
+    let end = min(max_distance, cell0 * f32(gi.res) * 1.75);
     let max_level = f32(max(i32(gi.levels) - 3, 0));
     let lift = cell0;
     let o = origin + normal * lift;
@@ -269,8 +278,15 @@ fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -
     // Every step is at least half a cell and the march ends at the volume's diagonal; the
     // count bound only guards against a non-finite input.
     for (var steps = 0u; t < end && a < 0.99 && steps < 8192u; steps++) {
+        var clear_size = (lift + t * cosv - GI_CLEARANCE * cell0) / GI_CLEARANCE;
+        if end_cos > 0.0 {
+            let room = ((max_distance - t) * max(end_cos, 0.05) - GI_CLEARANCE * cell0) / GI_CLEARANCE;
+            if room < cell0 {
+                break;
+            }
+            clear_size = min(clear_size, room);
+        }
         let diameter = max(spread * t, cell0);
-        let clear_size = (lift + t * cosv - GI_CLEARANCE * cell0) / GI_CLEARANCE;
         let clear_level = floor(log2(max(clear_size / cell0, 1.0)));
         let level = min(min(log2(diameter / cell0), clear_level), max_level);
         let s = gi_sample(o + dir * t, level, fw);
@@ -282,6 +298,80 @@ fn gi_trace(origin: vec3<f32>, normal: vec3<f32>, dir: vec3<f32>, spread: f32) -
         t += cell0 * exp2(level) * 0.5;
     }
     return vec4<f32>(c, a);
+}
+
+// emitters::shadow_cone_of with cone::visibility: what of emitter row `e` reaches the
+// camera-relative surface point `at` (unit normal n) through the level chain, by one cone to
+// its centroid as wide as a disc of its projected solid angle (at most MAX_SHADOW_CONE).
+fn shadow_cone_of(e: Emitter, at: vec3<f32>, n: vec3<f32>) -> f32 {
+    let to = e.a.xyz + (e.e1.xyz + e.e2.xyz) / 3.0 - at;
+    let dist = length(to);
+    if !(dist > 0.0) {
+        return 0.0;
+    }
+    let dir = to / dist;
+    let cosv = -dot(e.normal.xyz, dir);
+    if !(cosv > 0.0) {
+        return 0.0;
+    }
+    let omega = min(e.e1.w * cosv / (dist * dist), 6.28318530718);
+    let aperture = max(min(2.0 * acos(clamp(1.0 - omega / 6.28318530718, -1.0, 1.0)), MAX_SHADOW_CONE), 1e-4);
+    return 1.0 - gi_march(at, n, dir, 2.0 * tan(aperture * 0.5), dist, cosv).w;
+}
+
+const MAX_SHADOW_CONE: f32 = 2.09439510239;
+
+// emitters::emitter_light with EmitterShadows::Cones: the samples as emitter_light draws them,
+// each dimmed by its triangle's shadow cone (traced once per triangle for up to eight).
+fn gi_emitter_light(key: u32, at: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
+    let count = frame.emitters;
+    let samples = frame.emitter_samples;
+    if count == 0u || samples == 0u {
+        return vec3<f32>(0.0);
+    }
+    var memo_row: array<u32, 8>;
+    var memo_through: array<f32, 8>;
+    var memo_len = 0u;
+    var sum = vec3<f32>(0.0);
+    for (var s = 0u; s < samples; s++) {
+        let pick = emitter_pick(key, s);
+        let e = emitters[pick.index];
+        let to = pick.p - at;
+        let dist2 = dot(to, to);
+        if !(dist2 > 0.0) {
+            continue;
+        }
+        let wi = to / sqrt(dist2);
+        let cos_light = -dot(e.normal.xyz, wi);
+        if cos_light <= 0.0 || dot(n, wi) <= 0.0 {
+            continue;
+        }
+        let response = light_response(albedo, material, n, d, wi);
+        if all(response == vec3<f32>(0.0)) {
+            continue;
+        }
+        var through = -1.0;
+        for (var m = 0u; m < memo_len; m++) {
+            if memo_row[m] == pick.index {
+                through = memo_through[m];
+                break;
+            }
+        }
+        if through < 0.0 {
+            through = shadow_cone_of(e, at, n);
+            if memo_len < 8u {
+                memo_row[memo_len] = pick.index;
+                memo_through[memo_len] = through;
+                memo_len++;
+            }
+        }
+        if through <= 0.0 {
+            continue;
+        }
+        let pdf_area = e.normal.w / e.e1.w;
+        sum += response * e.emission.xyz * (cos_light / (dist2 * pdf_area) * through);
+    }
+    return sum / f32(samples);
 }
 
 // cone::gather: cosine-weighted cones (one along the normal, a ring around it); the sky fills
@@ -425,7 +515,11 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     ambient = max(ambient, vec3<f32>(0.0));
     // w: the cones' ambient occlusion, read back as the AO AOV (the sky's pixels have 1).
-    radiance[idx] = vec4<f32>(ambient + direct_light(h, gid.x, gid.y, albedo), diffuse.w);
+    var direct = direct_light(h, gid.x, gid.y, albedo);
+    if GI_CONE_SHADOWS && SHADOWS {
+        direct += gi_emitter_light(idx, p, n, ray_dir(gid.x, gid.y), albedo, h.material);
+    }
+    radiance[idx] = vec4<f32>(ambient + direct, diffuse.w);
 }
 
 // shade::bounce: every occupied cell gathers the previous chain's light over its hemisphere

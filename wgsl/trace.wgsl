@@ -565,9 +565,37 @@ fn light_response(albedo: vec3<f32>, material: u32, n: vec3<f32>, d: vec3<f32>, 
     return f;
 }
 
+// EmitterTable::sample: the point that sample `s` of pixel (or cell) `key` picks on the
+// emitters (by power, then uniform by area) and the row it lies on.
+struct EmitterPick {
+    index: u32,
+    p: vec3<f32>,
+}
+
+fn emitter_pick(key: u32, s: u32) -> EmitterPick {
+    let count = frame.emitters;
+    let u = light_random(key, s);
+    // The first row whose cumulative fraction exceeds u.x.
+    var lo = 0u;
+    var hi = count;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if emitters[mid].e2.w <= u.x {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    let index = min(lo, count - 1u);
+    let e = emitters[index];
+    let su = sqrt(u.y);
+    return EmitterPick(index, e.a.xyz + e.e1.xyz * (su * (1.0 - u.z)) + e.e2.xyz * (su * u.z));
+}
+
 // render::emitters::emitter_light: the emitters' light reflected towards the viewer at `at`
 // (camera-relative), from frame.emitter_samples points picked by power and area, each with a
-// shadow ray from `start` that ends short of the emitter's own voxels.
+// shadow ray from `start` that ends short of the emitter's own voxels. (With GI's cone
+// shadows, gi_emitter_light in gi_trace.wgsl instead.)
 fn emitter_light(key: u32, at: vec3<f32>, start: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
     let count = frame.emitters;
     let samples = frame.emitter_samples;
@@ -576,21 +604,9 @@ fn emitter_light(key: u32, at: vec3<f32>, start: vec3<f32>, n: vec3<f32>, d: vec
     }
     var sum = vec3<f32>(0.0);
     for (var s = 0u; s < samples; s++) {
-        let u = light_random(key, s);
-        // The first row whose cumulative fraction exceeds u.x (EmitterTable::sample).
-        var lo = 0u;
-        var hi = count;
-        while lo < hi {
-            let mid = (lo + hi) / 2u;
-            if emitters[mid].e2.w <= u.x {
-                lo = mid + 1u;
-            } else {
-                hi = mid;
-            }
-        }
-        let e = emitters[min(lo, count - 1u)];
-        let su = sqrt(u.y);
-        let p = e.a.xyz + e.e1.xyz * (su * (1.0 - u.z)) + e.e2.xyz * (su * u.z);
+        let pick = emitter_pick(key, s);
+        let e = emitters[pick.index];
+        let p = pick.p;
         let to = p - at;
         let dist2 = dot(to, to);
         if !(dist2 > 0.0) {
@@ -664,7 +680,8 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
             c += light_response(albedo, h.material, n, d, inc.to_light) * inc.irradiance;
         }
     }
-    if frame.emitter_samples > 0u {
+    // With GI's cone shadows (and shadows on) shade_gi_main adds the emitters' light.
+    if frame.emitter_samples > 0u && !(GI_CONE_SHADOWS && SHADOWS) {
         let d = ray_dir(x, y);
         let at = d * h.t;
         let start = at + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);

@@ -135,6 +135,48 @@ pub fn trace<C: Chain + ?Sized>(
     aperture: f64,
     max_distance: f64,
 ) -> Vec4 {
+    march(levels, origin, normal, dir, aperture, max_distance, None)
+}
+
+/// A surface a cone ends on: the cone must not sample its cells (an emitter's own voxels
+/// would shadow it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConeEnd {
+    /// Distance along the cone to the surface.
+    pub distance: f64,
+    /// Cosine between the cone and the surface's normal (> 0): how fast the cone closes in on
+    /// the surface's plane.
+    pub cos: f64,
+}
+
+/// How much of a light seen as a disc of full angle `aperture` from surface point `origin`
+/// (unit normal `normal`) along unit `dir` reaches it through the level chain's opacity: 1 −
+/// the opacity a cone gathers on its way to `end` (cone-traced soft shadows). The march is
+/// [`trace`]'s, clear of the surface it ends on as it is clear of the one it starts from, so
+/// neither surface's own voxels shadow the light.
+pub fn visibility<C: Chain + ?Sized>(
+    levels: &C,
+    origin: DVec3,
+    normal: DVec3,
+    dir: DVec3,
+    aperture: f64,
+    end: ConeEnd,
+) -> f32 {
+    1.0 - march(levels, origin, normal, dir, aperture, end.distance, Some(end)).w
+}
+
+/// [`trace`]'s march; with `target`, each sample also keeps clear of the surface the cone
+/// ends on (its size at most the distance left to that plane, less 1.5 cells, over 1.5), and
+/// the march ends where no one-cell sample is clear of it.
+fn march<C: Chain + ?Sized>(
+    levels: &C,
+    origin: DVec3,
+    normal: DVec3,
+    dir: DVec3,
+    aperture: f64,
+    max_distance: f64,
+    target: Option<ConeEnd>,
+) -> Vec4 {
     let cell0 = levels.cell(0);
     let extent = cell0 * levels.res(0) as f64 * 1.75; // the volume's diagonal
     let end = max_distance.min(extent);
@@ -151,14 +193,23 @@ pub fn trace<C: Chain + ?Sized>(
     // The faces an anisotropic chain shows this cone: one direction, found once.
     let faces = face_weights(dir);
     let clear_size = |t: f64| (lift + t * cos - CLEARANCE * cell0) / CLEARANCE;
+    // The largest sample clear of the target's plane at t (∞ without a target).
+    let end_size = |t: f64| match target {
+        Some(e) => ((e.distance - t) * e.cos.max(0.05) - CLEARANCE * cell0) / CLEARANCE,
+        None => f64::INFINITY,
+    };
     let (mut c, mut a) = (Vec3::ZERO, 0.0f32);
     // The first t at which a one-cell (level 0) sample is clear of the surface.
     let mut t = ((CLEARANCE * (cell0 + cell0) - lift) / cos).max(cell0);
     while t < end && a < 0.99 {
+        let room = end_size(t);
+        if room < cell0 {
+            break;
+        }
         let diameter = (spread * t).max(cell0);
         // Quadrilinear sampling blends in the next coarser level too, so that one must be
         // clear: whole levels only below the clearance limit.
-        let clear_level = (clear_size(t) / cell0).max(1.0).log2().floor();
+        let clear_level = (clear_size(t).min(room) / cell0).max(1.0).log2().floor();
         let level = (diameter / cell0).log2().min(clear_level).min(max_level);
         let size = cell0 * level.exp2();
         let s = sample_dir(levels, o + dir * t, level, &faces);

@@ -7,7 +7,7 @@
 
 use super::volume::{Volume, VolumeSpec};
 use crate::render::bvh::Bvh;
-use crate::render::emitters::{emitter_light, EmitterTable};
+use crate::render::emitters::{emitter_light, EmitterShadows, EmitterTable};
 use crate::render::instances::prepare;
 use crate::render::visibility::{occluded, FrameInstances};
 use crate::scene::{Lights, Scene};
@@ -136,10 +136,22 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<
             // Keyed by the cell's place in the grid, so dense and sparse volumes (whose stored
             // order differs) draw the same points.
             let key = cell_key(spec, cell.centre);
-            radiance += emitter_light(&emitters, samples, key, at, start, n, -n, albedo, 0.0, 1.0, &mut |o, d, len| {
-                shadow_rays += 1;
-                !occluded(&fi, o, d, len, search)
-            });
+            radiance += emitter_light(
+                &emitters,
+                samples,
+                key,
+                at,
+                start,
+                n,
+                -n,
+                albedo,
+                0.0,
+                1.0,
+                EmitterShadows::Rays(&mut |o, d, len| {
+                    shadow_rays += 1;
+                    !occluded(&fi, o, d, len, search)
+                }),
+            );
         } else if lights.use_mtl_emitters && samples == 0 {
             radiance += cell.emission / occ;
         }

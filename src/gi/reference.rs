@@ -17,7 +17,7 @@ use super::triangles::TriangleScene;
 use crate::render::brdf;
 use crate::render::bvh::Bvh;
 use crate::render::cpu::{hit_record, leave, par_map};
-use crate::render::emitters::{emitter_light, EmitterTable};
+use crate::render::emitters::{emitter_light, EmitterShadows, EmitterTable};
 use crate::render::hitbuffer::HitRecord;
 use crate::render::instances::{prepare, Prepared};
 use crate::render::visibility::{nearest, occluded, FrameInstances, Search};
@@ -265,10 +265,10 @@ impl<'a> PathTracer<'a> {
             albedo,
             ks,
             shininess,
-            &mut |o, dir, len| {
+            EmitterShadows::Rays(&mut |o, dir, len| {
                 rays += 1;
                 !self.blocked(fi, o, dir, len)
-            },
+            }),
         );
         (light.as_dvec3(), rays)
     }

@@ -372,6 +372,11 @@ pub struct GiSettings {
     /// Directional (six-face) coarse levels: cones read what is seen along their direction,
     /// so a wall's lit far side does not leak through its dark near side.
     pub anisotropic: bool,
+    /// Emitters' soft shadows as one cone per emitter triangle through the level chain's
+    /// opacity (as wide as the triangle looks from the shaded point) instead of a shadow ray
+    /// per light sample: no noise, at the volume's resolution. Suns, points and spots keep
+    /// their rays (they have no area), and so does the light injected into the volume.
+    pub cone_shadows: bool,
 }
 
 impl GiSettings {
@@ -400,6 +405,7 @@ impl Default for GiSettings {
             levels: LevelStore::Buffer,
             gather: crate::render::Gather::Pixels,
             anisotropic: false,
+            cone_shadows: false,
         }
     }
 }
@@ -639,6 +645,7 @@ impl GiCaches {
         impl Fn(&HitRecord, DVec3) -> (glam::Vec3, f32) + Sync + '_,
         impl Fn(&HitRecord, DVec3, DVec3, glam::Vec3, Option<glam::Vec3>) -> glam::Vec3 + Sync + '_,
         impl Fn(DVec3, DVec3, DVec3, f64) -> glam::Vec4 + Sync + '_,
+        impl Fn(DVec3, DVec3, DVec3, f64, crate::gi::cone::ConeEnd) -> f32 + Sync + '_,
     )> {
         let last = self.last.as_ref()?;
         let (chain, cones, sky) = (&last.chain, last.cones, lights.sky());
@@ -667,7 +674,11 @@ impl GiCaches {
             let s = trace(chain, o, n, d, aperture, cones.max_distance);
             (s.truncate() + sky * (1.0 - s.w)).extend(1.0 - s.w)
         };
-        Some((diffuse, term, cone))
+        // A cone from a world point towards an emitter: what of it gets through.
+        let shadow = move |p: DVec3, n: DVec3, d: DVec3, aperture: f64, end: crate::gi::cone::ConeEnd| {
+            crate::gi::cone::visibility(chain, p, n, d, aperture, end)
+        };
+        Some((diffuse, term, cone, shadow))
     }
 }
 
@@ -687,7 +698,7 @@ pub fn render_with_gi(
     progress: &(dyn Fn(u32, u32) + Sync),
 ) -> Result<(Frame, GiStats), GiError> {
     let mut stats = prepare_light(scene, camera, lights, s, caches)?;
-    let (diffuse, term, cone) =
+    let (diffuse, term, cone, shadow) =
         caches.ambient(lights).ok_or_else(|| GiError::Settings("no GI light was made".into()))?;
     let ambient = crate::render::AmbientLight {
         diffuse: &diffuse,
@@ -695,6 +706,7 @@ pub fn render_with_gi(
         cone: Some(&cone),
         gather: s.gather,
         unchanged: stats.reuse_pixels,
+        shadow_cone: if s.cone_shadows { Some(&shadow) } else { None },
     };
     let (frame, cones_ms) =
         crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress)?;

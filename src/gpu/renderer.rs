@@ -152,7 +152,7 @@ pub struct GpuRenderer {
     gi: Option<super::gi::GpuGi>,
     gi_settings: Option<crate::gi::GiSettings>,
     gi_pipeline_layout: Option<wgpu::PipelineLayout>,
-    gi_pipelines: HashMap<(u32, bool, bool, bool, bool), super::gi::GiPipelines>,
+    gi_pipelines: HashMap<(u32, bool, bool, bool, bool, bool), super::gi::GiPipelines>,
     /// What GI did in the last frame (None without GI).
     pub gi_stats: Option<super::gi::GpuGiStats>,
     /// Buffers of the trace and shade passes kept between frames.
@@ -478,17 +478,19 @@ impl GpuRenderer {
         sparse: bool,
         texture: bool,
         aniso: bool,
+        cone_shadows: bool,
     ) -> Result<(), GpuError> {
         let (node_split, attr_split) = self.splits();
         let layout = self.gi_pipeline_layout.as_ref().ok_or_else(|| GpuError::Device("GI is off".into()))?;
         let (device, module) = (&self.ctx.device, &self.module);
-        self.gi_pipelines.entry((search, shadows, sparse, texture, aniso)).or_insert_with(|| {
+        self.gi_pipelines.entry((search, shadows, sparse, texture, aniso, cone_shadows)).or_insert_with(|| {
             let constants = [
                 ("SEARCH", search as f64),
                 ("SHADOWS", shadows as u32 as f64),
                 ("GI_SPARSE", sparse as u32 as f64),
                 ("GI_TEXTURE", texture as u32 as f64),
                 ("GI_ANISO", aniso as u32 as f64),
+                ("GI_CONE_SHADOWS", cone_shadows as u32 as f64),
                 ("NODE_SPLIT", node_split as f64),
                 ("ATTR_SPLIT", attr_split as f64),
             ];
@@ -707,7 +709,7 @@ impl GpuRenderer {
                 let settings = *settings;
                 let sparse = settings.layout() == crate::gi::Layout::Sparse;
                 let texture = settings.levels == crate::gi::shade::LevelStore::Texture;
-                self.gi_pipeline(search, plan.shadows, sparse, texture, settings.anisotropic)?;
+                self.gi_pipeline(search, plan.shadows, sparse, texture, settings.anisotropic, settings.cone_shadows)?;
                 let gi = self.gi.as_mut().ok_or_else(|| GpuError::Device("GI state missing".into()))?;
                 Some(gi.prepare(&self.ctx, scene, camera, lights, &settings)?)
             }
@@ -722,9 +724,10 @@ impl GpuRenderer {
             None
         };
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
+        let cone_shadows = self.gi_settings.is_some_and(|s| s.cone_shadows);
         let gi_pipes = gi_work.as_ref().map(|w| {
             let sparse = w.stats.layout == crate::gi::Layout::Sparse;
-            &self.gi_pipelines[&(search, plan.shadows, sparse, w.texture, w.aniso)]
+            &self.gi_pipelines[&(search, plan.shadows, sparse, w.texture, w.aniso, cone_shadows)]
         });
         let ctx = self.ctx.clone();
         let device = &ctx.device;

@@ -5,7 +5,7 @@
 use super::beam::{TileRays, TILE};
 use super::brdf;
 use super::bvh::Bvh;
-use super::emitters::{emitter_light, EmitterTable};
+use super::emitters::{emitter_light, EmitterShadows, EmitterTable, ShadowCone};
 use super::hitbuffer::{HitBuffer, HitRecord, Rendered, TileSummary};
 use super::instances::{prepare_into, Prepared};
 use super::plan::FramePlan;
@@ -379,13 +379,18 @@ pub struct AmbientLight<'a> {
     /// The term gives what it gave in the stored frame (the same light, gathered the same
     /// way), so colours kept by the hit buffer stay valid.
     pub unchanged: bool,
+    /// Emitters' shadows as cones through the GI volume instead of shadow rays
+    /// (`GiSettings::cone_shadows`), from a world point; None: rays.
+    pub shadow_cone: Option<&'a ShadowCone<'a>>,
 }
 
 /// The light a hit receives besides the ambient term (WGSL's `direct_light`): the sun, when
 /// the surface faces it and its shadow ray is free, the other suns, points and spots the same
 /// way, the emitters' light sampled at `key`'s points ([`emitter_light`]), then the hit's own
 /// emission. `visible(start, direction, distance)` says whether a shadow ray gets through;
-/// `d` is the primary ray's unit direction from the camera at `eye`.
+/// with `cone`, the emitters' shadows are cones instead. `d` is the primary ray's unit
+/// direction from the camera at `eye`.
+#[allow(clippy::too_many_arguments)]
 fn direct_light(
     r: &HitRecord,
     eye: DVec3,
@@ -394,6 +399,7 @@ fn direct_light(
     emitters: &EmitterTable,
     key: u32,
     visible: &mut dyn FnMut(DVec3, DVec3, f64) -> bool,
+    cone: Option<&ShadowCone>,
 ) -> Vec3 {
     let mut c = Vec3::ZERO;
     let at = d * r.t as f64;
@@ -425,7 +431,10 @@ fn direct_light(
             albedo,
             ks,
             shininess,
-            visible,
+            match cone {
+                Some(cone) => EmitterShadows::Cones(cone),
+                None => EmitterShadows::Rays(visible),
+            },
         );
     }
     if lights.use_mtl_emitters {
@@ -641,6 +650,15 @@ pub fn render_lit(
         None => Vec::new(),
     };
     let ambient_ms = ambient_start.elapsed().as_secs_f64() * 1e3;
+    // Cone-traced emitter shadows only where shadows are traced at all; emitter_light works
+    // camera-relative.
+    let world_cone = ambient.and_then(|a| a.shadow_cone).filter(|_| plan.shadows);
+    let relative_cone = world_cone.map(|c| {
+        move |at: DVec3, n: DVec3, d: DVec3, aperture: f64, end: crate::gi::cone::ConeEnd| {
+            c(camera.eye + at, n, d, aperture, end)
+        }
+    });
+    let shadow_cone = relative_cone.as_ref().map(|c| c as &ShadowCone);
     // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
     // answers as one by one); kept hits whose colour turns out not to be kept ask later.
     let sun_rays = match lights.sun {
@@ -771,8 +789,14 @@ pub fn render_lit(
                         None => (albedo + Vec3::splat(ks)) * sky,
                     };
                     let d = camera.ray_dir(&basis, x as u32, y as u32);
-                    let radiance =
-                        direct_light(r, camera.eye, d, lights, &emitters, k as u32, &mut |start, dir, t_max| {
+                    let radiance = direct_light(
+                        r,
+                        camera.eye,
+                        d,
+                        lights,
+                        &emitters,
+                        k as u32,
+                        &mut |start, dir, t_max| {
                             if !plan.shadows {
                                 return true;
                             }
@@ -785,7 +809,9 @@ pub fn render_lit(
                                 }
                             }
                             !occluded(&fi, start, dir, t_max, search)
-                        });
+                        },
+                        shadow_cone,
+                    );
                     ambient_term + radiance
                 };
             }

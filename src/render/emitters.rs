@@ -44,6 +44,8 @@ pub struct LightSample {
     pub pdf_area: f64,
     /// The emitter's [`WorldEmitter::margin`].
     pub margin: f64,
+    /// Which triangle of [`EmitterTable::emitters`] it lies on.
+    pub index: usize,
 }
 
 /// The frame's emitters with the cumulative distribution of their power.
@@ -128,6 +130,7 @@ impl EmitterTable {
             emission: e.emission,
             pdf_area: p / e.area,
             margin: e.margin,
+            index: k,
         })
     }
 }
@@ -151,11 +154,54 @@ pub fn light_random(key: u32, sample: u32) -> [f32; 3] {
     })
 }
 
+/// A cone through the GI volume towards a light (cone-traced soft shadows,
+/// [`crate::gi::cone::visibility`]): from a camera-relative surface point with its unit
+/// normal, along a unit direction, of a full aperture (radians), ending on the light's
+/// surface; the fraction of the light that gets through.
+pub type ShadowCone<'a> = dyn Fn(DVec3, DVec3, DVec3, f64, crate::gi::cone::ConeEnd) -> f32 + Sync + 'a;
+
+/// Widest shadow cone (full angle, radians): an emitter seen from close by fills most of the
+/// hemisphere, and a cone wider than this samples the surface it leaves from.
+pub const MAX_SHADOW_CONE: f64 = 2.0 * std::f64::consts::FRAC_PI_3;
+
+/// How emitters' shadows are found.
+pub enum EmitterShadows<'s, 'c> {
+    /// A shadow ray per sample: `visible(start, unit direction, distance)` says whether one
+    /// reaches its end.
+    Rays(&'s mut dyn FnMut(DVec3, DVec3, f64) -> bool),
+    /// One cone per emitter triangle the samples land on, as wide as the triangle looks from
+    /// the shaded point; every sample on it is dimmed by what the cone lets through.
+    Cones(&'s ShadowCone<'c>),
+}
+
+/// The cone that stands for emitter triangle `e` seen from camera-relative `at`: its unit
+/// direction (to the centroid), full aperture (a disc of the triangle's projected solid
+/// angle, at most [`MAX_SHADOW_CONE`]) and end; None when the triangle faces away.
+pub fn shadow_cone_of(e: &WorldEmitter, at: DVec3) -> Option<(DVec3, f64, crate::gi::cone::ConeEnd)> {
+    let to = e.a + (e.e1 + e.e2) / 3.0 - at;
+    let dist = to.length();
+    if !(dist > 0.0 && dist.is_finite()) {
+        return None;
+    }
+    let dir = to / dist;
+    let cos = -e.normal.dot(dir);
+    if !(cos > 0.0) {
+        return None;
+    }
+    // A disc of solid angle Ω has half-angle acos(1 − Ω / 2π).
+    let omega = (e.area * cos / (dist * dist)).min(std::f64::consts::TAU);
+    let aperture = (2.0 * (1.0 - omega / std::f64::consts::TAU).clamp(-1.0, 1.0).acos()).min(MAX_SHADOW_CONE);
+    Some((dir, aperture.max(1e-4), crate::gi::cone::ConeEnd { distance: dist, cos }))
+}
+
+/// Triangles whose shadow cone one shaded point keeps (more are traced again per sample).
+const CONE_MEMO: usize = 8;
+
 /// What a surface reflects towards the viewer from the emitters, estimated with `samples`
 /// points: at `at` (camera-relative) with unit normal `n` facing the viewer, seen along unit
 /// `d`, with albedo, specular reflectance `ks` and Phong exponent `shininess`. Shadow rays
-/// leave from `start`; `visible(start, unit direction, distance)` says whether one reaches
-/// its end. `key` seeds the random numbers (the pixel or cell index).
+/// leave from `start`, or cones from `at` ([`EmitterShadows`]). `key` seeds the random
+/// numbers (the pixel or cell index).
 #[allow(clippy::too_many_arguments)]
 pub fn emitter_light(
     table: &EmitterTable,
@@ -168,12 +214,13 @@ pub fn emitter_light(
     albedo: Vec3,
     ks: f32,
     shininess: f32,
-    visible: &mut dyn FnMut(DVec3, DVec3, f64) -> bool,
+    mut shadows: EmitterShadows,
 ) -> Vec3 {
     if table.is_empty() || samples == 0 {
         return Vec3::ZERO;
     }
     let mut sum = Vec3::ZERO;
+    let (mut memo, mut memo_len) = ([(usize::MAX, 0.0f32); CONE_MEMO], 0);
     for s in 0..samples {
         let Some(ls) = table.sample(light_random(key, s)) else { continue };
         let to = ls.point - at;
@@ -190,15 +237,35 @@ pub fn emitter_light(
         if response == Vec3::ZERO {
             continue;
         }
-        // End the shadow ray before the emitter's own voxels.
-        let end = ls.point + ls.normal * ls.margin;
-        let ray = end - start;
-        let len = ray.length();
-        if !(len > 0.0) || !visible(start, ray / len, len) {
+        let through = match &mut shadows {
+            EmitterShadows::Rays(visible) => {
+                // End the shadow ray before the emitter's own voxels.
+                let end = ls.point + ls.normal * ls.margin;
+                let ray = end - start;
+                let len = ray.length();
+                if !(len > 0.0) || !visible(start, ray / len, len) {
+                    continue;
+                }
+                1.0
+            }
+            EmitterShadows::Cones(cone) => match memo[..memo_len].iter().find(|m| m.0 == ls.index) {
+                Some(m) => m.1,
+                None => {
+                    let v = shadow_cone_of(&table.emitters[ls.index], at)
+                        .map_or(0.0, |(dir, aperture, end)| cone(at, n.as_dvec3(), dir, aperture, end));
+                    if memo_len < CONE_MEMO {
+                        memo[memo_len] = (ls.index, v);
+                        memo_len += 1;
+                    }
+                    v
+                }
+            },
+        };
+        if through <= 0.0 {
             continue;
         }
         let g = cos_light / (dist2 * ls.pdf_area);
-        sum += response * ls.emission * g as f32;
+        sum += response * ls.emission * (g as f32 * through);
     }
     sum / samples as f32
 }
@@ -259,7 +326,7 @@ mod tests {
             Vec3::ONE,
             0.0,
             1.0,
-            &mut |_, _, _| true,
+            EmitterShadows::Rays(&mut |_, _, _| true),
         );
         // Irradiance from a uniform square of side a at height h on its axis:
         // E = 4 L [ x/√(1+x²) atan(x/√(1+x²)) ]·... with x = a / (2h); the form below is the
@@ -285,7 +352,7 @@ mod tests {
             Vec3::ONE,
             0.0,
             1.0,
-            &mut |_, _, _| false,
+            EmitterShadows::Rays(&mut |_, _, _| false),
         );
         assert_eq!(dark, Vec3::ZERO);
         // Facing away from the emitter: nothing.
@@ -300,7 +367,7 @@ mod tests {
             Vec3::ONE,
             0.0,
             1.0,
-            &mut |_, _, _| true,
+            EmitterShadows::Rays(&mut |_, _, _| true),
         );
         assert_eq!(away, Vec3::ZERO);
     }

@@ -191,6 +191,10 @@ impl App {
                         ui_.checkbox(&mut ui.gi.anisotropic, "GI anisotropic levels").on_hover_text(
                             "six faces per coarse cell: less light leaks through walls lit on their far side",
                         );
+                        ui_.checkbox(&mut ui.gi.cone_shadows, "emitter shadows by cones").on_hover_text(
+                            "one cone per emitter triangle through the GI volume instead of a shadow ray per \
+                             light sample: smooth soft shadows at the volume's resolution",
+                        );
                     }
                     if let Some(e) = &ui.gi_error {
                         ui_.colored_label(egui::Color32::from_rgb(230, 110, 90), format!("GI off: {e}"));

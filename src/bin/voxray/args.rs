@@ -219,6 +219,11 @@ pub(crate) struct RenderArgs {
     /// dense volume, level buffer; 1.1–1.3× the GI time; docs/gi.md).
     #[arg(long, requires = "gi")]
     pub(crate) gi_anisotropic: bool,
+    /// Emitters' (MTL Ke) shadows: rays (a shadow ray per light sample) or cones (one cone per
+    /// emitter triangle through the GI volume's opacity: smooth, at the volume's resolution;
+    /// docs/gi.md). Suns, points and spots keep their rays.
+    #[arg(long, default_value = "rays", value_parser = ["rays", "cones"], requires = "gi")]
+    pub(crate) gi_shadows: String,
     /// Radiance caches: tile edge in pixels.
     #[arg(long, default_value_t = 16, requires = "gi")]
     pub(crate) gi_cache_tile: u32,

@@ -196,6 +196,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         volume: a.gi_volume,
         levels: a.gi_levels,
         anisotropic: a.gi_anisotropic,
+        cone_shadows: a.gi_shadows == "cones",
         gather: match a.gi_gather {
             voxray::render::Gather::Caches(_) => {
                 voxray::render::Gather::Caches(voxray::render::radiance_cache::CacheSettings {
