@@ -289,6 +289,43 @@ fn cones_see_an_opaque_wall_its_colour_and_the_sky_elsewhere() {
     }
 }
 
+/// A 32³ chain with an emitting "panel" filling the cells y = 28 and, if `blocker` says so
+/// for a cell x, an opaque grey plate in the cells y = 16.
+fn panel_levels(blocker: impl Fn(u32) -> bool) -> voxray::gi::Levels {
+    use voxray::gi::{levels, Injected};
+    let res = 32u32;
+    let mut rgba = vec![glam::Vec4::ZERO; (res as usize).pow(3)];
+    for z in 0..res {
+        for x in 0..res {
+            rgba[(x + res * (28 + res * z)) as usize] = glam::Vec4::new(5.0, 4.0, 3.0, 1.0);
+            if blocker(x) {
+                rgba[(x + res * (16 + res * z)) as usize] = glam::Vec4::new(0.2, 0.2, 0.2, 1.0);
+            }
+        }
+    }
+    levels::build(&Injected { res, cell: 1.0, min: DVec3::ZERO, rgba, shadow_rays: 0 })
+}
+
+#[test]
+fn shadow_cones_see_a_light_past_its_own_cells_and_not_through_a_plate() {
+    use voxray::gi::cone::{self, ConeEnd};
+    let p = DVec3::new(16.0, 4.0, 16.0);
+    // The panel's lower face is 24 cells above the point.
+    let end = ConeEnd { distance: 24.0, cos: 1.0 };
+    let see = |chain: &voxray::gi::Levels| cone::visibility(chain, p, DVec3::Y, DVec3::Y, 60f64.to_radians(), end);
+    let open = panel_levels(|_| false);
+    let v = see(&open);
+    assert!(v > 0.95, "nothing between the point and the panel, yet visibility {v}");
+    // The plain cone runs into the panel's own cells: that is what the end clearance avoids.
+    let plain = cone::trace(&open, p, DVec3::Y, DVec3::Y, 60f64.to_radians(), 24.0).w;
+    assert!(plain > 0.5, "a cone without the end clearance saw the panel only {plain} opaque");
+    let shut = see(&panel_levels(|_| true));
+    assert!(shut < 0.1, "a plate across the whole volume lets {shut} through");
+    // A plate over half the cone: soft, in between.
+    let half = see(&panel_levels(|x| x < 16));
+    assert!((0.2..0.8).contains(&half), "a plate over half the cone lets {half} through");
+}
+
 #[test]
 fn samples_are_quadrilinear() {
     use voxray::gi::cone::{sample, sample_level};

@@ -672,6 +672,23 @@ fn gpu_gi_with_emitters_matches_the_cpu() {
     images_agree(ctx, &scene, &cam, &more, GiSettings { res: 32, ..Default::default() });
 }
 
+/// Cone-traced emitter shadows on the GPU: the panel room's image equals the CPU's with them,
+/// and differs from the GPU's image with shadow rays (so the cones replaced the rays).
+#[test]
+fn gpu_cone_shadows_match_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let scene = voxray::bench::gi::panel_room_scene(6).unwrap();
+    let cam = voxray::model::panel_room::camera(64, 48);
+    let lights = voxray::model::panel_room::lights();
+    let s = GiSettings { res: 32, cone_shadows: true, ..Default::default() };
+    let (_, cones, _) = images_agree(ctx.clone(), &scene, &cam, &lights, s);
+    let (_, rays, _) = images_agree(ctx, &scene, &cam, &lights, GiSettings { cone_shadows: false, ..s });
+    let n = cones.radiance.len() as f32;
+    let change = cones.radiance.iter().zip(&rays.radiance).map(|(a, b)| (*a - *b).abs().element_sum()).sum::<f32>() / n;
+    let mean = rays.radiance.iter().map(|c| c.element_sum()).sum::<f32>() / n;
+    assert!(change > 0.01 * mean, "cone shadows changed the GPU image by only {change} (mean {mean})");
+}
+
 /// The GPU counts its GI gathers as the CPU does: every shaded hit with the per-pixel gather;
 /// the samples and the pixels no sample serves with the half-resolution one.
 #[test]

@@ -370,6 +370,22 @@ mod tests {
             EmitterShadows::Rays(&mut |_, _, _| true),
         );
         assert_eq!(away, Vec3::ZERO);
+        // Cone shadows: each triangle's cone is traced once per point however many samples
+        // land on it, and dims every sample on it by what it lets through.
+        let calls = std::sync::atomic::AtomicU32::new(0);
+        let half = |_: DVec3, _: DVec3, _: DVec3, _: f64, end: crate::gi::cone::ConeEnd| {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            assert!((end.distance - 1.0).abs() < 0.3 && end.cos > 0.9, "{end:?}");
+            0.5
+        };
+        let at = |shadows| {
+            emitter_light(&table, 4096, 7, DVec3::ZERO, DVec3::ZERO, Vec3::Z, -Vec3::Z, Vec3::ONE, 0.0, 1.0, shadows)
+        };
+        let mut free = |_, _, _| true;
+        let lit = at(EmitterShadows::Rays(&mut free));
+        let dimmed = at(EmitterShadows::Cones(&half));
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 2);
+        assert!((dimmed - lit * 0.5).abs().max_element() < 1e-5, "{dimmed} against {lit}");
     }
 
     #[test]
