@@ -373,7 +373,7 @@ fn gi_accuracy(rs: &[&Record], path: &Path) -> Res<()> {
 
 fn gi_accuracy_panel(rs: &[&Record], path: &Path) -> Res<()> {
     let rs: Vec<&Record> = rs.iter().copied().filter(|r| r.name.starts_with(PANEL)).collect();
-    let title = "GI error against run time (emissive-panel room; light samples: whole frame)";
+    let title = "GI error against run time (emissive-panel room; light samples: whole frame, and pixels alone)";
     accuracy_chart(&rs, PANEL, path, title)
 }
 

@@ -521,46 +521,59 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
         progress,
     )?);
     // Light samples: the whole frame's time (they are drawn by the shading and injection).
+    // With cone shadows the pixels' samples need no shadow rays (the injection's still do):
+    // those rows time the pixels alone too, a second frame on the kept volume.
     let reference = one_bounce_reference(&panel, &camera, &lights, cfg)?.0;
+    progress("gi-accuracy: panel room, triangle reference for the light samples");
+    let triangles = one_bounce_reference_on(&panel, Some(&panel_mesh), &camera, &lights, cfg)?.0;
     let plan = FramePlan::new(&panel, &camera, &lights, &Features::default(), None);
-    for samples in [1u32, 4, 16] {
-        progress(&format!("gi-accuracy: panel room, {samples} light samples"));
+    let runs = [(false, 1u32), (false, 4), (false, 16), (false, 64), (true, 1), (true, 4), (true, 16), (true, 64)];
+    for (cone_shadows, samples) in runs {
+        let how = if cone_shadows { "cone shadows" } else { "shadow rays" };
+        progress(&format!("gi-accuracy: panel room, {samples} light samples, {how}"));
         let lights = crate::scene::Lights { emitter_samples: samples, ..lights.clone() };
+        let s = GiSettings { cone_shadows, ..GiSettings::default() };
         let mut caches = GiCaches::new();
-        let mut times = Vec::new();
+        let (mut whole, mut pixels) = (Vec::new(), Vec::new());
         let mut last = None;
         for k in 0..cfg.repeats.max(1) + 1 {
             caches.forget_last_frame();
-            let t0 = Instant::now();
-            let (f, _) = render_with_gi(
-                &panel,
-                &camera,
-                &lights,
-                &plan,
-                &RenderOptions::default(),
-                None,
-                &GiSettings::default(),
-                &mut caches,
-                &|_, _| {},
-            )?;
-            if k > 0 {
-                times.push(t0.elapsed().as_secs_f64() * 1e3);
+            for kept in [false, true] {
+                let t0 = Instant::now();
+                let (f, _) = render_with_gi(
+                    &panel,
+                    &camera,
+                    &lights,
+                    &plan,
+                    &RenderOptions::default(),
+                    None,
+                    &s,
+                    &mut caches,
+                    &|_, _| {},
+                )?;
+                if k > 0 {
+                    if kept { &mut pixels } else { &mut whole }.push(t0.elapsed().as_secs_f64() * 1e3);
+                }
+                last = Some(f);
             }
-            last = Some(f);
         }
         let frame = last.ok_or_else(|| crate::gi::GiError::Settings("no frame".into()))?;
         let error = compare_to(&frame, &reference)?;
-        let mut rec = accuracy_record(
-            cfg,
-            panel.instances().len(),
-            "panel room: light samples (whole frame ms)",
-            format!("{samples}"),
-            samples as f64,
-            summarize(&times).0,
-            error,
-        );
-        rec.frames = cfg.repeats.max(1);
-        out.push(rec);
+        let error_triangles = compare_to(&frame, &triangles)?;
+        for (name, times) in [("whole frame ms", &whole), ("pixels ms, volume kept", &pixels)] {
+            let mut rec = accuracy_record(
+                cfg,
+                panel.instances().len(),
+                &format!("panel room: light samples, {how} ({name})"),
+                format!("{samples}"),
+                samples as f64,
+                summarize(times).0,
+                error,
+            );
+            rec.error_triangles = Some(error_triangles);
+            rec.frames = cfg.repeats.max(1);
+            out.push(rec);
+        }
     }
     Ok(out)
 }
