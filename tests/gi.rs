@@ -174,7 +174,7 @@ fn injection_lights_cells_the_sun_sees_and_darkens_those_in_shadow() {
         use_mtl_emitters: false,
         ..Lights::default()
     };
-    let inj = inject(&vol, &scene, &lights);
+    let inj = inject(&vol, &scene, &lights, 1);
     assert!(inj.shadow_rays > 100);
     let at = |x: u32, y: u32, z: u32| inj.rgba[vol.index([x, y, z])];
     for (x, z) in [(8, 8), (9, 1), (0, 9), (8, 3)] {
@@ -192,7 +192,8 @@ fn injection_lights_cells_the_sun_sees_and_darkens_those_in_shadow() {
     assert_eq!(at(12, 12, 12), glam::Vec4::ZERO);
     assert!(inj.rgba.iter().all(|c| c.is_finite()));
     // No sun: nothing is injected (no emitters here), and no shadow rays are traced.
-    let dark = inject(&vol, &scene, &Lights { sun: None, ambient: None, use_mtl_emitters: false, ..Lights::default() });
+    let dark =
+        inject(&vol, &scene, &Lights { sun: None, ambient: None, use_mtl_emitters: false, ..Lights::default() }, 1);
     assert_eq!(dark.shadow_rays, 0);
     assert!(dark.rgba.iter().all(|c| c.truncate() == Vec3::ZERO));
 }
@@ -324,6 +325,33 @@ fn shadow_cones_see_a_light_past_its_own_cells_and_not_through_a_plate() {
     // A plate over half the cone: soft, in between.
     let half = see(&panel_levels(|x| x < 16));
     assert!((0.2..0.8).contains(&half), "a plate over half the cone lets {half} through");
+}
+
+#[test]
+fn cell_light_samples_are_checked_and_drawn() {
+    use voxray::gi::inject::inject_cells;
+    assert!(voxray::gi::GiSettings { cell_light_samples: 0, ..Default::default() }.validated().is_err());
+    assert!(voxray::gi::GiSettings { cell_light_samples: 1025, ..Default::default() }.validated().is_err());
+    let scene = voxray::bench::gi::panel_room_scene(6).unwrap();
+    let lights = voxray::model::panel_room::lights();
+    let s = voxray::gi::GiSettings { res: 32, ..Default::default() };
+    let camera = voxray::model::panel_room::camera(64, 48);
+    let mut caches = voxray::gi::GiCaches::new();
+    let (spec, levels_of) = voxray::gi::plan_volume(&scene, &camera, &s, &mut caches).unwrap();
+    let mut vol = Volume::new(spec);
+    for (i, inst) in scene.instances().iter().enumerate() {
+        vol.splat(caches.get(&scene.parts[inst.part], levels_of[inst.part]).unwrap(), &scene.world(i), s.filter)
+            .unwrap();
+    }
+    // The panel is the only light: every shadow ray is an emitter sample's, so the rays grow
+    // with the samples per cell (a sample facing away traces none).
+    let (one, rays_one) = inject_cells(&vol, &scene, &lights, 1);
+    let (four, rays_four) = inject_cells(&vol, &scene, &lights, 4);
+    assert!(rays_one > 1000 && rays_four > 3 * rays_one && rays_four < 5 * rays_one, "{rays_one} and {rays_four} rays");
+    // The same light on average, drawn from other points.
+    let total = |v: &[glam::Vec4]| v.iter().map(|c| c.truncate().element_sum()).sum::<f32>();
+    assert_ne!(one, four);
+    assert!((total(&one) / total(&four) - 1.0).abs() < 0.1, "{} against {}", total(&one), total(&four));
 }
 
 #[test]
@@ -504,7 +532,7 @@ fn a_floor_under_an_open_sky_does_not_occlude_itself() {
             let cache = VoxelCache::build(&floor, &mats, depth).unwrap();
             let mut vol = Volume::new(spec);
             vol.splat(&cache, &glam::DAffine3::IDENTITY, filter).unwrap();
-            let chain = levels::build(&inject(&vol, &Scene::new(vec![]), &no_light));
+            let chain = levels::build(&inject(&vol, &Scene::new(vec![]), &no_light, 1));
             for p in [DVec3::new(0.1, 0.0, 0.05), DVec3::new(-0.37, 0.0, 0.21)] {
                 let (light, open) = gather(&chain, p, DVec3::Y, sky, &ConeSettings::default());
                 assert!(open > 0.97, "{res}³ {filter:?} at {p}: open {open}");

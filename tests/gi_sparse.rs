@@ -102,8 +102,8 @@ fn sparse_cells_and_chain_equal_the_dense_ones() {
             ..voxray::scene::Lights::default()
         };
         let empty = Scene::new(vec![]);
-        let dense_chain = levels::build(&inject(&dense, &empty, &lights));
-        let (rgba, _) = voxray::gi::inject::inject_cells(&sparse, &empty, &lights);
+        let dense_chain = levels::build(&inject(&dense, &empty, &lights, 4));
+        let (rgba, _) = voxray::gi::inject::inject_cells(&sparse, &empty, &lights, 4);
         let sparse_chain = SparseLevels::build(&sparse, rgba);
         assert_eq!(sparse_chain.count(), dense_chain.count());
         for l in 0..dense_chain.count() {

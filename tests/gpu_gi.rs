@@ -141,7 +141,7 @@ fn gpu_injection_and_levels_match_cpu() {
     let s = GiSettings { res: 32, ..Default::default() };
     let (_, cap) = gpu_frame(ctx, &scene, &cam, &lights, s);
     let (cpu, _) = cpu_volume(&scene, &cam, &s);
-    let chain = levels::build(&inject(&cpu, &scene, &lights));
+    let chain = levels::build(&inject(&cpu, &scene, &lights, s.cell_light_samples));
     assert_eq!(chain.levels.len(), cap.levels.levels.len());
     for (l, (c, g)) in chain.levels.iter().zip(&cap.levels.levels).enumerate() {
         assert_eq!((c.res, c.rgba.len()), (g.res, g.rgba.len()), "level {l}");
@@ -670,6 +670,40 @@ fn gpu_gi_with_emitters_matches_the_cpu() {
     .validated()
     .unwrap();
     images_agree(ctx, &scene, &cam, &more, GiSettings { res: 32, ..Default::default() });
+}
+
+/// Light injection with emitters on the GPU draws `cell_light_samples` points per cell, as the
+/// CPU does: the panel room's injected level equals the CPU's at one and at three samples,
+/// which differ from each other.
+#[test]
+fn gpu_cells_draw_as_many_emitter_samples_as_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let scene = voxray::bench::gi::panel_room_scene(6).unwrap();
+    let cam = voxray::model::panel_room::camera(64, 48);
+    let lights = voxray::model::panel_room::lights();
+    let mut cpu_levels = Vec::new();
+    for samples in [1, 3] {
+        let s = GiSettings { res: 32, cell_light_samples: samples, ..Default::default() };
+        let (_, cap) = gpu_frame(ctx.clone(), &scene, &cam, &lights, s);
+        let (cpu, _) = cpu_volume(&scene, &cam, &s);
+        let inj = inject(&cpu, &scene, &lights, samples);
+        let g = &cap.levels.levels[0];
+        assert_eq!(inj.rgba.len(), g.rgba.len());
+        let peak = inj.rgba.iter().map(|v| v.truncate().max_element()).fold(0.0f32, f32::max);
+        assert!(peak > 0.0);
+        let off = inj
+            .rgba
+            .iter()
+            .zip(&g.rgba)
+            .filter(|(a, b)| (a.truncate() - b.truncate()).abs().max_element() > 1e-3 * peak)
+            .count();
+        let lit = inj.rgba.iter().filter(|v| v.w > 0.0).count();
+        assert!(off <= 1 + lit / 50, "{samples} samples: {off} of {lit} cells differ in radiance");
+        cpu_levels.push(inj.rgba);
+    }
+    let changed = cpu_levels[0].iter().zip(&cpu_levels[1]).filter(|(a, b)| a != b).count();
+    let lit = cpu_levels[0].iter().filter(|v| v.w > 0.0).count();
+    assert!(changed > lit / 2, "one and three samples changed only {changed} of {lit} cells");
 }
 
 /// Cone-traced emitter shadows on the GPU: the panel room's image equals the CPU's with them,

@@ -302,7 +302,7 @@ fn wgsl_structs_match_rust() {
                 ("cache_placement", offset_of!(GpuGiFrame, cache_placement)),
                 ("cache_spread", offset_of!(GpuGiFrame, cache_spread)),
                 ("cache_row_threads", offset_of!(GpuGiFrame, cache_row_threads)),
-                ("pad3", offset_of!(GpuGiFrame, pad3)),
+                ("cell_samples", offset_of!(GpuGiFrame, cell_samples)),
                 ("pad4", offset_of!(GpuGiFrame, pad4)),
             ],
         ),

@@ -149,7 +149,7 @@ fn inject_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let cell = gi.min_cell.w;
         let c = gi_cell_coord(i);
         let at = gi.min_cell.xyz + (vec3<f32>(c) + 0.5) * cell;
-        radiance += emitter_light(c.x + gi.res * (c.y + gi.res * c.z), at, at + nn * cell, nn, -nn, albedo, 0u);
+        radiance += emitter_light(c.x + gi.res * (c.y + gi.res * c.z), gi.cell_samples, at, at + nn * cell, nn, -nn, albedo, 0u);
     } else if frame.sky.w > 0.0 && frame.emitter_samples == 0u {
         let e = vec3<f32>(f32(gi_accum[base + 7u]), f32(gi_accum[base + 8u]), f32(gi_accum[base + 9u]));
         radiance += e / (EMIT_FIX * occ);

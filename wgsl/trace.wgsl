@@ -593,12 +593,11 @@ fn emitter_pick(key: u32, s: u32) -> EmitterPick {
 }
 
 // render::emitters::emitter_light: the emitters' light reflected towards the viewer at `at`
-// (camera-relative), from frame.emitter_samples points picked by power and area, each with a
+// (camera-relative), from `samples` points picked by power and area, each with a
 // shadow ray from `start` that ends short of the emitter's own voxels. (With GI's cone
 // shadows, gi_emitter_light in gi_trace.wgsl instead.)
-fn emitter_light(key: u32, at: vec3<f32>, start: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
+fn emitter_light(key: u32, samples: u32, at: vec3<f32>, start: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
     let count = frame.emitters;
-    let samples = frame.emitter_samples;
     if count == 0u || samples == 0u {
         return vec3<f32>(0.0);
     }
@@ -685,7 +684,7 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
         let d = ray_dir(x, y);
         let at = d * h.t;
         let start = at + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
-        c += emitter_light(y * frame.width + x, at, start, n, d, albedo, h.material);
+        c += emitter_light(y * frame.width + x, frame.emitter_samples, at, start, n, d, albedo, h.material);
     }
     if frame.sky.w > 0.0 {
         c += emission(h.emission);

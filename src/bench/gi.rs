@@ -527,12 +527,26 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
     progress("gi-accuracy: panel room, triangle reference for the light samples");
     let triangles = one_bounce_reference_on(&panel, Some(&panel_mesh), &camera, &lights, cfg)?.0;
     let plan = FramePlan::new(&panel, &camera, &lights, &Features::default(), None);
-    let runs = [(false, 1u32), (false, 4), (false, 16), (false, 64), (true, 1), (true, 4), (true, 16), (true, 64)];
-    for (cone_shadows, samples) in runs {
+    // The pixels' samples with shadow rays and with cone shadows, then the cells' samples in
+    // light injection (the pixels keeping the default 4).
+    let runs = [
+        (false, 1u32, 1u32),
+        (false, 4, 1),
+        (false, 16, 1),
+        (false, 64, 1),
+        (true, 1, 1),
+        (true, 4, 1),
+        (true, 16, 1),
+        (true, 64, 1),
+        (false, 4, 4),
+        (false, 4, 16),
+    ];
+    for (cone_shadows, samples, cell_light_samples) in runs {
         let how = if cone_shadows { "cone shadows" } else { "shadow rays" };
-        progress(&format!("gi-accuracy: panel room, {samples} light samples, {how}"));
+        progress(&format!("gi-accuracy: panel room, {samples} light samples, {how}, {cell_light_samples} per cell"));
         let lights = crate::scene::Lights { emitter_samples: samples, ..lights.clone() };
-        let s = GiSettings { cone_shadows, ..GiSettings::default() };
+        let s = GiSettings { cone_shadows, cell_light_samples, ..GiSettings::default() };
+        let by_cells = cell_light_samples > 1 || (samples == 4 && !cone_shadows);
         let mut caches = GiCaches::new();
         let (mut whole, mut pixels) = (Vec::new(), Vec::new());
         let mut last = None;
@@ -560,13 +574,22 @@ pub fn accuracy(cfg: &AccuracyConfig, progress: &mut dyn FnMut(&str)) -> Result<
         let frame = last.ok_or_else(|| crate::gi::GiError::Settings("no frame".into()))?;
         let error = compare_to(&frame, &reference)?;
         let error_triangles = compare_to(&frame, &triangles)?;
-        for (name, times) in [("whole frame ms", &whole), ("pixels ms, volume kept", &pixels)] {
+        let mut rows = Vec::new();
+        if cell_light_samples == 1 {
+            for (name, times) in [("whole frame ms", &whole), ("pixels ms, volume kept", &pixels)] {
+                rows.push((format!("panel room: light samples, {how} ({name})"), samples, times));
+            }
+        }
+        if by_cells {
+            rows.push(("panel room: light samples per GI cell (whole frame ms)".into(), cell_light_samples, &whole));
+        }
+        for (name, setting, times) in rows {
             let mut rec = accuracy_record(
                 cfg,
                 panel.instances().len(),
-                &format!("panel room: light samples, {how} ({name})"),
-                format!("{samples}"),
-                samples as f64,
+                &name,
+                format!("{setting}"),
+                setting as f64,
                 summarize(times).0,
                 error,
             );

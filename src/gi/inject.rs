@@ -75,16 +75,19 @@ impl Cells for Volume {
     }
 }
 
-/// Lights every occupied cell of `vol`; `scene` supplies the shadow-ray occluders.
-pub fn inject(vol: &Volume, scene: &Scene, lights: &Lights) -> Injected {
+/// Lights every occupied cell of `vol`; `scene` supplies the shadow-ray occluders; sampled
+/// emitters get `cell_samples` points per cell ([`inject_cells`]).
+pub fn inject(vol: &Volume, scene: &Scene, lights: &Lights, cell_samples: u32) -> Injected {
     let spec = vol.spec;
-    let (rgba, shadow_rays) = inject_cells(vol, scene, lights);
+    let (rgba, shadow_rays) = inject_cells(vol, scene, lights, cell_samples);
     Injected { res: spec.res, cell: spec.cell, min: spec.min, rgba, shadow_rays }
 }
 
 /// Lights every occupied cell of `cells`: (radiance × alpha, alpha) per stored cell and the
-/// shadow rays traced.
-pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<Vec4>, u64) {
+/// shadow rays traced. Where the lights sample their emitters (`Lights::emitter_samples` > 0),
+/// each cell draws `cell_samples` points on them (`GiSettings::cell_light_samples`: the
+/// cones average many cells, so fewer than a pixel's suffice).
+pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights, cell_samples: u32) -> (Vec<Vec4>, u64) {
     let spec = cells.spec();
     let eye = spec.min + DVec3::splat(spec.cell * spec.res as f64 * 0.5);
     let prepared = prepare(scene, eye, true);
@@ -92,7 +95,7 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights) -> (Vec<
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let mut rgba = vec![Vec4::ZERO; cells.cell_count()];
     let mut shadow_rays = 0u64;
-    let samples = lights.emitter_sampling();
+    let samples = if lights.emitter_sampling() > 0 { cell_samples } else { 0 };
     let emitters = if samples > 0 { EmitterTable::new(scene, eye) } else { EmitterTable::default() };
     for (i, out) in rgba.iter_mut().enumerate() {
         let cell = cells.sums(i);

@@ -39,8 +39,8 @@ struct LastVolume {
     key: VolumeKey,
     lights: Lights,
     // Bounces and the cones they were gathered with (the chain depends on both past one bounce),
-    // and whether the chain is anisotropic.
-    bounces: (u32, ConeSettings, bool),
+    // whether the chain is anisotropic, and the emitter samples its cells drew.
+    bounces: (u32, ConeSettings, bool, u32),
     // The cones the pixels gathered with (their light changes with them, the chain does not).
     cones: ConeSettings,
     volume: WorldVolume,
@@ -377,6 +377,10 @@ pub struct GiSettings {
     /// per light sample: no noise, at the volume's resolution. Suns, points and spots keep
     /// their rays (they have no area), and so does the light injected into the volume.
     pub cone_shadows: bool,
+    /// Points each lit cell draws on the emitters in light injection (1…1024), where the
+    /// lights sample them at all. The cones average many cells, so one measured as well as
+    /// four in the panel room at 2.9× less injection time (docs/lights.md).
+    pub cell_light_samples: u32,
 }
 
 impl GiSettings {
@@ -406,6 +410,7 @@ impl Default for GiSettings {
             gather: crate::render::Gather::Pixels,
             anisotropic: false,
             cone_shadows: false,
+            cell_light_samples: 1,
         }
     }
 }
@@ -420,6 +425,13 @@ impl GiSettings {
         }
         if !(1..=MAX_BOUNCES).contains(&self.bounces) {
             return Err(GiError::Settings(format!("bounces must be 1…{MAX_BOUNCES}, not {}", self.bounces)));
+        }
+        let most = crate::scene::lights::MAX_EMITTER_SAMPLES;
+        if !(1..=most).contains(&self.cell_light_samples) {
+            return Err(GiError::Settings(format!(
+                "light samples per GI cell must be 1…{most}, not {}",
+                self.cell_light_samples
+            )));
         }
         if let Some(e) = self.extent.filter(|e| !(e.is_finite() && *e > 0.0)) {
             return Err(GiError::Settings(format!("volume extent {e} must be finite and positive")));
@@ -553,7 +565,8 @@ pub fn prepare_light(
     let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
     let last = caches.last.take();
     let same_cones = last.as_ref().is_some_and(|l| l.cones == cones);
-    let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() }, s.anisotropic);
+    let bounce_key =
+        (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() }, s.anisotropic, s.cell_light_samples);
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
     if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
         stats.reuse = GiReuse::Volume;
@@ -598,8 +611,8 @@ pub fn prepare_light(
         None => {
             caches.stage(&format!("GI: injecting light into {} cells", stats.occupied));
             let (direct, _shadow_rays) = match &vol {
-                WorldVolume::Dense(v) => inject_cells(v, scene, lights),
-                WorldVolume::Sparse(v) => inject_cells(v, scene, lights),
+                WorldVolume::Dense(v) => inject_cells(v, scene, lights, s.cell_light_samples),
+                WorldVolume::Sparse(v) => inject_cells(v, scene, lights, s.cell_light_samples),
             };
             let t3 = Instant::now();
             // The direct light is kept apart only when bounces add to it (at 1024³ it is hundreds

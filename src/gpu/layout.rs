@@ -365,8 +365,8 @@ pub struct GpuGiFrame {
     pub cache_spread: f32,
     /// Threads per dispatch row of the cache tracing and convolution passes.
     pub cache_row_threads: u32,
-    /// Padding.
-    pub pad3: u32,
+    /// Emitter samples per lit cell in light injection (`GiSettings::cell_light_samples`).
+    pub cell_samples: u32,
     /// Padding.
     pub pad4: u32,
 }

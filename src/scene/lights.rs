@@ -85,9 +85,10 @@ pub struct Lights {
     /// lights ([`crate::render::emitters`]).
     #[cfg_attr(feature = "json", serde(default))]
     pub use_mtl_emitters: bool,
-    /// Points sampled on the emitters per shaded pixel (and per GI cell), each with a shadow
-    /// ray: more give smoother soft shadows. 0: emitters glow and reach other surfaces only
-    /// through GI's cones (as before emitters were lights).
+    /// Points sampled on the emitters per shaded pixel, each with a shadow ray: more give
+    /// smoother soft shadows (GI's cells draw `GiSettings::cell_light_samples` instead). 0:
+    /// emitters glow and reach other surfaces only through GI's cones (as before emitters were
+    /// lights).
     #[cfg_attr(feature = "json", serde(default = "default_emitter_samples"))]
     pub emitter_samples: u32,
     /// More suns.

@@ -240,7 +240,7 @@ struct GiFrame {
     cache_spread: f32,
     // Threads per dispatch row of the cache tracing and convolution passes.
     cache_row_threads: u32,
-    pad3: u32,
+    cell_samples: u32,
     pad4: u32,
 }
 

@@ -224,6 +224,11 @@ pub(crate) struct RenderArgs {
     /// docs/gi.md). Suns, points and spots keep their rays.
     #[arg(long, default_value = "rays", value_parser = ["rays", "cones"], requires = "gi")]
     pub(crate) gi_shadows: String,
+    /// Points each lit GI cell draws on the emitters in light injection, 1…1024 (the pixels
+    /// keep the lights JSON's `emitter_samples`): the cones average many cells, so one
+    /// suffices (docs/lights.md).
+    #[arg(long, default_value_t = 1, requires = "gi")]
+    pub(crate) gi_cell_samples: u32,
     /// Radiance caches: tile edge in pixels.
     #[arg(long, default_value_t = 16, requires = "gi")]
     pub(crate) gi_cache_tile: u32,

@@ -197,6 +197,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         levels: a.gi_levels,
         anisotropic: a.gi_anisotropic,
         cone_shadows: a.gi_shadows == "cones",
+        cell_light_samples: a.gi_cell_samples,
         gather: match a.gi_gather {
             voxray::render::Gather::Caches(_) => {
                 voxray::render::Gather::Caches(voxray::render::radiance_cache::CacheSettings {

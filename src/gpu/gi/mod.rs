@@ -204,8 +204,8 @@ pub(crate) struct GpuGi {
     placeholder: wgpu::Buffer,
     placeholder_ro: wgpu::Buffer,
     /// What the volume on the GPU was made from, and the bounces (with their cones) its chain
-    /// was gathered with.
-    last: Option<(VolumeKey, Lights, (u32, ConeSettings, bool))>,
+    /// was gathered with, whether it is anisotropic and the emitter samples its cells drew.
+    last: Option<(VolumeKey, Lights, (u32, ConeSettings, bool, u32))>,
     /// Per-frame inputs and bind groups kept between frames.
     kept: GiFrameBuffers,
     /// Most bytes of a brick pool sized by the bound ([`UNREAD_LIMIT`] unless a test lowers it).
@@ -529,7 +529,12 @@ impl GpuGi {
         let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
         // Decided before any upload: a changed pool or volume size changes the key too.
         let mut reuse = GiReuse::decide(self.last.as_ref().map(|(k, l, _)| (k, l)), &key, lights);
-        let bounce_key = (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() }, s.anisotropic);
+        let bounce_key = (
+            s.bounces,
+            if s.bounces > 1 { cones } else { ConeSettings::default() },
+            s.anisotropic,
+            s.cell_light_samples,
+        );
         if reuse == GiReuse::Levels && self.last.as_ref().is_some_and(|l| l.2 != bounce_key) {
             reuse = GiReuse::Volume; // the chain was gathered with other bounces
         }
@@ -660,6 +665,7 @@ impl GpuGi {
             bricks,
             half: half as u32,
             half_width: camera.width.div_ceil(2),
+            cell_samples: s.cell_light_samples,
             ..Default::default()
         };
         // The caches' slots (per tile) and maps: the texels, the mips down to 1², the
