@@ -35,12 +35,15 @@ pub struct GiCaches {
 /// What [`GiCaches::on_stage`] keeps.
 type StageHook = Box<dyn Fn(&str) + Send + Sync>;
 
+/// What a level chain depends on besides its volume and lights: the bounces and the cones
+/// they were gathered with (past one bounce), whether it is anisotropic, and the emitter
+/// samples its cells drew.
+pub(crate) type ChainKey = (u32, ConeSettings, bool, u32);
+
 struct LastVolume {
     key: VolumeKey,
     lights: Lights,
-    // Bounces and the cones they were gathered with (the chain depends on both past one bounce),
-    // whether the chain is anisotropic, and the emitter samples its cells drew.
-    bounces: (u32, ConeSettings, bool, u32),
+    bounces: ChainKey,
     // The cones the pixels gathered with (their light changes with them, the chain does not).
     cones: ConeSettings,
     volume: WorldVolume,

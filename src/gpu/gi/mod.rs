@@ -205,7 +205,7 @@ pub(crate) struct GpuGi {
     placeholder_ro: wgpu::Buffer,
     /// What the volume on the GPU was made from, and the bounces (with their cones) its chain
     /// was gathered with, whether it is anisotropic and the emitter samples its cells drew.
-    last: Option<(VolumeKey, Lights, (u32, ConeSettings, bool, u32))>,
+    last: Option<(VolumeKey, Lights, crate::gi::shade::ChainKey)>,
     /// Per-frame inputs and bind groups kept between frames.
     kept: GiFrameBuffers,
     /// Most bytes of a brick pool sized by the bound ([`UNREAD_LIMIT`] unless a test lowers it).
