@@ -324,9 +324,8 @@ const MAX_SHADOW_CONE: f32 = 2.09439510239;
 // emitters::emitter_light with EmitterShadows::Cones: the samples as emitter_light draws them,
 // each dimmed by its triangle's shadow cone (traced once per triangle for up to eight).
 fn gi_emitter_light(key: u32, at: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
-    let count = frame.emitters;
     let samples = frame.emitter_samples;
-    if count == 0u || samples == 0u {
+    if frame.emitters == 0u || samples == 0u {
         return vec3<f32>(0.0);
     }
     var memo_row: array<u32, 8>;
@@ -334,42 +333,26 @@ fn gi_emitter_light(key: u32, at: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo:
     var memo_len = 0u;
     var sum = vec3<f32>(0.0);
     for (var s = 0u; s < samples; s++) {
-        let pick = emitter_pick(key, s);
-        let e = emitters[pick.index];
-        let to = pick.p - at;
-        let dist2 = dot(to, to);
-        if !(dist2 > 0.0) {
-            continue;
-        }
-        let wi = to / sqrt(dist2);
-        let cos_light = -dot(e.normal.xyz, wi);
-        if cos_light <= 0.0 || dot(n, wi) <= 0.0 {
-            continue;
-        }
-        let response = light_response(albedo, material, n, d, wi);
-        if all(response == vec3<f32>(0.0)) {
+        let l = emitter_sample(key, s, at, n, d, albedo, material);
+        if l.index == NO_EMITTER {
             continue;
         }
         var through = -1.0;
         for (var m = 0u; m < memo_len; m++) {
-            if memo_row[m] == pick.index {
+            if memo_row[m] == l.index {
                 through = memo_through[m];
                 break;
             }
         }
         if through < 0.0 {
-            through = shadow_cone_of(e, at, n);
+            through = shadow_cone_of(emitters[l.index], at, n);
             if memo_len < 8u {
-                memo_row[memo_len] = pick.index;
+                memo_row[memo_len] = l.index;
                 memo_through[memo_len] = through;
                 memo_len++;
             }
         }
-        if through <= 0.0 {
-            continue;
-        }
-        let pdf_area = e.normal.w / e.e1.w;
-        sum += response * e.emission.xyz * (cos_light / (dist2 * pdf_area) * through);
+        sum += l.light * through;
     }
     return sum / f32(samples);
 }

@@ -592,35 +592,54 @@ fn emitter_pick(key: u32, s: u32) -> EmitterPick {
     return EmitterPick(index, e.a.xyz + e.e1.xyz * (su * (1.0 - u.z)) + e.e2.xyz * (su * u.z));
 }
 
+// One sample of render::emitters::emitter_light before its shadow test: the row it picked
+// (NO_EMITTER when the sample adds nothing), the point a shadow ray ends at (short of the
+// emitter's own voxels) and the light it brings unshadowed.
+const NO_EMITTER: u32 = 0xFFFFFFFFu;
+
+struct EmitterSample {
+    index: u32,
+    end: vec3<f32>,
+    light: vec3<f32>,
+}
+
+fn emitter_sample(key: u32, s: u32, at: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> EmitterSample {
+    let none = EmitterSample(NO_EMITTER, vec3<f32>(0.0), vec3<f32>(0.0));
+    let pick = emitter_pick(key, s);
+    let e = emitters[pick.index];
+    let to = pick.p - at;
+    let dist2 = dot(to, to);
+    if !(dist2 > 0.0) {
+        return none;
+    }
+    let wi = to / sqrt(dist2);
+    let cos_light = -dot(e.normal.xyz, wi);
+    if cos_light <= 0.0 || dot(n, wi) <= 0.0 {
+        return none;
+    }
+    let response = light_response(albedo, material, n, d, wi);
+    if all(response == vec3<f32>(0.0)) {
+        return none;
+    }
+    let pdf_area = e.normal.w / e.e1.w;
+    return EmitterSample(pick.index, pick.p + e.normal.xyz * e.a.w, response * e.emission.xyz * (cos_light / (dist2 * pdf_area)));
+}
+
 // render::emitters::emitter_light: the emitters' light reflected towards the viewer at `at`
-// (camera-relative), from `samples` points picked by power and area, each with a
-// shadow ray from `start` that ends short of the emitter's own voxels. (With GI's cone
-// shadows, gi_emitter_light in gi_trace.wgsl instead.)
+// (camera-relative), from `samples` points picked by power and area, each with a shadow ray
+// from `start` that ends short of the emitter's own voxels. (With GI's cone shadows,
+// gi_emitter_light in gi_trace.wgsl instead.)
 fn emitter_light(key: u32, samples: u32, at: vec3<f32>, start: vec3<f32>, n: vec3<f32>, d: vec3<f32>, albedo: vec3<f32>, material: u32) -> vec3<f32> {
-    let count = frame.emitters;
-    if count == 0u || samples == 0u {
+    if frame.emitters == 0u || samples == 0u {
         return vec3<f32>(0.0);
     }
     var sum = vec3<f32>(0.0);
     for (var s = 0u; s < samples; s++) {
-        let pick = emitter_pick(key, s);
-        let e = emitters[pick.index];
-        let p = pick.p;
-        let to = p - at;
-        let dist2 = dot(to, to);
-        if !(dist2 > 0.0) {
+        let l = emitter_sample(key, s, at, n, d, albedo, material);
+        if l.index == NO_EMITTER {
             continue;
         }
-        let wi = to / sqrt(dist2);
-        let cos_light = -dot(e.normal.xyz, wi);
-        if cos_light <= 0.0 || dot(n, wi) <= 0.0 {
-            continue;
-        }
-        let response = light_response(albedo, material, n, d, wi);
-        if all(response == vec3<f32>(0.0)) {
-            continue;
-        }
-        let ray = p + e.normal.xyz * e.a.w - start;
+        let ray = l.end - start;
         let len = length(ray);
         if !(len > 0.0) {
             continue;
@@ -633,8 +652,7 @@ fn emitter_light(key: u32, samples: u32, at: vec3<f32>, start: vec3<f32>, n: vec
                 continue;
             }
         }
-        let pdf_area = e.normal.w / e.e1.w;
-        sum += response * e.emission.xyz * (cos_light / (dist2 * pdf_area));
+        sum += l.light;
     }
     return sum / f32(samples);
 }
