@@ -155,7 +155,7 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights, cell_sam
                     !occluded(&fi, o, d, len, search)
                 }),
             );
-        } else if lights.use_mtl_emitters && samples == 0 {
+        } else if lights.use_mtl_emitters && lights.emitter_sampling() == 0 {
             radiance += cell.emission / occ;
         }
         let alpha = occ.min(1.0);

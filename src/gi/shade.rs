@@ -382,7 +382,7 @@ pub struct GiSettings {
     pub cone_shadows: bool,
     /// Points each lit cell draws on the emitters in light injection (1…1024), where the
     /// lights sample them at all. The cones average many cells, so one measured as well as
-    /// four in the panel room at 2.9× less injection time (docs/lights.md).
+    /// four in the panel room in 0.64× the frame time (docs/lights.md).
     pub cell_light_samples: u32,
 }
 
