@@ -37,18 +37,19 @@ pub fn srgb8(frame: &Frame) -> Vec<u8> {
 
 /// Writes a file through a temporary sibling that is renamed over `path` once complete, so an
 /// interrupted or failed write (Ctrl-C, a full disk) never leaves a truncated file where an
-/// earlier one was. The temporary name keeps the extension (encoders choose by it).
+/// earlier one was. `write` gets the temporary's open handle: reopening it by name could
+/// recreate it after Ctrl-C's clean-up had removed it.
 fn replace_atomically<E>(
     path: &Path,
-    write: impl FnOnce(&Path) -> Result<(), E>,
+    write: impl FnOnce(std::fs::File) -> Result<(), E>,
     io: impl Fn(std::io::Error) -> E,
 ) -> Result<(), E> {
     let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
     let ext = path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
-    let partial =
-        crate::partial::Partial::new(path.with_file_name(format!(".{name}.partial-{}{ext}", std::process::id())));
+    let tmp = path.with_file_name(format!(".{name}.partial-{}{ext}", std::process::id()));
+    let (partial, file) = crate::partial::Partial::create(tmp).map_err(&io)?;
     let tmp = partial.path();
-    match write(tmp) {
+    match write(file) {
         Ok(()) => std::fs::rename(tmp, path).map_err(|e| {
             let _ = std::fs::remove_file(tmp);
             io(e)
@@ -63,7 +64,7 @@ fn replace_atomically<E>(
 /// Writes `bytes` to `path` through a temporary sibling renamed into place once complete
 /// (records, reports, model files: an interrupted run never leaves one half-written).
 pub fn write_file(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    replace_atomically(path, |tmp| std::fs::write(tmp, bytes), |e| e)
+    replace_atomically(path, |mut f| f.write_all(bytes), |e| e)
 }
 
 /// Writes the frame as PNG or EXR, chosen by the extension (replacing an earlier file only
@@ -73,30 +74,33 @@ pub fn write_image(frame: &Frame, path: &Path) -> Result<(), OutputError> {
     let label = path.display().to_string();
     replace_atomically(
         path,
-        |tmp| encode_image(frame, tmp, &label),
+        |file| encode_image(frame, file, path, &label),
         |source| OutputError::Io { path: label.clone(), source },
     )
 }
 
 #[cfg(feature = "image-io")]
-fn encode_image(frame: &Frame, path: &Path, label: &str) -> Result<(), OutputError> {
+fn encode_image(frame: &Frame, file: std::fs::File, path: &Path, label: &str) -> Result<(), OutputError> {
     // Errors name the file asked for, not the temporary one.
     let label = label.to_string();
     let enc = |e: image::ImageError| OutputError::Encode { path: label.clone(), message: e.to_string() };
+    let size = || OutputError::Encode { path: label.clone(), message: "size mismatch".into() };
+    let mut out = std::io::BufWriter::new(file);
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("png") => image::RgbImage::from_raw(frame.width, frame.height, srgb8(frame))
-            .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?
-            .save(path)
-            .map_err(enc),
+            .ok_or_else(size)?
+            .write_to(&mut out, image::ImageFormat::Png)
+            .map_err(enc)?,
         Some("exr") => {
             let data: Vec<f32> = frame.radiance.iter().flat_map(|c| [c.x, c.y, c.z]).collect();
             image::Rgb32FImage::from_raw(frame.width, frame.height, data)
-                .ok_or_else(|| OutputError::Encode { path: label.clone(), message: "size mismatch".into() })?
-                .save(path)
-                .map_err(enc)
+                .ok_or_else(size)?
+                .write_to(&mut out, image::ImageFormat::OpenExr)
+                .map_err(enc)?
         }
-        _ => Err(OutputError::Format(label)),
+        _ => return Err(OutputError::Format(label)),
     }
+    out.flush().map_err(|source| OutputError::Io { path: label.clone(), source })
 }
 
 /// Writes an animated GIF from 8-bit sRGB RGB frames (looping).
@@ -105,14 +109,14 @@ pub fn write_gif(path: &Path, width: u32, height: u32, fps: f64, frames: Vec<Vec
     let label = path.display().to_string();
     replace_atomically(
         path,
-        |tmp| encode_gif(tmp, &label, width, height, fps, frames),
+        |file| encode_gif(file, &label, width, height, fps, frames),
         |source| OutputError::Io { path: label.clone(), source },
     )
 }
 
 #[cfg(feature = "image-io")]
 fn encode_gif(
-    path: &Path,
+    file: std::fs::File,
     label: &str,
     width: u32,
     height: u32,
@@ -122,7 +126,6 @@ fn encode_gif(
     use image::codecs::gif::{GifEncoder, Repeat};
     let label = label.to_string();
     let enc = |e: image::ImageError| OutputError::Encode { path: label.clone(), message: e.to_string() };
-    let file = std::fs::File::create(path).map_err(|source| OutputError::Io { path: label.clone(), source })?;
     let mut out = std::io::BufWriter::new(file);
     {
         let mut encoder = GifEncoder::new_with_speed(&mut out, 10);
@@ -165,10 +168,10 @@ pub fn write_aovs(frame: &Frame, dir: &Path) -> Result<(), OutputError> {
 /// Writes one array in NumPy's `.npy` format (version 1.0, C order), replacing an earlier
 /// file only once the new one is complete.
 pub fn write_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std::io::Result<()> {
-    replace_atomically(path, |tmp| encode_npy(tmp, descr, shape, data), |e| e)
+    replace_atomically(path, |file| encode_npy(file, descr, shape, data), |e| e)
 }
 
-fn encode_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std::io::Result<()> {
+fn encode_npy(file: std::fs::File, descr: &str, shape: &[usize], data: &[u8]) -> std::io::Result<()> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
     let shape_s = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
     let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_s}, }}");
@@ -176,7 +179,7 @@ fn encode_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) -> std::io
     let total = 10 + header.len() + 1;
     header.push_str(&" ".repeat((64 - total % 64) % 64));
     header.push('\n');
-    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut f = std::io::BufWriter::new(file);
     f.write_all(b"\x93NUMPY\x01\x00")?;
     f.write_all(&(header.len() as u16).to_le_bytes())?;
     f.write_all(header.as_bytes())?;
@@ -199,8 +202,8 @@ mod tests {
         let before = std::fs::read(&path).unwrap();
         let failed: std::io::Result<()> = replace_atomically(
             &path,
-            |tmp| {
-                std::fs::write(tmp, b"half a file")?;
+            |mut f| {
+                f.write_all(b"half a file")?;
                 Err(std::io::Error::other("disk full"))
             },
             |e| e,

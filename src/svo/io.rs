@@ -137,12 +137,10 @@ pub fn to_bytes(svo: &Svo) -> Vec<u8> {
 /// half-written file behind under the final name.
 pub fn save(svo: &Svo, path: &Path) -> Result<(), SvoFileError> {
     let io = |source| SvoFileError::Io { path: path.display().to_string(), source };
-    let partial = crate::partial::Partial::new(path.with_extension(format!("svo.tmp{}", std::process::id())));
+    let tmp = path.with_extension(format!("svo.tmp{}", std::process::id()));
+    let (partial, mut f) = crate::partial::Partial::create(tmp).map_err(io)?;
     let tmp = partial.path();
-    let written = std::fs::File::create(tmp).and_then(|mut f| {
-        f.write_all(&to_bytes(svo))?;
-        f.sync_all()
-    });
+    let written = f.write_all(&to_bytes(svo)).and_then(|()| f.sync_all());
     match written.and_then(|()| std::fs::rename(tmp, path)) {
         Ok(()) => Ok(()),
         Err(e) => {

@@ -54,7 +54,9 @@ fn main() -> ExitCode {
     // Ctrl-C stops at once: the outputs being written are removed (each is written beside its
     // final name and renamed when complete), those finished are kept.
     let interrupted = ctrlc::set_handler(|| {
-        let removed = voxray::partial::remove_in_flight();
+        // Held until the exit: no writer can create a temporary after the clean-up.
+        let stopped = voxray::partial::stop_writes();
+        let removed = stopped.removed;
         let what = if removed == 0 { String::new() } else { format!(" ({removed} unfinished file(s) removed)") };
         eprintln!("\nvoxray: interrupted{what}; files already written are complete and kept");
         std::process::exit(130);
