@@ -797,6 +797,7 @@ fn radiance_caches_render_and_refuse_bad_knobs() {
         ("--gi-cache-count", "0", "caches per tile must be 1…16, not 0"),
         ("--gi-cache-radius", "9", "cache gathering radius must be 1…8 tiles, not 9"),
         ("--gi-cache-placement", "random", "unknown cache placement 'random'"),
+        ("--gi-cache-cone", "0", "cache cone width must be 5…100 % of a texel's, not 0"),
     ] {
         let o = voxray(&[&["render", "--backend", "cpu", knob, value][..], &box_args[..]].concat());
         let err = String::from_utf8_lossy(&o.stderr);

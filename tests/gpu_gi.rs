@@ -208,7 +208,8 @@ fn gpu_half_resolution_gather_matches_the_cpu() {
     let half = GiSettings { res: 32, gather: voxray::render::Gather::Half, ..Default::default() };
     let (cpu, gpu) = box_images_agree(ctx.clone(), &scene, half);
     assert!(cpu.gathers > 0 && cpu.gathers < cpu.radiance.len() as u64 / 2);
-    let (_, per_pixel) = box_images_agree(ctx, &scene, GiSettings { res: 32, ..Default::default() });
+    let pixels = GiSettings { gather: voxray::render::Gather::Pixels, ..half };
+    let (_, per_pixel) = box_images_agree(ctx, &scene, pixels);
     let w = 64;
     let differ = (0..gpu.radiance.len())
         .filter(|&k| (k % w) % 2 == 1 && gpu.radiance[k] != per_pixel.radiance[k] && gpu.instance[k] >= 0)

@@ -417,7 +417,10 @@ pub fn accuracy_gpu(
     let backend = format!("GPU: {}", ctx.describe());
     let mut out = Vec::new();
     // The level store, then the gather (with the buffer store), each against the reference.
-    let dense = GiSettings { volume: VolumeChoice::Dense, ..GiSettings::default() };
+    // The per-pixel gather but where the gather is the knob (these rows predate the caches'
+    // being the default, and keep their meaning).
+    let dense =
+        GiSettings { volume: VolumeChoice::Dense, gather: crate::render::Gather::Pixels, ..GiSettings::default() };
     let half = crate::render::Gather::Half;
     let c = crate::render::radiance_cache::CacheSettings::default();
     let caches = crate::render::Gather::Caches(c);
@@ -685,7 +688,10 @@ fn accuracy_on(
     let default = GiSettings::default();
     // Anisotropic levels, with per-pixel cones and with the radiance caches.
     let caches_gather = crate::render::Gather::Caches(crate::render::radiance_cache::CacheSettings::default());
-    for (knob, gather) in [("anisotropic", default.gather), ("anisotropic, caches gather", caches_gather)] {
+    // (The first rows per pixel, as before the caches became the default gather.)
+    for (knob, gather) in
+        [("anisotropic", crate::render::Gather::Pixels), ("anisotropic, caches gather", caches_gather)]
+    {
         for (anisotropic, setting) in [(false, "off"), (true, "on")] {
             progress(&format!("gi-accuracy: {label}{knob} {setting}"));
             let s = GiSettings { anisotropic, gather, ..default };
@@ -703,7 +709,9 @@ fn accuracy_on(
     }
     for &cones in &cfg.cones {
         progress(&format!("gi-accuracy: {cones} cones"));
-        let s = GiSettings { cones: crate::gi::ConeSettings { diffuse_cones: cones, ..default.cones }, ..default };
+        // The per-pixel cones' count (the caches trace their own texel cones).
+        let knob = crate::gi::ConeSettings { diffuse_cones: cones, ..default.cones };
+        let s = GiSettings { cones: knob, gather: crate::render::Gather::Pixels, ..default };
         let (ms, g, f) = gi_frame_timed(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
         push("diffuse cones", format!("{cones}"), cones as f64, ms, Some(g), &f)?;
     }
@@ -746,6 +754,9 @@ fn accuracy_on(
     for p in [Placement::Clustered, Placement::Even] {
         let x = (p == Placement::Clustered) as u32 as f64;
         knobs.push(("caches: placement", format!("{p:?}").to_lowercase(), x, with(&|c| c.placement = p)));
+    }
+    for w in [100u32, 50, 25, 12] {
+        knobs.push(("caches: cone width", format!("{w} %"), w as f64, with(&|c| c.cone_percent = w)));
     }
     for (knob, setting, x, c) in knobs {
         progress(&format!("gi-accuracy: {knob} {setting}"));

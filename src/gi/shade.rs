@@ -370,7 +370,8 @@ pub struct GiSettings {
     pub volume: VolumeChoice,
     /// Where the GPU's cones read the level chain (ignored on the CPU).
     pub levels: LevelStore,
-    /// Where the diffuse cones are gathered: every pixel or half resolution (both backends).
+    /// Where the diffuse cones are gathered: radiance caches (the default), every pixel or half
+    /// resolution (both backends).
     pub gather: crate::render::Gather,
     /// Directional (six-face) coarse levels: cones read what is seen along their direction,
     /// so a wall's lit far side does not leak through its dark near side.
@@ -410,7 +411,7 @@ impl Default for GiSettings {
             bounces: 1,
             volume: VolumeChoice::Auto,
             levels: LevelStore::Buffer,
-            gather: crate::render::Gather::Pixels,
+            gather: crate::render::Gather::default(),
             anisotropic: false,
             cone_shadows: false,
             cell_light_samples: 1,

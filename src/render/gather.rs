@@ -14,16 +14,23 @@ use crate::scene::camera::Basis;
 use crate::scene::Camera;
 use glam::{DVec3, Vec3, Vec4};
 
-/// How the diffuse cones are gathered for the pixels (`--gi-gather`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+/// How the diffuse cones are gathered for the pixels (`--gi-gather`). The default is the
+/// radiance caches: in docs/accuracy.md's sweep they err less than the per-pixel cones on the
+/// box and the panel room in about the same GI time, but flicker more on a moving scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Gather {
     /// Every pixel gathers its own cones.
-    #[default]
     Pixels,
     /// One pixel in four gathers; the others blend the samples on their own surface.
     Half,
     /// Cones at clustered radiance caches, blended at the pixels (diffuse and glossy).
     Caches(CacheSettings),
+}
+
+impl Default for Gather {
+    fn default() -> Self {
+        Gather::Caches(CacheSettings::default())
+    }
 }
 
 impl std::str::FromStr for Gather {

@@ -4,8 +4,9 @@
 //! to [`CacheSettings::per_tile`] dominant normals are picked, each pick damping the
 //! directions near it by w ← w·(1 − |d·d_best|⁸); a cache goes to the pixel that best
 //! represents each picked cluster. Each cache traces one narrow cone per texel of a small
-//! hemispherical radiance map about its normal (equal-area texels, so a texel's cone covers
-//! its solid angle), then pre-convolves the map: a mip pyramid whose level matches a glossy
+//! hemispherical radiance map about its normal (equal-area texels; each cone a fraction,
+//! [`CacheSettings::cone_percent`], of the aperture that would cover its texel's solid angle,
+//! so that it reads finer levels), then pre-convolves the map: a mip pyramid whose level matches a glossy
 //! lobe's width, and an irradiance map (the cosine-weighted mean of the texels about each of
 //! its texels' directions). A pixel blends the caches within [`CacheSettings::radius`] tiles,
 //! each weighted by the smaller of a normal-similarity and a distance weight; where none
@@ -39,15 +40,25 @@ pub struct CacheSettings {
     pub radius: u32,
     /// Clustered or evenly spaced placement.
     pub placement: Placement,
+    /// Aperture of each texel's cone, in percent of the aperture whose solid angle is the
+    /// texel's (5…100). Narrower cones read finer levels of the chain, whose coarse levels
+    /// make thin lit surfaces glow (docs/accuracy.md, "Why the box errs"); the map's
+    /// convolution still averages the texels over the hemisphere.
+    pub cone_percent: u32,
 }
 
 impl Default for CacheSettings {
     fn default() -> Self {
-        CacheSettings { tile: 16, per_tile: 3, res: 16, radius: 2, placement: Placement::Clustered }
+        CacheSettings { tile: 16, per_tile: 3, res: 16, radius: 1, placement: Placement::Clustered, cone_percent: 50 }
     }
 }
 
 impl CacheSettings {
+    /// Full aperture (radians) of the cone each texel of a map traces.
+    pub fn cone_aperture(&self) -> f64 {
+        texel_aperture(self.res as usize) * self.cone_percent as f64 / 100.0
+    }
+
     /// Checks the knobs.
     pub fn validated(self) -> Result<Self, String> {
         // 128² pixels keep a tile's pixel index in the 16 bits the GPU's placement packs it in.
@@ -62,6 +73,9 @@ impl CacheSettings {
         }
         if !(1..=8).contains(&self.radius) {
             return Err(format!("cache gathering radius must be 1…8 tiles, not {}", self.radius));
+        }
+        if !(5..=100).contains(&self.cone_percent) {
+            return Err(format!("cache cone width must be 5…100 % of a texel's, not {}", self.cone_percent));
         }
         Ok(self)
     }
@@ -229,14 +243,14 @@ fn texel_directions(res: usize) -> Vec<DVec3> {
 
 /// Traces the `res × res` texels of a cache's map with `cone(origin, normal, direction,
 /// aperture)` (radiance with the sky filled in where the cone escapes, and the open fraction
-/// in w), one cone per texel as wide as its solid angle.
+/// in w), one cone of full `aperture` (radians) at each texel's centre.
 pub fn trace_texels(
     at: &CachePoint,
     res: usize,
+    aperture: f64,
     cone: &(dyn Fn(DVec3, DVec3, DVec3, f64) -> Vec4 + Sync),
 ) -> Vec<Vec4> {
     let (tangent, bitangent) = at.normal.any_orthonormal_pair();
-    let aperture = texel_aperture(res);
     texel_directions(res)
         .into_iter()
         .map(|l| cone(at.point, at.normal, tangent * l.x + bitangent * l.y + at.normal * l.z, aperture))
@@ -287,9 +301,9 @@ pub fn convolve(at: CachePoint, res: usize, texels: &[Vec4]) -> CacheMap {
     CacheMap { at, tangent, bitangent, mips, irradiance: MapLevel { n: ni, texels: irradiance } }
 }
 
-/// [`trace_texels`] then [`convolve`].
+/// [`trace_texels`] (with cones as wide as the texels) then [`convolve`].
 pub fn trace_cache(at: CachePoint, res: usize, cone: &(dyn Fn(DVec3, DVec3, DVec3, f64) -> Vec4 + Sync)) -> CacheMap {
-    let texels = trace_texels(&at, res, cone);
+    let texels = trace_texels(&at, res, texel_aperture(res), cone);
     convolve(at, res, &texels)
 }
 
@@ -478,8 +492,8 @@ pub fn build(
     first.push(total);
     let points: Vec<CachePoint> = per_tile.into_iter().flatten().collect();
     let t1 = std::time::Instant::now();
-    let res = s.res as usize;
-    let texels = super::cpu::par_map(points.len(), |i| trace_texels(&points[i], res, cone));
+    let (res, aperture) = (s.res as usize, s.cone_aperture());
+    let texels = super::cpu::par_map(points.len(), |i| trace_texels(&points[i], res, aperture, cone));
     let t2 = std::time::Instant::now();
     let maps = super::cpu::par_map(points.len(), |i| convolve(points[i], res, &texels[i]));
     let t3 = std::time::Instant::now();
@@ -595,6 +609,26 @@ mod tests {
         let expected = samples as f64 / (n * n) as f64;
         for c in count {
             assert!((c as f64 - expected).abs() < 0.05 * expected, "{c} of {expected}");
+        }
+    }
+
+    #[test]
+    fn texel_cones_are_as_wide_as_the_knob_asks_and_the_knob_is_checked() {
+        let at = CachePoint { pixel: (0, 0), point: DVec3::ZERO, normal: DVec3::Z };
+        for percent in [100u32, 25] {
+            let s = CacheSettings { cone_percent: percent, ..CacheSettings::default() };
+            let seen = std::sync::Mutex::new(Vec::new());
+            let texels = trace_texels(&at, s.res as usize, s.cone_aperture(), &|_, _, _, a| {
+                seen.lock().unwrap().push(a);
+                Vec4::ZERO
+            });
+            let seen = seen.into_inner().unwrap();
+            assert_eq!((texels.len(), seen.len()), (256, 256));
+            let want = texel_aperture(16) * percent as f64 / 100.0;
+            assert!(seen.iter().all(|&a| (a - want).abs() < 1e-12), "{} against {want}", seen[0]);
+        }
+        for bad in [0u32, 4, 101] {
+            assert!(CacheSettings { cone_percent: bad, ..CacheSettings::default() }.validated().is_err());
         }
     }
 

@@ -212,7 +212,7 @@ pub(crate) struct RenderArgs {
     /// Where GI's diffuse cones are gathered: pixels (every pixel), half (one pixel in each
     /// 2×2 block, blended at the others from the samples on their own surface) or caches
     /// (clustered radiance caches, diffuse and glossy; docs/gi.md).
-    #[arg(long, default_value = "pixels", requires = "gi")]
+    #[arg(long, default_value = "caches", requires = "gi")]
     pub(crate) gi_gather: voxray::render::Gather,
     /// Anisotropic GI levels: each coarse cell keeps what is seen through it along each of the
     /// six axis directions, so less light on a wall's far side leaks through it (both backends;
@@ -239,11 +239,15 @@ pub(crate) struct RenderArgs {
     #[arg(long, default_value_t = 16, requires = "gi")]
     pub(crate) gi_cache_res: u32,
     /// Radiance caches: gathering radius in tiles.
-    #[arg(long, default_value_t = 2, requires = "gi")]
+    #[arg(long, default_value_t = voxray::render::radiance_cache::CacheSettings::default().radius, requires = "gi")]
     pub(crate) gi_cache_radius: u32,
     /// Radiance caches: placement, clustered (the tiles' dominant normals) or even (a grid).
     #[arg(long, default_value = "clustered", requires = "gi")]
     pub(crate) gi_cache_placement: voxray::render::radiance_cache::Placement,
+    /// Radiance caches: each texel's cone as a percentage (5…100) of the aperture whose solid
+    /// angle is the texel's; narrower cones read finer levels of the volume.
+    #[arg(long, default_value_t = voxray::render::radiance_cache::CacheSettings::default().cone_percent, requires = "gi")]
+    pub(crate) gi_cache_cone: u32,
     /// Path-trace the reference image instead (CPU, progressive; write .exr for linear radiance):
     /// the same voxels, materials and lights, sun + sky + emitters, all bounces unless --bounces.
     #[arg(long, conflicts_with = "gi")]

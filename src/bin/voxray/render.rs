@@ -206,6 +206,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     res: a.gi_cache_res,
                     radius: a.gi_cache_radius,
                     placement: a.gi_cache_placement,
+                    cone_percent: a.gi_cache_cone,
                 })
             }
             g => g,

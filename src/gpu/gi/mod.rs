@@ -700,7 +700,7 @@ impl GpuGi {
                 gframe.cache_slots = slots;
                 gframe.cache_stride = stride;
                 gframe.cache_placement = (c.placement == crate::render::radiance_cache::Placement::Even) as u32;
-                let aperture = crate::render::radiance_cache::texel_aperture(c.res as usize);
+                let aperture = c.cone_aperture();
                 gframe.cache_spread = (2.0 * (aperture * 0.5).tan()) as f32;
                 gframe.cache_row_threads = ROW;
                 Some((slots as u64, stride as u64, [(tiles.min(65_535), tiles.div_ceil(65_535)), trace, convolve]))
