@@ -941,12 +941,22 @@ struct GiCacheBlend {
 
 // FrameCaches::blend (omega < 0: the irradiance and open fraction at normal n) and
 // FrameCaches::glossy (the radiance along unit d over a lobe of omega steradians), at pixel
-// (x, y) with camera-relative point p, unit normal n and ray parameter t.
+// (x, y) with camera-relative point p, unit normal n and ray parameter t: the caches within
+// the radius, or within one tile more where none applies there.
 fn gi_cache_blend(x: u32, y: u32, p: vec3<f32>, n: vec3<f32>, t: f32, d: vec3<f32>, omega: f32) -> GiCacheBlend {
+    let near = gi_cache_blend_within(gi.cache_radius, x, y, p, n, t, d, omega);
+    if near.weight > 0.0 {
+        return near;
+    }
+    return gi_cache_blend_within(gi.cache_radius + 1u, x, y, p, n, t, d, omega);
+}
+
+// gi_cache_blend over the caches within r tiles alone (FrameCaches::blend_within and
+// glossy_within).
+fn gi_cache_blend_within(r: u32, x: u32, y: u32, p: vec3<f32>, n: vec3<f32>, t: f32, d: vec3<f32>, omega: f32) -> GiCacheBlend {
     let tx = x / gi.cache_tile;
     let ty = y / gi.cache_tile;
     let tiles_y = (frame.height + gi.cache_tile - 1u) / gi.cache_tile;
-    let r = gi.cache_radius;
     // radiance_cache::footprint.
     let footprint = t * 2.0 * frame.forward.w / f32(frame.height);
     let reach = f32(r) * f32(gi.cache_tile) * footprint;

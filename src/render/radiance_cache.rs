@@ -530,8 +530,20 @@ impl FrameCaches {
 
     /// The caches' blend at a pixel (x, y) with world point `p` and unit normal `n`, a pixel's
     /// footprint `footprint` (world units per pixel at its depth): the cosine-weighted light
-    /// and open fraction, and the caches' total weight (0: none applies).
+    /// and open fraction, and the caches' total weight (0: none applies). The caches within
+    /// `radius` tiles, or where none applies within `radius + 1` (a surface seen at a grazing
+    /// angle, whose caches lie farther apart than its pixels): the pixel's own cones are
+    /// dearer and, wide, err more than a farther cache.
     pub fn blend(&self, radius: u32, x: u32, y: u32, p: DVec3, n: DVec3, footprint: f64) -> (Vec4, f64) {
+        let near = self.blend_within(radius, x, y, p, n, footprint);
+        if near.1 > 0.0 {
+            return near;
+        }
+        self.blend_within(radius + 1, x, y, p, n, footprint)
+    }
+
+    /// [`Self::blend`] over the caches within `radius` tiles alone.
+    fn blend_within(&self, radius: u32, x: u32, y: u32, p: DVec3, n: DVec3, footprint: f64) -> (Vec4, f64) {
         let (mut sum, mut weight) = (Vec4::ZERO, 0.0f64);
         self.near(radius, x, y, p, n, footprint, |c, wc| {
             sum += c.irradiance(n) * wc as f32;
@@ -542,9 +554,27 @@ impl FrameCaches {
 
     /// The caches' glossy light at a pixel along unit world direction `d` over a lobe of
     /// `omega` steradians (None where no cache applies or `d` is below every near cache's
-    /// horizon).
+    /// horizon), from the caches within `radius` tiles or, where none applies, `radius + 1`
+    /// (as [`Self::blend`]).
     #[allow(clippy::too_many_arguments)]
     pub fn glossy(
+        &self,
+        radius: u32,
+        x: u32,
+        y: u32,
+        p: DVec3,
+        n: DVec3,
+        footprint: f64,
+        d: DVec3,
+        omega: f64,
+    ) -> Option<Vec3> {
+        self.glossy_within(radius, x, y, p, n, footprint, d, omega)
+            .or_else(|| self.glossy_within(radius + 1, x, y, p, n, footprint, d, omega))
+    }
+
+    /// [`Self::glossy`] over the caches within `radius` tiles alone.
+    #[allow(clippy::too_many_arguments)]
+    fn glossy_within(
         &self,
         radius: u32,
         x: u32,
@@ -630,6 +660,32 @@ mod tests {
         for bad in [0u32, 4, 101] {
             assert!(CacheSettings { cone_percent: bad, ..CacheSettings::default() }.validated().is_err());
         }
+    }
+
+    /// A pixel with no cache within the radius borrows from one tile farther, and from no
+    /// farther: a 4×1 row of 16-pixel tiles with one cache in the first, one pixel per world
+    /// unit.
+    #[test]
+    fn a_pixel_without_a_near_cache_widens_the_radius_once() {
+        let env = Vec4::new(0.5, 0.25, 1.0, 0.8);
+        let at = CachePoint { pixel: (8, 8), point: DVec3::new(8.0, 8.0, 0.0), normal: DVec3::Z };
+        let caches = FrameCaches {
+            tile: 16,
+            tiles_x: 4,
+            tiles_y: 1,
+            first: vec![0, 1, 1, 1, 1],
+            maps: vec![trace_cache(at, 8, &|_, _, _, _| env)],
+        };
+        let at_pixel = |x: u32| {
+            let (e, w) = caches.blend(1, x, 8, DVec3::new(x as f64, 8.0, 0.0), DVec3::Z, 1.0);
+            let g = caches.glossy(1, x, 8, DVec3::new(x as f64, 8.0, 0.0), DVec3::Z, 1.0, DVec3::Z, 0.1);
+            (w > 0.0, (e - env).abs().max_element() < 1e-5, g.is_some())
+        };
+        // Tile 1 is within one tile; tile 2 within two (widened); tile 3 within neither.
+        assert_eq!(at_pixel(20), (true, true, true));
+        assert_eq!(at_pixel(36), (true, true, true));
+        assert_eq!(at_pixel(52), (false, false, false));
+        assert_eq!(caches.blend_within(1, 36, 8, DVec3::new(36.0, 8.0, 0.0), DVec3::Z, 1.0).1, 0.0);
     }
 
     #[test]
