@@ -165,7 +165,8 @@ impl App {
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Split, "split");
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Nearest, "nearest");
                         });
-                        ui_.horizontal(|row| {
+                        // Wrapped: three choices are wider than the panel.
+                        ui_.horizontal_wrapped(|row| {
                             use crate::render::Gather;
                             row.label("GI gather:");
                             row.radio_value(&mut ui.gi.gather, Gather::Pixels, "every pixel");
