@@ -6,6 +6,7 @@
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
 use voxray::bench::gi::room_scene;
+use voxray::gi::shade::VolumeChoice;
 use voxray::gi::{inject, levels, plan_volume, Filter, GiCaches, GiReuse, GiSettings, Volume};
 use voxray::gpu::gi::GiCapture;
 use voxray::gpu::{GpuContext, GpuRenderer};
@@ -224,17 +225,41 @@ fn gpu_half_resolution_gather_matches_the_cpu() {
 }
 
 /// More bounces on the GPU: the two- and three-bounce images equal the CPU's, and each bounce
-/// brightens the closed box.
+/// brightens the closed box; so do the images with the bounces' tail (dense and sparse
+/// volumes: the bounce pass's workgroup sums, the factor pass, the tail's commit), which are
+/// brighter than the same bounces without it.
 #[test]
 fn gpu_gi_bounces_match_the_cpu() {
     let Some(ctx) = context() else { return };
     let scene = room_scene(6).unwrap();
+    let sum = |f: &Frame| f.radiance.iter().map(|c| c.element_sum()).sum::<f32>();
     let mut last = 0.0;
     for bounces in 1..=3 {
-        let (_, gpu) = box_images_agree(ctx.clone(), &scene, GiSettings { res: 32, bounces, ..Default::default() });
-        let sum = gpu.radiance.iter().map(|c| c.element_sum()).sum::<f32>();
-        assert!(sum > last * 1.02, "{bounces} bounces: {sum} against {last}");
-        last = sum;
+        let s = GiSettings { res: 32, bounces, bounce_tail: false, ..Default::default() };
+        let (_, gpu) = box_images_agree(ctx.clone(), &scene, s);
+        assert!(sum(&gpu) > last * 1.02, "{bounces} bounces: {} against {last}", sum(&gpu));
+        last = sum(&gpu);
+    }
+    for (volume, bounces) in [(VolumeChoice::Dense, 2), (VolumeChoice::Sparse, 2), (VolumeChoice::Dense, 3)] {
+        let s = GiSettings { res: 32, bounces, volume, ..Default::default() };
+        assert!(s.bounce_tail, "the tail is on by default");
+        let (_, with) = box_images_agree(ctx.clone(), &scene, s);
+        let (_, without) = box_images_agree(ctx.clone(), &scene, GiSettings { bounce_tail: false, ..s });
+        let (a, b) = (sum(&with), sum(&without));
+        assert!(a > 1.05 * b, "{volume:?}, {bounces} bounces: {a} with the tail against {b} without");
+        // The factor itself, read back, against the CPU's (sums of every cell: a workgroup
+        // left out of the GPU's sum moves it).
+        let (cam, lights) = (voxray::model::room::camera(64, 48), voxray::model::room::lights());
+        let (_, capture) = gpu_frame(ctx.clone(), &scene, &cam, &lights, s);
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), None);
+        let mut caches = GiCaches::new();
+        let opts = RenderOptions::default();
+        let (_, stats) =
+            voxray::gi::render_with_gi(&scene, &cam, &lights, &plan, &opts, None, &s, &mut caches, &|_, _| {}).unwrap();
+        let (cpu, gpu) = (stats.tail.expect("the CPU added the tail"), capture.tail.expect("the GPU added the tail"));
+        assert!(cpu.min_element() > 0.1, "{cpu}");
+        let off = (cpu - gpu).abs().max_element();
+        assert!(off <= 5e-3 * cpu.max_element(), "{volume:?}, {bounces} bounces: tail factor CPU {cpu} GPU {gpu}");
     }
     // A chain gathered with one bounce is not reused for two.
     let (cam, lights) = (voxray::model::room::camera(16, 12), voxray::model::room::lights());
@@ -386,7 +411,7 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
 /// The sparse volume on the GPU holds exactly what the dense one holds: the same fixed-point
 /// sums (integer atomics add the same values in any order), the same injected light and levels
 /// (the same children averaged in the same order), hence the same image, with one bounce and
-/// with two; and a brick pool that grows for a fuller scene renders what a fresh one renders.
+/// with two (with the bounces' tail, to rounding); and a brick pool that grows for a fuller scene renders what a fresh one renders.
 #[test]
 fn gpu_sparse_volume_equals_the_dense_one() {
     use voxray::gi::shade::VolumeChoice;
@@ -395,9 +420,11 @@ fn gpu_sparse_volume_equals_the_dense_one() {
     let scene = cars();
     let cam = car_camera();
     let lights = Lights::default();
-    for bounces in [1, 2] {
+    // The bounces' tail sums floats over the cells in the layout's order, so with it the two
+    // agree to rounding instead of bit for bit.
+    for (bounces, bounce_tail) in [(1, false), (2, false), (2, true)] {
         // Smaller than the scene, so weight also falls outside.
-        let s = GiSettings { res: 48, extent: Some(14.0), bounces, ..Default::default() };
+        let s = GiSettings { res: 48, extent: Some(14.0), bounces, bounce_tail, ..Default::default() };
         let dense = GiSettings { volume: VolumeChoice::Dense, ..s };
         let sparse = GiSettings { volume: VolumeChoice::Sparse, ..s };
         let (fd, cd) = gpu_frame(ctx.clone(), &scene, &cam, &lights, dense);
@@ -406,10 +433,18 @@ fn gpu_sparse_volume_equals_the_dense_one() {
         assert_eq!(cs.outside, cd.outside);
         assert_eq!(cs.volume, cd.volume, "{bounces} bounces: volume");
         assert_eq!(cs.levels.levels.len(), cd.levels.levels.len());
+        assert!(cd.levels.levels[0].rgba.iter().any(|v| v.truncate().max_element() > 0.0), "lit");
+        if bounce_tail {
+            let (a, b) = (cs.tail.expect("sparse tail"), cd.tail.expect("dense tail"));
+            assert!((a - b).abs().max_element() <= 1e-5 * b.max_element(), "tail factor sparse {a} dense {b}");
+            for (k, (a, b)) in fs.radiance.iter().zip(&fd.radiance).enumerate() {
+                assert!((*a - *b).abs().max_element() <= 1e-4 * b.max_element().max(1.0), "pixel {k}: {a} vs {b}");
+            }
+            continue;
+        }
         for (l, (a, b)) in cs.levels.levels.iter().zip(&cd.levels.levels).enumerate() {
             assert_eq!(a, b, "{bounces} bounces: level {l}");
         }
-        assert!(cd.levels.levels[0].rgba.iter().any(|v| v.truncate().max_element() > 0.0), "lit");
         assert_eq!(fs.radiance, fd.radiance, "{bounces} bounces: image");
     }
     // Stats, reuse, and a pool grown from the box's bricks to the cars' ones.

@@ -303,7 +303,7 @@ fn wgsl_structs_match_rust() {
                 ("cache_spread", offset_of!(GpuGiFrame, cache_spread)),
                 ("cache_row_threads", offset_of!(GpuGiFrame, cache_row_threads)),
                 ("cell_samples", offset_of!(GpuGiFrame, cell_samples)),
-                ("pad4", offset_of!(GpuGiFrame, pad4)),
+                ("tail", offset_of!(GpuGiFrame, tail)),
             ],
         ),
         (

@@ -507,21 +507,91 @@ fn shade_gi_main(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 // shade::bounce: every occupied cell gathers the previous chain's light over its hemisphere
 // (the pixels' cones, from the cell centre along its mean normal) and sends out its albedo
-// times that on top of its direct light, into gi_next.
+// times that on top of its direct light, into gi_next. With gi.tail, each workgroup also sums
+// what shade::TailSums sums over its cells (the added light, that light times the share of
+// the cones that met the scene, albedo times opacity, opacity) into its slot past the cells
+// of gi_next (gi_tail_slot); the last bounce's are what shade::bounce_tail reads.
+var<workgroup> gi_tail_wg: array<array<vec4<f32>, 3>, 64>;
+
+// Slot k of the tail's sums in gi_next: slot 0 holds the factor, slot 1 + 3 w + j the sum j
+// of workgroup w.
+fn gi_tail_slot(k: u32) -> u32 {
+    return gi.cells + k;
+}
+
+// Sums the three vec4 of each thread of the workgroup into gi_tail_wg[0].
+fn gi_tail_reduce(lid: u32) {
+    for (var half = 32u; half > 0u; half = half >> 1u) {
+        workgroupBarrier();
+        if lid < half {
+            for (var j = 0u; j < 3u; j++) {
+                gi_tail_wg[lid][j] += gi_tail_wg[lid + half][j];
+            }
+        }
+    }
+    workgroupBarrier();
+}
+
 @compute @workgroup_size(64, 1, 1)
-fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn bounce_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let i = gi_thread_cell(gid);
-    if i == GI_EMPTY {
-        return;
+    var sums = array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    if i != GI_EMPTY {
+        let cell = gi_cell(i);
+        var out = gi_direct[i];
+        if cell.occ > 0.0 && dot(cell.n, cell.n) > 1e-6 {
+            let centre = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * gi.min_cell.w;
+            let g = gi_gather(centre, normalize(cell.n));
+            let a = min(cell.occ, 1.0);
+            out += vec4<f32>(cell.albedo * g.xyz * a, 0.0);
+            let added = max(out.xyz - gi_levels[i].xyz, vec3<f32>(0.0));
+            sums[0] = vec4<f32>(added, 0.0);
+            sums[1] = vec4<f32>(added * (1.0 - clamp(g.w, 0.0, 1.0)), 0.0);
+            sums[2] = vec4<f32>(cell.albedo * a, a);
+        }
+        gi_next[i] = out;
     }
-    let cell = gi_cell(i);
-    var out = gi_direct[i];
-    if cell.occ > 0.0 && dot(cell.n, cell.n) > 1e-6 {
-        let centre = gi.min_cell.xyz + (vec3<f32>(gi_cell_coord(i)) + 0.5) * gi.min_cell.w;
-        let light = gi_gather(centre, normalize(cell.n)).xyz;
-        out += vec4<f32>(cell.albedo * light * min(cell.occ, 1.0), 0.0);
+    if gi.tail != 0u {
+        gi_tail_wg[lid] = sums;
+        gi_tail_reduce(lid);
+        let w = (gid.x + gid.y * gi.row_threads) / 64u;
+        if lid == 0u && w * 64u < gi.cells {
+            for (var j = 0u; j < 3u; j++) {
+                gi_next[gi_tail_slot(1u + 3u * w + j)] = gi_tail_wg[0][j];
+            }
+        }
     }
-    gi_next[i] = out;
+}
+
+// shade::bounce_tail: one workgroup sums the workgroups' slots and writes the factor
+// r / (1 - r) per channel into slot 0.
+@compute @workgroup_size(64, 1, 1)
+fn bounce_tail_main(@builtin(local_invocation_index) lid: u32) {
+    let slots = (gi.cells + 63u) / 64u;
+    var sums = array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    for (var w = lid; w < slots; w += 64u) {
+        for (var j = 0u; j < 3u; j++) {
+            sums[j] += gi_next[gi_tail_slot(1u + 3u * w + j)];
+        }
+    }
+    gi_tail_wg[lid] = sums;
+    gi_tail_reduce(lid);
+    if lid == 0u {
+        let added = gi_tail_wg[0][0].xyz;
+        let met = gi_tail_wg[0][1].xyz;
+        let albedo = gi_tail_wg[0][2];
+        var f = vec3<f32>(0.0);
+        if albedo.w > 0.0 {
+            let mean_albedo = albedo.xyz / albedo.w;
+            for (var c = 0; c < 3; c++) {
+                if added[c] > 0.0 {
+                    let r = clamp(met[c] / added[c] * mean_albedo[c], 0.0, GI_MAX_TAIL_RATIO);
+                    f[c] = r / (1.0 - r);
+                }
+            }
+        }
+        gi_next[gi_tail_slot(0u)] = vec4<f32>(f, 0.0);
+    }
 }
 
 // The bounce's level 0 replaces the chain's; the levels are then averaged again.
@@ -532,6 +602,20 @@ fn bounce_commit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     gi_levels[i] = gi_next[i];
+}
+
+// The last bounce's commit with the tail: the light it added, scaled by the factor, stands
+// for the bounces after it.
+@compute @workgroup_size(64, 1, 1)
+fn bounce_tail_commit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gi_thread_cell(gid);
+    if i == GI_EMPTY {
+        return;
+    }
+    let next = gi_next[i];
+    let added = max(next.xyz - gi_levels[i].xyz, vec3<f32>(0.0));
+    let f = gi_next[gi_tail_slot(0u)].xyz;
+    gi_levels[i] = next + vec4<f32>(added * f, 0.0);
 }
 
 // ---- Radiance caches (render::radiance_cache) ----

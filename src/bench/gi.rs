@@ -785,12 +785,31 @@ fn accuracy_on(
         let error = compare_to(&all, &all)?;
         let name = format!("{label}reference (all bounces)");
         out.push(accuracy_record(cfg, instances, &name, setting, cfg.spp as f64, all_ms, error));
+        // What light after N bounces can reach at best: the path tracer stopped after N
+        // bounces (its own samples and seed) against the unbounded one.
         for &bounces in &cfg.bounces {
-            progress(&format!("gi-accuracy: {bounces} bounces"));
-            let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &GiSettings { bounces, ..default }, cfg.repeats)?;
-            let error = compare_to(&f, &all)?;
-            let name = format!("{label}bounces (vs all-bounce reference)");
-            out.push(accuracy_record(cfg, instances, &name, format!("{bounces}"), bounces as f64, ms, error));
+            progress(&format!("gi-accuracy: reference with {bounces} bounces, {} spp", cfg.spp));
+            let t0 = Instant::now();
+            let settings = ReferenceSettings { spp: cfg.spp, bounces: Some(bounces), seed: 3 };
+            let mut pt = PathTracer::new(scene, &camera, &lights, settings)
+                .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+            pt.run(&mut |_, _| {});
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let error = compare_to(&pt.frame(), &all)?;
+            let name = format!("{label}reference with N bounces (vs all-bounce reference)");
+            let setting = format!("{} spp, {bounces}", cfg.spp);
+            out.push(accuracy_record(cfg, instances, &name, setting, bounces as f64, ms, error));
+        }
+        // With the bounces' tail (the default) and without it (exactly N bounces).
+        for (tail, what) in [(true, ""), (false, " without the tail")] {
+            for &bounces in &cfg.bounces {
+                progress(&format!("gi-accuracy: {bounces} bounces{what}"));
+                let s = GiSettings { bounces, bounce_tail: tail, ..default };
+                let (ms, f) = gi_frame(scene, &camera, &lights, &plan, &s, cfg.repeats)?;
+                let error = compare_to(&f, &all)?;
+                let name = format!("{label}bounces{what} (vs all-bounce reference)");
+                out.push(accuracy_record(cfg, instances, &name, format!("{bounces}"), bounces as f64, ms, error));
+            }
         }
     }
     Ok(out)

@@ -16,7 +16,7 @@ use crate::render::hitbuffer::HitRecord;
 use crate::render::Frame;
 use crate::scene::{Camera, Lights, Scene};
 use crate::svo::PartId;
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -36,9 +36,9 @@ pub struct GiCaches {
 type StageHook = Box<dyn Fn(&str) + Send + Sync>;
 
 /// What a level chain depends on besides its volume and lights: the bounces and the cones
-/// they were gathered with (past one bounce), whether it is anisotropic, and the emitter
-/// samples its cells drew.
-pub(crate) type ChainKey = (u32, ConeSettings, bool, u32);
+/// they were gathered with (past one bounce), whether it is anisotropic, the emitter
+/// samples its cells drew, and whether the bounces' tail was added (past one bounce).
+pub(crate) type ChainKey = (u32, ConeSettings, bool, u32, bool);
 
 struct LastVolume {
     key: VolumeKey,
@@ -385,6 +385,12 @@ pub struct GiSettings {
     /// lights sample them at all. The cones average many cells, so one measured as well as
     /// four in the panel room in 0.64× the frame time (docs/lights.md).
     pub cell_light_samples: u32,
+    /// With more than one bounce, the bounces left out are estimated as a geometric series
+    /// and added ([`bounce_tail`]): the last bounce's light, scaled by r/(1 − r), where r (per
+    /// channel) is the share of that light that meets the scene again (its cells' cones that
+    /// did not escape) times the scene's mean albedo. Off, the light is that of exactly
+    /// `bounces` bounces.
+    pub bounce_tail: bool,
 }
 
 impl GiSettings {
@@ -415,6 +421,7 @@ impl Default for GiSettings {
             anisotropic: false,
             cone_shadows: false,
             cell_light_samples: 1,
+            bounce_tail: true,
         }
     }
 }
@@ -458,27 +465,98 @@ impl GiSettings {
     }
 }
 
-/// One more bounce: every occupied cell of `cells` gathers the light of `chain` over its
-/// hemisphere (cones from its centre along its mean normal, the sky where they escape) and
-/// sends out its albedo times that on top of its direct light `direct` (one per stored cell);
-/// returns the new light per stored cell.
+/// One more bounce: every occupied cell of `cells` gathers the light of `chain` (made from
+/// `before`, the light per stored cell so far) over its hemisphere (cones from its centre
+/// along its mean normal, the sky where they escape) and sends out its albedo times that on
+/// top of its direct light `direct` (one per stored cell); returns the new light per stored
+/// cell, with the sums [`bounce_tail`] estimates the bounces after it from.
 fn bounce(
     cells: &dyn CellsDyn,
     direct: &[glam::Vec4],
+    before: &[glam::Vec4],
     chain: &impl Chain,
     sky: glam::Vec3,
     cones: &ConeSettings,
-) -> Vec<glam::Vec4> {
-    let add = crate::render::cpu::par_map(cells.count(), |i| {
+) -> (Vec<glam::Vec4>, TailSums) {
+    let out = crate::render::cpu::par_map(cells.count(), |i| {
         let c = cells.get(i);
         let (occ, n) = (c.occupancy, c.normal);
         if occ <= 0.0 || n.length_squared() <= 1e-6 {
-            return glam::Vec4::ZERO;
+            return (direct[i], TailSums::default());
         }
-        let (light, _) = gather(chain, c.centre, n.normalize().as_dvec3(), sky, cones);
-        (c.albedo / occ * light * occ.min(1.0)).extend(0.0)
+        let (light, open) = gather(chain, c.centre, n.normalize().as_dvec3(), sky, cones);
+        let a = occ.min(1.0);
+        let albedo = c.albedo / occ;
+        let next = direct[i] + (albedo * light * a).extend(0.0);
+        let added = (next - before[i]).truncate().max(Vec3::ZERO).as_dvec3();
+        let sums = TailSums {
+            added,
+            met: added * (1.0 - open.clamp(0.0, 1.0)) as f64,
+            albedo: (albedo * a).as_dvec3(),
+            area: a as f64,
+        };
+        (next, sums)
     });
-    direct.iter().zip(add).map(|(d, a)| *d + a).collect()
+    let sums = out.iter().fold(TailSums::default(), |s, o| s.plus(&o.1));
+    (out.into_iter().map(|o| o.0).collect(), sums)
+}
+
+/// What one bounce sums over the occupied cells for [`bounce_tail`] (premultiplied radiance,
+/// so a cell counts as much of the scene's surface as it holds).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TailSums {
+    /// The light the bounce added (its light minus the light before it).
+    pub added: DVec3,
+    /// That light weighted by the fraction of its cell's cones that met the scene.
+    pub met: DVec3,
+    /// Albedo times opacity.
+    pub albedo: DVec3,
+    /// Opacity (occupancy clamped to 1).
+    pub area: f64,
+}
+
+impl TailSums {
+    fn plus(&self, o: &TailSums) -> TailSums {
+        TailSums {
+            added: self.added + o.added,
+            met: self.met + o.met,
+            albedo: self.albedo + o.albedo,
+            area: self.area + o.area,
+        }
+    }
+}
+
+/// Most share of a bounce's light that the tail lets the next bounce keep: the series
+/// r + r² + … = r/(1 − r) stays at most 19 times the last bounce.
+pub const MAX_TAIL_RATIO: f64 = 0.95;
+
+/// The factor (per channel) the last bounce's light is scaled by to stand for every bounce
+/// after it: r/(1 − r), with r = (the share of that light whose cell's cones met the scene)
+/// × (the scene's mean albedo), at most [`MAX_TAIL_RATIO`]. Light that bounces again leaves
+/// a cell and meets the scene where its cones do, and is sent on by the albedo where it
+/// lands: the scene's mean, since the bounces after the last are not traced (progressive
+/// radiosity's ambient term uses the same mean reflectance). Zero without light or surfaces.
+pub fn bounce_tail(s: &TailSums) -> Vec3 {
+    if !(s.area > 0.0) {
+        return Vec3::ZERO;
+    }
+    let mean_albedo = s.albedo / s.area;
+    let channel = |met: f64, added: f64, albedo: f64| {
+        if !(added > 0.0) {
+            return 0.0;
+        }
+        let r = (met / added * albedo).clamp(0.0, MAX_TAIL_RATIO);
+        if r.is_finite() {
+            (r / (1.0 - r)) as f32
+        } else {
+            0.0
+        }
+    };
+    Vec3::new(
+        channel(s.met.x, s.added.x, mean_albedo.x),
+        channel(s.met.y, s.added.y, mean_albedo.y),
+        channel(s.met.z, s.added.z, mean_albedo.z),
+    )
 }
 
 /// Where a GI frame's time went (milliseconds) and what it did.
@@ -505,6 +583,9 @@ pub struct GiStats {
     pub reuse_pixels: bool,
     /// The volume's layout.
     pub layout: Option<Layout>,
+    /// The factor (per channel) the last bounce's light was scaled by for the bounces after
+    /// it ([`bounce_tail`]); None when no tail was added.
+    pub tail: Option<Vec3>,
     /// Bytes the volume's cells take (for the dense layout, all of them).
     pub volume_bytes: u64,
     /// Bytes a dense volume of the same resolution takes.
@@ -569,8 +650,13 @@ pub fn prepare_light(
     let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
     let last = caches.last.take();
     let same_cones = last.as_ref().is_some_and(|l| l.cones == cones);
-    let bounce_key =
-        (s.bounces, if s.bounces > 1 { cones } else { ConeSettings::default() }, s.anisotropic, s.cell_light_samples);
+    let bounce_key = (
+        s.bounces,
+        if s.bounces > 1 { cones } else { ConeSettings::default() },
+        s.anisotropic,
+        s.cell_light_samples,
+        s.bounces > 1 && s.bounce_tail,
+    );
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
     if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
         stats.reuse = GiReuse::Volume;
@@ -623,9 +709,22 @@ pub fn prepare_light(
             // of MiB).
             let chain = if s.bounces > 1 {
                 let mut chain = vol.chain(direct.clone(), s.anisotropic);
+                let mut light = direct.clone();
                 for b in 1..s.bounces {
                     caches.stage(&format!("GI: bounce {} of {} over {} cells", b + 1, s.bounces, stats.occupied));
-                    chain = vol.chain(bounce(vol.cells(), &direct, &chain, lights.sky(), &cones), s.anisotropic);
+                    let before = std::mem::take(&mut light);
+                    let (next, sums) = bounce(vol.cells(), &direct, &before, &chain, lights.sky(), &cones);
+                    light = next;
+                    if b + 1 == s.bounces && s.bounce_tail {
+                        // The light the last bounce added, scaled, stands for the bounces after it.
+                        let f = bounce_tail(&sums);
+                        stats.tail = Some(f);
+                        for (l, b) in light.iter_mut().zip(&before) {
+                            let added = (l.truncate() - b.truncate()).max(Vec3::ZERO);
+                            *l += (added * f).extend(0.0);
+                        }
+                    }
+                    chain = vol.chain(light.clone(), s.anisotropic);
                 }
                 chain
             } else {
@@ -729,4 +828,40 @@ pub fn render_with_gi(
         crate::render::render_lit(scene, camera, lights, plan, opts, hits, Some(&ambient), progress)?;
     stats.cones_ms = cones_ms;
     Ok((frame, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sums(added: f64, met: f64, albedo: f64, area: f64) -> TailSums {
+        TailSums { added: DVec3::splat(added), met: DVec3::splat(met), albedo: DVec3::splat(albedo * area), area }
+    }
+
+    #[test]
+    fn the_tail_is_the_geometric_series_of_what_meets_the_scene() {
+        // A closed scene (every cone met something) of albedo 0.5: r = 0.5, r/(1 − r) = 1.
+        assert!((bounce_tail(&sums(10.0, 10.0, 0.5, 4.0)) - Vec3::ONE).abs().max_element() < 1e-6);
+        // Half of the light escapes: r = 0.25, 1/3.
+        let f = bounce_tail(&sums(10.0, 5.0, 0.5, 4.0));
+        assert!((f - Vec3::splat(1.0 / 3.0)).abs().max_element() < 1e-6, "{f}");
+        // Per channel: a red scene sends red on.
+        let s = TailSums { added: DVec3::ONE, met: DVec3::ONE, albedo: DVec3::new(0.8, 0.2, 0.0), area: 1.0 };
+        let f = bounce_tail(&s);
+        assert!((f - Vec3::new(4.0, 0.25, 0.0)).abs().max_element() < 1e-5, "{f}");
+        // Nothing escapes and nothing is absorbed: the series diverges; it is capped.
+        let most = (MAX_TAIL_RATIO / (1.0 - MAX_TAIL_RATIO)) as f32;
+        assert!((bounce_tail(&sums(1.0, 1.0, 1.0, 1.0)) - Vec3::splat(most)).abs().max_element() < 1e-3);
+        // An open scene adds nothing, and so do no light, no surfaces, or values that are no
+        // numbers (never a NaN factor).
+        assert_eq!(bounce_tail(&sums(10.0, 0.0, 0.5, 4.0)), Vec3::ZERO);
+        assert_eq!(bounce_tail(&sums(0.0, 0.0, 0.5, 4.0)), Vec3::ZERO);
+        assert_eq!(bounce_tail(&sums(1.0, 1.0, 0.5, 0.0)), Vec3::ZERO);
+        for bad in [f64::NAN, f64::INFINITY] {
+            for s in [sums(bad, 1.0, 0.5, 1.0), sums(1.0, bad, 0.5, 1.0), sums(1.0, 1.0, bad, 1.0)] {
+                let f = bounce_tail(&s);
+                assert!(f.is_finite() && f.min_element() >= 0.0 && f.max_element() <= most + 1e-3, "{s:?}: {f}");
+            }
+        }
+    }
 }

@@ -367,8 +367,9 @@ pub struct GpuGiFrame {
     pub cache_row_threads: u32,
     /// Emitter samples per lit cell in light injection (`GiSettings::cell_light_samples`).
     pub cell_samples: u32,
-    /// Padding.
-    pub pad4: u32,
+    /// 1: the bounces' tail is estimated (`GiSettings::bounce_tail`, past one bounce): the
+    /// bounce pass sums its workgroups' light past the cells of `gi_next`.
+    pub tail: u32,
 }
 
 /// One step down the level chain. WGSL: `GiLevelStep`.

@@ -131,6 +131,7 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("GI_BRICK_LEVELS", "u32", u(crate::gi::sparse::BRICK_LEVELS as u64)),
         ("GI_EMPTY", "u32", u(crate::gi::sparse::EMPTY as u64)),
         ("GI_CLEARANCE", "f32", f(crate::gi::cone::CLEARANCE as f32)),
+        ("GI_MAX_TAIL_RATIO", "f32", f(crate::gi::shade::MAX_TAIL_RATIO as f32)),
         ("GI_SAME_NORMAL", "f32", f(crate::render::gather::SAME_NORMAL)),
     ];
     v.extend(binding::ALL.iter().map(|&(name, b)| (name, "u32", u(b as u64))));

@@ -504,6 +504,8 @@ impl GpuRenderer {
                 cache_convolve: make("cache_convolve_main"),
                 bounce: make("bounce_main"),
                 commit: make("bounce_commit_main"),
+                tail: make("bounce_tail_main"),
+                tail_commit: make("bounce_tail_commit_main"),
             }
         });
         Ok(())

@@ -160,6 +160,9 @@ impl App {
                         ui_.add(
                             egui::Slider::new(&mut ui.gi.bounces, 1..=crate::gi::shade::MAX_BOUNCES).text("GI bounces"),
                         );
+                        if ui.gi.bounces > 1 {
+                            ui_.checkbox(&mut ui.gi.bounce_tail, "estimate the bounces after the last");
+                        }
                         ui_.horizontal(|row| {
                             row.label("GI filter:");
                             row.radio_value(&mut ui.gi.filter, crate::gi::Filter::Split, "split");

@@ -241,7 +241,8 @@ struct GiFrame {
     // Threads per dispatch row of the cache tracing and convolution passes.
     cache_row_threads: u32,
     cell_samples: u32,
-    pad4: u32,
+    // GiSettings::bounce_tail past one bounce: the bounce pass sums its workgroups' light.
+    tail: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuGiLevelStep: one step down the level chain.

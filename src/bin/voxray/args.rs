@@ -201,6 +201,11 @@ pub(crate) struct RenderArgs {
     /// GI bounces (1…8): each bounce past the first cone-traces every occupied cell's incoming light.
     #[arg(long, default_value_t = 1, requires = "gi")]
     pub(crate) gi_bounces: u32,
+    /// With more than one GI bounce: on estimates the bounces after the last as a geometric
+    /// series (the last bounce's light times r/(1 − r), r from how much of it meets the scene
+    /// and the scene's mean albedo; docs/gi.md) and adds them; off gives exactly --gi-bounces.
+    #[arg(long, default_value = "on", value_parser = ["on", "off"], requires = "gi")]
+    pub(crate) gi_bounce_tail: String,
     /// GI world volume: dense (every cell, up to 512³), sparse (8³ bricks where voxels land,
     /// multiples of 8 up to 1024³) or auto (CPU: sparse above 128³; GPU: sparse above 512³).
     #[arg(long, default_value = "auto", requires = "gi")]

@@ -193,6 +193,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
         cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
         extent: a.gi_extent,
         bounces: a.gi_bounces,
+        bounce_tail: a.gi_bounce_tail == "on",
         volume: a.gi_volume,
         levels: a.gi_levels,
         anisotropic: a.gi_anisotropic,
@@ -284,6 +285,12 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                     eprintln!(
                         "GI radiance caches: {} placed; placement {:.1} ms, cache tracing {:.1} ms, convolution {:.1} ms, gathering {:.1} ms",
                         c.caches, c.placement_ms, c.tracing_ms, c.convolution_ms, c.gathering_ms
+                    );
+                }
+                if let Some(f) = s.tail {
+                    eprintln!(
+                        "GI: the bounces after the {} traced, estimated as the last bounce's light × ({:.3}, {:.3}, {:.3}) (--gi-bounce-tail off: none)",
+                        g.bounces, f.x, f.y, f.z
                     );
                 }
                 let mb = |b: u64| b as f64 / (1u64 << 20) as f64;

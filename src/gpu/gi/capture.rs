@@ -13,6 +13,9 @@ pub struct GiCapture {
     /// The injected light and the level chain (with anisotropic levels, each coarse level as
     /// its +x face: the other five follow it in the GPU's buffer and are not read back).
     pub levels: Levels,
+    /// The factor the last bounce's light was scaled by for the bounces after it
+    /// (`gi::shade::bounce_tail`), when the frame added the tail.
+    pub tail: Option<Vec3>,
 }
 
 impl GpuGi {
@@ -33,6 +36,10 @@ impl GpuGi {
         if let Some(t) = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse) {
             out.extend([copy(enc, &t.brick_top), copy(enc, &t.counters)]);
         }
+        // Last: the whole next level 0 with the bounces' tail after its cells.
+        if let Some((_, next)) = &vol.bounce {
+            out.push(copy(enc, next));
+        }
         Some(out)
     }
 
@@ -50,6 +57,14 @@ impl GpuGi {
         let mut accum: Vec<u32> = read(ctx, bufs.first().ok_or_else(missing)?)?;
         let mut rgba: Vec<[f32; 4]> = read(ctx, bufs.get(1).ok_or_else(missing)?)?;
         let mut offsets = vol.offsets.clone();
+        let tail = match bufs.last().filter(|_| work.tail && vol.bounce.is_some()) {
+            Some(next) => {
+                let next: Vec<[f32; 4]> = read(ctx, next)?;
+                let f = next.get(work.cells as usize).ok_or_else(missing)?;
+                Some(Vec3::new(f[0], f[1], f[2]))
+            }
+            None => None,
+        };
         if vol.layout == Layout::Sparse {
             let brick_top: Vec<u32> = read(ctx, bufs.get(2).ok_or_else(missing)?)?;
             let counters: Vec<u32> = read(ctx, bufs.get(3).ok_or_else(missing)?)?;
@@ -107,6 +122,6 @@ impl GpuGi {
                 }
             })
             .collect();
-        Ok(GiCapture { volume, outside, levels: Levels { min: work.spec.min, levels } })
+        Ok(GiCapture { volume, outside, levels: Levels { min: work.spec.min, levels }, tail })
     }
 }

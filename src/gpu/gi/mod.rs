@@ -168,6 +168,10 @@ pub(crate) struct GiWork {
     pub caches: Option<[(u32, u32); 3]>,
     spec: VolumeSpec,
     bounces: u32,
+    /// The last bounce adds the bounces' tail.
+    tail: bool,
+    /// Stored cells (where the tail's sums begin in the next level 0's buffer).
+    cells: u32,
     /// What this frame does.
     pub stats: GpuGiStats,
 }
@@ -230,6 +234,10 @@ pub(crate) struct GiPipelines {
     pub bounce: wgpu::ComputePipeline,
     /// The next level 0 into the chain.
     pub commit: wgpu::ComputePipeline,
+    /// The bounces' tail factor from the last bounce's sums (one workgroup).
+    pub tail: wgpu::ComputePipeline,
+    /// The last bounce's level 0 with its tail into the chain.
+    pub tail_commit: wgpu::ComputePipeline,
 }
 
 /// Row `i` of the affine map (m, t) as xyz = linear, w = translation, in f32.
@@ -534,6 +542,7 @@ impl GpuGi {
             if s.bounces > 1 { cones } else { ConeSettings::default() },
             s.anisotropic,
             s.cell_light_samples,
+            s.bounces > 1 && s.bounce_tail,
         );
         if reuse == GiReuse::Levels && self.last.as_ref().is_some_and(|l| l.2 != bounce_key) {
             reuse = GiReuse::Volume; // the chain was gathered with other bounces
@@ -666,6 +675,7 @@ impl GpuGi {
             half: half as u32,
             half_width: camera.width.div_ceil(2),
             cell_samples: s.cell_light_samples,
+            tail: (s.bounces > 1 && s.bounce_tail) as u32,
             ..Default::default()
         };
         // The caches' slots (per tile) and maps: the texels, the mips down to 1², the
@@ -875,6 +885,8 @@ impl GpuGi {
             caches: cache_dispatch.map(|d| d.2),
             spec,
             bounces: s.bounces,
+            tail: s.bounces > 1 && s.bounce_tail,
+            cells: cells as u32,
             stats,
         })
     }
@@ -914,6 +926,10 @@ impl GpuGi {
         }
         if reuse == GiReuse::Nothing {
             enc.clear_buffer(&vol.accum, 0, None);
+        }
+        if let (true, Some((_, next))) = (work.tail && reuse != GiReuse::Levels, &vol.bounce) {
+            // The tail's workgroup sums: slots no workgroup writes this frame read zero.
+            enc.clear_buffer(next, work.cells as u64 * 16, None);
         }
         if reuse != GiReuse::Levels && vol.layout == Layout::Sparse {
             // Top cells without a brick this frame must read empty.
@@ -974,9 +990,17 @@ impl GpuGi {
         };
         tracer(&mut pass, &pipes.inject);
         levels(&mut pass);
-        for _ in 1..work.bounces {
+        for b in 1..work.bounces {
             tracer(&mut pass, &pipes.bounce);
-            tracer(&mut pass, &pipes.commit);
+            if work.tail && b + 1 == work.bounces {
+                pass.set_pipeline(&pipes.tail);
+                pass.set_bind_group(0, group0, &[]);
+                pass.set_bind_group(1, &work.group1, &[]);
+                pass.dispatch_workgroups(1, 1, 1);
+                tracer(&mut pass, &pipes.tail_commit);
+            } else {
+                tracer(&mut pass, &pipes.commit);
+            }
             levels(&mut pass);
         }
         Ok(())
