@@ -394,6 +394,14 @@ pub struct GiSettings {
 }
 
 impl GiSettings {
+    /// What the level chain made with these settings depends on besides its volume and lights
+    /// (both backends reuse a chain only under the same key).
+    pub(crate) fn chain_key(&self) -> ChainKey {
+        let more = self.bounces > 1;
+        let cones = if more { self.cones } else { ConeSettings::default() };
+        (self.bounces, cones, self.anisotropic, self.cell_light_samples, more && self.bounce_tail)
+    }
+
     /// The volume layout these settings use (anisotropic levels are built over the dense
     /// volume only, so `auto` stays dense with them).
     pub fn layout(&self) -> Layout {
@@ -650,13 +658,7 @@ pub fn prepare_light(
     let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
     let last = caches.last.take();
     let same_cones = last.as_ref().is_some_and(|l| l.cones == cones);
-    let bounce_key = (
-        s.bounces,
-        if s.bounces > 1 { cones } else { ConeSettings::default() },
-        s.anisotropic,
-        s.cell_light_samples,
-        s.bounces > 1 && s.bounce_tail,
-    );
+    let bounce_key = s.chain_key();
     stats.reuse = GiReuse::decide(last.as_ref().map(|l| (&l.key, &l.lights)), &key, lights);
     if stats.reuse == GiReuse::Levels && last.as_ref().is_some_and(|l| l.bounces != bounce_key) {
         stats.reuse = GiReuse::Volume;

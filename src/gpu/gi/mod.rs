@@ -19,9 +19,7 @@ use crate::gi::levels::{Level, Levels};
 use crate::gi::shade::plan_volume;
 use crate::gi::shade::LevelStore;
 use crate::gi::sparse::BRICK;
-use crate::gi::{
-    CacheVoxel, ConeSettings, Filter, GiCaches, GiError, GiReuse, GiSettings, Layout, Volume, VolumeKey, VolumeSpec,
-};
+use crate::gi::{CacheVoxel, Filter, GiCaches, GiError, GiReuse, GiSettings, Layout, Volume, VolumeKey, VolumeSpec};
 use crate::scene::{Camera, Lights, Scene};
 use crate::svo::PartId;
 use glam::{DAffine3, DMat3, DVec3, Vec3, Vec4};
@@ -537,13 +535,7 @@ impl GpuGi {
         let key = VolumeKey::new(scene, spec, layout, s.filter, &levels_of);
         // Decided before any upload: a changed pool or volume size changes the key too.
         let mut reuse = GiReuse::decide(self.last.as_ref().map(|(k, l, _)| (k, l)), &key, lights);
-        let bounce_key = (
-            s.bounces,
-            if s.bounces > 1 { cones } else { ConeSettings::default() },
-            s.anisotropic,
-            s.cell_light_samples,
-            s.bounces > 1 && s.bounce_tail,
-        );
+        let bounce_key = s.chain_key();
         if reuse == GiReuse::Levels && self.last.as_ref().is_some_and(|l| l.2 != bounce_key) {
             reuse = GiReuse::Volume; // the chain was gathered with other bounces
         }
