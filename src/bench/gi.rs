@@ -392,28 +392,49 @@ fn gi_ms(s: &crate::gi::GiStats) -> f64 {
     s.caches_ms + s.transform_ms + s.inject_ms + s.levels_ms + s.cones_ms
 }
 
-/// The GPU's own GI knob against the path-traced box (`--scenarios gi-accuracy --backends
-/// gpu`): the level chain read from the f32 buffer or from the 3D texture, at the default
-/// 128³ dense volume. The reference is the CPU sweep's (same samples and seed); each row's time
-/// is the GPU time of the GI passes and the shade pass that traces the cones (timestamp
-/// queries; wall clock of the frame where the adapter has none), the volume rebuilt per frame.
+/// The GPU's own GI knobs against the path tracer (`--scenarios gi-accuracy --backends gpu`),
+/// on the CPU sweep's three scenes (the box, the car on its ground, the panel room; rows
+/// named as the CPU's, "car on ground: …" and "panel room: …"): the level chain read from the
+/// f32 buffer or from the 3D texture, the gathers, anisotropic levels, at the default 128³
+/// dense volume, against the one-bounce reference of the CPU sweep (same samples and seed);
+/// and two bounces with and without the bounces' tail against the all-bounce reference. Each
+/// row's time is the GPU time of the GI passes and the shade pass that traces the cones
+/// (timestamp queries; wall clock of the frame where the adapter has none), the volume rebuilt
+/// per frame.
 #[cfg(feature = "gpu")]
 pub fn accuracy_gpu(
     cfg: &AccuracyConfig,
     ctx: Arc<crate::gpu::GpuContext>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<Record>, crate::Error> {
+    let mut out = Vec::new();
+    let room = room_scene(cfg.depth)?;
+    let room_camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
+    out.extend(accuracy_gpu_on("", &room, &room_camera, &crate::model::room::lights(), cfg, &ctx, progress)?);
+    let (car, car_camera) = car_on_ground(cfg)?;
+    out.extend(accuracy_gpu_on(CAR, &car, &car_camera, &crate::scene::Lights::default(), cfg, &ctx, progress)?);
+    let panel = panel_room_scene(cfg.depth)?;
+    let panel_camera = crate::model::panel_room::camera(cfg.size.0, cfg.size.1);
+    let panel_lights = crate::model::panel_room::lights();
+    out.extend(accuracy_gpu_on("panel room: ", &panel, &panel_camera, &panel_lights, cfg, &ctx, progress)?);
+    Ok(out)
+}
+
+/// [`accuracy_gpu`] on one scene; `label` starts every record's name.
+#[cfg(feature = "gpu")]
+fn accuracy_gpu_on(
+    label: &str,
+    scene: &Scene,
+    camera: &crate::scene::Camera,
+    lights: &crate::scene::Lights,
+    cfg: &AccuracyConfig,
+    ctx: &Arc<crate::gpu::GpuContext>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<Record>, crate::Error> {
     use crate::gi::shade::{LevelStore, VolumeChoice};
-    let scene = room_scene(cfg.depth)?;
-    let camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
-    let lights = crate::model::room::lights();
-    let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), None);
-    progress(&format!("gi-accuracy (GPU): reference, {} spp", cfg.spp));
-    let mut pt =
-        PathTracer::new(&scene, &camera, &lights, ReferenceSettings { spp: cfg.spp, bounces: Some(1), seed: 1 })
-            .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
-    pt.run(&mut |_, _| {});
-    let reference = pt.frame();
+    let plan = FramePlan::new(scene, camera, lights, &Features::default(), None);
+    progress(&format!("gi-accuracy (GPU): {label}reference, {} spp", cfg.spp));
+    let reference = one_bounce_reference(scene, camera, lights, cfg)?.0;
     let backend = format!("GPU: {}", ctx.describe());
     let mut out = Vec::new();
     // The level store, then the gather (with the buffer store), each against the reference.
@@ -435,15 +456,36 @@ pub fn accuracy_gpu(
         ("anisotropic (GPU, 128³)", "off", 0.0, dense),
         ("anisotropic (GPU, 128³)", "on", 1.0, GiSettings { anisotropic: true, ..dense }),
     ];
-    for (knob, name, x, s) in runs {
-        progress(&format!("gi-accuracy (GPU): {knob}, {name}"));
-        let run = gpu_gi_frames(&ctx, &s, &scene, &camera, &lights, &plan, cfg.repeats)?;
-        let (times, timed, f) = (run.times, run.timed, run.frame);
-        let error = compare_to(&f, &reference)?;
-        let mut r = accuracy_record(cfg, scene.instances().len(), knob, name.into(), x, summarize(&times).0, error);
+    // A GPU row: the CPU's record with the GPU named.
+    let gpu_record = |name: &str, setting: String, x: f64, run: &GpuGiRun, error: ImageError| {
+        let mut r = accuracy_record(cfg, scene.instances().len(), name, setting, x, summarize(&run.times).0, error);
         r.backend_kind = "gpu".into();
-        r.backend = format!("{backend}{}", if timed { "" } else { " (wall clock)" });
-        out.push(r);
+        r.backend = format!("{backend}{}", if run.timed { "" } else { " (wall clock)" });
+        r
+    };
+    for (knob, name, x, s) in runs {
+        progress(&format!("gi-accuracy (GPU): {label}{knob}, {name}"));
+        let run = gpu_gi_frames(ctx, &s, scene, camera, lights, &plan, cfg.repeats)?;
+        let error = compare_to(&run.frame, &reference)?;
+        out.push(gpu_record(&format!("{label}{knob}"), name.into(), x, &run, error));
+    }
+    if cfg.bounces.is_empty() {
+        return Ok(out);
+    }
+    // Two bounces, with the bounces' tail (the default) and without, against all bounces
+    // (the CPU sweep's reference: same samples and seed).
+    progress(&format!("gi-accuracy (GPU): {label}all-bounce reference, {} spp", cfg.spp));
+    let mut pt = PathTracer::new(scene, camera, lights, ReferenceSettings { spp: cfg.spp, bounces: None, seed: 2 })
+        .map_err(|e| crate::gi::GiError::Settings(e.to_string()))?;
+    pt.run(&mut |_, _| {});
+    let all = pt.frame();
+    for (tail, what) in [(true, ""), (false, " without the tail")] {
+        progress(&format!("gi-accuracy (GPU): {label}2 bounces{what}"));
+        let s = GiSettings { bounces: 2, bounce_tail: tail, volume: VolumeChoice::Dense, ..GiSettings::default() };
+        let run = gpu_gi_frames(ctx, &s, scene, camera, lights, &plan, cfg.repeats)?;
+        let error = compare_to(&run.frame, &all)?;
+        let name = format!("{label}bounces{what} (GPU, 128³, vs all-bounce reference)");
+        out.push(gpu_record(&name, "2".into(), 2.0, &run, error));
     }
     Ok(out)
 }

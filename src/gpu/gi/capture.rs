@@ -103,8 +103,10 @@ impl GpuGi {
                     }
                 }
             }
-            let shift = dense_rgba.len() as u32 - vol.offsets[BRICK_LEVELS];
-            offsets.extend(vol.offsets[BRICK_LEVELS..].iter().map(|o| o + shift));
+            // The coarse levels follow the scattered brick levels (a pool may be larger than
+            // the dense levels it scatters into, so no signed shift).
+            let (dense_end, pool_end) = (dense_rgba.len() as u32, vol.offsets[BRICK_LEVELS]);
+            offsets.extend(vol.offsets[BRICK_LEVELS..].iter().map(|o| dense_end + (o - pool_end)));
             dense_rgba.extend_from_slice(&rgba[vol.offsets[BRICK_LEVELS] as usize..]);
             rgba = dense_rgba;
         }
