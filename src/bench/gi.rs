@@ -394,9 +394,11 @@ fn gi_ms(s: &crate::gi::GiStats) -> f64 {
 
 /// The GPU's own GI knobs against the path tracer (`--scenarios gi-accuracy --backends gpu`),
 /// on the CPU sweep's three scenes (the box, the car on its ground, the panel room; rows
-/// named as the CPU's, "car on ground: …" and "panel room: …"): the level chain read from the
-/// f32 buffer or from the 3D texture, the gathers, anisotropic levels, at the default 128³
-/// dense volume, against the one-bounce reference of the CPU sweep (same samples and seed);
+/// named as the CPU's, "car on ground: …" and "panel room: …"): the volume resolution, the
+/// cone count, the filter, the level chain read from the f32 buffer or from the 3D texture,
+/// the gathers, anisotropic levels and, in the panel room, the light samples (shadow rays and
+/// cone shadows), about the defaults at a dense volume (sparse at 256³), against the one-bounce reference of
+/// the CPU sweep (same samples and seed);
 /// and two bounces with and without the bounces' tail against the all-bounce reference. Each
 /// row's time is the GPU time of the GI passes and the shade pass that traces the cones
 /// (timestamp queries; wall clock of the frame where the adapter has none), the volume rebuilt
@@ -410,20 +412,23 @@ pub fn accuracy_gpu(
     let mut out = Vec::new();
     let room = room_scene(cfg.depth)?;
     let room_camera = crate::model::room::camera(cfg.size.0, cfg.size.1);
-    out.extend(accuracy_gpu_on("", &room, &room_camera, &crate::model::room::lights(), cfg, &ctx, progress)?);
+    out.extend(accuracy_gpu_on("", false, &room, &room_camera, &crate::model::room::lights(), cfg, &ctx, progress)?);
     let (car, car_camera) = car_on_ground(cfg)?;
-    out.extend(accuracy_gpu_on(CAR, &car, &car_camera, &crate::scene::Lights::default(), cfg, &ctx, progress)?);
+    out.extend(accuracy_gpu_on(CAR, false, &car, &car_camera, &crate::scene::Lights::default(), cfg, &ctx, progress)?);
     let panel = panel_room_scene(cfg.depth)?;
     let panel_camera = crate::model::panel_room::camera(cfg.size.0, cfg.size.1);
     let panel_lights = crate::model::panel_room::lights();
-    out.extend(accuracy_gpu_on("panel room: ", &panel, &panel_camera, &panel_lights, cfg, &ctx, progress)?);
+    out.extend(accuracy_gpu_on("panel room: ", true, &panel, &panel_camera, &panel_lights, cfg, &ctx, progress)?);
     Ok(out)
 }
 
-/// [`accuracy_gpu`] on one scene; `label` starts every record's name.
+/// [`accuracy_gpu`] on one scene; `label` starts every record's name; `light_samples` adds
+/// the light-sample rows (a scene lit by its emitters).
 #[cfg(feature = "gpu")]
+#[allow(clippy::too_many_arguments)]
 fn accuracy_gpu_on(
     label: &str,
+    light_samples: bool,
     scene: &Scene,
     camera: &crate::scene::Camera,
     lights: &crate::scene::Lights,
@@ -446,7 +451,26 @@ fn accuracy_gpu_on(
     let c = crate::render::radiance_cache::CacheSettings::default();
     let caches = crate::render::Gather::Caches(c);
     let caches8 = crate::render::Gather::Caches(crate::render::radiance_cache::CacheSettings { res: 8, ..c });
-    let runs = [
+    // The knobs the CPU sweeps about the defaults (the caches' gather; per-pixel cones for
+    // the cone count), at the default dense layout up to 256³.
+    let d = GiSettings { volume: VolumeChoice::Dense, ..GiSettings::default() };
+    let mut runs: Vec<(&str, String, f64, GiSettings)> = Vec::new();
+    for res in [32u32, 64, 128, 256] {
+        // 256³ dense needs more than llvmpipe binds (128 MiB): sparse, as the CPU's auto picks.
+        let (volume, how) = if res > 128 { (VolumeChoice::Sparse, " sparse") } else { (VolumeChoice::Dense, "") };
+        let s = GiSettings { res, volume, ..d };
+        runs.push(("volume resolution (GPU)", format!("{res}³{how}"), res as f64, s));
+    }
+    for n in [1u32, 3, 6, 9, 16] {
+        let cones = crate::gi::ConeSettings { diffuse_cones: n, ..d.cones };
+        let s = GiSettings { cones, gather: crate::render::Gather::Pixels, ..d };
+        runs.push(("diffuse cones (GPU, 128³)", format!("{n}"), n as f64, s));
+    }
+    for (filter, x) in [(Filter::Nearest, 0.0), (Filter::Split, 1.0)] {
+        let name = format!("{filter:?}").to_lowercase();
+        runs.push(("filter (GPU, 128³)", name, x, GiSettings { filter, ..d }));
+    }
+    let fixed = [
         ("level chain store (GPU, 128³)", "buffer", 0.0, dense),
         ("level chain store (GPU, 128³)", "texture", 1.0, GiSettings { levels: LevelStore::Texture, ..dense }),
         ("gather (GPU, 128³)", "pixels", 1.0, dense),
@@ -456,6 +480,7 @@ fn accuracy_gpu_on(
         ("anisotropic (GPU, 128³)", "off", 0.0, dense),
         ("anisotropic (GPU, 128³)", "on", 1.0, GiSettings { anisotropic: true, ..dense }),
     ];
+    runs.extend(fixed.into_iter().map(|(k, n, x, s)| (k, n.to_string(), x, s)));
     // A GPU row: the CPU's record with the GPU named.
     let gpu_record = |name: &str, setting: String, x: f64, run: &GpuGiRun, error: ImageError| {
         let mut r = accuracy_record(cfg, scene.instances().len(), name, setting, x, summarize(&run.times).0, error);
@@ -467,7 +492,23 @@ fn accuracy_gpu_on(
         progress(&format!("gi-accuracy (GPU): {label}{knob}, {name}"));
         let run = gpu_gi_frames(ctx, &s, scene, camera, lights, &plan, cfg.repeats)?;
         let error = compare_to(&run.frame, &reference)?;
-        out.push(gpu_record(&format!("{label}{knob}"), name.into(), x, &run, error));
+        out.push(gpu_record(&format!("{label}{knob}"), name, x, &run, error));
+    }
+    // Where the scene's light is its emitters (the panel room): the pixels' light samples,
+    // with shadow rays and with cone shadows (the whole frame's GPU time).
+    if light_samples {
+        for cone_shadows in [false, true] {
+            let how = if cone_shadows { "cone shadows" } else { "shadow rays" };
+            for samples in [1u32, 4, 16] {
+                progress(&format!("gi-accuracy (GPU): {label}{samples} light samples, {how}"));
+                let lit = crate::scene::Lights { emitter_samples: samples, ..lights.clone() };
+                let s = GiSettings { cone_shadows, ..d };
+                let run = gpu_gi_frames(ctx, &s, scene, camera, &lit, &plan, cfg.repeats)?;
+                let error = compare_to(&run.frame, &reference)?;
+                let knob = format!("{label}light samples, {how} (GPU, 128³)");
+                out.push(gpu_record(&knob, format!("{samples}"), samples as f64, &run, error));
+            }
+        }
     }
     if cfg.bounces.is_empty() {
         return Ok(out);
