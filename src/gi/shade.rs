@@ -397,9 +397,14 @@ impl GiSettings {
     /// What the level chain made with these settings depends on besides its volume and lights
     /// (both backends reuse a chain only under the same key).
     pub(crate) fn chain_key(&self) -> ChainKey {
-        let more = self.bounces > 1;
-        let cones = if more { self.cones } else { ConeSettings::default() };
-        (self.bounces, cones, self.anisotropic, self.cell_light_samples, more && self.bounce_tail)
+        let cones = if self.bounces > 1 { self.cones } else { ConeSettings::default() };
+        (self.bounces, cones, self.anisotropic, self.cell_light_samples, self.tail())
+    }
+
+    /// Whether the bounces' tail is added: asked for, and past one bounce (one bounce has no
+    /// last bounce's light to extend).
+    pub fn tail(&self) -> bool {
+        self.bounces > 1 && self.bounce_tail
     }
 
     /// The volume layout these settings use (anisotropic levels are built over the dense
@@ -717,7 +722,7 @@ pub fn prepare_light(
                     let before = std::mem::take(&mut light);
                     let (next, sums) = bounce(vol.cells(), &direct, &before, &chain, lights.sky(), &cones);
                     light = next;
-                    if b + 1 == s.bounces && s.bounce_tail {
+                    if b + 1 == s.bounces && s.tail() {
                         // The light the last bounce added, scaled, stands for the bounces after it.
                         let f = bounce_tail(&sums);
                         stats.tail = Some(f);

@@ -934,7 +934,7 @@ impl GpuRenderer {
             pass.dispatch_workgroups(groups.0, groups.1, 1);
         }
         let capture = match (&self.gi, &gi_work) {
-            (Some(gi), Some(_)) if self.gi_capture => gi.copy_capture(&self.ctx, &mut enc),
+            (Some(gi), Some(work)) if self.gi_capture => gi.copy_capture(&self.ctx, work, &mut enc),
             _ => None,
         };
         let n_ts = match &gi_work {

@@ -18,27 +18,42 @@ pub struct GiCapture {
     pub tail: Option<Vec3>,
 }
 
+/// Bytes of one vec4 of the level buffers.
+const VEC4: u64 = 16;
+
+/// Whether [`GpuGi::copy_capture`] copies the tail's factor (the frame added the tail, and
+/// the next level 0's buffer holds the slot after its cells).
+fn tail_copied(vol: &VolumeBuffers, work: &GiWork) -> bool {
+    work.tail && vol.bounce.as_ref().is_some_and(|(_, next)| (work.cells as u64 + 1) * VEC4 <= next.size())
+}
+
 impl GpuGi {
     /// Copies the volume to readback buffers (submit `enc`, then [`GpuGi::read_capture`]).
-    pub(crate) fn copy_capture(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder) -> Option<Vec<wgpu::Buffer>> {
+    pub(crate) fn copy_capture(
+        &self,
+        ctx: &GpuContext,
+        work: &GiWork,
+        enc: &mut wgpu::CommandEncoder,
+    ) -> Option<Vec<wgpu::Buffer>> {
         let vol = self.volume.as_ref()?;
-        let copy = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer| {
+        let copy = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer, offset: u64, size: u64| {
             let dst = ctx.buffer(&wgpu::BufferDescriptor {
                 label: Some("gi readback"),
-                size: src.size(),
+                size,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             });
-            enc.copy_buffer_to_buffer(src, 0, &dst, 0, src.size());
+            enc.copy_buffer_to_buffer(src, offset, &dst, 0, size);
             dst
         };
-        let mut out = vec![copy(enc, &vol.accum), copy(enc, &vol.levels)];
+        let whole = |enc: &mut wgpu::CommandEncoder, src: &wgpu::Buffer| copy(enc, src, 0, src.size());
+        let mut out = vec![whole(enc, &vol.accum), whole(enc, &vol.levels)];
         if let Some(t) = self.sparse.as_ref().filter(|_| vol.layout == Layout::Sparse) {
-            out.extend([copy(enc, &t.brick_top), copy(enc, &t.counters)]);
+            out.extend([whole(enc, &t.brick_top), whole(enc, &t.counters)]);
         }
-        // Last: the whole next level 0 with the bounces' tail after its cells.
-        if let Some((_, next)) = &vol.bounce {
-            out.push(copy(enc, next));
+        // Last: the bounces' tail factor, the one vec4 after the cells of the next level 0.
+        if let Some((_, next)) = vol.bounce.as_ref().filter(|_| tail_copied(vol, work)) {
+            out.push(copy(enc, next, work.cells as u64 * VEC4, VEC4));
         }
         Some(out)
     }
@@ -57,10 +72,10 @@ impl GpuGi {
         let mut accum: Vec<u32> = read(ctx, bufs.first().ok_or_else(missing)?)?;
         let mut rgba: Vec<[f32; 4]> = read(ctx, bufs.get(1).ok_or_else(missing)?)?;
         let mut offsets = vol.offsets.clone();
-        let tail = match bufs.last().filter(|_| work.tail && vol.bounce.is_some()) {
-            Some(next) => {
-                let next: Vec<[f32; 4]> = read(ctx, next)?;
-                let f = next.get(work.cells as usize).ok_or_else(missing)?;
+        let tail = match bufs.last().filter(|_| tail_copied(vol, work)) {
+            Some(factor) => {
+                let f: Vec<[f32; 4]> = read(ctx, factor)?;
+                let f = f.first().ok_or_else(missing)?;
                 Some(Vec3::new(f[0], f[1], f[2]))
             }
             None => None,

@@ -667,7 +667,7 @@ impl GpuGi {
             half: half as u32,
             half_width: camera.width.div_ceil(2),
             cell_samples: s.cell_light_samples,
-            tail: (s.bounces > 1 && s.bounce_tail) as u32,
+            tail: s.tail() as u32,
             ..Default::default()
         };
         // The caches' slots (per tile) and maps: the texels, the mips down to 1², the
@@ -877,7 +877,7 @@ impl GpuGi {
             caches: cache_dispatch.map(|d| d.2),
             spec,
             bounces: s.bounces,
-            tail: s.bounces > 1 && s.bounce_tail,
+            tail: s.tail(),
             cells: cells as u32,
             stats,
         })
