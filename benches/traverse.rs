@@ -101,6 +101,7 @@ fn car_primary_rays(c: &mut Criterion) {
                 search: Search::Plain,
                 opts: Default::default(),
                 beams,
+                bvh_beams: false,
                 moved: &[],
                 missed_before: &[],
             };

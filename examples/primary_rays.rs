@@ -76,6 +76,7 @@ fn main() -> Result<(), voxray::Error> {
                 search: Search::Plain,
                 opts: Default::default(),
                 beams,
+                bvh_beams: false,
                 moved: &[],
                 missed_before: &[],
             };

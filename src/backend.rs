@@ -94,7 +94,7 @@ impl Backend {
         #[cfg_attr(not(feature = "gpu"), allow(unused_mut))]
         let mut plan = FramePlan::new(scene, camera, lights, features, (!first).then_some(prev));
         #[cfg(feature = "gpu")]
-        if matches!(self, Backend::Gpu(_)) && plan.beams {
+        if matches!(self, Backend::Gpu(_)) && (plan.beams || plan.bvh_beams) {
             plan.without_beams("the GPU backend traces every primary ray from the eye");
         }
         plan

@@ -156,6 +156,55 @@ fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
     assert!(!plan.beams, "{}", plan.explain());
 }
 
+/// A crowd past the instance limit (20 driving cars, 160 instances) gets beams through the
+/// instance BVH: tiles whose rays' pyramid meets no instance store misses untraced. Over a
+/// clip of moving cars and a turning camera, with a hit buffer carried from frame to frame
+/// (a beam's miss already stored is not written again), with the hit buffer on and off,
+/// every frame equals the one rendered with beams off, bit for bit, and tiles are settled.
+#[test]
+fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
+    let parts = car_parts();
+    let cars = voxray::render::beam::MAX_INSTANCES / parts.len() + 4;
+    let mut st = voxray::scene::stage_cars(&parts, cars, true, false).unwrap();
+    let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
+    let base = Camera::framing(lo, hi, 192, 112);
+    let lights = Lights::default();
+    for hit_buffer in [false, true] {
+        let mut kept = [voxray::render::HitBuffer::new(), voxray::render::HitBuffer::new()];
+        for f in 0..4 {
+            // Three seconds a frame: cars leave tiles that held them.
+            let t = 0.2 + f as f64 * 3.0;
+            voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
+            st.scene.update().unwrap();
+            // The camera holds still for frames 1 and 2 (the hit buffer's case), then turns.
+            let turn = DQuat::from_rotation_y(if f == 3 { 0.05 } else { 0.0 });
+            let cam = Camera { eye: base.target + turn * (base.eye - base.target), ..base };
+            let mut frames = Vec::new();
+            for (k, beams) in [true, false].into_iter().enumerate() {
+                let features = Features { beams, hit_buffer, ..Features::default() };
+                let plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&kept[k]));
+                assert_eq!(plan.bvh_beams, beams, "{}", plan.explain());
+                assert!(!plan.beams && plan.bvh, "{}", plan.explain());
+                let opts = RenderOptions::default();
+                frames.push(render(&st.scene, &cam, &lights, &plan, &opts, Some(&mut kept[k]), &|_, _| {}).unwrap());
+            }
+            let what = format!("hit buffer {hit_buffer}, frame {f}");
+            let covered = frames[0].instance.iter().filter(|&&i| i >= 0).count();
+            assert!(covered > 100, "{what}: the crowd covers only {covered} pixels");
+            assert_same_frames(&frames[0], &frames[1], &what);
+            if f == 0 {
+                // Rays of settled tiles test no leaf's spheres.
+                assert!(
+                    frames[0].spheres_culled < frames[1].spheres_culled,
+                    "{what}: no tile settled ({} spheres culled with, {} without)",
+                    frames[0].spheres_culled,
+                    frames[1].spheres_culled
+                );
+            }
+        }
+    }
+}
+
 fn check_crowd_frame(scene: &Scene, cam: &Camera, name: &str) {
     let with = frame(scene, cam, true, u32::MAX);
     let without = frame(scene, cam, false, u32::MAX);

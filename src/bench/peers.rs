@@ -161,6 +161,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 search: Search::Plain,
                 opts: Default::default(),
                 beams: true,
+                bvh_beams: false,
                 moved: &[],
                 missed_before: &[],
             };

@@ -526,6 +526,7 @@ pub fn render_lit(
         search,
         opts: trace_opts,
         beams: plan.beams,
+        bvh_beams: plan.bvh_beams,
         moved,
         missed_before: &records_missed,
     };

@@ -75,6 +75,10 @@ pub struct FramePlan {
     /// Beams for primary rays ([`super::beam`]).
     #[cfg_attr(feature = "json", serde(default))]
     pub beams: bool,
+    /// Beams through the instance BVH, for more instances than beams take: a tile whose rays'
+    /// pyramid meets no instance's sphere stores misses without tracing ([`super::beam::meets_any`]).
+    #[cfg_attr(feature = "json", serde(default))]
+    pub bvh_beams: bool,
     /// GI in this frame (None: off): what it kept from the frame before and the volume's
     /// layout. Decided as GI runs; [`crate::session::Session::frame`] fills it in and adds
     /// its reason line.
@@ -154,6 +158,7 @@ impl FramePlan {
             _ => "shadows: on".into(),
         });
         let beams = features.beams && n <= super::beam::MAX_INSTANCES;
+        let bvh_beams = features.beams && bvh && !beams;
         reasons.push(if !features.beams {
             "beams: off (switched off)".into()
         } else if beams {
@@ -161,8 +166,14 @@ impl FramePlan {
                 "beams: on (primary rays start where their {0}×{0} tile's cone meets each instance)",
                 super::beam::TILE
             )
+        } else if bvh_beams {
+            format!(
+                "beams: through the BVH ({n} instances > {}: a {1}×{1} tile whose rays' pyramid meets no instance stores misses untraced)",
+                super::beam::MAX_INSTANCES,
+                super::beam::TILE
+            )
         } else {
-            format!("beams: off ({n} instances > {})", super::beam::MAX_INSTANCES)
+            format!("beams: off ({n} instances > {}, no BVH)", super::beam::MAX_INSTANCES)
         });
         FramePlan {
             instances: n,
@@ -174,6 +185,7 @@ impl FramePlan {
             keep_hits: features.hit_buffer,
             shadows,
             beams,
+            bvh_beams,
             gi: None,
             reasons,
         }
@@ -191,6 +203,7 @@ impl FramePlan {
     /// Turns beams off for a renderer that has none, saying why.
     pub fn without_beams(&mut self, why: &str) {
         self.beams = false;
+        self.bvh_beams = false;
         if let Some(r) = self.reasons.iter_mut().find(|r| r.starts_with("beams:")) {
             *r = format!("beams: off ({why})");
         }

@@ -2,7 +2,7 @@
 //! beam starts ([`super::beam`]), then its rays run the nearest-hit search from there. The CPU
 //! renderer's trace pass and library users who only want the hits share this loop.
 
-use super::beam::{self, TileRays, BEAM_WIDTH, TILE};
+use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::tile_search::{each, nearest_moved_tile, nearest_tile, TileScratch};
 use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
@@ -23,6 +23,9 @@ pub struct Primary<'a> {
     pub opts: TraceOptions,
     /// Start rays at their tile's beam (the same hits, fewer steps).
     pub beams: bool,
+    /// Settle the tiles whose rays' pyramid meets no instance through the instance BVH (for
+    /// crowds, where `beams` is off): their rays miss without a search.
+    pub bvh_beams: bool,
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
     pub moved: &'a [u32],
@@ -153,6 +156,27 @@ pub fn trace_tiles<T: Send, S>(
                 }
                 FrameInstances { starts: Some(&starts), ..p.instances }
             } else {
+                if let (true, Some(bvh)) = (p.bvh_beams, p.instances.bvh) {
+                    let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
+                    let settled =
+                        TilePyramid::new(&tile).is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared));
+                    if settled {
+                        // No ray of the tile crosses an instance's sphere: every pending ray
+                        // misses (and no moved instance beats a bound).
+                        masks[x0 / TILE as usize][1] = todo;
+                        todo &= !p
+                            .missed_before
+                            .get(y0 / TILE as usize * tiles_x + x0 / TILE as usize)
+                            .copied()
+                            .unwrap_or(0);
+                        while todo != 0 {
+                            let k = todo.trailing_zeros() as usize;
+                            todo &= todo - 1;
+                            store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
+                        }
+                        continue;
+                    }
+                }
                 p.instances
             };
             // Lane k of the tile: its index in `rows`.
@@ -234,7 +258,7 @@ pub fn trace_tiles<T: Send, S>(
         rays: rays.into_inner(),
         moved_only: moved_only.into_inner(),
         stored: masks.iter().map(|m| m[0]).collect(),
-        missed: if p.beams { masks.iter().map(|m| m[1]).collect() } else { Vec::new() },
+        missed: if p.beams || p.bvh_beams { masks.iter().map(|m| m[1]).collect() } else { Vec::new() },
     }
 }
 
