@@ -100,7 +100,9 @@ pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, 
             ((lo + hi) * 0.5, (hi - lo) * 0.5)
         })
         .collect();
-    let one = |i: usize| {
+    // Fills a slot field by field: built whole and assigned, each 152-byte instance went
+    // through a memcpy (3.5 % of a 10 000-car frame).
+    let fill = |i: usize, slot: &mut Prepared| {
         let inst = &scene.instances()[i];
         let cube = scene.parts[inst.part].bounds;
         let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
@@ -132,24 +134,38 @@ pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, 
         // Rounding in f32 traversal scales with the cube, not with the box: the padding is
         // also a fraction of a bound on the cube's sphere (|M·(±h, ±h, h)| ≤ 3h·max stretch).
         let radius = corner2.sqrt() * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
-        Prepared {
-            part: inst.part,
-            to_unit,
-            centre: w.transform_point3(centre_obj) - eye,
-            radius: radius + f64::MIN_POSITIVE,
-            max_stretch,
-        }
+        slot.part = inst.part;
+        slot.to_unit = to_unit;
+        slot.centre = w.transform_point3(centre_obj) - eye;
+        slot.radius = radius + f64::MIN_POSITIVE;
+        slot.max_stretch = max_stretch;
     };
     let n = scene.instances().len();
+    // Last frame's slots, refilled in place.
+    out.truncate(n);
+    let blank = Prepared {
+        part: 0,
+        to_unit: ToUnit::Affine(DAffine3::IDENTITY),
+        centre: DVec3::ZERO,
+        radius: 0.0,
+        max_stretch: 0.0,
+    };
+    out.resize(n, blank);
     // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
     if n >= 1024 {
         use rayon::prelude::*;
-        (0..n).into_par_iter().with_min_len(512).map(one).collect_into_vec(out);
+        const CHUNK: usize = 512;
+        out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+            for (k, slot) in chunk.iter_mut().enumerate() {
+                fill(c * CHUNK + k, slot);
+            }
+        });
         return;
     }
-    out.clear();
-    out.extend((0..n).map(one));
+    for (i, slot) in out.iter_mut().enumerate() {
+        fill(i, slot);
+    }
 }
 
 /// Whether the eye (the camera-relative origin `prepared` was made for) lies inside a voxel
