@@ -165,11 +165,13 @@ fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
 fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
     let parts = car_parts();
     let cars = voxray::render::beam::MAX_INSTANCES / parts.len() + 4;
-    let mut st = voxray::scene::stage_cars(&parts, cars, true, false).unwrap();
-    let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
-    let base = Camera::framing(lo, hi, 192, 112);
     let lights = Lights::default();
-    for hit_buffer in [false, true] {
+    // Without a ground (most tiles settle), and on one (the cars' shadows move over it, so
+    // kept pixels' shadow rays meet the moved spheres; the ground's sphere reaches every tile).
+    for (ground, hit_buffer) in [(false, false), (false, true), (true, true)] {
+        let mut st = voxray::scene::stage_cars(&parts, cars, true, ground).unwrap();
+        let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
+        let base = Camera::framing(lo, hi, 192, 112);
         let mut kept = [voxray::render::HitBuffer::new(), voxray::render::HitBuffer::new()];
         for f in 0..4 {
             // Three seconds a frame: cars leave tiles that held them.
@@ -188,11 +190,24 @@ fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
                 let opts = RenderOptions::default();
                 frames.push(render(&st.scene, &cam, &lights, &plan, &opts, Some(&mut kept[k]), &|_, _| {}).unwrap());
             }
-            let what = format!("hit buffer {hit_buffer}, frame {f}");
+            let what = format!("ground {ground}, hit buffer {hit_buffer}, frame {f}");
             let covered = frames[0].instance.iter().filter(|&&i| i >= 0).count();
             assert!(covered > 100, "{what}: the crowd covers only {covered} pixels");
             assert_same_frames(&frames[0], &frames[1], &what);
-            if f == 0 {
+            if hit_buffer {
+                // The kept hits and colours (with the sun's shadow rays checked against the
+                // 320 moved spheres through their BVH) against a frame rendered afresh.
+                let features = Features { hit_buffer: false, ..Features::default() };
+                let plan = FramePlan::new(&st.scene, &cam, &lights, &features, None);
+                let fresh =
+                    render(&st.scene, &cam, &lights, &plan, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+                assert_same_frames(&frames[0], &fresh, &format!("{what}, against no reuse"));
+                assert!(plan.shadows, "{}", plan.explain());
+                if f == 2 {
+                    assert!(frames[0].shade_reused > 0, "{what}: no colour kept");
+                }
+            }
+            if f == 0 && !ground {
                 // Rays of settled tiles test no leaf's spheres.
                 assert!(
                     frames[0].spheres_culled < frames[1].spheres_culled,
