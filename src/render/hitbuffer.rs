@@ -200,6 +200,10 @@ pub struct Reuse {
     /// distance), once there are [`MOVED_BVH_MIN`] of them: the shadow tests of kept pixels
     /// and tiles walk it instead of testing every moved sphere.
     pub moved_bvh: Option<super::bvh::Bvh>,
+    /// With the BVH, per tile of the image ([`TILE`]-pixel tiles, row-major, `tiles_x` to a
+    /// row), the moved spheres whose pixel rectangles reach it, ascending.
+    tile_bins: Vec<Vec<u32>>,
+    tiles_x: usize,
 }
 
 /// From this many moved spheres on, [`Reuse`] keeps a BVH over them: a crowd of 300 driving
@@ -216,7 +220,30 @@ impl Reuse {
                 moved_spheres.iter().map(|&(c, r, _)| (c, r + 1e-6 * (r + c.length()))).collect();
             super::bvh::Bvh::build(&grown)
         });
-        Reuse { moved, moved_spheres, moved_instances, moved_bits, moved_bvh }
+        Reuse { moved, moved_spheres, moved_instances, moved_bits, moved_bvh, tile_bins: Vec::new(), tiles_x: 0 }
+    }
+
+    /// Sorts the moved spheres into the tiles of a `width` × `height` image once there are
+    /// [`MOVED_BVH_MIN`] of them, for [`Reuse::spheres_in`] (which otherwise tests every
+    /// sphere's rectangle for every tile: a third of a 300-car frame).
+    pub fn with_tiles(mut self, width: u32, height: u32) -> Reuse {
+        if self.moved_spheres.len() < MOVED_BVH_MIN || width == 0 || height == 0 {
+            return self;
+        }
+        let (tx, ty) = (width.div_ceil(TILE) as usize, height.div_ceil(TILE) as usize);
+        let mut bins = vec![Vec::new(); tx * ty];
+        for (k, &(_, _, [x0, y0, x1, y1])) in self.moved_spheres.iter().enumerate() {
+            let (a, c) = ((x0 / TILE) as usize, ((x1 / TILE) as usize).min(tx - 1));
+            let (b, d) = ((y0 / TILE) as usize, ((y1 / TILE) as usize).min(ty - 1));
+            for row in b..=d {
+                for bin in &mut bins[row * tx + a..=row * tx + c] {
+                    bin.push(k as u32);
+                }
+            }
+        }
+        self.tile_bins = bins;
+        self.tiles_x = tx;
+        self
     }
 
     /// Whether `sphere(k)` holds for some moved sphere k that `node(lo, hi)` does not rule
@@ -390,7 +417,7 @@ impl HitBuffer {
                 }
             }
         }
-        Some(Reuse::new(moved, moved_spheres, moved_instances))
+        Some(Reuse::new(moved, moved_spheres, moved_instances).with_tiles(camera.width, camera.height))
     }
 
     /// Keeps a frame's colours, its ambient occlusion (GI) and what they were lit by, for
@@ -472,12 +499,21 @@ impl Reuse {
 
     /// The moved spheres whose pixel rectangles meet pixels `x0..x1` × `y0..y1`.
     pub fn spheres_in(&self, [x0, y0, x1, y1]: [u32; 4]) -> Vec<u32> {
-        (0..self.moved_spheres.len() as u32)
-            .filter(|&k| {
-                let [a, b, c, d] = self.moved_spheres[k as usize].2;
-                a < x1 && c >= x0 && b < y1 && d >= y0
-            })
-            .collect()
+        let reaches = |&k: &u32| {
+            let [a, b, c, d] = self.moved_spheres[k as usize].2;
+            a < x1 && c >= x0 && b < y1 && d >= y0
+        };
+        // Within one tile, its bin holds every sphere that can reach the rectangle.
+        let tile = (x0 / TILE) as usize + (y0 / TILE) as usize * self.tiles_x;
+        let one_tile = x1 > x0
+            && y1 > y0
+            && (x1 - 1) / TILE == x0 / TILE
+            && (y1 - 1) / TILE == y0 / TILE
+            && ((x0 / TILE) as usize) < self.tiles_x;
+        match self.tile_bins.get(tile).filter(|_| one_tile) {
+            Some(bin) => bin.iter().copied().filter(|k| reaches(k)).collect(),
+            None => (0..self.moved_spheres.len() as u32).filter(reaches).collect(),
+        }
     }
 
     /// Whether every pixel of a tile keeps its stored hit ([`Todo::Keep`]) without looking at
@@ -656,6 +692,37 @@ mod tests {
             grazing += (off < radius * 1.5) as u32;
         }
         assert!(whole > 300 && blocked > 300 && grazing > 100, "{whole} tiles passed whole, {blocked} blocked");
+    }
+
+    /// The tiles' bins give every tile, and any rectangle within one, the spheres that
+    /// testing every sphere's rectangle gives: rectangles anywhere on and off the image.
+    #[test]
+    fn tile_bins_list_what_every_rectangle_lists() {
+        let mut rng = Rng::new(5);
+        let (w, h) = (100u32, 61u32);
+        let spheres: Vec<(DVec3, f64, [u32; 4])> = (0..300)
+            .map(|_| {
+                let (x0, y0) = (rng.below(w as u64) as u32, rng.below(h as u64) as u32);
+                let (x1, y1) = ((x0 + rng.below(40) as u32).min(w - 1), (y0 + rng.below(40) as u32).min(h - 1));
+                (DVec3::ZERO, 1.0, [x0, y0, x1, y1])
+            })
+            .collect();
+        let binned = Reuse::new(vec![false], spheres, vec![1]).with_tiles(w, h);
+        assert!(!binned.tile_bins.is_empty());
+        let plain = Reuse { tile_bins: Vec::new(), ..binned.clone() };
+        let mut rects: Vec<[u32; 4]> = Vec::new();
+        for y0 in (0..h).step_by(TILE as usize) {
+            for x0 in (0..w).step_by(TILE as usize) {
+                rects.push([x0, y0, (x0 + TILE).min(w), (y0 + TILE).min(h)]);
+            }
+        }
+        for _ in 0..500 {
+            let (x0, y0) = (rng.below(w as u64 + 20) as u32, rng.below(h as u64 + 20) as u32);
+            rects.push([x0, y0, x0 + 1 + rng.below(20) as u32, y0 + 1 + rng.below(20) as u32]);
+        }
+        for r in rects {
+            assert_eq!(binned.spheres_in(r), plain.spheres_in(r), "{r:?}");
+        }
     }
 
     /// With many moved spheres the shadow tests walk a BVH over them: pixel by pixel and
