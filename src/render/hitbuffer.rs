@@ -235,6 +235,9 @@ impl Reuse {
         for (k, &(_, _, [x0, y0, x1, y1])) in self.moved_spheres.iter().enumerate() {
             let (a, c) = ((x0 / TILE) as usize, ((x1 / TILE) as usize).min(tx - 1));
             let (b, d) = ((y0 / TILE) as usize, ((y1 / TILE) as usize).min(ty - 1));
+            if a > c || b > d {
+                continue; // wholly off the image
+            }
             for row in b..=d {
                 for bin in &mut bins[row * tx + a..=row * tx + c] {
                     bin.push(k as u32);
@@ -702,8 +705,9 @@ mod tests {
         let (w, h) = (100u32, 61u32);
         let spheres: Vec<(DVec3, f64, [u32; 4])> = (0..300)
             .map(|_| {
-                let (x0, y0) = (rng.below(w as u64) as u32, rng.below(h as u64) as u32);
-                let (x1, y1) = ((x0 + rng.below(40) as u32).min(w - 1), (y0 + rng.below(40) as u32).min(h - 1));
+                // Some reach past the image's edges, some lie wholly beyond them.
+                let (x0, y0) = (rng.below(w as u64 + 30) as u32, rng.below(h as u64 + 30) as u32);
+                let (x1, y1) = (x0 + rng.below(40) as u32, y0 + rng.below(40) as u32);
                 (DVec3::ZERO, 1.0, [x0, y0, x1, y1])
             })
             .collect();
