@@ -186,41 +186,15 @@ impl TilePyramid {
 /// none can, so every ray of the tile misses every instance. Gives up (true) after
 /// [`PYRAMID_NODES`] nodes.
 pub fn meets_any(pyramid: &TilePyramid, bvh: &super::bvh::Bvh, prepared: &[Prepared]) -> bool {
-    let Some(root) = bvh.nodes.first() else { return !prepared.is_empty() };
-    if !pyramid.may_meet_box(root.lo, root.hi) {
-        return false;
+    if bvh.nodes.is_empty() {
+        return !prepared.is_empty();
     }
-    let mut stack = [0u32; 64];
-    let (mut len, mut visited) = (1usize, 0usize);
-    while len > 0 {
-        len -= 1;
-        let node = &bvh.nodes[stack[len] as usize];
-        visited += 1;
-        if visited > PYRAMID_NODES {
-            return true;
-        }
-        if node.count > 0 {
-            let items = &bvh.items[node.first as usize..(node.first + node.count) as usize];
-            if items
-                .iter()
-                .any(|&i| prepared.get(i as usize).is_none_or(|p| pyramid.cone.meets_ball(p.centre, p.radius)))
-            {
-                return true;
-            }
-            continue;
-        }
-        for child in [node.first, node.first + 1] {
-            let Some(c) = bvh.nodes.get(child as usize) else { return true };
-            if pyramid.may_meet_box(c.lo, c.hi) {
-                if len == stack.len() {
-                    return true;
-                }
-                stack[len] = child;
-                len += 1;
-            }
-        }
-    }
-    false
+    bvh.any_item(
+        PYRAMID_NODES,
+        |lo, hi| pyramid.may_meet_box(lo, hi),
+        |i| prepared.get(i as usize).is_none_or(|p| pyramid.cone.meets_ball(p.centre, p.radius)),
+    )
+    .unwrap_or(true)
 }
 
 /// Squared Euclidean distance from `p` to the axis-aligned box `lo..hi` (0 inside).

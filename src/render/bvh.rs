@@ -52,6 +52,46 @@ impl Bvh {
     }
 }
 
+impl Bvh {
+    /// Whether `item(i)` holds for some item of a leaf that `node(lo, hi)` lets through,
+    /// with every box above it (a box it rules out must hold no item for which `item` could
+    /// hold). None once more than `budget` boxes were let through, or when the walk outgrows
+    /// its stack: the caller then answers without the tree.
+    pub fn any_item(
+        &self,
+        budget: usize,
+        node: impl Fn(DVec3, DVec3) -> bool,
+        item: impl Fn(u32) -> bool,
+    ) -> Option<bool> {
+        let mut stack = [0u32; 64];
+        let (mut len, mut passed) = (usize::from(!self.nodes.is_empty()), 0usize);
+        while len > 0 {
+            len -= 1;
+            let n = &self.nodes[stack[len] as usize];
+            if !node(n.lo, n.hi) {
+                continue;
+            }
+            passed += 1;
+            if passed > budget {
+                return None;
+            }
+            if n.count > 0 {
+                if self.items.get(n.first as usize..(n.first + n.count) as usize)?.iter().any(|&i| item(i)) {
+                    return Some(true);
+                }
+                continue;
+            }
+            if len + 2 > stack.len() {
+                return None;
+            }
+            stack[len] = n.first;
+            stack[len + 1] = n.first + 1;
+            len += 2;
+        }
+        Some(false)
+    }
+}
+
 /// Instances per leaf at most.
 const LEAF: usize = 4;
 

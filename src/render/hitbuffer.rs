@@ -211,75 +211,6 @@ pub struct Reuse {
 /// frame at 1280×768 against 0.23 s without the hit buffer.
 pub const MOVED_BVH_MIN: usize = 32;
 
-impl Reuse {
-    /// A reuse of these moved instances and spheres, with its BVH when there are many.
-    pub fn new(moved: Vec<bool>, moved_spheres: Vec<(DVec3, f64, [u32; 4])>, moved_instances: Vec<u32>) -> Reuse {
-        let moved_bits = moved_instances.iter().fold(0, |m, &i| m | instance_bit(i as i32));
-        let moved_bvh = (moved_spheres.len() >= MOVED_BVH_MIN).then(|| {
-            let grown: Vec<(DVec3, f64)> =
-                moved_spheres.iter().map(|&(c, r, _)| (c, r + 1e-6 * (r + c.length()))).collect();
-            super::bvh::Bvh::build(&grown)
-        });
-        Reuse { moved, moved_spheres, moved_instances, moved_bits, moved_bvh, tile_bins: Vec::new(), tiles_x: 0 }
-    }
-
-    /// Sorts the moved spheres into the tiles of a `width` × `height` image once there are
-    /// [`MOVED_BVH_MIN`] of them, for [`Reuse::spheres_in`] (which otherwise tests every
-    /// sphere's rectangle for every tile: a third of a 300-car frame).
-    pub fn with_tiles(mut self, width: u32, height: u32) -> Reuse {
-        if self.moved_spheres.len() < MOVED_BVH_MIN || width == 0 || height == 0 {
-            return self;
-        }
-        let (tx, ty) = (width.div_ceil(TILE) as usize, height.div_ceil(TILE) as usize);
-        let mut bins = vec![Vec::new(); tx * ty];
-        for (k, &(_, _, [x0, y0, x1, y1])) in self.moved_spheres.iter().enumerate() {
-            let (a, c) = ((x0 / TILE) as usize, ((x1 / TILE) as usize).min(tx - 1));
-            let (b, d) = ((y0 / TILE) as usize, ((y1 / TILE) as usize).min(ty - 1));
-            if a > c || b > d {
-                continue; // wholly off the image
-            }
-            for row in b..=d {
-                for bin in &mut bins[row * tx + a..=row * tx + c] {
-                    bin.push(k as u32);
-                }
-            }
-        }
-        self.tile_bins = bins;
-        self.tiles_x = tx;
-        self
-    }
-
-    /// Whether `sphere(k)` holds for some moved sphere k that `node(lo, hi)` does not rule
-    /// out: through the BVH when there is one (a box ruled out holds no such sphere), else
-    /// sphere by sphere.
-    fn any_moved(&self, node: impl Fn(DVec3, DVec3) -> bool, sphere: impl Fn(usize) -> bool) -> bool {
-        let Some(bvh) = &self.moved_bvh else { return (0..self.moved_spheres.len()).any(sphere) };
-        let mut stack = [0u32; 64];
-        let mut len = usize::from(!bvh.nodes.is_empty());
-        while len > 0 {
-            len -= 1;
-            let n = &bvh.nodes[stack[len] as usize];
-            if !node(n.lo, n.hi) {
-                continue;
-            }
-            if n.count > 0 {
-                if bvh.items[n.first as usize..(n.first + n.count) as usize].iter().any(|&k| sphere(k as usize)) {
-                    return true;
-                }
-                continue;
-            }
-            if len + 2 > stack.len() {
-                // Deeper than median splits make it: every sphere, one by one.
-                return (0..self.moved_spheres.len()).any(sphere);
-            }
-            stack[len] = n.first;
-            stack[len + 1] = n.first + 1;
-            len += 2;
-        }
-        false
-    }
-}
-
 /// Above this many moved instances, a pixel that a moved sphere crosses is searched among
 /// every instance (through the culling or the BVH) rather than among the moved ones in turn.
 pub const MOVED_SEARCH_MAX: usize = 64;
@@ -490,6 +421,54 @@ impl HitBuffer {
 }
 
 impl Reuse {
+    /// A reuse of these moved instances and spheres, with its BVH when there are many.
+    pub fn new(moved: Vec<bool>, moved_spheres: Vec<(DVec3, f64, [u32; 4])>, moved_instances: Vec<u32>) -> Reuse {
+        let moved_bits = moved_instances.iter().fold(0, |m, &i| m | instance_bit(i as i32));
+        let moved_bvh = (moved_spheres.len() >= MOVED_BVH_MIN).then(|| {
+            let grown: Vec<(DVec3, f64)> =
+                moved_spheres.iter().map(|&(c, r, _)| (c, r + 1e-6 * (r + c.length()))).collect();
+            super::bvh::Bvh::build(&grown)
+        });
+        Reuse { moved, moved_spheres, moved_instances, moved_bits, moved_bvh, tile_bins: Vec::new(), tiles_x: 0 }
+    }
+
+    /// Sorts the moved spheres into the tiles of a `width` × `height` image once there are
+    /// [`MOVED_BVH_MIN`] of them, for [`Reuse::spheres_in`] (which otherwise tests every
+    /// sphere's rectangle for every tile: a third of a 300-car frame).
+    pub fn with_tiles(mut self, width: u32, height: u32) -> Reuse {
+        if self.moved_spheres.len() < MOVED_BVH_MIN || width == 0 || height == 0 {
+            return self;
+        }
+        let (tx, ty) = (width.div_ceil(TILE) as usize, height.div_ceil(TILE) as usize);
+        let mut bins = vec![Vec::new(); tx * ty];
+        for (k, &(_, _, [x0, y0, x1, y1])) in self.moved_spheres.iter().enumerate() {
+            let (a, c) = ((x0 / TILE) as usize, ((x1 / TILE) as usize).min(tx - 1));
+            let (b, d) = ((y0 / TILE) as usize, ((y1 / TILE) as usize).min(ty - 1));
+            if a > c || b > d {
+                continue; // wholly off the image
+            }
+            for row in b..=d {
+                for bin in &mut bins[row * tx + a..=row * tx + c] {
+                    bin.push(k as u32);
+                }
+            }
+        }
+        self.tile_bins = bins;
+        self.tiles_x = tx;
+        self
+    }
+
+    /// Whether `sphere(k)` holds for some moved sphere k that `node(lo, hi)` does not rule
+    /// out: through the BVH when there is one (a box ruled out holds no such sphere), else
+    /// sphere by sphere.
+    fn any_moved(&self, node: impl Fn(DVec3, DVec3) -> bool, sphere: impl Fn(usize) -> bool) -> bool {
+        let every = || (0..self.moved_spheres.len()).any(&sphere);
+        match &self.moved_bvh {
+            Some(bvh) => bvh.any_item(usize::MAX, node, |k| sphere(k as usize)).unwrap_or_else(every),
+            None => every(),
+        }
+    }
+
     /// The moved instances that a [`Todo::Moved`] pixel searches: all of them, or none when
     /// there are more than [`MOVED_SEARCH_MAX`] (such pixels then search every instance).
     pub fn moved_search(&self) -> &[u32] {

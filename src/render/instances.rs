@@ -142,7 +142,6 @@ pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, 
     };
     let n = scene.instances().len();
     // Last frame's slots, refilled in place.
-    out.truncate(n);
     let blank = Prepared {
         part: 0,
         to_unit: ToUnit::Affine(DAffine3::IDENTITY),

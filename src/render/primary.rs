@@ -130,7 +130,8 @@ pub fn trace_tiles<T: Send, S>(
             masks[x0 / TILE as usize][0] = todo;
             band_rays += (todo | partial).count_ones() as u64;
             band_moved += partial.count_ones() as u64;
-            let fi = if p.beams {
+            // With beams, a tile whose rays can meet no instance stores misses untraced.
+            let (fi, all_miss) = if p.beams {
                 // One beam serves the tiles of a [`BEAM_WIDTH`]-pixel run of the band: its cone
                 // holds all their rays, so its starts hold for each of them.
                 let bx0 = x0 - x0 % BEAM_WIDTH as usize;
@@ -140,45 +141,34 @@ pub fn trace_tiles<T: Send, S>(
                     beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
                     beam_x0 = bx0;
                 }
-                if starts.iter().all(|&s| s == f32::INFINITY) {
-                    // The tile's cone meets no instance's voxels: every pending ray misses (and
-                    // no moved instance beats a bound).
+                // The tile's cone meets no instance's voxels.
+                let all_miss = starts.iter().all(|&s| s == f32::INFINITY);
+                if all_miss {
                     work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
-                    masks[x0 / TILE as usize][1] = todo;
-                    todo &=
-                        !p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
-                    while todo != 0 {
-                        let k = todo.trailing_zeros() as usize;
-                        todo &= todo - 1;
-                        store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
-                    }
-                    continue;
                 }
-                FrameInstances { starts: Some(&starts), ..p.instances }
+                (FrameInstances { starts: Some(&starts), ..p.instances }, all_miss)
             } else {
-                if let (true, Some(bvh)) = (p.bvh_beams, p.instances.bvh) {
-                    let tile = TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
-                    let settled =
-                        TilePyramid::new(&tile).is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared));
-                    if settled {
-                        // No ray of the tile crosses an instance's sphere: every pending ray
-                        // misses (and no moved instance beats a bound).
-                        masks[x0 / TILE as usize][1] = todo;
-                        todo &= !p
-                            .missed_before
-                            .get(y0 / TILE as usize * tiles_x + x0 / TILE as usize)
-                            .copied()
-                            .unwrap_or(0);
-                        while todo != 0 {
-                            let k = todo.trailing_zeros() as usize;
-                            todo &= todo - 1;
-                            store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
-                        }
-                        continue;
-                    }
-                }
-                p.instances
+                // Through the BVH: the tile's pyramid meets no instance's sphere.
+                let settled = p.bvh_beams
+                    && p.instances.bvh.is_some_and(|bvh| {
+                        let tile =
+                            TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
+                        TilePyramid::new(&tile).is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared))
+                    });
+                (p.instances, settled)
             };
+            if all_miss {
+                // Every pending ray misses (and no moved instance beats a bound); a miss stored
+                // there by last frame's beams is already in place.
+                masks[x0 / TILE as usize][1] = todo;
+                todo &= !p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
+                while todo != 0 {
+                    let k = todo.trailing_zeros() as usize;
+                    todo &= todo - 1;
+                    store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
+                }
+                continue;
+            }
             // Lane k of the tile: its index in `rows`.
             let at = |k: usize| (k / TILE as usize) * w + x0 + k % TILE as usize;
             // `ray_dir` of the tile's pixels, with each column's and row's share formed once.
