@@ -426,6 +426,53 @@ fn frames_kept_on_the_gpu_read_nothing_back_and_reuse_the_same_hits() {
     assert_eq!(a.normal, b.normal);
 }
 
+/// A crowd with more moved spheres than `MOVED_BVH_MIN`: each pixel tests only the moved
+/// spheres of its tile's bin (`Reuse::tile_bins`), and what the GPU keeps and searches anew
+/// equals, hit for hit, what it renders with the hit buffer off. The cars move far between
+/// frames so that the spheres' new positions reach pixels their old ones did not.
+#[test]
+fn gpu_frames_with_binned_moved_spheres_equal_frames_rendered_afresh() {
+    let Some(ctx) = context() else { return };
+    let (mut scene, cars) = scene(6);
+    let lights = Lights::default();
+    // From above, so that cars seldom hide each other's spheres.
+    let cam = Camera {
+        eye: DVec3::new(0.0, 40.0, 16.0),
+        target: DVec3::new(0.0, 0.0, 15.0),
+        up: DVec3::NEG_Z,
+        vfov_deg: 60.0,
+        width: 160,
+        height: 100,
+    };
+    let mut kept = GpuRenderer::new(ctx.clone());
+    let mut fresh = GpuRenderer::new(ctx);
+    let no_reuse = Features { hit_buffer: false, ..Features::default() };
+    let (mut reused, mut moved_only) = (0, 0);
+    for f in 0..4 {
+        for c in &cars {
+            pose(&mut scene, c, 0.3 * f as f64).unwrap();
+        }
+        scene.update().unwrap();
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&kept.state));
+        if f > 0 {
+            let prepared = voxray::render::instances::prepare(&scene, cam.eye, plan.transform);
+            let reuse = kept
+                .state
+                .reuse(&cam, &scene, &prepared, RenderOptions::default().max_level)
+                .expect("the hit buffer is reused");
+            assert!(reuse.tile_bins().is_some(), "frame {f}: {} moved spheres, no bins", reuse.moved_spheres.len());
+        }
+        let a = kept.render(&scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        let plan_b = FramePlan::new(&scene, &cam, &lights, &no_reuse, None);
+        let b = fresh.render(&scene, &cam, &lights, &plan_b, &RenderOptions::default()).unwrap();
+        let first_diff = (0..a.t.len()).find(|&k| a.instance[k] != b.instance[k] || a.t[k] != b.t[k]);
+        assert_eq!(first_diff, None, "frame {f}: a kept or re-searched hit differs from the fresh one");
+        assert_eq!(a.radiance, b.radiance, "frame {f}");
+        (reused, moved_only) = (reused + a.reused, moved_only + a.moved_only);
+    }
+    assert!(reused > 0 && moved_only > 0, "kept {reused}, moved-only {moved_only}: the bins went unused");
+}
+
 /// The statistics the GPU adds up itself (atomics) equal the ones summed from the read-back
 /// hit records, frame by frame of an animated clip with shadows; a renderer keeping its
 /// frames on the GPU with counting on gets the same counters while reading back only the

@@ -114,7 +114,7 @@ fn wgsl_structs_match_rust() {
                 ("moved", offset_of!(GpuFrame, moved)),
                 ("bvh_nodes", offset_of!(GpuFrame, bvh_nodes)),
                 ("count", offset_of!(GpuFrame, count)),
-                ("pad1", offset_of!(GpuFrame, pad1)),
+                ("moved_tiles_x", offset_of!(GpuFrame, moved_tiles_x)),
                 ("emitters", offset_of!(GpuFrame, emitters)),
                 ("emitter_samples", offset_of!(GpuFrame, emitter_samples)),
                 ("lights", offset_of!(GpuFrame, lights)),

@@ -27,6 +27,9 @@ override SHADOWS: bool = true;
 @group(0) @binding(B_EMITTERS) var<storage, read> emitters: array<Emitter>;
 // The suns, points and spots besides the frame's sun, frame.lights rows.
 @group(0) @binding(B_LIGHTS) var<storage, read> lights: array<Light>;
+// hitbuffer::Reuse::tile_bins: per TILE × TILE tile (frame.moved_tiles_x to a row) the
+// moved spheres whose rectangles reach it, moved_bins[moved_bins[t] .. moved_bins[t + 1]].
+@group(0) @binding(B_MOVED_BINS) var<storage, read> moved_bins: array<u32>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;
@@ -328,8 +331,16 @@ fn reuse_todo(old: Hit, d: vec3<f32>, x: u32, y: u32) -> u32 {
     if old.instance >= 0 && insts[u32(old.instance)].moved != 0u {
         return TODO_ALL;
     }
-    for (var k = 0u; k < frame.moved; k++) {
-        let m = moved[k];
+    // Without bins, every moved sphere is in the pixel's list.
+    var first = 0u;
+    var end = frame.moved;
+    if frame.moved_tiles_x > 0u {
+        let tile = (y / TILE) * frame.moved_tiles_x + x / TILE;
+        first = moved_bins[tile];
+        end = moved_bins[tile + 1u];
+    }
+    for (var j = first; j < end; j++) {
+        let m = moved[select(j, moved_bins[j], frame.moved_tiles_x > 0u)];
         if x >= m.rect.x && x <= m.rect.z && y >= m.rect.y && y <= m.rect.w {
             let s = sphere_interval(m.sphere.xyz, m.sphere.w, vec3<f32>(0.0), d);
             if s.x <= s.y && s.x <= old.t {

@@ -85,8 +85,9 @@ pub struct GpuFrame {
     pub bvh_nodes: u32,
     /// 1: the passes add up the frame's statistics in the `stats` buffer ([`GpuStats`]).
     pub count: u32,
-    /// Padding.
-    pub pad1: u32,
+    /// Tiles to a row of the moved spheres' tile bins (0: no bins, every pixel tests every
+    /// moved sphere; [`crate::render::hitbuffer::Reuse::tile_bins`]).
+    pub moved_tiles_x: u32,
     /// Rows of the emitter buffer ([`GpuEmitter`]).
     pub emitters: u32,
     /// Light samples per shaded point on the emitters ([`crate::scene::Lights::emitter_sampling`]).

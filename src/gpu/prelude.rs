@@ -35,6 +35,8 @@ pub mod binding {
     pub const EMITTERS: u32 = 13;
     /// Tracer group 0: `lights`.
     pub const LIGHTS: u32 = 14;
+    /// Tracer group 0: `moved_bins`.
+    pub const MOVED_BINS: u32 = 15;
     /// Tracer group 1 (GI): `gi_accum`.
     pub const GI_ACCUM: u32 = 0;
     /// Tracer group 1 (GI): `gi_levels`.
@@ -74,7 +76,7 @@ pub mod binding {
     /// Tracer group 3 (the splat quads' copy): `splat_raster`.
     pub const SPLAT_RASTER: u32 = 0;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 34] = [
+    pub const ALL: [(&str, u32); 35] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -90,6 +92,7 @@ pub mod binding {
         ("B_STATS", STATS),
         ("B_EMITTERS", EMITTERS),
         ("B_LIGHTS", LIGHTS),
+        ("B_MOVED_BINS", MOVED_BINS),
         ("B_GI_ACCUM", GI_ACCUM),
         ("B_GI_LEVELS", GI_LEVELS),
         ("B_GI_FRAME", GI_FRAME),
@@ -122,6 +125,7 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("PARALLEL_RATIO", "f32", f(crate::ray::PARALLEL_RATIO)),
         ("MAX_UNIT_ORIGIN", "f32", f(crate::ray::MAX_UNIT_ORIGIN)),
         ("MOVED_SEARCH_MAX", "u32", u(crate::render::hitbuffer::MOVED_SEARCH_MAX as u64)),
+        ("TILE", "u32", u(crate::render::beam::TILE as u64)),
         ("FIX", "f32", f(super::gi::FIX as f32)),
         ("EMIT_FIX", "f32", f(super::gi::EMIT_FIX as f32)),
         ("GI_MAX_EMISSION", "f32", f(crate::gi::volume::GI_MAX_EMISSION)),

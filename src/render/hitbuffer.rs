@@ -201,8 +201,9 @@ pub struct Reuse {
     /// and tiles walk it instead of testing every moved sphere.
     pub moved_bvh: Option<super::bvh::Bvh>,
     /// With the BVH, per tile of the image ([`TILE`]-pixel tiles, row-major, `tiles_x` to a
-    /// row), the moved spheres whose pixel rectangles reach it, ascending.
-    tile_bins: Vec<Vec<u32>>,
+    /// row), the moved spheres whose pixel rectangles reach it, ascending: see
+    /// [`Reuse::tile_bins`] for the layout (the GPU reads it as it is).
+    tile_bins: Vec<u32>,
     tiles_x: usize,
 }
 
@@ -440,22 +441,55 @@ impl Reuse {
             return self;
         }
         let (tx, ty) = (width.div_ceil(TILE) as usize, height.div_ceil(TILE) as usize);
-        let mut bins = vec![Vec::new(); tx * ty];
-        for (k, &(_, _, [x0, y0, x1, y1])) in self.moved_spheres.iter().enumerate() {
+        // The tile ranges each sphere's rectangle covers (None: wholly off the image).
+        let ranges = |&(_, _, [x0, y0, x1, y1]): &(DVec3, f64, [u32; 4])| {
             let (a, c) = ((x0 / TILE) as usize, ((x1 / TILE) as usize).min(tx - 1));
             let (b, d) = ((y0 / TILE) as usize, ((y1 / TILE) as usize).min(ty - 1));
-            if a > c || b > d {
-                continue; // wholly off the image
-            }
+            (a <= c && b <= d).then_some((a, b, c, d))
+        };
+        // Two passes, counting then filling, so that the bins are one flat array.
+        let mut bins = vec![0u32; tx * ty + 1];
+        for (a, b, c, d) in self.moved_spheres.iter().filter_map(ranges) {
             for row in b..=d {
-                for bin in &mut bins[row * tx + a..=row * tx + c] {
-                    bin.push(k as u32);
+                for n in &mut bins[row * tx + a..=row * tx + c] {
+                    *n += 1;
+                }
+            }
+        }
+        let mut start = bins.len() as u32;
+        for n in &mut bins {
+            (*n, start) = (start, start + *n);
+        }
+        bins.resize(start as usize, 0);
+        let mut fill: Vec<u32> = bins[..tx * ty].to_vec();
+        for (k, (a, b, c, d)) in self.moved_spheres.iter().map(ranges).enumerate().filter_map(|(k, r)| Some((k, r?))) {
+            for row in b..=d {
+                for f in &mut fill[row * tx + a..=row * tx + c] {
+                    bins[*f as usize] = k as u32;
+                    *f += 1;
                 }
             }
         }
         self.tile_bins = bins;
         self.tiles_x = tx;
         self
+    }
+
+    /// The tiles' bins, when [`Reuse::with_tiles`] made them: tiles to a row, and one array
+    /// whose first `tiles + 1` entries are offsets into the array itself (tile t's spheres
+    /// are the entries `bins[bins[t]..bins[t + 1]]`, indices into `moved_spheres`, ascending).
+    pub fn tile_bins(&self) -> Option<(usize, &[u32])> {
+        (!self.tile_bins.is_empty()).then_some((self.tiles_x, &self.tile_bins))
+    }
+
+    /// Tile `tile`'s bin, if there are bins and it is a tile of the image.
+    fn bin(&self, tile: usize) -> Option<&[u32]> {
+        // The first offset is the number of tiles plus one.
+        let tiles = (*self.tile_bins.first()? as usize).checked_sub(1)?;
+        if tile >= tiles {
+            return None;
+        }
+        self.tile_bins.get(self.tile_bins[tile] as usize..self.tile_bins[tile + 1] as usize)
     }
 
     /// Whether `sphere(k)` holds for some moved sphere k that `node(lo, hi)` does not rule
@@ -492,8 +526,8 @@ impl Reuse {
             && (x1 - 1) / TILE == x0 / TILE
             && (y1 - 1) / TILE == y0 / TILE
             && ((x0 / TILE) as usize) < self.tiles_x;
-        match self.tile_bins.get(tile).filter(|_| one_tile) {
-            Some(bin) => bin.iter().copied().filter(|k| reaches(k)).collect(),
+        match self.bin(tile).filter(|_| one_tile) {
+            Some(bin) => bin.iter().copied().filter(reaches).collect(),
             None => (0..self.moved_spheres.len() as u32).filter(reaches).collect(),
         }
     }

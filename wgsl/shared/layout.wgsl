@@ -61,7 +61,8 @@ struct Frame {
     bvh_nodes: u32,
     // 1: the passes add up the frame's statistics in `stats`.
     count: u32,
-    pad1: u32,
+    // Tiles to a row of `moved_bins` (0: no bins).
+    moved_tiles_x: u32,
     // Rows of `emitters`, and light samples per shaded point on them.
     emitters: u32,
     emitter_samples: u32,
