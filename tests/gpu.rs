@@ -3,7 +3,7 @@
 //! skipped with a message.
 #![cfg(feature = "gpu")]
 
-use glam::{DQuat, DVec3};
+use glam::{DQuat, DVec3, Vec3};
 use std::sync::{Arc, OnceLock};
 use voxray::gpu::layout::GpuRay;
 use voxray::gpu::rays::trace_rays;
@@ -471,6 +471,62 @@ fn gpu_frames_with_binned_moved_spheres_equal_frames_rendered_afresh() {
         (reused, moved_only) = (reused + a.reused, moved_only + a.moved_only);
     }
     assert!(reused > 0 && moved_only > 0, "kept {reused}, moved-only {moved_only}: the bins went unused");
+}
+
+/// Kept hits keep their colours on the GPU too, unless their sun shadow rays meet a moved
+/// sphere: frame by frame of a clip under the sun (which turns once, so that a frame keeps
+/// nothing), the kept renderer's image is the one a renderer with the hit buffer off shades
+/// afresh, bit for bit; colours were kept; the counts agree with the CPU's (whose test is its
+/// own, in f64), read back or added up on the GPU.
+#[test]
+fn gpu_kept_colours_equal_colours_shaded_afresh() {
+    let Some(ctx) = context() else { return };
+    // Two cars driving over a ground: their shadows move over it, so kept ground pixels'
+    // shadow rays meet the moved spheres.
+    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
+    let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 160, 100);
+    let mut kept = GpuRenderer::new(ctx.clone());
+    let mut counted = GpuRenderer::new(ctx.clone());
+    counted.set_counting(true);
+    counted.set_read_back(false);
+    let mut fresh = GpuRenderer::new(ctx);
+    let mut cpu_hits = HitBuffer::new();
+    let no_reuse = Features { hit_buffer: false, ..Features::default() };
+    let features = Features { beams: false, ..Features::default() };
+    let mut colours = 0;
+    for f in 0..6 {
+        voxray::scene::car::pose_all(&mut st.scene, &st.cars, 0.2 + 0.25 * f as f64).unwrap();
+        st.scene.update().unwrap();
+        let scene = &st.scene;
+        let mut lights = Lights::default();
+        let sun = lights.sun.as_mut().expect("the default lights have a sun");
+        if f >= 3 {
+            sun.to_sun = (sun.to_sun + Vec3::new(0.3, 0.0, 0.0)).normalize();
+        }
+        let plan = FramePlan::new(scene, &cam, &lights, &features, (f > 0).then_some(&kept.state));
+        let a = kept.render(scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        let on_device = counted.render(scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+        let plan_b = FramePlan::new(scene, &cam, &lights, &no_reuse, None);
+        let b = fresh.render(scene, &cam, &lights, &plan_b, &RenderOptions::default()).unwrap();
+        let first_diff = (0..a.t.len()).find(|&k| a.radiance[k] != b.radiance[k] || a.t[k] != b.t[k]);
+        assert_eq!(first_diff, None, "frame {f}: a kept colour differs from the fresh one");
+        assert_eq!((on_device.reused, on_device.shade_reused), (a.reused, a.shade_reused), "frame {f}");
+        let plan_cpu = FramePlan::new(scene, &cam, &lights, &features, (f > 0).then_some(&cpu_hits));
+        let c = render(scene, &cam, &lights, &plan_cpu, &RenderOptions::default(), Some(&mut cpu_hits), &|_, _| {})
+            .unwrap();
+        let tol = 16 + c.shade_reused / 100;
+        assert!(
+            c.shade_reused.abs_diff(a.shade_reused) <= tol,
+            "frame {f}: colours kept CPU {} vs GPU {}",
+            c.shade_reused,
+            a.shade_reused
+        );
+        if f == 3 {
+            assert_eq!(a.shade_reused, 0, "the sun turned: no colour is last frame's");
+        }
+        colours += a.shade_reused;
+    }
+    assert!(colours > 0, "no colour was kept");
 }
 
 /// The statistics the GPU adds up itself (atomics) equal the ones summed from the read-back

@@ -118,7 +118,7 @@ fn wgsl_structs_match_rust() {
                 ("emitters", offset_of!(GpuFrame, emitters)),
                 ("emitter_samples", offset_of!(GpuFrame, emitter_samples)),
                 ("lights", offset_of!(GpuFrame, lights)),
-                ("pad3", offset_of!(GpuFrame, pad3)),
+                ("keep_colours", offset_of!(GpuFrame, keep_colours)),
             ],
         ),
         (

@@ -325,6 +325,11 @@ fn ray_dir(x: u32, y: u32) -> vec3<f32> {
 const TODO_KEEP: u32 = 0u;
 const TODO_ALL: u32 = 1u;
 const TODO_MOVED: u32 = 2u;
+// Flags of Hit::reused above how the record was found (its low two bits): the record is
+// last frame's (kept, or a moved-only search found nothing nearer), and then shade_main
+// kept its colour too.
+const RECORD_KEPT: u32 = 4u;
+const COLOUR_KEPT: u32 = 8u;
 
 // hitbuffer::Reuse::todo
 fn reuse_todo(old: Hit, d: vec3<f32>, x: u32, y: u32) -> u32 {
@@ -430,7 +435,7 @@ fn trace_pixel(idx: u32, gid: vec3<u32>) {
         let old = hits[idx];
         let todo = reuse_todo(old, d, gid.x, gid.y);
         if todo == TODO_KEEP {
-            hits[idx].reused = 1u;
+            hits[idx].reused = 1u | RECORD_KEPT;
             hits[idx].work = 0u;
             return;
         }
@@ -439,7 +444,7 @@ fn trace_pixel(idx: u32, gid: vec3<u32>) {
             if best.found {
                 hits[idx] = hit_record(best, d, TODO_MOVED);
             } else {
-                hits[idx].reused = TODO_MOVED;
+                hits[idx].reused = TODO_MOVED | RECORD_KEPT;
                 hits[idx].work = min(work_traced, 0xFFFFu) | (min(work_culled, 0xFFFFu) << 16u);
             }
             return;
@@ -455,10 +460,10 @@ fn count_pixel(idx: u32) {
         return;
     }
     let h = hits[idx];
-    if h.reused == 1u {
+    if (h.reused & 3u) == 1u {
         atomicAdd(&stats[STAT_REUSED], 1u);
     }
-    if h.reused == TODO_MOVED {
+    if (h.reused & 3u) == TODO_MOVED {
         atomicAdd(&stats[STAT_MOVED_ONLY], 1u);
     }
     let traced = h.work & 0xFFFFu;
@@ -668,6 +673,31 @@ fn emitter_light(key: u32, samples: u32, at: vec3<f32>, start: vec3<f32>, n: vec
     return sum / f32(samples);
 }
 
+// cpu::leave: where a hit's shadow rays start, off the surface along its normals.
+fn shadow_start(h: Hit, d: vec3<f32>) -> vec3<f32> {
+    let n = vec3<f32>(h.nx, h.ny, h.nz);
+    return d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
+}
+
+// hitbuffer::Reuse::shadow_valid: whether a kept hit's colour is last frame's, its sun
+// shadow ray (when it has one) meeting no moved sphere, old or new. The sphere test is
+// occluded()'s own, on the same spheres from the same start, so an instance this misses is
+// one occluded() never traces, last frame or this one.
+fn shadow_valid(h: Hit, x: u32, y: u32) -> bool {
+    let n = vec3<f32>(h.nx, h.ny, h.nz);
+    if !SHADOWS || h.instance < 0 || frame.sun_dir.w <= 0.0 || !(dot(n, frame.sun_dir.xyz) > 0.0) {
+        return true;
+    }
+    let start = shadow_start(h, ray_dir(x, y));
+    for (var k = 0u; k < frame.moved; k++) {
+        let s = sphere_interval(moved[k].sphere.xyz, moved[k].sphere.w, start, frame.sun_dir.xyz);
+        if s.x <= s.y {
+            return false;
+        }
+    }
+    return true;
+}
+
 // The light a hit receives besides the ambient term: the sun (with its shadow ray), the
 // emitters' light (emitter_light) and the hit's own emission.
 fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
@@ -681,9 +711,7 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
                 if frame.count != 0u {
                     atomicAdd(&stats[STAT_SHADOW_RAYS], 1u);
                 }
-                let d = ray_dir(x, y);
-                let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
-                visible = !occluded(start, frame.sun_dir.xyz, BIG);
+                visible = !occluded(shadow_start(h, ray_dir(x, y)), frame.sun_dir.xyz, BIG);
             }
             if visible {
                 c += sun_response(albedo, h, x, y) * frame.sun_irradiance.xyz;
@@ -701,8 +729,7 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
             if frame.count != 0u {
                 atomicAdd(&stats[STAT_SHADOW_RAYS], 1u);
             }
-            let start = d * h.t + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
-            visible = !occluded(start, inc.to_light, inc.distance);
+            visible = !occluded(shadow_start(h, d), inc.to_light, inc.distance);
         }
         if visible {
             c += light_response(albedo, h.material, n, d, inc.to_light) * inc.irradiance;
@@ -712,7 +739,7 @@ fn direct_light(h: Hit, x: u32, y: u32, albedo: vec3<f32>) -> vec3<f32> {
     if frame.emitter_samples > 0u && !(GI_CONE_SHADOWS && SHADOWS) {
         let d = ray_dir(x, y);
         let at = d * h.t;
-        let start = at + n * h.voxel + vec3<f32>(h.fx, h.fy, h.fz) * (0.1 * h.voxel);
+        let start = shadow_start(h, d);
         c += emitter_light(y * frame.width + x, frame.emitter_samples, at, start, n, d, albedo, h.material);
     }
     if frame.sky.w > 0.0 {
@@ -740,6 +767,18 @@ fn pixel_to_shade(gid: vec3<u32>) -> u32 {
 // Without GI the ambient term is the flat sky: albedo * sky.
 @compute @workgroup_size(8, 8, 1)
 fn shade_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if frame.keep_colours != 0u && gid.x < frame.width && gid.y < frame.height {
+        let k = gid.y * frame.width + gid.x;
+        if (hits[k].reused & RECORD_KEPT) != 0u && shadow_valid(hits[k], gid.x, gid.y) {
+            // Every input of the colour (a miss's too: the sky) is last frame's, which
+            // radiance[k] holds.
+            hits[k].reused |= COLOUR_KEPT;
+            if frame.count != 0u {
+                atomicAdd(&stats[STAT_SHADE_REUSED], 1u);
+            }
+            return;
+        }
+    }
     let idx = pixel_to_shade(gid);
     if idx == NO_PIXEL {
         return;

@@ -94,8 +94,10 @@ pub struct GpuFrame {
     pub emitter_samples: u32,
     /// Rows of the light buffer ([`GpuLight`]: the suns, points and spots besides the sun).
     pub lights: u32,
-    /// Padding.
-    pub pad3: u32,
+    /// 1: a pixel whose hit was kept keeps the colour the radiance buffer holds from the
+    /// frame in the hit buffer, unless its shadow ray meets a moved sphere (the twin of the
+    /// CPU's kept colours; the renderer says when the buffer holds such colours).
+    pub keep_colours: u32,
 }
 
 /// A sun, point or spot light besides the frame's sun ([`crate::scene::Lights::suns`],
@@ -147,8 +149,10 @@ pub struct GpuStats {
     /// Points where GI's diffuse cones were gathered (every shaded hit, or with the
     /// half-resolution gather its samples and the pixels that gathered their own).
     pub gathers: u32,
+    /// Pixels whose colour was kept from the frame before (not shaded).
+    pub shade_reused: u32,
     /// Padding.
-    pub pad: [u32; 2],
+    pub pad: u32,
 }
 
 /// One BVH node; `lo[3]`/`hi[3]` hold `first`/`count` as bits. WGSL: `BvhNode`.
@@ -188,7 +192,9 @@ pub struct GpuHit {
     /// What finding the hit cost: instances traversed (low 16 bits) and instances whose
     /// sphere the ray missed (high 16 bits), each saturating; 0 when reused.
     pub work: u32,
-    /// 1 when reused this frame.
+    /// How this frame found the record (low two bits): 0 searched among all instances, 1
+    /// kept, 2 searched among the moved instances only; flag 4: the record is last frame's;
+    /// flag 8: so is its colour.
     pub reused: u32,
     /// Normal word of the voxel's attributes (its top byte is the specular lobe).
     pub material: u32,

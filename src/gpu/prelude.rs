@@ -150,6 +150,7 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
             ("STAT_SPHERES_CULLED", offset_of!(GpuStats, spheres_culled)),
             ("STAT_SHADOW_RAYS", offset_of!(GpuStats, shadow_rays)),
             ("STAT_GATHERS", offset_of!(GpuStats, gathers)),
+            ("STAT_SHADE_REUSED", offset_of!(GpuStats, shade_reused)),
         ]
         .map(|(name, off)| (name, "u32", u(off as u64 / 4))),
     );

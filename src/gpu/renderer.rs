@@ -170,6 +170,10 @@ pub struct GpuRenderer {
     read_back: bool,
     /// Size of the image in the radiance buffer (the last frame's).
     radiance_size: (u32, u32),
+    /// The lights and shadow switch the radiance buffer's colours were shaded under, when
+    /// they are the frame in the hit buffer's, shaded by `shade_main` (traced, no GI): the
+    /// next frame may keep them ([`GpuFrame::keep_colours`]).
+    shaded: Option<(Lights, bool)>,
     /// Add up the frame's statistics on the GPU ([`GpuRenderer::set_counting`]).
     counting: bool,
     /// The last frame's statistics as the GPU added them up (when counting).
@@ -297,6 +301,7 @@ impl GpuRenderer {
             gi_captured: None,
             read_back: true,
             radiance_size: (0, 0),
+            shaded: None,
             counting: false,
             stats: None,
             eye_inside: false,
@@ -660,7 +665,7 @@ impl GpuRenderer {
         let extra_lights = gpu_lights(lights, camera.eye);
         let basis = camera.basis();
         let counting = self.counting;
-        let frame = GpuFrame {
+        let mut frame = GpuFrame {
             forward: f4(basis.forward, basis.tan_half),
             right: f4(basis.right, w as f64 / h as f64),
             up: f4(basis.up, 0.0),
@@ -681,7 +686,7 @@ impl GpuRenderer {
             emitters: emitters.len() as u32,
             emitter_samples,
             lights: extra_lights.len() as u32,
-            pad3: 0,
+            keep_colours: 0,
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
         // The image-sized buffers: hits and radiance, and their host copies when read back.
@@ -731,6 +736,25 @@ impl GpuRenderer {
         } else {
             None
         };
+        // Kept hits keep their colours (the CPU's rule, shade_main's twin of it) when the
+        // radiance buffer holds the stored frame's colours under the same lights and shadow
+        // switch, shaded without GI; emitters and extra lights reach anywhere, and the plain
+        // search traces shadow rays without the sphere test the shader's check mirrors, so
+        // those frames shade afresh. So do crowds: each kept pixel tests every moved sphere.
+        let keep_colours = reuse_on
+            && gi_work.is_none()
+            && !splatting
+            && search != 0
+            && emitter_samples == 0
+            && !lights.has_extra()
+            && moved.len() <= 2 * crate::render::hitbuffer::MOVED_SEARCH_MAX
+            && self.radiance_size == (w, h)
+            && self.shaded.as_ref().is_some_and(|(l, s)| l == lights && *s == plan.shadows);
+        frame.keep_colours = keep_colours as u32;
+        // What the radiance buffer will hold once this frame is submitted (until then, a
+        // failed frame leaves it unknown).
+        let shaded = (!splatting && gi_work.is_none()).then(|| (lights.clone(), plan.shadows));
+        self.shaded = None;
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
         let cone_shadows = self.gi_settings.is_some_and(|s| s.cone_shadows);
         let gi_pipes = gi_work.as_ref().map(|w| {
@@ -976,6 +1000,7 @@ impl GpuRenderer {
         });
         self.ctx.queue.submit([enc.finish()]);
         self.radiance_size = (w, h);
+        self.shaded = shaded;
         self.stats = match stats_rb {
             Some(rb) => read::<super::layout::GpuStats>(&self.ctx, rb)?.first().copied(),
             None => None,
@@ -1025,6 +1050,7 @@ impl GpuRenderer {
                 instances_traced: st.instances_traced as u64,
                 spheres_culled: st.spheres_culled as u64,
                 shadow_rays: st.shadow_rays as u64,
+                shade_reused: st.shade_reused as u64,
                 gathers: st.gathers as u64,
                 on_device: true,
                 ..Frame::default()
@@ -1078,11 +1104,11 @@ impl GpuRenderer {
                 .map(|r| crate::render::brdf::shininess_of_gloss_bits(r.attr.gloss_bits()))
                 .collect(),
             primary_rays: n as u64,
-            reused: hits.iter().filter(|g| g.reused == 1).count() as u64,
+            // The low two bits say how the record was found; 8, that its colour was kept.
+            reused: hits.iter().filter(|g| g.reused & 3 == 1).count() as u64,
             shadow_rays,
-            // The GPU shades every pixel each frame (its colours are not kept).
-            shade_reused: 0,
-            moved_only: hits.iter().filter(|g| g.reused == 2).count() as u64,
+            shade_reused: hits.iter().filter(|g| g.reused & 8 != 0).count() as u64,
+            moved_only: hits.iter().filter(|g| g.reused & 3 == 2).count() as u64,
             instances_traced: hits.iter().map(|g| (g.work & 0xFFFF) as u64).sum(),
             spheres_culled: hits.iter().map(|g| (g.work >> 16) as u64).sum(),
             on_device: false,

@@ -68,7 +68,8 @@ struct Frame {
     emitter_samples: u32,
     // Rows of `lights` (suns, points and spots besides the sun).
     lights: u32,
-    pad3: u32,
+    // 1: kept hits keep their colours where their shadow rays meet no moved sphere.
+    keep_colours: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuLight: a sun (a.w = 0), point (1) or spot (2).
@@ -113,8 +114,9 @@ struct Hit {
     fz: f32,
     // Instances traversed (low 16 bits) and sphere-culled (high 16 bits) finding this hit.
     work: u32,
-    // How this frame found the record: 0 searched among all instances, 1 kept (no ray),
-    // 2 searched among the moved instances only (HitBuffer's Todo).
+    // How this frame found the record (low two bits): 0 searched among all instances, 1 kept
+    // (no ray), 2 searched among the moved instances only (HitBuffer's Todo); 4: the record
+    // is last frame's; 8: so is its colour (trace.wgsl's RECORD_KEPT, COLOUR_KEPT).
     reused: u32,
     // Normal word of the voxel's attributes (Attr::normal: the top byte is the specular lobe).
     material: u32,
