@@ -477,13 +477,24 @@ fn gpu_frames_with_binned_moved_spheres_equal_frames_rendered_afresh() {
 /// sphere: frame by frame of a clip under the sun (which turns once, so that a frame keeps
 /// nothing), the kept renderer's image is the one a renderer with the hit buffer off shades
 /// afresh, bit for bit; colours were kept; the counts agree with the CPU's (whose test is its
-/// own, in f64), read back or added up on the GPU.
+/// own, in f64), read back or added up on the GPU. Two cars.
 #[test]
 fn gpu_kept_colours_equal_colours_shaded_afresh() {
+    kept_colours_against_fresh(2);
+}
+
+/// As above with a crowd of more moved spheres than are tested one by one: the kept pixels'
+/// shadow rays walk the moved spheres' BVH.
+#[test]
+fn gpu_kept_colours_in_a_crowd_equal_colours_shaded_afresh() {
+    kept_colours_against_fresh(10);
+}
+
+fn kept_colours_against_fresh(cars: usize) {
     let Some(ctx) = context() else { return };
-    // Two cars driving over a ground: their shadows move over it, so kept ground pixels'
-    // shadow rays meet the moved spheres.
-    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, true).unwrap();
+    // Cars driving over a ground: their shadows move over it, so kept ground pixels' shadow
+    // rays meet the moved spheres.
+    let mut st = voxray::scene::stage_cars(&car_parts(), cars, true, true).unwrap();
     let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 160, 100);
     let mut kept = GpuRenderer::new(ctx.clone());
     let mut counted = GpuRenderer::new(ctx.clone());
@@ -504,6 +515,11 @@ fn gpu_kept_colours_equal_colours_shaded_afresh() {
             sun.to_sun = (sun.to_sun + Vec3::new(0.3, 0.0, 0.0)).normalize();
         }
         let plan = FramePlan::new(scene, &cam, &lights, &features, (f > 0).then_some(&kept.state));
+        if f > 0 && cars > 8 {
+            let prepared = voxray::render::instances::prepare(scene, cam.eye, plan.transform);
+            let reuse = kept.state.reuse(&cam, scene, &prepared, RenderOptions::default().max_level).unwrap();
+            assert!(reuse.moved_spheres.len() > 128 && reuse.moved_bvh.is_some(), "frame {f}: no BVH walk");
+        }
         let a = kept.render(scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
         let on_device = counted.render(scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
         let plan_b = FramePlan::new(scene, &cam, &lights, &no_reuse, None);

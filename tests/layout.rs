@@ -119,6 +119,10 @@ fn wgsl_structs_match_rust() {
                 ("emitter_samples", offset_of!(GpuFrame, emitter_samples)),
                 ("lights", offset_of!(GpuFrame, lights)),
                 ("keep_colours", offset_of!(GpuFrame, keep_colours)),
+                ("moved_bvh_nodes", offset_of!(GpuFrame, moved_bvh_nodes)),
+                ("pad4a", offset_of!(GpuFrame, pad4a)),
+                ("pad4b", offset_of!(GpuFrame, pad4b)),
+                ("pad4c", offset_of!(GpuFrame, pad4c)),
             ],
         ),
         (

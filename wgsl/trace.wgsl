@@ -30,6 +30,10 @@ override SHADOWS: bool = true;
 // hitbuffer::Reuse::tile_bins: per TILE × TILE tile (frame.moved_tiles_x to a row) the
 // moved spheres whose rectangles reach it, moved_bins[moved_bins[t] .. moved_bins[t + 1]].
 @group(0) @binding(B_MOVED_BINS) var<storage, read> moved_bins: array<u32>;
+// hitbuffer::Reuse::moved_bvh over `moved` (frame.moved_bvh_nodes nodes), its boxes around
+// the spheres as tested here.
+@group(0) @binding(B_MOVED_BVH) var<storage, read> moved_bvh: array<BvhNode>;
+@group(0) @binding(B_MOVED_BVH_ITEMS) var<storage, read> moved_bvh_items: array<u32>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;
@@ -689,6 +693,47 @@ fn shadow_valid(h: Hit, x: u32, y: u32) -> bool {
         return true;
     }
     let start = shadow_start(h, ray_dir(x, y));
+    let to_sun = frame.sun_dir.xyz;
+    if frame.moved_bvh_nodes > 0u {
+        // Any order will do: a box the ray misses holds no sphere it meets. A full stack
+        // falls through to testing every sphere, which gives the same answer.
+        var stack: array<u32, 32>;
+        var sp = 0u;
+        var overflow = false;
+        if box_entry(moved_bvh[0].lo.xyz, moved_bvh[0].hi.xyz, start, to_sun, BIG) < BIG {
+            stack[0] = 0u;
+            sp = 1u;
+        }
+        while sp > 0u && !overflow {
+            sp -= 1u;
+            let node = moved_bvh[stack[sp]];
+            let first = bitcast<u32>(node.lo.w);
+            let count = bitcast<u32>(node.hi.w);
+            if count > 0u {
+                for (var j = first; j < first + count; j++) {
+                    let m = moved[moved_bvh_items[j]];
+                    let s = sphere_interval(m.sphere.xyz, m.sphere.w, start, to_sun);
+                    if s.x <= s.y {
+                        return false;
+                    }
+                }
+            } else {
+                for (var c = first; c < first + 2u; c++) {
+                    if box_entry(moved_bvh[c].lo.xyz, moved_bvh[c].hi.xyz, start, to_sun, BIG) < BIG {
+                        if sp == 32u {
+                            overflow = true;
+                        } else {
+                            stack[sp] = c;
+                            sp += 1u;
+                        }
+                    }
+                }
+            }
+        }
+        if !overflow {
+            return true;
+        }
+    }
     for (var k = 0u; k < frame.moved; k++) {
         let s = sphere_interval(moved[k].sphere.xyz, moved[k].sphere.w, start, frame.sun_dir.xyz);
         if s.x <= s.y {

@@ -98,6 +98,15 @@ pub struct GpuFrame {
     /// frame in the hit buffer, unless its shadow ray meets a moved sphere (the twin of the
     /// CPU's kept colours; the renderer says when the buffer holds such colours).
     pub keep_colours: u32,
+    /// Nodes of the moved spheres' BVH (0: none; kept pixels' shadow rays then test every
+    /// moved sphere).
+    pub moved_bvh_nodes: u32,
+    /// Padding (three words: a uniform array's stride would be 16 bytes).
+    pub pad4a: u32,
+    /// Padding.
+    pub pad4b: u32,
+    /// Padding.
+    pub pad4c: u32,
 }
 
 /// A sun, point or spot light besides the frame's sun ([`crate::scene::Lights::suns`],

@@ -37,6 +37,10 @@ pub mod binding {
     pub const LIGHTS: u32 = 14;
     /// Tracer group 0: `moved_bins`.
     pub const MOVED_BINS: u32 = 15;
+    /// Tracer group 0: `moved_bvh`.
+    pub const MOVED_BVH: u32 = 16;
+    /// Tracer group 0: `moved_bvh_items`.
+    pub const MOVED_BVH_ITEMS: u32 = 17;
     /// Tracer group 1 (GI): `gi_accum`.
     pub const GI_ACCUM: u32 = 0;
     /// Tracer group 1 (GI): `gi_levels`.
@@ -76,7 +80,7 @@ pub mod binding {
     /// Tracer group 3 (the splat quads' copy): `splat_raster`.
     pub const SPLAT_RASTER: u32 = 0;
     /// Every binding with its WGSL constant's name.
-    pub const ALL: [(&str, u32); 35] = [
+    pub const ALL: [(&str, u32); 37] = [
         ("B_NODES", NODES),
         ("B_ATTRS", ATTRS),
         ("B_PARTS", PARTS),
@@ -93,6 +97,8 @@ pub mod binding {
         ("B_EMITTERS", EMITTERS),
         ("B_LIGHTS", LIGHTS),
         ("B_MOVED_BINS", MOVED_BINS),
+        ("B_MOVED_BVH", MOVED_BVH),
+        ("B_MOVED_BVH_ITEMS", MOVED_BVH_ITEMS),
         ("B_GI_ACCUM", GI_ACCUM),
         ("B_GI_LEVELS", GI_LEVELS),
         ("B_GI_FRAME", GI_FRAME),

@@ -98,6 +98,8 @@ struct FrameBuffers {
     items: Option<wgpu::Buffer>,
     moved: Option<wgpu::Buffer>,
     moved_bins: Option<wgpu::Buffer>,
+    moved_bvh: Option<wgpu::Buffer>,
+    moved_bvh_items: Option<wgpu::Buffer>,
     emitters: Option<wgpu::Buffer>,
     lights: Option<wgpu::Buffer>,
     radiance: Option<wgpu::Buffer>,
@@ -216,6 +218,22 @@ pub(crate) fn plan_pipeline(
     })
 }
 
+/// A BVH's nodes as the shaders walk them: each box grown by more than the f32 slab test
+/// can lose, as the spheres are.
+fn gpu_bvh_nodes(b: &crate::render::bvh::Bvh) -> Vec<GpuBvhNode> {
+    b.nodes
+        .iter()
+        .map(|nd| {
+            let slack = glam::DVec3::splat(1e-6 * nd.lo.abs().max(nd.hi.abs()).max_element());
+            let (lo, hi) = (nd.lo - slack, nd.hi + slack);
+            GpuBvhNode {
+                lo: [lo.x as f32, lo.y as f32, lo.z as f32, f32::from_bits(nd.first)],
+                hi: [hi.x as f32, hi.y as f32, hi.z as f32, f32::from_bits(nd.count)],
+            }
+        })
+        .collect()
+}
+
 fn f4(v: glam::DVec3, w: f64) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w as f32]
 }
@@ -267,6 +285,8 @@ impl GpuRenderer {
                 (b::EMITTERS, true),
                 (b::LIGHTS, true),
                 (b::MOVED_BINS, true),
+                (b::MOVED_BVH, true),
+                (b::MOVED_BVH_ITEMS, true),
             ]
             .iter()
             .map(|&(b, r)| storage(b, r)),
@@ -644,21 +664,22 @@ impl GpuRenderer {
         // cars tested 4 800 spheres per pixel); no bins: every sphere.
         let (moved_tiles_x, moved_bins) =
             reuse.as_ref().and_then(|r| r.tile_bins()).map_or((0, &[][..]), |(tx, bins)| (tx as u32, bins));
-        let bvh = plan.bvh.then(|| self.state.take_bvh(&prepared));
-        let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), |b| {
-            b.nodes
+        // Kept pixels' shadow rays walk the moved spheres' BVH: its tree, with boxes around
+        // the spheres as the shader tests them (f32, grown).
+        let moved_bvh = reuse.as_ref().and_then(|r| r.moved_bvh.clone()).map(|mut b| {
+            let as_tested: Vec<(glam::DVec3, f64)> = moved
                 .iter()
-                .map(|nd| {
-                    // Grown by more than the f32 slab test can lose, as the spheres are.
-                    let slack = glam::DVec3::splat(1e-6 * nd.lo.abs().max(nd.hi.abs()).max_element());
-                    let (lo, hi) = (nd.lo - slack, nd.hi + slack);
-                    GpuBvhNode {
-                        lo: [lo.x as f32, lo.y as f32, lo.z as f32, f32::from_bits(nd.first)],
-                        hi: [hi.x as f32, hi.y as f32, hi.z as f32, f32::from_bits(nd.count)],
-                    }
+                .map(|m| {
+                    (glam::DVec3::new(m.sphere[0] as f64, m.sphere[1] as f64, m.sphere[2] as f64), m.sphere[3] as f64)
                 })
-                .collect()
+                .collect();
+            b.refit(&as_tested);
+            b
         });
+        let moved_bvh_nodes = moved_bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
+        let moved_bvh_items: Vec<u32> = moved_bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
+        let bvh = plan.bvh.then(|| self.state.take_bvh(&prepared));
+        let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
         let items: Vec<u32> = bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
         let emitter_samples = lights.emitter_sampling();
         let emitters = if emitter_samples > 0 { gpu_emitters(scene, camera.eye) } else { Vec::new() };
@@ -687,6 +708,10 @@ impl GpuRenderer {
             emitter_samples,
             lights: extra_lights.len() as u32,
             keep_colours: 0,
+            moved_bvh_nodes: moved_bvh_nodes.len() as u32,
+            pad4a: 0,
+            pad4b: 0,
+            pad4c: 0,
         };
         self.ctx.check_binding("the hit buffer", (n * std::mem::size_of::<GpuHit>()) as u64)?;
         // The image-sized buffers: hits and radiance, and their host copies when read back.
@@ -747,7 +772,7 @@ impl GpuRenderer {
             && search != 0
             && emitter_samples == 0
             && !lights.has_extra()
-            && moved.len() <= 2 * crate::render::hitbuffer::MOVED_SEARCH_MAX
+            && (moved.len() <= 2 * crate::render::hitbuffer::MOVED_SEARCH_MAX || !moved_bvh_nodes.is_empty())
             && self.radiance_size == (w, h)
             && self.shaded.as_ref().is_some_and(|(l, s)| l == lights && *s == plan.shadows);
         frame.keep_colours = keep_colours as u32;
@@ -773,7 +798,7 @@ impl GpuRenderer {
         }
         let kept = &mut self.kept;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 8] = [
+        let inputs: [(&mut Option<wgpu::Buffer>, &'static str, Vec<u8>, wgpu::BufferUsages); 10] = [
             (&mut kept.insts, "instances", bytemuck::cast_slice(&nonempty(&insts)).to_vec(), storage),
             (
                 &mut kept.frame,
@@ -785,6 +810,13 @@ impl GpuRenderer {
             (&mut kept.items, "bvh items", bytemuck::cast_slice(&nonempty(&items)).to_vec(), storage),
             (&mut kept.moved, "moved", bytemuck::cast_slice(&nonempty(&moved)).to_vec(), storage),
             (&mut kept.moved_bins, "moved bins", bytemuck::cast_slice(&nonempty(moved_bins)).to_vec(), storage),
+            (&mut kept.moved_bvh, "moved bvh", bytemuck::cast_slice(&nonempty(&moved_bvh_nodes)).to_vec(), storage),
+            (
+                &mut kept.moved_bvh_items,
+                "moved bvh items",
+                bytemuck::cast_slice(&nonempty(&moved_bvh_items)).to_vec(),
+                storage,
+            ),
             (&mut kept.emitters, "emitters", bytemuck::cast_slice(&nonempty(&emitters)).to_vec(), storage),
             (&mut kept.lights, "lights", bytemuck::cast_slice(&nonempty(&extra_lights)).to_vec(), storage),
         ];
@@ -827,6 +859,8 @@ impl GpuRenderer {
         let emitter_buf = kept.emitters.as_ref().ok_or_else(missing)?;
         let light_buf = kept.lights.as_ref().ok_or_else(missing)?;
         let bins_buf = kept.moved_bins.as_ref().ok_or_else(missing)?;
+        let moved_bvh_buf = kept.moved_bvh.as_ref().ok_or_else(missing)?;
+        let moved_items_buf = kept.moved_bvh_items.as_ref().ok_or_else(missing)?;
         let pools = self.pools.as_ref().ok_or_else(|| GpuError::Device("pools not uploaded".into()))?;
         let hits_buf = &self.hits.as_ref().ok_or_else(|| GpuError::Device("no hit buffer".into()))?.0;
         use super::prelude::binding as b;
@@ -851,6 +885,8 @@ impl GpuRenderer {
                     wgpu::BindGroupEntry { binding: b::EMITTERS, resource: emitter_buf.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::LIGHTS, resource: light_buf.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: b::MOVED_BINS, resource: bins_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::MOVED_BVH, resource: moved_bvh_buf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: b::MOVED_BVH_ITEMS, resource: moved_items_buf.as_entire_binding() },
                 ],
             })
         });
@@ -871,6 +907,8 @@ impl GpuRenderer {
             emitter_buf,
             light_buf,
             bins_buf,
+            moved_bvh_buf,
+            moved_items_buf,
         ]
         .iter()
         .map(|b| b.size())

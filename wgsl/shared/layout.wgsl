@@ -70,6 +70,11 @@ struct Frame {
     lights: u32,
     // 1: kept hits keep their colours where their shadow rays meet no moved sphere.
     keep_colours: u32,
+    // Nodes of `moved_bvh` (0: none).
+    moved_bvh_nodes: u32,
+    pad4a: u32,
+    pad4b: u32,
+    pad4c: u32,
 }
 
 // Mirrors voxray::gpu::layout::GpuLight: a sun (a.w = 0), point (1) or spot (2).
