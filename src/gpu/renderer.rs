@@ -664,20 +664,6 @@ impl GpuRenderer {
         // cars tested 4 800 spheres per pixel); no bins: every sphere.
         let (moved_tiles_x, moved_bins) =
             reuse.as_ref().and_then(|r| r.tile_bins()).map_or((0, &[][..]), |(tx, bins)| (tx as u32, bins));
-        // Kept pixels' shadow rays walk the moved spheres' BVH: its tree, with boxes around
-        // the spheres as the shader tests them (f32, grown).
-        let moved_bvh = reuse.as_ref().and_then(|r| r.moved_bvh.clone()).map(|mut b| {
-            let as_tested: Vec<(glam::DVec3, f64)> = moved
-                .iter()
-                .map(|m| {
-                    (glam::DVec3::new(m.sphere[0] as f64, m.sphere[1] as f64, m.sphere[2] as f64), m.sphere[3] as f64)
-                })
-                .collect();
-            b.refit(&as_tested);
-            b
-        });
-        let moved_bvh_nodes = moved_bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
-        let moved_bvh_items: Vec<u32> = moved_bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
         let bvh = plan.bvh.then(|| self.state.take_bvh(&prepared));
         let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
         let items: Vec<u32> = bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
@@ -708,7 +694,7 @@ impl GpuRenderer {
             emitter_samples,
             lights: extra_lights.len() as u32,
             keep_colours: 0,
-            moved_bvh_nodes: moved_bvh_nodes.len() as u32,
+            moved_bvh_nodes: 0,
             pad4a: 0,
             pad4b: 0,
             pad4c: 0,
@@ -765,17 +751,32 @@ impl GpuRenderer {
         // radiance buffer holds the stored frame's colours under the same lights and shadow
         // switch, shaded without GI; emitters and extra lights reach anywhere, and the plain
         // search traces shadow rays without the sphere test the shader's check mirrors, so
-        // those frames shade afresh. So do crowds: each kept pixel tests every moved sphere.
+        // those frames shade afresh.
         let keep_colours = reuse_on
             && gi_work.is_none()
             && !splatting
             && search != 0
             && emitter_samples == 0
             && !lights.has_extra()
-            && (moved.len() <= 2 * crate::render::hitbuffer::MOVED_SEARCH_MAX || !moved_bvh_nodes.is_empty())
             && self.radiance_size == (w, h)
             && self.shaded.as_ref().is_some_and(|(l, s)| l == lights && *s == plan.shadows);
         frame.keep_colours = keep_colours as u32;
+        // Kept pixels' shadow rays walk the moved spheres' BVH when there is one (from
+        // MOVED_BVH_MIN spheres on): its tree, with boxes around the spheres as the shader
+        // tests them (f32, grown).
+        let moved_bvh = reuse.as_ref().and_then(|r| r.moved_bvh.clone()).filter(|_| keep_colours).map(|mut b| {
+            let as_tested: Vec<(glam::DVec3, f64)> = moved
+                .iter()
+                .map(|m| {
+                    (glam::DVec3::new(m.sphere[0] as f64, m.sphere[1] as f64, m.sphere[2] as f64), m.sphere[3] as f64)
+                })
+                .collect();
+            b.refit(&as_tested);
+            b
+        });
+        let moved_bvh_nodes = moved_bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
+        let moved_bvh_items: Vec<u32> = moved_bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
+        frame.moved_bvh_nodes = moved_bvh_nodes.len() as u32;
         // What the radiance buffer will hold once this frame is submitted (until then, a
         // failed frame leaves it unknown).
         let shaded = (!splatting && gi_work.is_none()).then(|| (lights.clone(), plan.shadows));
