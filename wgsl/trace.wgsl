@@ -349,7 +349,12 @@ fn reuse_todo(old: Hit, d: vec3<f32>, x: u32, y: u32) -> u32 {
         end = moved_bins[tile + 1u];
     }
     for (var j = first; j < end; j++) {
-        let m = moved[select(j, moved_bins[j], frame.moved_tiles_x > 0u)];
+        // (A branch, not select(): without bins, moved_bins holds one padding word.)
+        var k = j;
+        if frame.moved_tiles_x > 0u {
+            k = moved_bins[j];
+        }
+        let m = moved[k];
         if x >= m.rect.x && x <= m.rect.z && y >= m.rect.y && y <= m.rect.w {
             let s = sphere_interval(m.sphere.xyz, m.sphere.w, vec3<f32>(0.0), d);
             if s.x <= s.y && s.x <= old.t {
@@ -735,7 +740,7 @@ fn shadow_valid(h: Hit, x: u32, y: u32) -> bool {
         }
     }
     for (var k = 0u; k < frame.moved; k++) {
-        let s = sphere_interval(moved[k].sphere.xyz, moved[k].sphere.w, start, frame.sun_dir.xyz);
+        let s = sphere_interval(moved[k].sphere.xyz, moved[k].sphere.w, start, to_sun);
         if s.x <= s.y {
             return false;
         }
