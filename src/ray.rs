@@ -53,10 +53,35 @@ fn inverse_pow2_floor(m: f64) -> f64 {
     }
 }
 
+/// The smaller of two numbers that are not NaN (`f64::min` without its NaN handling).
+#[inline(always)]
+fn smaller(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The larger of two numbers that are not NaN (`f64::max` without its NaN handling).
+#[inline(always)]
+fn larger(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// Bit i set: direction component i counts as parallel (see [`PARALLEL_RATIO`]). Shared by
 /// the traversal and the DDA oracle so both classify a ray the same way.
 pub fn parallel_axes(dir: DVec3) -> u32 {
-    let m = dir.abs().max_element();
+    parallel_below(dir, dir.abs().max_element())
+}
+
+/// [`parallel_axes`] given `m`, the largest of `dir`'s magnitudes.
+#[inline(always)]
+fn parallel_below(dir: DVec3, m: f64) -> u32 {
     let mut mask = 0;
     for i in 0..3 {
         if dir[i].abs() < PARALLEL_RATIO as f64 * m {
@@ -113,12 +138,16 @@ impl UnitRay {
         if !origin.is_finite() || !dir.is_finite() {
             return None;
         }
-        let m = dir.abs().max_element();
+        // The inputs are finite from here on, so no minimum or maximum below meets a NaN:
+        // plain comparisons pick what `f64::min` and `max` would (their NaN handling was a
+        // fifth of the setup's samples; docs/benchmarks.md, step 44).
+        let a = dir.abs();
+        let m = larger(larger(a.x, a.y), a.z);
         // Below 1e-300 the rescale would leave f64's normal range; such a ray does not move.
         if !(m >= 1e-300) {
             return None;
         }
-        let parallel = parallel_axes(dir);
+        let parallel = parallel_below(dir, m);
         // Move the origin (in f64) to where the line enters the cube, so that rays from far
         // away keep f32's precision inside it; a line that misses the cube misses.
         let (mut t_enter, mut t_exit) = (f64::NEG_INFINITY, f64::INFINITY);
@@ -128,9 +157,10 @@ impl UnitRay {
                     return None;
                 }
             } else {
+                // Both finite or infinite, never NaN: dir[i] is not zero on this axis.
                 let (a, b) = (-origin[i] / dir[i], (1.0 - origin[i]) / dir[i]);
-                t_enter = t_enter.max(a.min(b));
-                t_exit = t_exit.min(a.max(b));
+                t_enter = larger(t_enter, smaller(a, b));
+                t_exit = smaller(t_exit, larger(a, b));
             }
         }
         if !(t_enter <= t_exit) {
@@ -239,6 +269,62 @@ mod tests {
         // direction is about 2 long, so the origin is half a unit of internal t behind.
         assert!((r.t_offset - 1.0 / f64::MAX).abs() <= 1e-323);
         assert_eq!(r.to_internal(0.0), -0.5);
+    }
+
+    /// The slab test's entry offset as `f64::min` and `max` give it (None: the line misses).
+    fn offset_with_std_min_max(origin: DVec3, dir: DVec3) -> Option<f64> {
+        let parallel = parallel_axes(dir);
+        let (mut t_enter, mut t_exit) = (f64::NEG_INFINITY, f64::INFINITY);
+        for i in 0..3 {
+            if parallel & (1 << i) != 0 {
+                if !(origin[i] >= 0.0 && origin[i] < 1.0) {
+                    return None;
+                }
+            } else {
+                let (a, b) = (-origin[i] / dir[i], (1.0 - origin[i]) / dir[i]);
+                t_enter = t_enter.max(a.min(b));
+                t_exit = t_exit.min(a.max(b));
+            }
+        }
+        (t_enter <= t_exit).then_some(if t_enter > 0.0 || t_exit < 0.0 { t_enter } else { 0.0 })
+    }
+
+    #[test]
+    fn the_slab_test_without_nan_handling_agrees_with_std_min_max() {
+        // Origins on faces, edges and corners (entry at ±0), inside, far away; directions
+        // along axes, with ±0 and tiny components, and random ones.
+        let mut rng = crate::rng::Rng::new(7);
+        let coords = [0.0, -0.0, 1.0, 0.5, -0.25, 1.75, 1e-300, -3.0, 1e9, -1e12];
+        let comps = [1.0, -1.0, 0.0, -0.0, 1e-14, -1e-13, 0.3, -0.7, 1e-300, 2.0];
+        let (mut rays, mut hits) = (0, 0);
+        for _ in 0..40_000 {
+            let pick = |rng: &mut crate::rng::Rng, from: &[f64]| {
+                if rng.below(3) == 0 {
+                    rng.f64() * 4.0 - 1.5
+                } else {
+                    from[rng.below(from.len() as u64) as usize]
+                }
+            };
+            let o = DVec3::new(pick(&mut rng, &coords), pick(&mut rng, &coords), pick(&mut rng, &coords));
+            let d = DVec3::new(pick(&mut rng, &comps), pick(&mut rng, &comps), pick(&mut rng, &comps));
+            if d.abs().max_element() < 1e-300 {
+                continue;
+            }
+            let want = offset_with_std_min_max(o, d);
+            let got = UnitRay::from_unit(o, d);
+            rays += 1;
+            match (want, got) {
+                (Some(w), Some(g)) => {
+                    hits += 1;
+                    assert_eq!(w.to_bits(), g.t_offset.to_bits(), "{o} {d}");
+                }
+                // Refused after the slab test: an origin left too far off the cube (a parallel
+                // axis, or a move that overflowed).
+                (Some(_), None) => {}
+                (None, g) => assert!(g.is_none(), "{o} {d}"),
+            }
+        }
+        assert!(hits > rays / 10 && hits < rays, "{hits} of {rays} rays cross the cube");
     }
 
     #[test]
