@@ -178,6 +178,9 @@ pub struct GpuRenderer {
     shaded: Option<(Lights, bool)>,
     /// Add up the frame's statistics on the GPU ([`GpuRenderer::set_counting`]).
     counting: bool,
+    /// Tests: fail the next frame just after it was submitted, as a failed read-back would.
+    #[cfg(test)]
+    fail_after_submit: bool,
     /// The last frame's statistics as the GPU added them up (when counting).
     pub stats: Option<super::layout::GpuStats>,
     /// The last frame's eye lies inside a voxel ([`crate::render::instances::eye_inside`]),
@@ -323,6 +326,8 @@ impl GpuRenderer {
             radiance_size: (0, 0),
             shaded: None,
             counting: false,
+            #[cfg(test)]
+            fail_after_submit: false,
             stats: None,
             eye_inside: false,
             splat: None,
@@ -617,7 +622,16 @@ impl GpuRenderer {
         opts: &RenderOptions,
     ) -> Result<Frame, GpuError> {
         let ctx = self.ctx.clone();
-        ctx.scoped(|| self.render_frame(scene, camera, lights, plan, opts))
+        let frame = ctx.scoped(|| self.render_frame(scene, camera, lights, plan, opts));
+        if frame.is_err() {
+            // A frame that failed after it was submitted (a read-back, or an error its scope
+            // caught) may have left its records in the GPU's hit buffer and its colours in the
+            // radiance buffer without its conditions stored: the next frame must not reuse
+            // them under the older frame's conditions.
+            self.state.camera = None;
+            self.shaded = None;
+        }
+        frame
     }
 
     fn render_frame(
@@ -1038,6 +1052,10 @@ impl GpuRenderer {
             read_back
         });
         self.ctx.queue.submit([enc.finish()]);
+        #[cfg(test)]
+        if std::mem::take(&mut self.fail_after_submit) {
+            return Err(GpuError::Readback("failed on purpose after the submit (test)".into()));
+        }
         self.radiance_size = (w, h);
         self.shaded = shaded;
         self.stats = match stats_rb {
@@ -1257,4 +1275,67 @@ pub fn read_first<T: bytemuck::Pod>(ctx: &GpuContext, buf: &wgpu::Buffer, bytes:
     drop(data);
     buf.unmap();
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::Features;
+    use crate::scene::{Instance, Transform};
+    use crate::svo::Cube;
+    use glam::DVec3;
+
+    /// A 4×4×4 block of voxels as a scene of two instances side by side.
+    fn two_blocks() -> Scene {
+        let coords: Vec<[u32; 3]> = (0..64).map(|i| [i % 4, i / 4 % 4, i / 16]).collect();
+        let grid = crate::voxelize::VoxelGrid::from_coords(2, Cube { min: Vec3::ZERO, size: 1.0 }, coords, Vec3::ONE);
+        let mut scene = Scene::new(vec![Arc::new(crate::svo::build(&grid).expect("block"))]);
+        for x in [-1.5, 0.5] {
+            let local = Transform::from_translation(DVec3::new(x, 0.0, 0.0));
+            scene.add(Instance { part: 0, parent: None, local }).expect("instance");
+        }
+        scene.update().expect("update");
+        scene
+    }
+
+    /// A frame that fails after its submit (as a failed read-back would) leaves its records in
+    /// the GPU's hit buffer: the frame after it, back where the last good frame was, must not
+    /// keep them as that frame's. Without the reset in `render` the third frame showed the
+    /// failed frame's block.
+    #[test]
+    fn a_frame_failed_after_its_submit_is_not_reused() {
+        let ctx = match GpuContext::headless() {
+            Ok(c) => Arc::new(c),
+            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
+            Err(e) => return eprintln!("skipping GPU test: {e}"),
+        };
+        let mut scene = two_blocks();
+        let camera = Camera {
+            eye: DVec3::new(0.0, 1.0, 6.0),
+            target: DVec3::new(0.0, 0.5, 0.0),
+            up: DVec3::Y,
+            vfov_deg: 50.0,
+            width: 64,
+            height: 40,
+        };
+        let lights = Lights::default();
+        let opts = RenderOptions::default();
+        let mut gpu = GpuRenderer::new(ctx.clone());
+        let plan = |scene: &Scene, gpu: &GpuRenderer| {
+            FramePlan::new(scene, &camera, &lights, &Features::default(), Some(&gpu.state))
+        };
+        let first = gpu.render(&scene, &camera, &lights, &plan(&scene, &gpu), &opts).expect("first frame");
+        let here = Transform::from_translation(DVec3::new(0.5, 0.0, 0.0));
+        scene.set_local(1, Transform::from_translation(DVec3::new(0.5, 2.0, 0.0))).expect("move");
+        scene.update().expect("update");
+        gpu.fail_after_submit = true;
+        assert!(gpu.render(&scene, &camera, &lights, &plan(&scene, &gpu), &opts).is_err());
+        scene.set_local(1, here).expect("move back");
+        scene.update().expect("update");
+        let third = gpu.render(&scene, &camera, &lights, &plan(&scene, &gpu), &opts).expect("third frame");
+        assert!(first.instance.iter().filter(|&&i| i == 1).count() > 50, "the second block is in view");
+        let differ = first.instance.iter().zip(&third.instance).filter(|(a, b)| a != b).count();
+        assert_eq!(differ, 0, "{differ} pixels show another instance than the first frame");
+        assert_eq!(first.radiance, third.radiance);
+    }
 }
