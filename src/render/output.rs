@@ -32,7 +32,34 @@ pub enum OutputError {
 
 /// 8-bit sRGB bytes (RGB) of the frame, radiance clamped to [0, 1] (no tone mapping).
 pub fn srgb8(frame: &Frame) -> Vec<u8> {
-    frame.radiance.iter().flat_map(|c| [linear_to_srgb8(c.x), linear_to_srgb8(c.y), linear_to_srgb8(c.z)]).collect()
+    encode(&frame.radiance, 3)
+}
+
+/// [`srgb8`] with an opaque alpha byte after each pixel (RGBA), as a texture upload takes it.
+pub fn srgba8(frame: &Frame) -> Vec<u8> {
+    encode(&frame.radiance, 4)
+}
+
+/// The radiance as sRGB bytes, `channels` (3 or 4) per pixel, the fourth 255. In parallel
+/// bands: the demo converts every frame it shows.
+fn encode(radiance: &[glam::Vec3], channels: usize) -> Vec<u8> {
+    const BAND: usize = 4096;
+    let mut out = vec![255u8; radiance.len() * channels];
+    let band = |(bytes, colours): (&mut [u8], &[glam::Vec3])| {
+        for (px, c) in bytes.chunks_exact_mut(channels).zip(colours) {
+            px[0] = linear_to_srgb8(c.x);
+            px[1] = linear_to_srgb8(c.y);
+            px[2] = linear_to_srgb8(c.z);
+        }
+    };
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        out.par_chunks_mut(BAND * channels).zip(radiance.par_chunks(BAND)).for_each(band);
+    }
+    #[cfg(not(feature = "parallel"))]
+    out.chunks_mut(BAND * channels).zip(radiance.chunks(BAND)).for_each(band);
+    out
 }
 
 /// Writes a file through a temporary sibling that is renamed over `path` once complete, so an
@@ -190,6 +217,27 @@ fn encode_npy(file: std::fs::File, descr: &str, shape: &[usize], data: &[u8]) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every pixel of a frame wider than one band, as the formula encodes it: RGB, and RGBA
+    /// with opaque alpha.
+    #[test]
+    fn frames_encode_pixel_by_pixel() {
+        let n = 3 * 4096 + 17;
+        let radiance: Vec<glam::Vec3> = (0..n)
+            .map(|i| {
+                let x = i as f32 / n as f32;
+                glam::Vec3::new(x, 1.0 - x, (x * 7.3).fract() * 1.2 - 0.1)
+            })
+            .collect();
+        let frame = Frame { width: n as u32, height: 1, radiance: radiance.clone(), ..Frame::default() };
+        let (rgb, rgba) = (srgb8(&frame), srgba8(&frame));
+        assert_eq!((rgb.len(), rgba.len()), (3 * n, 4 * n));
+        for (i, c) in radiance.iter().enumerate() {
+            let want = [c.x, c.y, c.z].map(crate::svo::format::linear_to_srgb8_formula);
+            assert_eq!(rgb[3 * i..3 * i + 3], want, "pixel {i}");
+            assert_eq!(rgba[4 * i..4 * i + 4], [want[0], want[1], want[2], 255], "pixel {i}");
+        }
+    }
 
     /// A write that fails half-way leaves the earlier file as it was and no temporary file;
     /// one that succeeds replaces it whole.

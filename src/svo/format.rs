@@ -130,11 +130,72 @@ impl Attr {
     }
 }
 
-/// sRGB transfer function, linear → 8-bit code.
+/// sRGB transfer function, linear → 8-bit code: [`linear_to_srgb8_formula`]'s code for every
+/// input, read from tables (this runs three times per pixel of every frame shown or written,
+/// and `powf` was a tenth of a CPU demo frame; docs/benchmarks.md, step 45).
+///
+/// The formula's code never decreases as x grows, so it is the number of codes whose
+/// smallest input lies at or below x. A first table, indexed by x's exponent and top six
+/// mantissa bits, gives the code at the start of x's bucket of inputs; at most a few steps up
+/// along the second (each code's smallest input) finish it.
+#[inline]
 pub fn linear_to_srgb8(x: f32) -> u8 {
+    let t = srgb8_tables();
+    // NaN, ±∞ and x ≤ 0 (−0.0 included) give 0, x ≥ 1 gives 255, as the formula's clamp.
+    if !(x > 0.0) || x == f32::INFINITY {
+        return 0;
+    }
+    if x >= 1.0 {
+        return 255;
+    }
+    let mut c = t.bucket_start[(x.to_bits() >> BUCKET_SHIFT) as usize];
+    while c < 255 && x >= t.first_input[c as usize + 1] {
+        c += 1;
+    }
+    c
+}
+
+/// The sRGB transfer function as a formula (clamped to [0, 1], NaN and ±∞ to 0), the
+/// definition [`linear_to_srgb8`]'s tables are built from.
+pub fn linear_to_srgb8_formula(x: f32) -> u8 {
     let x = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
     let s = if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 };
     (s * 255.0 + 0.5) as u8
+}
+
+/// Buckets of [`linear_to_srgb8`]: an f32's bits shifted by this keep its exponent and its
+/// top six mantissa bits.
+const BUCKET_SHIFT: u32 = 17;
+
+struct Srgb8Tables {
+    /// Per code, the smallest f32 in [0, 1] that the formula encodes as that code or more.
+    first_input: [f32; 256],
+    /// Per bucket of inputs in [0, 1), the formula's code of the bucket's smallest input.
+    bucket_start: Vec<u8>,
+}
+
+fn srgb8_tables() -> &'static Srgb8Tables {
+    static TABLES: std::sync::OnceLock<Srgb8Tables> = std::sync::OnceLock::new();
+    TABLES.get_or_init(|| {
+        let mut first_input = [0.0f32; 256];
+        for (c, first) in first_input.iter_mut().enumerate().skip(1) {
+            // Bisection over the bit patterns of [0, 1] (ordered as the values are).
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+            while lo < hi {
+                let mid = lo + (hi - lo) / 2;
+                if linear_to_srgb8_formula(f32::from_bits(mid)) as usize >= c {
+                    hi = mid;
+                } else {
+                    lo = mid + 1;
+                }
+            }
+            *first = f32::from_bits(lo);
+        }
+        let buckets = (1.0f32.to_bits() >> BUCKET_SHIFT) as usize;
+        let bucket_start =
+            (0..buckets).map(|b| linear_to_srgb8_formula(f32::from_bits((b as u32) << BUCKET_SHIFT))).collect();
+        Srgb8Tables { first_input, bucket_start }
+    })
 }
 
 /// sRGB transfer function, 8-bit code → linear (a table: this runs for every shaded hit).
@@ -488,6 +549,42 @@ fn compact(v: u64) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The tables against the formula: every input within 256 steps of each code's first
+    /// input, every 4 099th f32 of [0, 1], and the edges (NaN, ±∞, ±0, subnormals, above 1).
+    #[test]
+    fn srgb8_tables_give_the_formula_s_codes() {
+        let t = srgb8_tables();
+        let check = |x: f32| assert_eq!(linear_to_srgb8(x), linear_to_srgb8_formula(x), "{x:e} ({:#x})", x.to_bits());
+        for &first in &t.first_input[1..] {
+            let b = first.to_bits();
+            for bits in b.saturating_sub(256)..=b + 256 {
+                check(f32::from_bits(bits));
+            }
+        }
+        for bits in (0..=1.0f32.to_bits()).step_by(4099) {
+            check(f32::from_bits(bits));
+        }
+        for x in
+            [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 0.0, -0.0, f32::MIN_POSITIVE, 1e-45, 1.0, 1.5, -1.0, f32::MAX]
+        {
+            check(x);
+        }
+        // Every code is reached, in order.
+        assert!(t.first_input.windows(2).all(|w| w[0] < w[1]));
+        assert_eq!((linear_to_srgb8(0.5), linear_to_srgb8(0.214_041_14)), (188, 128));
+    }
+
+    /// All 1 065 353 217 f32 values of [0, 1] (seconds in release, minutes in debug: `cargo test
+    /// --release --lib srgb8 -- --ignored`; run when the formula or the tables change).
+    #[test]
+    #[ignore]
+    fn srgb8_tables_give_the_formula_s_codes_everywhere() {
+        for bits in 0..=1.0f32.to_bits() {
+            let x = f32::from_bits(bits);
+            assert_eq!(linear_to_srgb8(x), linear_to_srgb8_formula(x), "{x:e}");
+        }
+    }
 
     /// The occupied boxes of every level are the boxes of the voxels' coordinates shifted
     /// down to that level, for scattered sets, one voxel, and a set touching the far corner.

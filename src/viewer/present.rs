@@ -72,7 +72,7 @@ pub(super) fn upload_frame(g: &mut Gfx, frame: &Frame) {
         g.texture = Some((texture, bind, frame.width, frame.height));
     }
     let Some((texture, _, _, _)) = g.texture.as_ref() else { return };
-    let rgba: Vec<u8> = output::srgb8(frame).chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+    let rgba = output::srgba8(frame);
     g.ctx.queue.write_texture(
         wgpu::TexelCopyTextureInfo {
             texture,
@@ -100,13 +100,13 @@ pub(super) fn present_soft(
         return Ok(None);
     };
     s.surface.resize(w, h).map_err(soft_err)?;
-    let rgb = output::srgb8(frame);
+    let rgba = output::srgba8(frame);
     let mut buffer = s.surface.buffer_mut().map_err(soft_err)?;
-    for (px, c) in buffer.iter_mut().zip(rgb.chunks_exact(3)) {
+    for (px, c) in buffer.iter_mut().zip(rgba.chunks_exact(4)) {
         *px = (c[0] as u32) << 16 | (c[1] as u32) << 8 | c[2] as u32;
     }
     buffer.present().map_err(soft_err)?;
-    Ok(capture.then_some((frame.width, frame.height, rgb)))
+    Ok(capture.then(|| (frame.width, frame.height, rgba.chunks_exact(4).flat_map(|c| [c[0], c[1], c[2]]).collect())))
 }
 
 impl App {
