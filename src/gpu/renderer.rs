@@ -791,10 +791,9 @@ impl GpuRenderer {
         let moved_bvh_nodes = moved_bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
         let moved_bvh_items: Vec<u32> = moved_bvh.as_ref().map_or(Vec::new(), |b| b.items.clone());
         frame.moved_bvh_nodes = moved_bvh_nodes.len() as u32;
-        // What the radiance buffer will hold once this frame is submitted (until then, a
-        // failed frame leaves it unknown).
+        // What the radiance buffer will hold once this frame is submitted (a failed frame
+        // leaves it unknown: `render` then forgets it).
         let shaded = (!splatting && gi_work.is_none()).then(|| (lights.clone(), plan.shadows));
-        self.shaded = None;
         let (trace_pipe, shade_pipe) = &self.pipelines[&(search, reuse_on, plan.shadows)];
         let cone_shadows = self.gi_settings.is_some_and(|s| s.cone_shadows);
         let gi_pipes = gi_work.as_ref().map(|w| {
