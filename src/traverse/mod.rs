@@ -17,6 +17,7 @@
 //! only the third (see `trace_impl`) and a pop rebuilds the parent's vectors from the child's
 //! with selects, bit for bit. The three lanes of a vector live in one SSE register.
 
+mod lanes;
 pub mod packet;
 
 use crate::ray::{Ray, UnitRay};

@@ -1,8 +1,8 @@
 //! Up to 64 coherent rays (a screen tile's primary rays) traced through one SVO together,
 //! with the answers of [`super::trace_unit`] bit for bit.
 //!
-//! The packet walks the tree depth first and tests four rays at a time (SSE lanes) against
-//! each occupied child; a node is entered when any of its rays crosses it, and each ray's
+//! The packet walks the tree depth first and tests eight rays at a time (AVX lanes; four,
+//! SSE, on CPUs without AVX: `traverse::lanes`) against each occupied child; a node is entered when any of its rays crosses it, and each ray's
 //! t-values come from Revelles' halving exactly as in the scalar loop, so a node's t-values
 //! for a ray do not depend on which other rays share its packet.
 //!
@@ -19,6 +19,9 @@
 //! and being the first in the same order, it is the scalar answer. A leaf of zero length
 //! is handed to the scalar loop for that ray.
 
+use super::lanes::Lanes;
+#[cfg(target_arch = "x86_64")]
+use super::lanes::{avx8_supported, Avx8};
 use super::{finish, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, TraceOptions, Walk};
 use crate::ray::UnitRay;
 use crate::svo::{Attr, Svo, MAX_DEPTH};
@@ -27,7 +30,6 @@ use wide::f32x4;
 
 /// Rays in a packet.
 pub const LANES: usize = 64;
-const QUADS: usize = LANES / 4;
 /// Crossed children with at most this many of the packet's rays are walked ray by ray
 /// ([`walk_alone`]): 4 measured faster than 1, 2 and 8 at depths 9 and 11.
 const SOLO: u32 = 4;
@@ -54,22 +56,25 @@ const MIRRORED: [[u8; 256]; 8] = {
     t
 };
 
-/// Per axis, four rays' values for each quad of the packet.
-type Axes = [[f32x4; QUADS]; 3];
+/// Per axis, the values of the packet's rays, one vector per group of `V::W` rays (a quad
+/// of four, or an octet of eight).
+type Axes<V> = [<V as Lanes>::Groups; 3];
 
 /// The t-values of one node for every ray of the packet (Revelles §3.1): entry planes,
-/// midplanes, exit planes. Only the quads with rays in the node are written.
+/// midplanes, exit planes. Only the groups with rays in the node are written.
 #[derive(Clone, Copy)]
-struct Frame {
-    t0: Axes,
-    tm: Axes,
-    t1: Axes,
+struct Frame<V: Lanes> {
+    t0: Axes<V>,
+    tm: Axes<V>,
+    t1: Axes<V>,
 }
 
-impl Frame {
-    /// Entry and exit planes on axis `a` of the child in the `upper` half there, for quad `q`.
+impl<V: Lanes> Frame<V> {
+    const EMPTY: Self = Frame { t0: [V::ZERO_GROUPS; 3], tm: [V::ZERO_GROUPS; 3], t1: [V::ZERO_GROUPS; 3] };
+
+    /// Entry and exit planes on axis `a` of the child in the `upper` half there, for group `q`.
     #[inline(always)]
-    fn child(&self, a: usize, upper: bool, q: usize) -> (f32x4, f32x4) {
+    fn child(&self, a: usize, upper: bool, q: usize) -> (V, V) {
         if upper {
             (self.tm[a][q], self.t1[a][q])
         } else {
@@ -77,46 +82,104 @@ impl Frame {
         }
     }
 
-    /// Entry and exit planes per axis of child `c` for the ray in lane `l` of quad `q`.
+    /// Entry and exit planes per axis of child `c` for the ray in lane `l` of group `q`.
     #[inline(always)]
     fn lane_child(&self, c: u32, q: usize, l: usize) -> ([f32; 3], [f32; 3]) {
         let mut t0 = [0f32; 3];
         let mut t1 = [0f32; 3];
         for a in 0..3 {
             let (a0, a1) = self.child(a, c & (1 << a) != 0, q);
-            t0[a] = lane(a0, l);
-            t1[a] = lane(a1, l);
+            t0[a] = a0.lane(l);
+            t1[a] = a1.lane(l);
         }
         (t0, t1)
     }
 }
 
-const EMPTY: Frame =
-    Frame { t0: [[f32x4::ZERO; QUADS]; 3], tm: [[f32x4::ZERO; QUADS]; 3], t1: [[f32x4::ZERO; QUADS]; 3] };
+/// One [`Frame`] per level.
+type Frames<V> = [Frame<V>; MAX_DEPTH as usize + 1];
 
 /// Reusable memory for tracing packets (about 50 KB: one [`Frame`] per level); make one per
-/// thread and pass it to every [`trace_packet`].
+/// thread and pass it to every [`trace_packet`]. It also fixes the vector width: eight lanes
+/// where the CPU has AVX, else four.
 pub struct PacketStack {
-    frames: Box<[Frame; MAX_DEPTH as usize + 1]>,
+    frames: StackFrames,
+}
+
+enum StackFrames {
+    Four(Box<Frames<f32x4>>),
+    #[cfg(target_arch = "x86_64")]
+    Eight(Box<Frames<Avx8>>),
 }
 
 impl Default for PacketStack {
     fn default() -> Self {
-        PacketStack { frames: Box::new([EMPTY; MAX_DEPTH as usize + 1]) }
+        #[cfg(target_arch = "x86_64")]
+        if avx8_supported() {
+            return PacketStack { frames: StackFrames::Eight(Box::new([Frame::EMPTY; MAX_DEPTH as usize + 1])) };
+        }
+        PacketStack::four_lanes()
+    }
+}
+
+impl PacketStack {
+    /// A stack for packets tested four lanes at a time, whatever the CPU has (the answers are
+    /// the same; tests use it to cover both widths).
+    pub(crate) fn four_lanes() -> Self {
+        PacketStack { frames: StackFrames::Four(Box::new([Frame::EMPTY; MAX_DEPTH as usize + 1])) }
+    }
+}
+
+/// A packet's kernel, compiled for the instructions of its vector type: the tree walk and
+/// the pass's set-up run inside it. Recursion goes through [`Kernel::visit`], so every level
+/// runs compiled for the same instructions.
+trait Kernel: Lanes {
+    /// [`Pass::visit_body`].
+    ///
+    /// # Safety
+    /// The CPU runs the vector type's instructions.
+    unsafe fn visit(pass: &mut Pass<'_, Self>, level: usize, node: usize, coord: [u32; 3], lanes: u64);
+    /// [`Pass::run_body`].
+    ///
+    /// # Safety
+    /// As for [`Kernel::visit`].
+    unsafe fn run(pass: &mut Pass<'_, Self>, lanes: u64);
+}
+
+impl Kernel for f32x4 {
+    unsafe fn visit(pass: &mut Pass<'_, Self>, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
+        pass.visit_body(level, node, coord, lanes)
+    }
+    unsafe fn run(pass: &mut Pass<'_, Self>, lanes: u64) {
+        pass.run_body(lanes)
+    }
+}
+
+// AVX for the vectors; the bit-manipulation instructions of the same generation for the
+// lane masks (no FMA: a fused multiply-add would round differently from the four-lane code).
+#[cfg(target_arch = "x86_64")]
+impl Kernel for Avx8 {
+    #[target_feature(enable = "avx,avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn visit(pass: &mut Pass<'_, Self>, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
+        pass.visit_body(level, node, coord, lanes)
+    }
+    #[target_feature(enable = "avx,avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn run(pass: &mut Pass<'_, Self>, lanes: u64) {
+        pass.run_body(lanes)
     }
 }
 
 /// The rays of one pass over the tree (one mirror value).
-struct Pass<'a> {
+struct Pass<'a, V: Lanes> {
     svo: &'a Svo,
     rays: &'a [Option<UnitRay>],
     opts: &'a [TraceOptions],
     out: &'a mut [Option<Hit>],
-    frames: &'a mut [Frame; MAX_DEPTH as usize + 1],
-    origin: Axes,
-    inv: Axes,
-    t_min: [f32x4; QUADS],
-    t_max: [f32x4; QUADS],
+    frames: &'a mut Frames<V>,
+    origin: Axes<V>,
+    inv: Axes<V>,
+    t_min: V::Groups,
+    t_max: V::Groups,
     mirror: u32,
     max_level: u32,
     /// Rays still without an answer.
@@ -127,18 +190,24 @@ struct Pass<'a> {
     attr_at: [u32; LANES],
 }
 
-/// Quads holding a ray of `lanes`: bit 4q set when quad q has one.
+/// Groups of `W` lanes holding a ray of `lanes`: bit `W·q` set when group q has one.
 #[inline(always)]
-fn quads_of(lanes: u64) -> u64 {
-    let x = lanes | (lanes >> 1);
-    (x | (x >> 2)) & 0x1111_1111_1111_1111
+fn groups_of<V: Lanes>(lanes: u64) -> u64 {
+    let mut x = lanes;
+    let mut s = 1;
+    while s < V::W {
+        x |= x >> s;
+        s *= 2;
+    }
+    // The lowest lane of every group.
+    x & (u64::MAX / ((1u64 << V::W) - 1))
 }
 
-/// The next quad of a [`quads_of`] mask, removed from it.
+/// The next group of a [`groups_of`] mask, removed from it.
 #[inline(always)]
-fn next_quad(quads: &mut u64) -> usize {
-    let q = quads.trailing_zeros() as usize / 4;
-    *quads &= *quads - 1;
+fn next_group<V: Lanes>(groups: &mut u64) -> usize {
+    let q = groups.trailing_zeros() as usize / V::W;
+    *groups &= *groups - 1;
     q
 }
 
@@ -156,15 +225,11 @@ fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
-#[inline(always)]
-fn lane(v: f32x4, k: usize) -> f32 {
-    v.to_array()[k]
-}
-
-impl Pass<'_> {
+impl<V: Kernel> Pass<'_, V> {
     /// Visits the children of `node` (level `level`, mirrored coordinates `coord`) for the rays
     /// `lanes`, whose t-values for the node are `frames[level]`.
-    fn visit(&mut self, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
+    #[inline(always)]
+    fn visit_body(&mut self, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
         // Occupied children in mirrored numbering (bit c: octant c ^ mirror holds geometry).
         let occupied = MIRRORED[self.mirror as usize][self.svo.masks[node] as usize] as u32;
         let crossed = self.crossed(level, lanes, occupied);
@@ -194,18 +259,19 @@ impl Pass<'_> {
             }
             let (lo, hi) = self.frames.split_at_mut(level + 1);
             let (f, g) = (&lo[level], &mut hi[0]);
-            let mut quads = quads_of(crossed);
+            let mut quads = groups_of::<V>(crossed);
             while quads != 0 {
-                let q = next_quad(&mut quads);
+                let q = next_group::<V>(&mut quads);
                 for (a, up) in [up_x, up_y, up_z].into_iter().enumerate() {
                     let (t0, t1) = f.child(a, up, q);
                     g.t0[a][q] = t0;
                     g.t1[a][q] = t1;
                     // Revelles §3.1: the midplanes halfway in t (as the scalar loop).
-                    g.tm[a][q] = (t0 + t1) * f32x4::splat(0.5);
+                    g.tm[a][q] = (t0 + t1) * V::splat(0.5);
                 }
             }
-            self.visit(level + 1, self.svo.child_node(node, octant), cc, crossed);
+            // SAFETY: this runs inside `V::visit` or `V::run`, so the CPU has V's instructions.
+            unsafe { V::visit(self, level + 1, self.svo.child_node(node, octant), cc, crossed) };
         }
     }
 
@@ -223,9 +289,9 @@ impl Pass<'_> {
     fn crossed(&self, level: usize, lanes: u64, occupied: u32) -> [u64; 8] {
         let f = &self.frames[level];
         let mut crossed = [0u64; 8];
-        let mut quads = quads_of(lanes);
+        let mut quads = groups_of::<V>(lanes);
         while quads != 0 {
-            let q = next_quad(&mut quads);
+            let q = next_group::<V>(&mut quads);
             let (x0, xm, x1) = (f.t0[0][q], f.tm[0][q], f.t1[0][q]);
             let (y0, ym, y1) = (f.t0[1][q], f.tm[1][q], f.t1[1][q]);
             let (z0, zm, z1) = (f.t0[2][q], f.tm[2][q], f.t1[2][q]);
@@ -240,7 +306,7 @@ impl Pass<'_> {
                 }
                 let te = entry_xy[c & 3].fast_max(entry_z[c >> 2]);
                 let tx = exit_xy[c & 3].fast_min(exit_z[c >> 2]);
-                *out |= (te.simd_le(tx).to_bitmask() as u64) << (4 * q);
+                *out |= te.le_bits(tx) << (V::W * q);
             }
         }
         crossed
@@ -250,15 +316,16 @@ impl Pass<'_> {
     /// from its t-values there, as a packet of one ([`walk_alone`]): a leaf of non-zero
     /// length it reaches is the answer (see the module notes); a ray that leaves the child
     /// stays in the packet.
+    #[inline(always)]
     fn solo(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
         let child = self.svo.child_node(node, c ^ self.mirror);
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
             let Some(ray) = self.rays[k].as_ref() else { continue };
-            let (q, l) = (k / 4, k % 4);
+            let (q, l) = (k / V::W, k % V::W);
             let (t0, t1) = self.frames[level].lane_child(c, q, l);
-            let (t_min, t_max) = (lane(self.t_min[q], l), lane(self.t_max[q], l));
+            let (t_min, t_max) = (self.t_min[q].lane(l), self.t_max[q].lane(l));
             let start = Below::new(level as u32 + 1, child, cc, t0, t1);
             let answer = match walk_alone(self.svo, self.mirror, start, t_min, t_max, self.max_level) {
                 Walk::Left => continue,
@@ -285,17 +352,18 @@ impl Pass<'_> {
     }
 
     /// Reports child `c` of `node` as the hit of the rays `lanes`.
+    #[inline(always)]
     fn hits(&mut self, level: usize, node: usize, c: u32, cc: [u32; 3], mut lanes: u64) {
         let attr = self.svo.child_attr_index(node, c ^ self.mirror) as u32;
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
             self.active &= !(1 << k);
-            let (q, l) = (k / 4, k % 4);
+            let (q, l) = (k / V::W, k % V::W);
             let (ct0, ct1) = self.frames[level].lane_child(c, q, l);
             let te = ct0[0].max(ct0[1]).max(ct0[2]);
             let tx = ct1[0].min(ct1[1]).min(ct1[2]);
-            let t_min = lane(self.t_min[q], l);
+            let t_min = self.t_min[q].lane(l);
             let Some(ray) = self.rays[k].as_ref() else { continue };
             self.out[k] = if te.max(t_min) == tx {
                 // Zero length: Revelles' chain may pass this leaf by (see the module notes).
@@ -455,71 +523,99 @@ fn run_pass(
     stack: &mut PacketStack,
     out: &mut [Option<Hit>],
 ) {
+    match &mut stack.frames {
+        StackFrames::Four(frames) => run_with(svo, rays, opts, lanes, mirror, max_level, frames, out),
+        #[cfg(target_arch = "x86_64")]
+        StackFrames::Eight(frames) => run_with(svo, rays, opts, lanes, mirror, max_level, frames, out),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_with<V: Kernel>(
+    svo: &Svo,
+    rays: &[Option<UnitRay>],
+    opts: &[TraceOptions],
+    lanes: u64,
+    mirror: u32,
+    max_level: u32,
+    frames: &mut Frames<V>,
+    out: &mut [Option<Hit>],
+) {
     let mut pass = Pass {
         svo,
         rays,
         opts,
         out,
-        frames: &mut stack.frames,
-        origin: [[f32x4::ZERO; QUADS]; 3],
-        inv: [[f32x4::ZERO; QUADS]; 3],
-        t_min: [f32x4::ZERO; QUADS],
-        t_max: [f32x4::ZERO; QUADS],
+        frames,
+        origin: [V::ZERO_GROUPS; 3],
+        inv: [V::ZERO_GROUPS; 3],
+        t_min: V::ZERO_GROUPS,
+        t_max: V::ZERO_GROUPS,
         mirror,
         max_level,
         active: 0,
         pending: 0,
         attr_at: [0; LANES],
     };
-    let set = |v: &mut f32x4, j: usize, x: f32| bytemuck::cast_mut::<f32x4, [f32; 4]>(v)[j] = x;
-    let mut l = lanes;
-    let mut live = 0u64;
-    while l != 0 {
-        let k = l.trailing_zeros() as usize;
-        l &= l - 1;
-        let Some(r) = rays[k].as_ref() else { continue };
-        let (q, j) = (k / 4, k % 4);
-        // As the scalar loop: t range in internal units, empty ranges miss.
-        let (lo, hi) = (r.to_internal(opts[k].t_min.max(f32::MIN)), r.to_internal(opts[k].t_max));
-        if !(lo <= hi) {
-            continue;
-        }
-        for a in 0..3 {
-            set(&mut pass.origin[a][q], j, r.origin[a]);
-            set(&mut pass.inv[a][q], j, r.inv_dir[a]);
-        }
-        set(&mut pass.t_min[q], j, lo);
-        set(&mut pass.t_max[q], j, hi);
-        live |= 1 << k;
-    }
-    // The root's planes as the scalar loop computes them: (p − o)·inv at p = 0, ½, 1.
-    let mut entered = 0u64;
-    let mut quads = quads_of(live);
-    while quads != 0 {
-        let q = next_quad(&mut quads);
-        let f = &mut pass.frames[0];
-        for a in 0..3 {
-            let (o, i) = (pass.origin[a][q], pass.inv[a][q]);
-            f.t0[a][q] = (f32x4::ZERO - o) * i;
-            f.tm[a][q] = (f32x4::splat(0.5) - o) * i;
-            f.t1[a][q] = (f32x4::ONE - o) * i;
-        }
-        let te = f.t0[0][q].fast_max(f.t0[1][q]).fast_max(f.t0[2][q]);
-        let tx = f.t1[0][q].fast_min(f.t1[1][q]).fast_min(f.t1[2][q]);
-        let ok = te.simd_le(tx) & pass.t_min[q].simd_le(tx) & te.simd_le(pass.t_max[q]);
-        entered |= (ok.to_bitmask() as u64) << (4 * q);
-    }
-    entered &= live;
-    pass.active = entered;
-    if entered != 0 {
-        pass.visit(0, 0, [0; 3], entered);
-    }
+    // SAFETY: a stack holds frames of a vector type only where the CPU runs its instructions
+    // (`PacketStack::default`; four lanes are x86-64's baseline).
+    unsafe { V::run(&mut pass, lanes) };
     let mut l = pass.pending;
     while l != 0 {
         let k = l.trailing_zeros() as usize;
         l &= l - 1;
         if let Some(hit) = pass.out[k].as_mut() {
             hit.attr = svo.attrs[pass.attr_at[k] as usize];
+        }
+    }
+}
+
+impl<V: Kernel> Pass<'_, V> {
+    /// Loads the rays of `lanes` into the pass's vectors and walks the tree from the root.
+    #[inline(always)]
+    fn run_body(&mut self, lanes: u64) {
+        let (rays, opts) = (self.rays, self.opts);
+        let mut l = lanes;
+        let mut live = 0u64;
+        while l != 0 {
+            let k = l.trailing_zeros() as usize;
+            l &= l - 1;
+            let Some(r) = rays[k].as_ref() else { continue };
+            let (q, j) = (k / V::W, k % V::W);
+            // As the scalar loop: t range in internal units, empty ranges miss.
+            let (lo, hi) = (r.to_internal(opts[k].t_min.max(f32::MIN)), r.to_internal(opts[k].t_max));
+            if !(lo <= hi) {
+                continue;
+            }
+            for a in 0..3 {
+                self.origin[a][q].set_lane(j, r.origin[a]);
+                self.inv[a][q].set_lane(j, r.inv_dir[a]);
+            }
+            self.t_min[q].set_lane(j, lo);
+            self.t_max[q].set_lane(j, hi);
+            live |= 1 << k;
+        }
+        // The root's planes as the scalar loop computes them: (p − o)·inv at p = 0, ½, 1.
+        let mut entered = 0u64;
+        let mut groups = groups_of::<V>(live);
+        while groups != 0 {
+            let q = next_group::<V>(&mut groups);
+            let f = &mut self.frames[0];
+            for a in 0..3 {
+                let (o, i) = (self.origin[a][q], self.inv[a][q]);
+                f.t0[a][q] = (V::splat(0.0) - o) * i;
+                f.tm[a][q] = (V::splat(0.5) - o) * i;
+                f.t1[a][q] = (V::splat(1.0) - o) * i;
+            }
+            let te = f.t0[0][q].fast_max(f.t0[1][q]).fast_max(f.t0[2][q]);
+            let tx = f.t1[0][q].fast_min(f.t1[1][q]).fast_min(f.t1[2][q]);
+            let ok = te.le_bits(tx) & self.t_min[q].le_bits(tx) & te.le_bits(self.t_max[q]);
+            entered |= ok << (V::W * q);
+        }
+        entered &= live;
+        self.active = entered;
+        if entered != 0 {
+            self.visit_body(0, 0, [0; 3], entered);
         }
     }
 }
@@ -560,9 +656,15 @@ mod tests {
     }
 
     /// Traces `rays` in packets of 64 and one by one; returns how many answers differ (and the
-    /// first that does).
+    /// first that does). Packets are traced at both vector widths: the CPU's (eight lanes
+    /// where it has AVX) and four.
     fn differences(case: &Case, rays: &[CaseRay]) -> (usize, Option<String>) {
-        let mut stack = PacketStack::default();
+        let (n, first) = differences_with(case, rays, PacketStack::default());
+        let (m, other) = differences_with(case, rays, PacketStack::four_lanes());
+        (n + m, first.or(other))
+    }
+
+    fn differences_with(case: &Case, rays: &[CaseRay], mut stack: PacketStack) -> (usize, Option<String>) {
         let (mut n, mut first) = (0, None);
         for chunk in rays.chunks(LANES) {
             let units: Vec<_> =
