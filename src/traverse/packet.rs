@@ -2,9 +2,10 @@
 //! with the answers of [`super::trace_unit`] bit for bit.
 //!
 //! The packet walks the tree depth first and tests eight rays at a time (AVX lanes; four,
-//! SSE, on CPUs without AVX: `traverse::lanes`) against each occupied child; a node is entered when any of its rays crosses it, and each ray's
-//! t-values come from Revelles' halving exactly as in the scalar loop, so a node's t-values
-//! for a ray do not depend on which other rays share its packet.
+//! SSE, on CPUs without AVX: `traverse::lanes`) against each occupied child; a node is
+//! entered when any of its rays crosses it, and each ray's t-values come from Revelles'
+//! halving exactly as in the scalar loop, so a node's t-values for a ray do not depend on
+//! which other rays share its packet.
 //!
 //! Why the answers are the scalar ones. All rays of a packet share the mirror bits, so in
 //! mirrored space every direction component is positive and a ray can only pass from child
