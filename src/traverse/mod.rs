@@ -413,10 +413,27 @@ fn walk<const PAR: bool>(
     }
 }
 
+/// [`finish`] with default attributes, written into `out` in place. Returned, the hit was
+/// copied from the stack into the packet's answers by wide loads that waited on `finish`'s
+/// narrower stores (a store-forwarding stall on every hit; docs/benchmarks.md, step 47).
+#[inline(never)]
+pub(crate) fn finish_into(
+    out: &mut Option<Hit>,
+    ray: &UnitRay,
+    te: f32,
+    t_min: f32,
+    level: u32,
+    coord: [u32; 3],
+    ct0: [f32; 3],
+) {
+    *out = finish(ray, te, t_min, level, coord, Attr::default(), ct0);
+}
+
 /// Converts a mirrored-space hit back to object space. `te` is the voxel's entry t from the
 /// traversal's f32 arithmetic (it decides whether the ray started inside); the reported t is
 /// recomputed in f64 from the unrounded ray and the voxel's own entry planes, so neither the
 /// midpoint recursion nor rounding the origin to f32 shows in it.
+#[inline(always)]
 fn finish(ray: &UnitRay, te: f32, t_min: f32, level: u32, coord: [u32; 3], attr: Attr, ct0: [f32; 3]) -> Option<Hit> {
     let inv_size = 1.0 / (1u64 << level) as f64;
     let mut t_entry = f64::NEG_INFINITY;

@@ -23,7 +23,7 @@
 use super::lanes::Lanes;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{avx8_supported, Avx8};
-use super::{finish, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, TraceOptions, Walk};
+use super::{finish, finish_into, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, TraceOptions, Walk};
 use crate::ray::UnitRay;
 use crate::svo::{Attr, Svo, MAX_DEPTH};
 use glam::{Vec3A, Vec4};
@@ -366,13 +366,13 @@ impl<V: Kernel> Pass<'_, V> {
             let tx = ct1[0].min(ct1[1]).min(ct1[2]);
             let t_min = self.t_min[q].lane(l);
             let Some(ray) = self.rays[k].as_ref() else { continue };
-            self.out[k] = if te.max(t_min) == tx {
+            if te.max(t_min) == tx {
                 // Zero length: Revelles' chain may pass this leaf by (see the module notes).
-                trace_unit(self.svo, ray, &self.opts[k]).hit
+                self.out[k] = trace_unit(self.svo, ray, &self.opts[k]).hit;
             } else {
                 self.defer_attr(k, attr);
-                finish(ray, te, t_min, level as u32 + 1, cc, Attr::default(), ct0)
-            };
+                finish_into(&mut self.out[k], ray, te, t_min, level as u32 + 1, cc, ct0);
+            }
         }
     }
 }
