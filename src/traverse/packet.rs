@@ -25,7 +25,7 @@ use super::lanes::Lanes;
 use super::lanes::{avx8_supported, Avx8};
 use super::{finish, finish_into, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, TraceOptions, Walk};
 use crate::ray::UnitRay;
-use crate::svo::{Attr, Svo, MAX_DEPTH};
+use crate::svo::{Svo, MAX_DEPTH};
 use glam::{Vec3A, Vec4};
 use wide::f32x4;
 
@@ -328,19 +328,20 @@ impl<V: Kernel> Pass<'_, V> {
             let (t0, t1) = self.frames[level].lane_child(c, q, l);
             let (t_min, t_max) = (self.t_min[q].lane(l), self.t_max[q].lane(l));
             let start = Below::new(level as u32 + 1, child, cc, t0, t1);
-            let answer = match walk_alone(self.svo, self.mirror, start, t_min, t_max, self.max_level) {
+            match walk_alone(self.svo, self.mirror, start, t_min, t_max, self.max_level) {
                 Walk::Left => continue,
                 // Zero length: the chain from the root may not enter this child at all.
-                Walk::Reached(r) if r.te.max(t_min) == r.tx => trace_unit(self.svo, ray, &self.opts[k]).hit,
+                Walk::Reached(r) if r.te.max(t_min) == r.tx => {
+                    self.out[k] = trace_unit(self.svo, ray, &self.opts[k]).hit
+                }
                 Walk::Reached(r) => {
                     self.defer_attr(k, r.attr as u32);
-                    finish(ray, r.te, t_min, r.level, r.coord, Attr::default(), r.ct0.to_array())
+                    finish_into(&mut self.out[k], ray, r.te, t_min, r.level, r.coord, r.ct0.to_array());
                 }
                 // (Not returned by `walk_alone`, whose stack is bounded by the depth.)
-                Walk::Aborted => trace_unit(self.svo, ray, &self.opts[k]).hit,
-            };
+                Walk::Aborted => self.out[k] = trace_unit(self.svo, ray, &self.opts[k]).hit,
+            }
             self.active &= !(1 << k);
-            self.out[k] = answer;
         }
     }
 
