@@ -510,30 +510,17 @@ pub fn trace_packet(
             }
         }
         todo &= !pass_lanes;
-        run_pass(svo, rays, opts, pass_lanes, mirror, max_level, stack, out);
+        // The stack's frames fix the vector width.
+        match &mut stack.frames {
+            StackFrames::Four(frames) => run_pass(svo, rays, opts, pass_lanes, mirror, max_level, frames, out),
+            #[cfg(target_arch = "x86_64")]
+            StackFrames::Eight(frames) => run_pass(svo, rays, opts, pass_lanes, mirror, max_level, frames, out),
+        }
     }
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_pass(
-    svo: &Svo,
-    rays: &[Option<UnitRay>],
-    opts: &[TraceOptions],
-    lanes: u64,
-    mirror: u32,
-    max_level: u32,
-    stack: &mut PacketStack,
-    out: &mut [Option<Hit>],
-) {
-    match &mut stack.frames {
-        StackFrames::Four(frames) => run_with(svo, rays, opts, lanes, mirror, max_level, frames, out),
-        #[cfg(target_arch = "x86_64")]
-        StackFrames::Eight(frames) => run_with(svo, rays, opts, lanes, mirror, max_level, frames, out),
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn run_with<V: Kernel>(
+fn run_pass<V: Kernel>(
     svo: &Svo,
     rays: &[Option<UnitRay>],
     opts: &[TraceOptions],
