@@ -72,7 +72,8 @@ impl Lanes for f32x4 {
 pub(crate) struct Avx8(std::arch::x86_64::__m256);
 
 /// Whether this CPU runs the eight-lane packet: AVX, and the bit instructions of the same
-/// generation that its function attributes enable.
+/// generation that its function attributes enable (the `target_feature` lists of
+/// `Kernel for Avx8` in `traverse::packet` must name no feature that is not checked here).
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn avx8_supported() -> bool {
     std::arch::is_x86_feature_detected!("avx")
@@ -172,7 +173,9 @@ mod tests {
                 pairs.push((a, b));
             }
         }
-        for chunk in pairs.chunks(8).filter(|c| c.len() == 8) {
+        // Whole vectors: the last one padded with zeros.
+        pairs.resize(pairs.len().div_ceil(8) * 8, (0.0, 0.0));
+        for chunk in pairs.chunks(8) {
             let (mut a8, mut b8) = (Avx8::splat(0.0), Avx8::splat(0.0));
             let (mut a4, mut b4) = ([f32x4::ZERO; 2], [f32x4::ZERO; 2]);
             for (k, &(a, b)) in chunk.iter().enumerate() {

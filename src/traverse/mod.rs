@@ -417,15 +417,7 @@ fn walk<const PAR: bool>(
 /// copied from the stack into the packet's answers by wide loads that waited on `finish`'s
 /// narrower stores (a store-forwarding stall on every hit; docs/benchmarks.md, step 47).
 #[inline(never)]
-pub(crate) fn finish_into(
-    out: &mut Option<Hit>,
-    ray: &UnitRay,
-    te: f32,
-    t_min: f32,
-    level: u32,
-    coord: [u32; 3],
-    ct0: [f32; 3],
-) {
+fn finish_into(out: &mut Option<Hit>, ray: &UnitRay, te: f32, t_min: f32, level: u32, coord: [u32; 3], ct0: [f32; 3]) {
     *out = finish(ray, te, t_min, level, coord, Attr::default(), ct0);
 }
 
