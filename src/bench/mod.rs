@@ -16,8 +16,8 @@ pub mod chart;
 pub mod peers;
 
 use crate::render::{Features, Frame, FramePlan, RenderOptions};
-use crate::scene::car::{pose_all, Car};
-use crate::scene::{Camera, Lights, Scene};
+use crate::scene::car::{pose_seen, Car};
+use crate::scene::{Camera, FrameRays, Lights, Scene, Sight};
 use crate::session::Session;
 use std::time::Instant;
 
@@ -171,30 +171,37 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
     let gpu = session.backend().kind_name() == "gpu";
     let picture_at = if gpu { clip.warmup.saturating_sub(1) } else { clip.warmup };
     session.set_counting(gpu);
+    // Only the cars some ray of the frame can reach are posed (as the demo and `render` do),
+    // unless the switches say otherwise or a scene file's clip moves too.
+    let opts = RenderOptions {
+        max_level: clip.lod,
+        renderer: clip.renderer,
+        splat_draw: clip.splat_draw,
+        ..Default::default()
+    };
+    let sight = if clip.features.pose_seen && clip.animated.is_none() && !clip.cars.is_empty() {
+        let rays = FrameRays::of(clip.scene, &clip.features, session.gi().is_some(), &opts);
+        let surfaces = crate::scene::stage::surfaces(clip.scene, clip.cars, clip.lod)?;
+        Sight::new(clip.camera, clip.lights, rays, surfaces).ok()
+    } else {
+        None
+    };
+    let radii = match &sight {
+        Some(_) => crate::scene::car::car_radii(clip.scene, clip.cars, clip.lod)?,
+        None => Vec::new(),
+    };
     for f in 0..clip.warmup + frames {
         session.set_read_back(!gpu || f == picture_at);
         let start = Instant::now();
         // Warm-up frames replay the first timed frame's time, so the first timed frame is the
         // same picture whatever the warm-up (the depth sweep compares it with a reference).
         let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
-        pose_all(clip.scene, clip.cars, t)?;
+        pose_seen(clip.scene, clip.cars, &radii, t, sight.as_ref())?;
         if let Some(a) = clip.animated {
             a.rig.pose(clip.scene, a.clip, t)?;
         }
         clip.scene.update()?;
-        let report = session.frame(
-            clip.scene,
-            clip.camera,
-            clip.lights,
-            &clip.features,
-            &RenderOptions {
-                max_level: clip.lod,
-                renderer: clip.renderer,
-                splat_draw: clip.splat_draw,
-                ..Default::default()
-            },
-            &|_, _| {},
-        )?;
+        let report = session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})?;
         let secs = start.elapsed().as_secs_f64();
         if f >= clip.warmup {
             if let Some((tr, sh)) = session.backend().pass_times() {

@@ -27,6 +27,10 @@ pub struct Features {
     /// Beams: primary rays start where their tile's cone first meets each instance.
     #[cfg_attr(feature = "json", serde(default = "yes"))]
     pub beams: bool,
+    /// Pose only the cars some ray of the frame can reach ([`crate::scene::car::pose_seen`];
+    /// the callers that pose cars read it, the plan does not).
+    #[cfg_attr(feature = "json", serde(default = "yes"))]
+    pub pose_seen: bool,
 }
 
 #[cfg(feature = "json")]
@@ -36,14 +40,21 @@ fn yes() -> bool {
 
 impl Default for Features {
     fn default() -> Self {
-        Features { cull: true, sort: true, bvh: true, hit_buffer: true, shadows: true, beams: true }
+        Features { cull: true, sort: true, bvh: true, hit_buffer: true, shadows: true, beams: true, pose_seen: true }
     }
 }
 
 impl Features {
     /// Everything off: the plain oracle path.
-    pub const NONE: Features =
-        Features { cull: false, sort: false, bvh: false, hit_buffer: false, shadows: false, beams: false };
+    pub const NONE: Features = Features {
+        cull: false,
+        sort: false,
+        bvh: false,
+        hit_buffer: false,
+        shadows: false,
+        beams: false,
+        pose_seen: false,
+    };
 
     /// The same switches with shadow rays on (the oracle path of a lit image).
     pub fn with_shadows(self) -> Features {

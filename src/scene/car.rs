@@ -250,6 +250,148 @@ pub fn pose_all(scene: &mut Scene, cars: &[Car], t: f64) -> Result<(), SceneErro
     scene.set_locals_from(cars.len(), |k| car_pose(&cars[k], t))
 }
 
+/// Where a car's body origin is at time t (the translation of its body's world transform,
+/// as [`car_pose`] places it), without the rest of the pose.
+pub fn body_origin(car: &Car, t: f64) -> DVec3 {
+    if !car.travel {
+        return car.origin;
+    }
+    // As drive_state forms the path parameter.
+    let t = t + car.phase;
+    let laps = (t / PATH_PERIOD).floor();
+    let s = (t - laps * PATH_PERIOD) * TAU / PATH_PERIOD;
+    path(s).0 + car.origin
+}
+
+/// The radius of a sphere about a car's body origin that holds its eight parts' occupied
+/// cells at `max_level` (what rays at that level of detail can hit) in every pose: each
+/// child turns about its pivot, so its points stay within |pivot| + (their farthest
+/// distance from the pivot) of the body's origin.
+pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> f64 {
+    let r = rig();
+    let ids = [
+        car.body,
+        car.wheels[0],
+        car.wheels[1],
+        car.wheels[2],
+        car.wheels[3],
+        car.doors[0],
+        car.doors[1],
+        car.steering,
+    ];
+    let mut radius: f64 = 0.0;
+    for (k, &i) in ids.iter().enumerate() {
+        let part = &scene.parts[scene.instances()[i].part];
+        let (lo, hi) = part.occupied_box(max_level);
+        // The body does not turn relative to itself: its pivot is its origin.
+        let pivot = if k == 0 { DVec3::ZERO } else { r[k].0.as_dvec3() };
+        let far = (0..8)
+            .map(|c| {
+                let corner = DVec3::new(
+                    if c & 1 == 0 { lo.x } else { hi.x },
+                    if c & 2 == 0 { lo.y } else { hi.y },
+                    if c & 4 == 0 { lo.z } else { hi.z },
+                );
+                (corner - pivot).length()
+            })
+            .fold(0.0, f64::max);
+        radius = radius.max(pivot.length() + far);
+    }
+    radius
+}
+
+/// The parts of a car's eight instances (None: an instance is missing).
+fn car_parts(scene: &Scene, car: &Car) -> Option<[usize; 8]> {
+    let inst = scene.instances();
+    let ids = [
+        car.body,
+        car.wheels[0],
+        car.wheels[1],
+        car.wheels[2],
+        car.wheels[3],
+        car.doors[0],
+        car.doors[1],
+        car.steering,
+    ];
+    let mut out = [0; 8];
+    for (o, i) in out.iter_mut().zip(ids) {
+        *o = inst.get(i)?.part;
+    }
+    Some(out)
+}
+
+/// [`car_radius`] of each car, computed once per set of parts the cars share.
+pub fn car_radii(scene: &Scene, cars: &[Car], max_level: u32) -> Result<Vec<f64>, SceneError> {
+    let mut radii: Vec<([usize; 8], f64)> = Vec::new();
+    let mut out = Vec::with_capacity(cars.len());
+    for car in cars {
+        let key = car_parts(scene, car).ok_or(SceneError::Instance(car.body))?;
+        let r = match radii.iter().find(|(k, _)| *k == key) {
+            Some(&(_, r)) => r,
+            None => {
+                let r = car_radius(scene, car, max_level);
+                radii.push((key, r));
+                r
+            }
+        };
+        out.push(r);
+    }
+    Ok(out)
+}
+
+/// A box holding every car at every time of its clip, as far as rays at `max_level` can
+/// hit it: each body origin's figure-eight grown by [`car_radius`].
+pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, DVec3), SceneError> {
+    let radii = car_radii(scene, cars, max_level)?;
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for (car, r) in cars.iter().zip(radii) {
+        let path = if car.travel { DVec3::new(PATH_A, 0.0, 0.5 * PATH_A) } else { DVec3::ZERO };
+        lo = lo.min(car.origin - path - DVec3::splat(r));
+        hi = hi.max(car.origin + path + DVec3::splat(r));
+    }
+    Ok((lo, hi))
+}
+
+/// Poses at time t only the cars that some ray of the frame `sight` describes can reach, in
+/// their new pose or in the one they were last given (None: every car), and returns how
+/// many were posed. A car left out is not reached in either pose, so the frame's picture is
+/// the one [`pose_all`] would give; it is posed again in the first frame that can see it.
+/// `radii`: each car's [`car_radius`] at the frame's level of detail ([`car_radii`]; the
+/// scene's parts as they are now).
+pub fn pose_seen(
+    scene: &mut Scene,
+    cars: &[Car],
+    radii: &[f64],
+    t: f64,
+    sight: Option<&super::sight::Sight>,
+) -> Result<usize, SceneError> {
+    let Some(sight) = sight else {
+        pose_all(scene, cars, t)?;
+        return Ok(cars.len());
+    };
+    if radii.len() != cars.len() {
+        pose_all(scene, cars, t)?;
+        return Ok(cars.len());
+    }
+    let scene_ref = &*scene;
+    let seen = |k: usize| {
+        let car = &cars[k];
+        let r = radii[k];
+        // A missing body: posing reports it.
+        let Some(old) = scene_ref.worlds().get(car.body) else { return true };
+        sight.reaches(body_origin(car, t), r) || sight.reaches(old.translation, r)
+    };
+    #[cfg(feature = "parallel")]
+    let list: Vec<usize> = {
+        use rayon::prelude::*;
+        (0..cars.len()).into_par_iter().with_min_len(256).filter(|&k| seen(k)).collect()
+    };
+    #[cfg(not(feature = "parallel"))]
+    let list: Vec<usize> = (0..cars.len()).filter(|&k| seen(k)).collect();
+    scene.set_locals_from(list.len(), |k| car_pose(&cars[list[k]], t))?;
+    Ok(list.len())
+}
+
 /// Where `n` cars go: a grid of figure-eights, each with its own time offset.
 pub fn layout(n: usize) -> Vec<(DVec3, f64)> {
     let k = (n as f64).sqrt().ceil().max(1.0) as usize;

@@ -47,6 +47,9 @@ pub struct Scene {
     /// Buffers kept between frames so that updating tens of thousands of instances does not
     /// allocate (and fault in fresh pages) every frame.
     scratch: Scratch,
+    /// Counts the edits of which part an instance places (adding one, or [`Scene::set_part`]),
+    /// so that what is derived from the instances' parts can be kept until they change.
+    part_edits: u64,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -118,6 +121,7 @@ impl Scene {
         self.instances.push(inst);
         self.world.push(DAffine3::IDENTITY);
         self.dirty.push(true);
+        self.part_edits += 1;
         Ok(self.instances.len() - 1)
     }
 
@@ -189,6 +193,7 @@ impl Scene {
         if inst.part != part {
             inst.part = part;
             self.dirty[i] = true;
+            self.part_edits += 1;
         }
         Ok(())
     }
@@ -286,6 +291,12 @@ impl Scene {
     /// All world transforms.
     pub fn worlds(&self) -> &[DAffine3] {
         &self.world
+    }
+
+    /// How many times an instance was added or given another part: equal counts mean every
+    /// instance places the same part as it did.
+    pub fn part_edits(&self) -> u64 {
+        self.part_edits
     }
 
     /// Whether any instance still has an unapplied local change.

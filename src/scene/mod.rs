@@ -6,11 +6,13 @@ pub mod car;
 pub mod ground;
 pub mod instances;
 pub mod lights;
+pub mod sight;
 pub mod stage;
 pub mod transform;
 
 pub use camera::{Camera, CameraError};
 pub use instances::{Instance, Scene, SceneError};
 pub use lights::{Ambient, Lights, LightsError, Sun};
+pub use sight::{FrameRays, Sight, Unbounded};
 pub use stage::{add_ground, stage_cars, Animated, Staged};
 pub use transform::{Transform, TransformError};

@@ -3,7 +3,8 @@
 //! re-stages when its car count changes) and the benchmark harness.
 
 use super::animation::Rig;
-use super::car::{add_car, clip_bounds, layout, pose_all, Car};
+use super::car::{add_car, car_radii, clip_bounds, layout, pose_all, pose_seen, reach_box, Car};
+use super::sight::Sight;
 use super::{ground, Instance, Scene, Transform};
 use crate::svo::Svo;
 use glam::DVec3;
@@ -19,6 +20,9 @@ pub struct Staged {
     pub bounds: (DVec3, DVec3),
     /// A scene file's node hierarchy and the clip it plays (None: nothing but the cars moves).
     pub animated: Option<Animated>,
+    /// The cars' radii for [`Staged::pose_seen`], with the scene's part edits and the level
+    /// of detail they were computed for.
+    radii: Option<(u64, u32, Vec<f64>)>,
 }
 
 /// A scene file's animation as staged: its rig (with the instances it made) and the clip
@@ -48,7 +52,7 @@ pub fn stage_cars(car_parts: &[Arc<Svo>], n: usize, travel: bool, with_ground: b
     if with_ground {
         add_ground(&mut scene, bounds)?;
     }
-    Ok(Staged { scene, cars, bounds, animated: None })
+    Ok(Staged::new(scene, cars, bounds, None))
 }
 
 /// Adds a checkered ground (1 m tiles, voxels of at least 5 cm) reaching 3 m beyond `bounds`
@@ -63,6 +67,11 @@ pub fn add_ground(scene: &mut Scene, bounds: (DVec3, DVec3)) -> Result<(), crate
 }
 
 impl Staged {
+    /// A staged scene from its parts.
+    pub fn new(scene: Scene, cars: Vec<Car>, bounds: (DVec3, DVec3), animated: Option<Animated>) -> Staged {
+        Staged { scene, cars, bounds, animated, radii: None }
+    }
+
     /// Poses everything that moves at scene time `t` (seconds): the cars and the scene file's
     /// clip. Call [`Scene::update`] afterwards.
     pub fn pose(&mut self, t: f64) -> Result<(), crate::Error> {
@@ -71,6 +80,31 @@ impl Staged {
             a.rig.pose(&mut self.scene, a.clip, t)?;
         }
         Ok(())
+    }
+
+    /// [`Staged::pose`] for the cars some ray of `sight` can reach in their new or their last
+    /// pose ([`super::car::pose_seen`]; None: every car); a scene file's clip is posed whole.
+    /// Returns how many cars were posed. `max_level`: the frame's level of detail.
+    pub fn pose_seen(&mut self, t: f64, sight: Option<&Sight>, max_level: u32) -> Result<usize, crate::Error> {
+        let edits = self.scene.part_edits();
+        let fresh =
+            self.radii.as_ref().is_some_and(|(e, l, r)| *e == edits && *l == max_level && r.len() == self.cars.len());
+        if !fresh && sight.is_some() {
+            self.radii = Some((edits, max_level, car_radii(&self.scene, &self.cars, max_level)?));
+        }
+        let radii = self.radii.as_ref().map_or(&[][..], |(_, _, r)| &r[..]);
+        let posed = pose_seen(&mut self.scene, &self.cars, radii, t, sight)?;
+        if let Some(a) = &self.animated {
+            a.rig.pose(&mut self.scene, a.clip, t)?;
+        }
+        Ok(posed)
+    }
+
+    /// A box holding every surface a ray at level of detail `max_level` can see at any time
+    /// of the clip: [`surfaces`] and [`Staged::bounds`].
+    pub fn surfaces(&self, max_level: u32) -> Result<(DVec3, DVec3), crate::Error> {
+        let (lo, hi) = surfaces(&self.scene, &self.cars, max_level)?;
+        Ok((lo.min(self.bounds.0), hi.max(self.bounds.1)))
     }
 
     /// Whether anything moves over time.
@@ -87,4 +121,36 @@ impl Staged {
             [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering]
         }))
     }
+}
+
+/// A box holding every surface a ray at level of detail `max_level` can see at any time of
+/// the cars' clip: the cars wherever they drive ([`super::car::reach_box`]) and the other
+/// instances' occupied cells as they are placed now (for a [`Sight`]).
+pub fn surfaces(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, DVec3), crate::Error> {
+    let mut of_car = vec![false; scene.instances().len()];
+    for c in cars {
+        for i in [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering] {
+            if let Some(slot) = of_car.get_mut(i) {
+                *slot = true;
+            }
+        }
+    }
+    // The other instances' occupied cells at the level, not their cubes (the ground's cube is
+    // as tall as it is wide).
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for i in (0..of_car.len()).filter(|&i| !of_car[i]) {
+        let (a, b) = scene.parts[scene.instances()[i].part].occupied_box(max_level);
+        for c in 0..8 {
+            let corner = DVec3::new(
+                if c & 1 == 0 { a.x } else { b.x },
+                if c & 2 == 0 { a.y } else { b.y },
+                if c & 4 == 0 { a.z } else { b.z },
+            );
+            let p = scene.world(i).transform_point3(corner);
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    let cars = reach_box(scene, cars, max_level)?;
+    Ok((cars.0.min(lo), cars.1.max(hi)))
 }

@@ -21,12 +21,6 @@ impl App {
         for c in &mut self.cars {
             c.travel = self.ui.travel;
         }
-        let other = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
-        pose_all(&mut self.scene, &self.cars, self.time).map_err(other)?;
-        if let Some(a) = &self.opts.animated {
-            a.rig.pose(&mut self.scene, a.clip, self.time).map_err(|e| ViewerError::Other(e.to_string()))?;
-        }
-        self.scene.update().map_err(other)?;
         let (w, h, panel) = match (&self.gfx, &self.soft) {
             (Some(g), _) => (g.config.width, g.config.height, self.panel_pixels(g)),
             (None, Some(s)) => {
@@ -57,6 +51,27 @@ impl App {
         let opts =
             RenderOptions { max_level: self.ui.lod, renderer, splat_draw: self.ui.splat_draw, ..Default::default() };
         let features = self.opts.features;
+        // Only the cars some ray of this frame can reach are posed (the picture is the same).
+        let sight = if features.pose_seen && self.opts.animated.is_none() && !self.cars.is_empty() {
+            let key = (self.scene.part_edits(), self.ui.lod, self.ui.travel, self.cars.len());
+            if self.seen.as_ref().is_none_or(|s| s.key != key) {
+                let radii = crate::scene::car::car_radii(&self.scene, &self.cars, self.ui.lod)
+                    .map_err(|e| ViewerError::Other(e.to_string()))?;
+                let surfaces = crate::scene::stage::surfaces(&self.scene, &self.cars, self.ui.lod).map_err(other)?;
+                self.seen = Some(Seen { key, radii, surfaces });
+            }
+            let rays = FrameRays::of(&self.scene, &features, session.gi().is_some(), &opts);
+            self.seen.as_ref().and_then(|s| Sight::new(&camera, &self.lights, rays, s.surfaces).ok())
+        } else {
+            None
+        };
+        let radii = self.seen.as_ref().map_or(&[][..], |s| &s.radii[..]);
+        let scene_error = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
+        pose_seen(&mut self.scene, &self.cars, radii, self.time, sight.as_ref()).map_err(scene_error)?;
+        if let Some(a) = &self.opts.animated {
+            a.rig.pose(&mut self.scene, a.clip, self.time).map_err(|e| ViewerError::Other(e.to_string()))?;
+        }
+        self.scene.update().map_err(scene_error)?;
         let report = match session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}) {
             Ok(r) => r,
             Err(e) if session.gi().is_some() => {

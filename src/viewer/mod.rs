@@ -13,8 +13,8 @@
 use crate::backend::{Backend, BackendKind};
 use crate::gpu::{GpuContext, GpuError};
 use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
-use crate::scene::car::{pose_all, Car};
-use crate::scene::{stage_cars, Camera, Lights, Scene, Staged};
+use crate::scene::car::{pose_seen, Car};
+use crate::scene::{stage_cars, Camera, FrameRays, Lights, Scene, Sight, Staged};
 use crate::session::Session;
 use crate::svo::Svo;
 use glam::{DQuat, DVec3};
@@ -163,6 +163,16 @@ struct App {
     times: Vec<f64>,
     want_screenshot: bool,
     ui: Ui,
+    /// What posing only the cars a frame can see needs.
+    seen: Option<Seen>,
+}
+
+/// The cars' radii and the box of visible surfaces, with what they were computed for.
+struct Seen {
+    /// Part edits, level of detail, travel, cars.
+    key: (u64, u32, bool, usize),
+    radii: Vec<f64>,
+    surfaces: (DVec3, DVec3),
 }
 
 impl App {
@@ -279,6 +289,7 @@ pub fn run(
             on_device: false,
             reset: false,
         },
+        seen: None,
     };
     app.ui.travel = app.cars.first().is_some_and(|c| c.travel);
     app.ui.gi_on = app.opts.gi;

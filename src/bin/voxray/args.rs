@@ -295,6 +295,10 @@ pub(crate) struct Switches {
     /// meets each instance; the image is the same).
     #[arg(long)]
     pub(crate) no_beams: bool,
+    /// Pose every car every frame, also those no ray of the frame can reach (by default they
+    /// are left as they were; the image is the same).
+    #[arg(long)]
+    pub(crate) pose_all: bool,
 }
 
 impl Switches {
@@ -306,6 +310,7 @@ impl Switches {
             hit_buffer: !self.no_hit_buffer,
             shadows: !self.no_shadows,
             beams: !self.no_beams,
+            pose_seen: !self.pose_all,
         }
     }
 }

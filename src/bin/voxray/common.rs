@@ -178,7 +178,7 @@ pub(crate) fn stage(
             scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY })?;
             scene.update()?;
             let bounds = scene.bounds();
-            return Ok(Staged { scene, cars: Vec::new(), bounds, animated: None });
+            return Ok(Staged::new(scene, Vec::new(), bounds, None));
         }
     }
     let (mut mesh, rig) = load_input(src)?;
@@ -196,7 +196,7 @@ pub(crate) fn stage(
             let c = &rig.clips[c];
             eprintln!("animation '{}': {:.2} s, {} channels, looping", c.name, c.duration, c.channels.len());
         }
-        return Ok(Staged { scene, cars: Vec::new(), bounds, animated: Some(Animated { rig, clip }) });
+        return Ok(Staged::new(scene, Vec::new(), bounds, Some(Animated { rig, clip })));
     }
     if static_car {
         let merged: Vec<_> = mesh.parts.iter().flat_map(|p| p.triangles.iter().copied()).collect();
@@ -211,7 +211,7 @@ pub(crate) fn stage(
     if default_car && with_ground {
         add_ground(&mut scene, bounds)?;
     }
-    Ok(Staged { scene, cars: Vec::new(), bounds, animated: None })
+    Ok(Staged::new(scene, Vec::new(), bounds, None))
 }
 
 /// A MagicaVoxel scene: its models as parts (no voxelization), placed and animated by its
@@ -253,7 +253,7 @@ fn stage_vox(file: &Path, src: &SourceArgs) -> Result<Staged, Error> {
     rig.instantiate(&mut scene, 0, clip)?;
     scene.update()?;
     let bounds = rig.clip_bounds(&mut scene, clip)?;
-    Ok(Staged { scene, cars: Vec::new(), bounds, animated: Some(Animated { rig, clip }) })
+    Ok(Staged::new(scene, Vec::new(), bounds, Some(Animated { rig, clip })))
 }
 
 pub(crate) fn usage(msg: &str) -> Error {

@@ -242,13 +242,23 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     // GI's passes before the pixels can take minutes on a large volume: show which is running.
     let stage_bar = pb.clone();
     session.on_gi_stage(move |what| stage_bar.set_message(what.to_string()));
+    // Only the cars some ray of a frame can reach are posed (the picture is the same): the
+    // box of visible surfaces, once (the cars' reach over the clip holds wherever they go).
+    let surfaces = match features.pose_seen && st.animated.is_none() && !st.cars.is_empty() {
+        true => Some(st.surfaces(opts.max_level)?),
+        false => None,
+    };
     for &f in &todo {
         let first = Some(&f) == todo.first();
         let start = Instant::now();
         let t = a.time + f as f64 / a.fps;
-        st.pose(t)?;
-        st.scene.update()?;
         let cam = orbit(&camera, a.orbit * (t - a.time));
+        let sight = surfaces.and_then(|box_| {
+            let rays = voxray::scene::FrameRays::of(&st.scene, &features, session.gi().is_some(), &opts);
+            voxray::scene::Sight::new(&cam, &lights, rays, box_).ok()
+        });
+        st.pose_seen(t, sight.as_ref(), opts.max_level)?;
+        st.scene.update()?;
         let report = session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {
             if a.frames == 1 {
                 pb.set_position(d as u64)

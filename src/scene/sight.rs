@@ -1,0 +1,371 @@
+//! What a frame's rays can reach: whether any primary ray of a camera, or any sun's shadow
+//! ray from a point those rays can see, can meet a given sphere. A crowd poses only the cars
+//! whose bounds some ray can reach ([`super::car::pose_seen`]); a car no ray reaches in its
+//! old pose nor in its new one looks the same in the picture whether it is posed or not.
+//!
+//! The test is conservative: it may say a sphere is reached when no ray meets it (the sphere
+//! is then posed for nothing), never the other way round. The spheres are padded by a
+//! fraction of their radius and of their distance, far beyond the rounding of the renderer's
+//! f32 and f64 rays.
+
+use super::{Camera, Lights};
+use glam::DVec3;
+
+/// Relative padding of a tested sphere's radius.
+const RADIUS_PAD: f64 = 1e-3;
+/// Padding of a tested sphere's radius per unit of its distance from the eye (a ray's
+/// direction is good to about 10⁻⁷ in f32).
+const DISTANCE_PAD: f64 = 1e-6;
+/// A sphere whose screen rectangle holds more pixels than this counts as reached without
+/// testing them one by one (it is close to the eye; such spheres are few).
+const MAX_TESTED_PIXELS: u64 = 64;
+
+/// The rays of one frame, for [`Sight::reaches`].
+#[derive(Clone, Debug)]
+pub struct Sight {
+    camera: Camera,
+    basis: super::camera::Basis,
+    /// Unit directions towards each sun whose shadow rays are cast.
+    suns: Vec<DVec3>,
+    /// Where every surface a primary ray can see lies (world).
+    surfaces: (DVec3, DVec3),
+    /// [`Camera::screen_x`] of each pixel column and [`Camera::screen_y`] of each row.
+    columns: Vec<f64>,
+    rows: Vec<f64>,
+}
+
+/// Why a frame's rays cannot be bounded by a [`Sight`] (every instance must then be posed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Unbounded {
+    /// GI voxelizes every instance into its volume.
+    Gi,
+    /// Point or spot lights, or sampled emitters, cast shadow rays that are not followed.
+    LocalLights,
+    /// The renderer draws voxels as splats, not rays.
+    Splats,
+    /// The camera is not valid.
+    Camera,
+    /// The box of visible surfaces is not finite.
+    Surfaces,
+}
+
+/// What a frame casts, as [`Sight::new`] needs to know it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameRays {
+    /// Shadow rays are traced (the plan's shadow switch).
+    pub shadows: bool,
+    /// GI runs.
+    pub gi: bool,
+    /// The frame is ray traced (not splatted).
+    pub traced: bool,
+    /// Some part has emissive triangles.
+    pub emitters: bool,
+}
+
+impl FrameRays {
+    /// What a frame of `scene` with these switches casts: shadow rays when they are on,
+    /// GI when `gi`, rays unless `opts` asks for splats.
+    pub fn of(
+        scene: &super::Scene,
+        features: &crate::render::Features,
+        gi: bool,
+        opts: &crate::render::RenderOptions,
+    ) -> FrameRays {
+        FrameRays {
+            shadows: features.shadows,
+            gi,
+            traced: opts.renderer == crate::render::Renderer::Trace,
+            emitters: scene.parts.iter().any(|p| !p.emitters.is_empty()),
+        }
+    }
+}
+
+impl Sight {
+    /// The rays of a frame of `camera` under `lights`, when the frame casts only primary
+    /// rays and (with `rays.shadows`) the suns' shadow rays; `surfaces` is a box holding
+    /// every surface those primary rays can see. Otherwise why not.
+    pub fn new(
+        camera: &Camera,
+        lights: &Lights,
+        rays: FrameRays,
+        surfaces: (DVec3, DVec3),
+    ) -> Result<Sight, Unbounded> {
+        if rays.gi {
+            return Err(Unbounded::Gi);
+        }
+        if !rays.traced {
+            return Err(Unbounded::Splats);
+        }
+        camera.validate().map_err(|_| Unbounded::Camera)?;
+        if !(surfaces.0.is_finite() && surfaces.1.is_finite()) {
+            return Err(Unbounded::Surfaces);
+        }
+        let mut suns = Vec::new();
+        if rays.shadows {
+            let local = lights.points.iter().any(|p| p.intensity.max_element() > 0.0)
+                || lights.spots.iter().any(|s| s.intensity.max_element() > 0.0)
+                || (lights.emitter_sampling() > 0 && rays.emitters);
+            if local {
+                return Err(Unbounded::LocalLights);
+            }
+            for s in lights.sun.iter().chain(&lights.suns) {
+                let d = s.to_sun.as_dvec3();
+                if s.irradiance.max_element() > 0.0 && d.length() > 0.0 {
+                    suns.push(d.normalize());
+                }
+            }
+        }
+        let basis = camera.basis();
+        let columns = (0..camera.width).map(|px| camera.screen_x(&basis, px)).collect();
+        let rows = (0..camera.height).map(|py| camera.screen_y(&basis, py)).collect();
+        Ok(Sight { camera: *camera, basis, suns, surfaces, columns, rows })
+    }
+
+    /// Whether some ray of the frame may meet the sphere (world `centre`, `radius`): a
+    /// primary ray, or a sun's shadow ray from a point inside the visible surfaces' box.
+    pub fn reaches(&self, centre: DVec3, radius: f64) -> bool {
+        let eye = self.camera.eye;
+        let c = centre - eye;
+        let r = radius * (1.0 + RADIUS_PAD) + c.length() * DISTANCE_PAD + 1e-9;
+        if !(c.is_finite() && r.is_finite()) {
+            return true;
+        }
+        if self.primary_meets_capsule(c, c, r) {
+            return true;
+        }
+        // A shadow ray from p towards the sun meets the sphere when p lies in the sphere swept
+        // away from the sun; only the stretch of that sweep inside the surfaces' box (grown by
+        // r) can hold a visible p.
+        let (lo, hi) = (self.surfaces.0 - eye - DVec3::splat(r), self.surfaces.1 - eye + DVec3::splat(r));
+        self.suns.iter().any(|&to_sun| match sweep_length(c, -to_sun, lo, hi) {
+            Some(s) => self.primary_meets_capsule(c, c - to_sun * s, r),
+            None => false,
+        })
+    }
+
+    /// Whether a pixel's primary ray (from the eye, camera-relative) meets the capsule of
+    /// radius `r` around the segment a–b.
+    fn primary_meets_capsule(&self, a: DVec3, b: DVec3, r: f64) -> bool {
+        let (cam, bs) = (&self.camera, &self.basis);
+        let (w, h) = (cam.width as f64, cam.height as f64);
+        let mut rect = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+        let ends = if a == b { 1 } else { 2 };
+        for p in [a, b].into_iter().take(ends) {
+            let z = p.dot(bs.forward);
+            // A sphere reaching the eye's plane: its projection is unbounded.
+            if !(z > r * (1.0 + 1e-9)) {
+                return true;
+            }
+            let (x, y) = (p.dot(bs.right), p.dot(bs.up));
+            // The two lines through the eye tangent to the sphere's circle in each axis's
+            // plane, as slopes s = axis / forward: (axis − s z)² = r² (1 + s²).
+            let den = z * z - r * r;
+            let inv = 1.0 / den;
+            for (axis, lo, hi) in [(x, 0, 1), (y, 2, 3)] {
+                let root = r * (axis * axis + den).max(0.0).sqrt();
+                rect[lo] = rect[lo].min((axis * z - root) * inv);
+                rect[hi] = rect[hi].max((axis * z + root) * inv);
+            }
+        }
+        // The pixel columns whose centre's screen_x lies in [rect0, rect1] and the rows whose
+        // screen_y lies in [rect2, rect3]: only their rays can meet the sphere. A sphere
+        // between pixel centres has none. (Rounding here is of order 10⁻¹⁵ of the slopes; the
+        // radius's padding moves them by at least 10⁻⁶.)
+        let half_w = 0.5 * w / (bs.tan_half * w / h);
+        let half_h = 0.5 * h / bs.tan_half;
+        let col = |sx: f64| sx * half_w + 0.5 * w - 0.5;
+        let row = |sy: f64| 0.5 * h - sy * half_h - 0.5;
+        let clamp = |v: f64, n: f64| v.clamp(-1.0, n) as i64;
+        let (x0, x1) = (clamp(col(rect[0]).ceil(), w), clamp(col(rect[1]).floor(), w));
+        let (y0, y1) = (clamp(row(rect[3]).ceil(), h), clamp(row(rect[2]).floor(), h));
+        let (x0, y0) = (x0.max(0), y0.max(0));
+        let (x1, y1) = (x1.min(cam.width as i64 - 1), y1.min(cam.height as i64 - 1));
+        if x0 > x1 || y0 > y1 {
+            return false;
+        }
+        if ((x1 - x0 + 1) * (y1 - y0 + 1)) as u64 > MAX_TESTED_PIXELS {
+            return true;
+        }
+        // In the camera's frame a pixel's ray runs along D = (screen_x, screen_y, 1); it
+        // meets the sphere about p (in front of the eye) when p's distance from the line is at
+        // most r: |p|²|D|² − (p·D)² ≤ r²|D|².
+        let p = DVec3::new(a.dot(bs.right), a.dot(bs.up), a.dot(bs.forward));
+        let reach = p.length_squared() - r * r;
+        (y0..=y1).any(|py| {
+            let sy = self.rows[py as usize];
+            (x0..=x1).any(|px| {
+                if a == b {
+                    let d = DVec3::new(self.columns[px as usize], sy, 1.0);
+                    let along = p.dot(d);
+                    reach * d.length_squared() <= along * along
+                } else {
+                    ray_segment_distance(cam.ray_dir(bs, px as u32, py as u32), a, b) <= r
+                }
+            })
+        })
+    }
+}
+
+/// How far from `c` along unit `dir` the line stays inside the box [lo, hi] (c inside it);
+/// None when c lies outside.
+fn sweep_length(c: DVec3, dir: DVec3, lo: DVec3, hi: DVec3) -> Option<f64> {
+    if !(c.cmpge(lo).all() && c.cmple(hi).all()) {
+        return None;
+    }
+    let mut s = f64::INFINITY;
+    for k in 0..3 {
+        if dir[k] > 0.0 {
+            s = s.min((hi[k] - c[k]) / dir[k]);
+        } else if dir[k] < 0.0 {
+            s = s.min((lo[k] - c[k]) / dir[k]);
+        }
+    }
+    s.is_finite().then_some(s.max(0.0))
+}
+
+/// The distance between the ray from the origin along unit `d` (t ≥ 0) and the segment a–b.
+fn ray_segment_distance(d: DVec3, a: DVec3, b: DVec3) -> f64 {
+    // Minimize |t d − (a + u (b − a))| over t ≥ 0, u ∈ [0, 1]: the distance is convex in
+    // (t, u), so the minimum is the unconstrained one or lies on an edge of the domain.
+    let e = b - a;
+    let point_ray = |p: DVec3| (p - d * p.dot(d).max(0.0)).length();
+    let ee = e.dot(e);
+    // Edge t = 0: the origin against the segment.
+    let u0 = if ee > 0.0 { (-a.dot(e) / ee).clamp(0.0, 1.0) } else { 0.0 };
+    let mut best = (a + e * u0).length().min(point_ray(a)).min(point_ray(b));
+    let de = d.dot(e);
+    let den = ee - de * de;
+    if den > ee * 1e-12 {
+        // Interior: the lines' closest points.
+        let (da, ea) = (d.dot(a), e.dot(a));
+        let u = (de * da - ea) / den;
+        let t = da + u * de;
+        if (0.0..=1.0).contains(&u) && t >= 0.0 {
+            best = best.min((d * t - (a + e * u)).length());
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::instances::sphere_interval;
+    use crate::rng::Rng;
+    use crate::scene::Sun;
+    use glam::Vec3;
+
+    fn camera(eye: DVec3, width: u32, height: u32) -> Camera {
+        Camera { eye, target: DVec3::new(0.0, 0.0, 0.0), up: DVec3::Y, vfov_deg: 40.0, width, height }
+    }
+
+    fn sun_lights(to_sun: Vec3) -> Lights {
+        Lights { sun: Some(Sun { to_sun, irradiance: Vec3::ONE }), ..Lights::default() }
+    }
+
+    const PRIMARY: FrameRays = FrameRays { shadows: false, gi: false, traced: true, emitters: false };
+
+    /// Every sphere some pixel ray meets (brute force over all pixels) is reached, for
+    /// spheres from sub-pixel to screen-filling, in front of the eye, beside and behind it.
+    #[test]
+    fn every_sphere_a_pixel_ray_meets_is_reached() {
+        let mut rng = Rng::new(5);
+        let (w, h) = (40, 24);
+        let cam = camera(DVec3::new(3.0, 4.0, -20.0), w, h);
+        let box_ = (DVec3::splat(-30.0), DVec3::splat(30.0));
+        let sight = Sight::new(&cam, &Lights::default(), PRIMARY, box_).unwrap();
+        let b = cam.basis();
+        let (mut met, mut spared) = (0, 0);
+        for k in 0..4000 {
+            let c =
+                DVec3::new(rng.range(-25.0, 25.0) as f64, rng.range(-25.0, 25.0) as f64, rng.range(-40.0, 30.0) as f64);
+            let r = if k % 2 == 0 { 0.02 + rng.f64() * 0.3 } else { rng.f64() * 4.0 };
+            let meets = (0..h)
+                .any(|y| (0..w).any(|x| sphere_interval(c - cam.eye, r, DVec3::ZERO, cam.ray_dir(&b, x, y)).is_some()));
+            let reached = sight.reaches(c, r);
+            assert!(reached || !meets, "sphere {c} r {r}: a pixel ray meets it but it is not reached");
+            met += meets as u32;
+            spared += (!reached) as u32;
+        }
+        // Both kinds occur, and most spheres no ray meets are spared.
+        assert!(met > 400 && spared > 1500, "met {met}, spared {spared}");
+    }
+
+    /// With a sun, every sphere that shadows some visible point of a pixel ray (a point on
+    /// the ray inside the surfaces' box whose ray towards the sun meets the sphere) is
+    /// reached, though no primary ray meets it.
+    #[test]
+    fn every_sphere_that_shadows_a_visible_point_is_reached() {
+        let mut rng = Rng::new(9);
+        let (w, h) = (24, 16);
+        let cam = camera(DVec3::new(6.0, 9.0, -24.0), w, h);
+        let surfaces = (DVec3::new(-12.0, -1.0, -12.0), DVec3::new(12.0, 6.0, 12.0));
+        let to_sun = Vec3::new(0.4, 0.8, 0.3).normalize();
+        let lights = sun_lights(to_sun);
+        let sight = Sight::new(&cam, &lights, FrameRays { shadows: true, ..PRIMARY }, surfaces).unwrap();
+        let primary_only = Sight::new(&cam, &lights, PRIMARY, surfaces).unwrap();
+        let b = cam.basis();
+        let l = to_sun.as_dvec3();
+        let (mut shadowing, mut only_by_shadow) = (0, 0);
+        for _ in 0..1500 {
+            let c =
+                DVec3::new(rng.range(-11.0, 11.0) as f64, rng.range(-0.5, 5.0) as f64, rng.range(-11.0, 11.0) as f64);
+            let r = 0.05 + rng.f64() * 0.6;
+            // Points along each pixel's ray inside the box, every few centimetres.
+            let shadows = (0..h).any(|y| {
+                (0..w).any(|x| {
+                    let d = cam.ray_dir(&b, x, y);
+                    (0..2000).any(|k| {
+                        let p = cam.eye + d * (k as f64 * 0.025);
+                        let inside = p.cmpge(surfaces.0).all() && p.cmple(surfaces.1).all();
+                        inside && sphere_interval(c, r, p, l).is_some()
+                    })
+                })
+            });
+            if shadows {
+                shadowing += 1;
+                assert!(sight.reaches(c, r), "sphere {c} r {r} shadows a visible point but is not reached");
+                only_by_shadow += (!primary_only.reaches(c, r)) as u32;
+            }
+        }
+        assert!(shadowing > 100 && only_by_shadow > 20, "{shadowing} shadowing, {only_by_shadow} only by shadow");
+    }
+
+    #[test]
+    fn gi_local_lights_and_splats_are_unbounded() {
+        let cam = camera(DVec3::new(0.0, 1.0, -5.0), 8, 8);
+        let box_ = (DVec3::splat(-1.0), DVec3::splat(1.0));
+        let mut lights = Lights::default();
+        assert_eq!(Sight::new(&cam, &lights, FrameRays { gi: true, ..PRIMARY }, box_).err(), Some(Unbounded::Gi));
+        assert_eq!(
+            Sight::new(&cam, &lights, FrameRays { traced: false, ..PRIMARY }, box_).err(),
+            Some(Unbounded::Splats)
+        );
+        lights.points.push(crate::scene::lights::PointLight { position: DVec3::ONE, intensity: Vec3::ONE });
+        assert!(Sight::new(&cam, &lights, PRIMARY, box_).is_ok(), "no shadow rays: points do not matter");
+        assert_eq!(
+            Sight::new(&cam, &lights, FrameRays { shadows: true, ..PRIMARY }, box_).err(),
+            Some(Unbounded::LocalLights)
+        );
+        let bad = (DVec3::splat(-1.0), DVec3::splat(f64::INFINITY));
+        assert_eq!(Sight::new(&cam, &Lights::default(), PRIMARY, bad).err(), Some(Unbounded::Surfaces));
+    }
+
+    #[test]
+    fn the_ray_segment_distance_matches_sampling() {
+        let mut rng = Rng::new(3);
+        for _ in 0..500 {
+            let d = rng.unit_vector().as_dvec3().normalize();
+            let a = DVec3::new(rng.range(-3.0, 3.0) as f64, rng.range(-3.0, 3.0) as f64, rng.range(-3.0, 3.0) as f64);
+            let b =
+                a + DVec3::new(rng.range(-3.0, 3.0) as f64, rng.range(-3.0, 3.0) as f64, rng.range(-3.0, 3.0) as f64);
+            let got = ray_segment_distance(d, a, b);
+            let mut sampled = f64::INFINITY;
+            for i in 0..=400 {
+                let p = a + (b - a) * (i as f64 / 400.0);
+                sampled = sampled.min((p - d * p.dot(d).max(0.0)).length());
+            }
+            assert!(got <= sampled + 1e-12 && got >= sampled - 0.02, "{got} against {sampled}");
+        }
+    }
+}

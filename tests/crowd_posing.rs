@@ -1,0 +1,146 @@
+//! Posing only the cars a frame's rays can reach (`scene::car::pose_seen`, `scene::Sight`):
+//! each car's radius holds its parts in every pose, and frames of a crowd posed that way
+//! equal, bit for bit, the frames of the crowd with every car posed — over a clip, with the
+//! sun's shadows (cars out of view whose shadows fall into it), the hit buffer carried from
+//! frame to frame, a camera that holds still and then turns onto cars left unposed, and a
+//! coarser level of detail.
+
+use glam::{DQuat, DVec3};
+use std::sync::{Arc, OnceLock};
+use voxray::pipeline::build_parts;
+use voxray::render::{render, Features, Frame, FramePlan, HitBuffer, RenderOptions};
+use voxray::scene::{Camera, FrameRays, Lights, Sight, Staged, Sun};
+use voxray::svo::Svo;
+use voxray::voxelize::Resolution;
+
+fn car_parts() -> Vec<Arc<Svo>> {
+    static PARTS: OnceLock<Vec<Arc<Svo>>> = OnceLock::new();
+    PARTS.get_or_init(|| build_parts(&voxray::model::car::mesh(), Resolution::Depth(7)).unwrap()).clone()
+}
+
+fn assert_same_frames(a: &Frame, b: &Frame, what: &str) {
+    for k in 0..a.t.len() {
+        assert_eq!(a.t[k].to_bits(), b.t[k].to_bits(), "{what}, pixel {k}: t");
+        assert_eq!(a.instance[k], b.instance[k], "{what}, pixel {k}: instance");
+        assert_eq!(
+            a.normal[k].to_array().map(f32::to_bits),
+            b.normal[k].to_array().map(f32::to_bits),
+            "{what}, pixel {k}: normal"
+        );
+    }
+    assert_eq!(a.radiance, b.radiance, "{what}: image");
+}
+
+/// Over many times of the clip and two levels of detail, every corner of every instance's
+/// occupied box at that level (what its rays can hit), placed by its world transform, lies
+/// inside its car's sphere about the body's origin.
+#[test]
+fn a_cars_radius_holds_its_parts_in_every_pose() {
+    let parts = car_parts();
+    let mut st = voxray::scene::stage_cars(&parts, 3, true, false).unwrap();
+    for max_level in [u32::MAX, 3] {
+        let radii = voxray::scene::car::car_radii(&st.scene, &st.cars, max_level).unwrap();
+        let mut closest = f64::INFINITY;
+        for k in 0..300 {
+            let t = k as f64 * 0.173;
+            voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
+            st.scene.update().unwrap();
+            for (car, r) in st.cars.iter().zip(&radii) {
+                let origin = voxray::scene::car::body_origin(car, t);
+                assert!((origin - st.scene.world(car.body).translation).length() < 1e-9, "t {t}: body origin");
+                let ids = [
+                    car.body,
+                    car.wheels[0],
+                    car.wheels[1],
+                    car.wheels[2],
+                    car.wheels[3],
+                    car.doors[0],
+                    car.doors[1],
+                    car.steering,
+                ];
+                for i in ids {
+                    let (lo, hi) = st.scene.parts[st.scene.instances()[i].part].occupied_box(max_level);
+                    for c in 0..8 {
+                        let corner = DVec3::new(
+                            if c & 1 == 0 { lo.x } else { hi.x },
+                            if c & 2 == 0 { lo.y } else { hi.y },
+                            if c & 4 == 0 { lo.z } else { hi.z },
+                        );
+                        let d = (st.scene.world(i).transform_point3(corner) - origin).length();
+                        assert!(d <= *r + 1e-9, "level {max_level}, t {t}: instance {i}'s corner at {d} > {r}");
+                        closest = closest.min(r - d);
+                    }
+                }
+            }
+        }
+        // The bound is not loose by more than a door's or a wheel's swing.
+        assert!(closest < 0.3, "level {max_level}: the radius is {closest} larger than needed");
+    }
+}
+
+struct World {
+    st: Staged,
+    kept: HitBuffer,
+}
+
+/// Renders a frame of one world (its own hit buffer carried over).
+fn draw(w: &mut World, cam: &Camera, lights: &Lights, features: &Features, max_level: u32, first: bool) -> Frame {
+    w.st.scene.update().unwrap();
+    let plan = FramePlan::new(&w.st.scene, cam, lights, features, (!first).then_some(&w.kept));
+    let opts = RenderOptions { max_level, ..Default::default() };
+    render(&w.st.scene, cam, lights, &plan, &opts, Some(&mut w.kept), &|_, _| {}).unwrap()
+}
+
+#[test]
+fn posing_only_the_seen_cars_draws_the_same_frames() {
+    let parts = car_parts();
+    let cars = 64;
+    // A low sun: cars out of view throw shadows into it.
+    let sun = Sun { to_sun: glam::Vec3::new(0.95, 0.14, 0.3).normalize(), irradiance: glam::Vec3::splat(3.0) };
+    let lights = Lights { sun: Some(sun), ..Lights::default() };
+    let mut cases = 0;
+    for (shadows, hit_buffer, max_level) in [(true, true, u32::MAX), (false, true, u32::MAX), (true, false, 3)] {
+        let features = Features { shadows, hit_buffer, ..Features::default() };
+        let stage = || voxray::scene::stage_cars(&parts, cars, true, true).unwrap();
+        let (mut lazy, mut all) =
+            (World { st: stage(), kept: HitBuffer::new() }, World { st: stage(), kept: HitBuffer::new() });
+        let surfaces = lazy.st.surfaces(max_level).unwrap();
+        // Looking down on a few cars in the crowd's middle: most cars are out of view.
+        let middle = (lazy.st.bounds.0 + lazy.st.bounds.1) * 0.5;
+        let base = Camera {
+            eye: middle + DVec3::new(-6.0, 22.0, -14.0),
+            target: middle,
+            up: DVec3::Y,
+            vfov_deg: 45.0,
+            width: 96,
+            height: 64,
+        };
+        let (mut fewer, mut seen) = (0, 0);
+        for f in 0..7 {
+            let t = 0.3 + f as f64 * 1.7;
+            // Still for frames 1–3 (the hit buffer's case), then turning across the crowd.
+            let turn = if f <= 3 { 0.0 } else { (f - 3) as f64 * 0.3 };
+            let cam = Camera { target: base.eye + DQuat::from_rotation_y(turn) * (base.target - base.eye), ..base };
+            let rays = FrameRays::of(&lazy.st.scene, &features, false, &RenderOptions::default());
+            let sight = Sight::new(&cam, &lights, rays, surfaces).unwrap();
+            let posed = lazy.st.pose_seen(t, Some(&sight), max_level).unwrap();
+            assert_eq!(all.st.pose_seen(t, None, max_level).unwrap(), cars);
+            assert!(posed < cars || max_level != u32::MAX, "frame {f}: every car was posed");
+            fewer += (posed < cars * 5 / 8) as u32;
+            let a = draw(&mut lazy, &cam, &lights, &features, max_level, f == 0);
+            let b = draw(&mut all, &cam, &lights, &features, max_level, f == 0);
+            let what = format!(
+                "shadows {shadows}, hit buffer {hit_buffer}, level {max_level}, frame {f} ({posed} cars posed)"
+            );
+            let covered = a.instance.iter().filter(|&&i| i >= 0 && (i as usize) < cars * 8).count();
+            assert!(covered > 50 || f > 3, "{what}: the cars cover only {covered} pixels");
+            seen += covered;
+            assert_same_frames(&a, &b, &what);
+            cases += 1;
+        }
+        // At full detail most frames leave over a third of the cars unposed.
+        assert!(fewer >= 4 || max_level != u32::MAX, "shadows {shadows}: too few cars left unposed ({fewer} frames)");
+        assert!(seen > 800, "shadows {shadows}: the cars cover only {seen} pixels over the clip");
+    }
+    assert_eq!(cases, 21);
+}
