@@ -7,7 +7,7 @@ use super::brdf;
 use super::bvh::Bvh;
 use super::emitters::{emitter_light, EmitterShadows, EmitterTable, ShadowCone};
 use super::hitbuffer::{HitBuffer, HitRecord, Rendered, TileSummary};
-use super::instances::{prepare_into, Prepared};
+use super::instances::{prepare_changed, prepare_into, Prepared};
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
@@ -481,7 +481,13 @@ pub fn render_lit(
     let mut hits = hits;
     // Last frame's instances' memory, refilled.
     let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
-    prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared);
+    match hits.as_deref_mut() {
+        // Only the instances changed since last frame, when the eye and the rest are the same.
+        Some(h) => {
+            prepare_changed(scene, camera.eye, plan.transform, opts.max_level, &mut prepared, &mut h.prepared_for)
+        }
+        None => prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared),
+    }
     let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
         Some(h) => h.take_bvh(&prepared),
         None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),

@@ -95,8 +95,11 @@ pub struct HitBuffer {
     pub spare: Option<super::cpu::Frame>,
     /// The parts' splat lists, for frames drawn with [`super::Renderer::Splat`].
     pub splats: super::splat::SplatCache,
-    /// The last frame's prepared instances: their memory is refilled by the next frame.
-    pub prepared: Vec<Prepared>,
+    /// The last frame's prepared instances: the next frame refills those that changed
+    /// ([`super::instances::prepare_changed`]).
+    pub(crate) prepared: Vec<Prepared>,
+    /// What `prepared` was made from.
+    pub(crate) prepared_for: super::instances::PreparedFor,
     /// Per [`TILE`]×[`TILE`] tile of the stored records (row-major), what they hit
     /// ([`TileSummary`]). Empty when not known.
     pub tiles: Vec<TileSummary>,

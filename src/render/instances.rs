@@ -90,6 +90,59 @@ pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
 /// prepares tens of thousands of instances every frame reuses last frame's vector instead of
 /// faulting in fresh pages.
 pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut Vec<Prepared>) {
+    refill(scene, eye, transform, max_level, out, None);
+}
+
+/// What a list of prepared instances was made from: the scene (its number and update), the
+/// eye, the ray map's kind, the level and the parts. [`prepare_changed`] refills from it only
+/// the instances whose world transform or part changed since.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PreparedFor {
+    scene: u64,
+    epoch: u64,
+    eye: [u64; 3],
+    transform: bool,
+    max_level: u32,
+    parts: Vec<usize>,
+    instances: usize,
+}
+
+impl PreparedFor {
+    fn of(scene: &Scene, eye: DVec3, transform: bool, max_level: u32) -> PreparedFor {
+        PreparedFor {
+            scene: scene.id(),
+            epoch: scene.epoch(),
+            eye: eye.to_array().map(f64::to_bits),
+            transform,
+            max_level,
+            // Parts are compared by address: the list is public and may be edited.
+            parts: scene.parts.iter().map(|p| std::sync::Arc::as_ptr(p) as usize).collect(),
+            instances: scene.instances().len(),
+        }
+    }
+}
+
+/// [`prepare_into`] for a list `out` that was prepared as `made` says: when only the scene's
+/// updates differ (same scene, eye, ray map, level, parts and instances), refills only the
+/// instances those updates changed (a still camera over a crowd whose cars are posed only
+/// when seen); else all of them. `made` then describes `out`.
+pub fn prepare_changed(
+    scene: &Scene,
+    eye: DVec3,
+    transform: bool,
+    max_level: u32,
+    out: &mut Vec<Prepared>,
+    made: &mut PreparedFor,
+) {
+    let now = PreparedFor::of(scene, eye, transform, max_level);
+    let since = PreparedFor { epoch: made.epoch, ..now.clone() };
+    let same = *made == since && out.len() == now.instances && scene.epoch() >= made.epoch;
+    refill(scene, eye, transform, max_level, out, same.then_some(made.epoch));
+    *made = now;
+}
+
+/// Fills `out` for every instance, or (with `since`) only for those whose stamp is later.
+fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut Vec<Prepared>, since: Option<u64>) {
     // Per part (a handful, shared by thousands of instances): its occupied box's centre and
     // half extents at the traced level.
     let boxes: Vec<(DVec3, DVec3)> = scene
@@ -157,13 +210,17 @@ pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, 
         const CHUNK: usize = 512;
         out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
             for (k, slot) in chunk.iter_mut().enumerate() {
-                fill(c * CHUNK + k, slot);
+                if since.is_none_or(|e| scene.stamp(c * CHUNK + k) > e) {
+                    fill(c * CHUNK + k, slot);
+                }
             }
         });
         return;
     }
     for (i, slot) in out.iter_mut().enumerate() {
-        fill(i, slot);
+        if since.is_none_or(|e| scene.stamp(i) > e) {
+            fill(i, slot);
+        }
     }
 }
 
@@ -309,5 +366,88 @@ mod tests {
         assert!(radii.windows(2).all(|r| r[1] <= r[0]), "{radii:?}");
         assert!(radii[6] * 10.0 < radii[0], "{radii:?}");
         assert_eq!(prepare(&scene, eye, true)[0].radius.to_bits(), radii[6].to_bits());
+    }
+
+    /// Prepared instances kept from frame to frame and refilled where the scene changed equal
+    /// instances prepared afresh, bit for bit, through moved instances (some of them parents
+    /// of others), a part swapped, an added instance, a moved eye, another level, a part list
+    /// edited in place, a refused update, and a clone of the scene edited apart from it.
+    #[test]
+    fn prepared_instances_refilled_where_changed_equal_fresh_ones() {
+        let grid = |k: u32| {
+            crate::voxelize::VoxelGrid::from_coords(
+                4,
+                Cube { min: Vec3::ZERO, size: 2.0 },
+                [[k, 2, 1], [3, k, 5]],
+                Vec3::ONE,
+            )
+        };
+        let parts: Vec<Arc<crate::svo::Svo>> = (1..4).map(|k| Arc::new(crate::svo::build(&grid(k)).unwrap())).collect();
+        let mut scene = Scene::new(parts.clone());
+        let mut rng = crate::rng::Rng::new(4);
+        let random_local = |rng: &mut crate::rng::Rng| {
+            Transform::new(
+                DVec3::new(rng.range(-5.0, 5.0) as f64, rng.range(-5.0, 5.0) as f64, rng.range(-5.0, 5.0) as f64),
+                DQuat::from_axis_angle(rng.unit_vector().as_dvec3().normalize(), rng.f64() * 6.0),
+                DVec3::new(0.5 + rng.f64(), 0.5 + rng.f64(), 0.5 + rng.f64()),
+            )
+            .unwrap()
+        };
+        for i in 0..3000 {
+            let parent = (i % 4 != 0).then_some(i - i % 4);
+            let local = random_local(&mut rng);
+            scene.add(Instance { part: i % 3, parent, local }).unwrap();
+        }
+        scene.update().unwrap();
+        let (mut kept, mut made) = (Vec::new(), PreparedFor::default());
+        let mut eye = DVec3::new(1.0, 2.0, 3.0);
+        let mut level = u32::MAX;
+        let mut check = |scene: &Scene, eye: DVec3, level: u32, what: &str| {
+            prepare_changed(scene, eye, true, level, &mut kept, &mut made);
+            let mut fresh = Vec::new();
+            prepare_into(scene, eye, true, level, &mut fresh);
+            assert_eq!(kept.len(), fresh.len(), "{what}");
+            for (i, (a, b)) in kept.iter().zip(&fresh).enumerate() {
+                assert_eq!(a, b, "{what}: instance {i}");
+            }
+        };
+        check(&scene, eye, level, "first");
+        for step in 0..12 {
+            // Some instances move: every 7th of a random offset, parents carrying children.
+            let offset = step % 7;
+            let edits: Vec<(usize, Transform)> =
+                (offset..3000).step_by(7).map(|i| (i, random_local(&mut rng))).collect();
+            scene.set_locals(&edits).unwrap();
+            match step {
+                3 => scene.set_part(10, 2).unwrap(),
+                4 => eye += DVec3::new(0.5, 0.0, 0.0),
+                5 => level = 2,
+                6 => {
+                    scene.add(Instance { part: 1, parent: Some(8), local: random_local(&mut rng) }).unwrap();
+                }
+                7 => scene.parts[1] = Arc::new(crate::svo::build(&grid(3)).unwrap()),
+                8 => {
+                    // Each scale alone is acceptable, their product (a parent and its child)
+                    // is refused, after the other moved instances were composed: nothing
+                    // changes, and the prepared instances stay as they were.
+                    let tiny = Transform { scale: DVec3::splat(2e-6), ..Transform::IDENTITY };
+                    scene.set_locals(&[(3000 - 4, tiny), (3000 - 3, tiny)]).unwrap();
+                    assert!(scene.update().is_err());
+                    check(&scene, eye, level, "refused");
+                    scene.set_locals(&[(3000 - 4, Transform::IDENTITY), (3000 - 3, Transform::IDENTITY)]).unwrap();
+                }
+                9 => {
+                    // A clone edited apart from the scene: prepared for the clone, then for the
+                    // scene again.
+                    let mut other = scene.clone();
+                    other.set_locals(&[(1, random_local(&mut rng))]).unwrap();
+                    other.update().unwrap();
+                    check(&other, eye, level, "the clone");
+                }
+                _ => {}
+            }
+            scene.update().unwrap();
+            check(&scene, eye, level, &format!("step {step}"));
+        }
     }
 }

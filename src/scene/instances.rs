@@ -50,16 +50,47 @@ pub struct Scene {
     /// Counts the edits of which part an instance places (adding one, or [`Scene::set_part`]),
     /// so that what is derived from the instances' parts can be kept until they change.
     part_edits: u64,
+    /// This scene among all scenes of the process (a clone is another scene).
+    id: SceneId,
+    /// Counts updates; `stamps[i]` is the update that last changed instance i's world
+    /// transform (or its part), so that per-instance data derived from them can be refilled
+    /// for the changed instances only.
+    epoch: u64,
+    stamps: Vec<u64>,
+}
+
+/// A number no other scene of the process has: a new scene and every clone draw a fresh one.
+#[derive(Debug, PartialEq, Eq)]
+struct SceneId(u64);
+
+impl SceneId {
+    fn fresh() -> SceneId {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+        SceneId(NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
+    }
+}
+
+impl Default for SceneId {
+    fn default() -> SceneId {
+        SceneId::fresh()
+    }
+}
+
+impl Clone for SceneId {
+    fn clone(&self) -> SceneId {
+        SceneId::fresh()
+    }
 }
 
 #[derive(Clone, Debug, Default)]
 struct Scratch {
     /// Validated local transforms waiting to be applied.
     locals: Vec<(usize, Transform)>,
-    /// The next world transforms: an update writes every entry (the unchanged ones copied),
-    /// then swaps them with the current ones.
-    next: Vec<DAffine3>,
+    /// Which instances' world transforms an update changed.
     changed: Vec<bool>,
+    /// Per chunk of an update, the world transforms (and stamps) it replaced, to put back
+    /// when a later one is refused.
+    undo: Vec<Vec<(usize, DAffine3, u64)>>,
 }
 
 /// Instances below this count update and pose on one thread (threads cost more than they
@@ -121,6 +152,7 @@ impl Scene {
         self.instances.push(inst);
         self.world.push(DAffine3::IDENTITY);
         self.dirty.push(true);
+        self.stamps.push(u64::MAX);
         self.part_edits += 1;
         Ok(self.instances.len() - 1)
     }
@@ -221,58 +253,71 @@ impl Scene {
         let mut sc = std::mem::take(&mut self.scratch);
         sc.changed.clear();
         sc.changed.resize(n, false);
-        sc.next.resize(n, DAffine3::IDENTITY);
-        let (instances, dirty, world) = (&self.instances, &self.dirty, &self.world);
-        // One run: composes into its own slices of `next` and `changed`; parents are in it.
-        let run = |start: usize, next: &mut [DAffine3], changed: &mut [bool]| -> Result<(), usize> {
-            for k in 0..next.len() {
+        let (instances, dirty) = (&self.instances, &self.dirty);
+        let epoch = self.epoch + 1;
+        // One chunk of whole runs: composes in place (parents are in it, before their
+        // children), remembering what it replaced. Unchanged instances are not touched (a
+        // crowd whose cars are posed only when seen changes a few of its transforms).
+        let run = |start: usize,
+                   world: &mut [DAffine3],
+                   changed: &mut [bool],
+                   stamps: &mut [u64],
+                   undo: &mut Vec<(usize, DAffine3, u64)>| {
+            undo.clear();
+            for k in 0..world.len() {
                 let i = start + k;
                 let inst = &instances[i];
                 let parent_changed = inst.parent.is_some_and(|p| changed[p - start]);
                 if !(dirty[i] || parent_changed) {
-                    // Kept as it is: `next` becomes the world transforms whole.
-                    next[k] = world[i];
                     continue;
                 }
                 let local = inst.local.to_affine();
                 let w = match inst.parent {
-                    Some(p) if changed[p - start] => next[p - start] * local,
-                    Some(p) => world[p] * local,
+                    Some(p) => world[p - start] * local,
                     None => local,
                 };
                 if !is_well_conditioned(&w) {
                     return Err(i);
                 }
-                next[k] = w;
+                undo.push((k, world[k], stamps[k]));
+                world[k] = w;
                 changed[k] = true;
+                stamps[k] = epoch;
             }
             Ok(())
         };
         // Cut the runs into chunks of whole runs, a few per thread.
         let chunks = chunk_runs(&self.splits, n);
+        sc.undo.resize_with(chunks.len().saturating_sub(1), Vec::new);
         let mut pieces = Vec::with_capacity(chunks.len());
-        let (mut next, mut changed) = (&mut sc.next[..], &mut sc.changed[..]);
-        for w in chunks.windows(2) {
-            let (a, b) = next.split_at_mut(w[1] - w[0]);
+        let (mut world, mut changed, mut stamps) = (&mut self.world[..], &mut sc.changed[..], &mut self.stamps[..]);
+        for (w, undo) in chunks.windows(2).zip(sc.undo.iter_mut()) {
+            let (a, b) = world.split_at_mut(w[1] - w[0]);
             let (c, d) = changed.split_at_mut(w[1] - w[0]);
-            pieces.push((w[0], a, c));
-            (next, changed) = (b, d);
+            let (e, f) = stamps.split_at_mut(w[1] - w[0]);
+            pieces.push((w[0], a, c, e, undo));
+            (world, changed, stamps) = (b, d, f);
         }
         #[cfg(feature = "parallel")]
-        let result: Result<(), usize> = {
+        let results: Vec<Result<(), usize>> = {
             use rayon::prelude::*;
-            pieces.into_par_iter().try_for_each(|(start, next, changed)| run(start, next, changed))
+            pieces.into_par_iter().map(|(start, w, c, s, undo)| run(start, w, c, s, undo)).collect()
         };
         #[cfg(not(feature = "parallel"))]
-        let result: Result<(), usize> =
-            pieces.into_iter().try_for_each(|(start, next, changed)| run(start, next, changed));
-        if let Err(bad) = result {
+        let results: Vec<Result<(), usize>> =
+            pieces.into_iter().map(|(start, w, c, s, undo)| run(start, w, c, s, undo)).collect();
+        if let Some(bad) = results.iter().find_map(|r| r.err()) {
+            // Every chunk puts back what it replaced: the old transforms stay whole.
+            for (w, undo) in chunks.windows(2).zip(&sc.undo) {
+                for &(k, old, stamp) in undo.iter().rev() {
+                    self.world[w[0] + k] = old;
+                    self.stamps[w[0] + k] = stamp;
+                }
+            }
             self.scratch = sc;
             return Err(TransformError::Singular(bad).into());
         }
-        // Every entry of `next` was written: it is the new world, and the old one's memory
-        // serves the next update.
-        std::mem::swap(&mut self.world, &mut sc.next);
+        self.epoch = epoch;
         self.dirty.fill(false);
         self.scratch = sc;
         Ok(())
@@ -297,6 +342,22 @@ impl Scene {
     /// instance places the same part as it did.
     pub fn part_edits(&self) -> u64 {
         self.part_edits
+    }
+
+    /// This scene's number, which no other scene of the process (a clone included) has.
+    pub fn id(&self) -> u64 {
+        self.id.0
+    }
+
+    /// How many updates this scene has had.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    /// The update ([`Scene::epoch`]) that last changed instance i's world transform or part
+    /// (`u64::MAX` for an instance added since the last update).
+    pub fn stamp(&self, i: usize) -> u64 {
+        self.stamps[i]
     }
 
     /// Whether any instance still has an unapplied local change.
