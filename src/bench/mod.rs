@@ -16,7 +16,7 @@ pub mod chart;
 pub mod peers;
 
 use crate::render::{Features, Frame, FramePlan, RenderOptions};
-use crate::scene::car::{pose_seen, Car};
+use crate::scene::car::{Car, SeenCars};
 use crate::scene::{Camera, FrameRays, Lights, Scene, Sight};
 use crate::session::Session;
 use std::time::Instant;
@@ -186,17 +186,14 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
     } else {
         None
     };
-    let radii = match &sight {
-        Some(_) => crate::scene::car::car_radii(clip.scene, clip.cars, clip.lod)?,
-        None => Vec::new(),
-    };
+    let mut seen = SeenCars::default();
     for f in 0..clip.warmup + frames {
         session.set_read_back(!gpu || f == picture_at);
         let start = Instant::now();
         // Warm-up frames replay the first timed frame's time, so the first timed frame is the
         // same picture whatever the warm-up (the depth sweep compares it with a reference).
         let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
-        pose_seen(clip.scene, clip.cars, &radii, t, sight.as_ref())?;
+        seen.pose(clip.scene, clip.cars, t, sight.as_ref(), clip.lod)?;
         if let Some(a) = clip.animated {
             a.rig.pose(clip.scene, a.clip, t)?;
         }

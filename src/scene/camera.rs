@@ -52,7 +52,7 @@ pub enum CameraError {
 }
 
 /// Orthonormal camera frame.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Basis {
     /// View direction.
     pub forward: DVec3,

@@ -9,6 +9,7 @@
 //! t = 10⁶ s looks like one in its first minute.
 
 use super::instances::{Instance, Scene, SceneError};
+use super::sight::Sight;
 use super::transform::Transform;
 use crate::model::car::{rig, WHEELBASE, WHEEL_RADIUS};
 use glam::{DQuat, DVec3};
@@ -352,44 +353,87 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
     Ok((lo, hi))
 }
 
-/// Poses at time t only the cars that some ray of the frame `sight` describes can reach, in
-/// their new pose or in the one they were last given (None: every car), and returns how
-/// many were posed. A car left out is not reached in either pose, so the frame's picture is
-/// the one [`pose_all`] would give; it is posed again in the first frame that can see it.
-/// `radii`: each car's [`car_radius`] at the frame's level of detail ([`car_radii`]; the
-/// scene's parts as they are now).
-pub fn pose_seen(
-    scene: &mut Scene,
-    cars: &[Car],
-    radii: &[f64],
-    t: f64,
-    sight: Option<&super::sight::Sight>,
-) -> Result<usize, SceneError> {
-    let Some(sight) = sight else {
-        pose_all(scene, cars, t)?;
-        return Ok(cars.len());
-    };
-    if radii.len() != cars.len() {
-        pose_all(scene, cars, t)?;
-        return Ok(cars.len());
+/// Posing only the cars a frame's rays can reach, with what it keeps between frames: the
+/// cars' radii at a level of detail, and per car the last position of its body tested under
+/// the last frame's [`Sight`] and the answer (so a car that stays where it was is not tested
+/// again while the sight stays the same).
+#[derive(Clone, Debug, Default)]
+pub struct SeenCars {
+    /// Part edits, level, car count and the parts' addresses the radii are for.
+    radii_for: Option<(u64, u32, usize, Vec<usize>)>,
+    radii: Vec<f64>,
+    sight: Option<Sight>,
+    known: Vec<(DVec3, bool)>,
+}
+
+impl SeenCars {
+    /// Poses at time t only the cars that some ray of the frame `sight` describes can reach,
+    /// in their new pose or in the one they were last given (None: every car), and returns
+    /// how many were posed. A car left out is not reached in either pose, so the frame's
+    /// picture is the one [`pose_all`] would give; it is posed again in the first frame that
+    /// can see it. `max_level`: the frame's level of detail.
+    pub fn pose(
+        &mut self,
+        scene: &mut Scene,
+        cars: &[Car],
+        t: f64,
+        sight: Option<&Sight>,
+        max_level: u32,
+    ) -> Result<usize, SceneError> {
+        let Some(sight) = sight else {
+            pose_all(scene, cars, t)?;
+            self.sight = None;
+            return Ok(cars.len());
+        };
+        let parts = scene.parts.iter().map(|p| std::sync::Arc::as_ptr(p) as usize).collect();
+        let key = Some((scene.part_edits(), max_level, cars.len(), parts));
+        if self.radii_for != key {
+            self.radii = car_radii(scene, cars, max_level)?;
+            self.radii_for = key;
+            self.sight = None;
+        }
+        if self.sight.as_ref() != Some(sight) {
+            // Nothing known holds under another sight.
+            self.known.clear();
+            self.known.resize(cars.len(), (DVec3::NAN, false));
+            self.sight = Some(sight.clone());
+        }
+        let (scene_ref, radii) = (&*scene, &self.radii);
+        let seen = |k: usize, known: &mut (DVec3, bool)| {
+            let car = &cars[k];
+            let r = radii[k];
+            // A missing body: posing reports it.
+            let Some(old) = scene_ref.worlds().get(car.body) else { return true };
+            let new = body_origin(car, t);
+            if sight.reaches(new, r) {
+                *known = (new, true);
+                return true;
+            }
+            // Where the car was last tested, under this sight: the same answer.
+            let old = old.translation;
+            let old_seen = if known.0 == old { known.1 } else { sight.reaches(old, r) };
+            *known = if old_seen { (new, false) } else { (old, false) };
+            old_seen
+        };
+        #[cfg(feature = "parallel")]
+        let list: Vec<usize> = {
+            use rayon::prelude::*;
+            self.known
+                .par_iter_mut()
+                .enumerate()
+                .with_min_len(256)
+                .filter_map(|(k, known)| seen(k, known).then_some(k))
+                .collect()
+        };
+        #[cfg(not(feature = "parallel"))]
+        let list: Vec<usize> =
+            self.known.iter_mut().enumerate().filter_map(|(k, known)| seen(k, known).then_some(k)).collect();
+        if let Err(e) = scene.set_locals_from(list.len(), |k| car_pose(&cars[list[k]], t)) {
+            self.sight = None;
+            return Err(e);
+        }
+        Ok(list.len())
     }
-    let scene_ref = &*scene;
-    let seen = |k: usize| {
-        let car = &cars[k];
-        let r = radii[k];
-        // A missing body: posing reports it.
-        let Some(old) = scene_ref.worlds().get(car.body) else { return true };
-        sight.reaches(body_origin(car, t), r) || sight.reaches(old.translation, r)
-    };
-    #[cfg(feature = "parallel")]
-    let list: Vec<usize> = {
-        use rayon::prelude::*;
-        (0..cars.len()).into_par_iter().with_min_len(256).filter(|&k| seen(k)).collect()
-    };
-    #[cfg(not(feature = "parallel"))]
-    let list: Vec<usize> = (0..cars.len()).filter(|&k| seen(k)).collect();
-    scene.set_locals_from(list.len(), |k| car_pose(&cars[list[k]], t))?;
-    Ok(list.len())
 }
 
 /// Where `n` cars go: a grid of figure-eights, each with its own time offset.

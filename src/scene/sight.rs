@@ -21,7 +21,7 @@ const DISTANCE_PAD: f64 = 1e-6;
 const MAX_TESTED_PIXELS: u64 = 64;
 
 /// The rays of one frame, for [`Sight::reaches`].
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Sight {
     camera: Camera,
     basis: super::camera::Basis,

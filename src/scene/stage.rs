@@ -3,7 +3,7 @@
 //! re-stages when its car count changes) and the benchmark harness.
 
 use super::animation::Rig;
-use super::car::{add_car, car_radii, clip_bounds, layout, pose_all, pose_seen, reach_box, Car};
+use super::car::{add_car, clip_bounds, layout, pose_all, reach_box, Car, SeenCars};
 use super::sight::Sight;
 use super::{ground, Instance, Scene, Transform};
 use crate::svo::Svo;
@@ -20,9 +20,8 @@ pub struct Staged {
     pub bounds: (DVec3, DVec3),
     /// A scene file's node hierarchy and the clip it plays (None: nothing but the cars moves).
     pub animated: Option<Animated>,
-    /// The cars' radii for [`Staged::pose_seen`], with the scene's part edits and the level
-    /// of detail they were computed for.
-    radii: Option<(u64, u32, Vec<f64>)>,
+    /// What [`Staged::pose_seen`] keeps between frames.
+    seen: SeenCars,
 }
 
 /// A scene file's animation as staged: its rig (with the instances it made) and the clip
@@ -69,7 +68,7 @@ pub fn add_ground(scene: &mut Scene, bounds: (DVec3, DVec3)) -> Result<(), crate
 impl Staged {
     /// A staged scene from its parts.
     pub fn new(scene: Scene, cars: Vec<Car>, bounds: (DVec3, DVec3), animated: Option<Animated>) -> Staged {
-        Staged { scene, cars, bounds, animated, radii: None }
+        Staged { scene, cars, bounds, animated, seen: SeenCars::default() }
     }
 
     /// Poses everything that moves at scene time `t` (seconds): the cars and the scene file's
@@ -83,17 +82,10 @@ impl Staged {
     }
 
     /// [`Staged::pose`] for the cars some ray of `sight` can reach in their new or their last
-    /// pose ([`super::car::pose_seen`]; None: every car); a scene file's clip is posed whole.
+    /// pose ([`SeenCars::pose`]; None: every car); a scene file's clip is posed whole.
     /// Returns how many cars were posed. `max_level`: the frame's level of detail.
     pub fn pose_seen(&mut self, t: f64, sight: Option<&Sight>, max_level: u32) -> Result<usize, crate::Error> {
-        let edits = self.scene.part_edits();
-        let fresh =
-            self.radii.as_ref().is_some_and(|(e, l, r)| *e == edits && *l == max_level && r.len() == self.cars.len());
-        if !fresh && sight.is_some() {
-            self.radii = Some((edits, max_level, car_radii(&self.scene, &self.cars, max_level)?));
-        }
-        let radii = self.radii.as_ref().map_or(&[][..], |(_, _, r)| &r[..]);
-        let posed = pose_seen(&mut self.scene, &self.cars, radii, t, sight)?;
+        let posed = self.seen.pose(&mut self.scene, &self.cars, t, sight, max_level)?;
         if let Some(a) = &self.animated {
             a.rig.pose(&mut self.scene, a.clip, t)?;
         }

@@ -13,7 +13,7 @@
 use crate::backend::{Backend, BackendKind};
 use crate::gpu::{GpuContext, GpuError};
 use crate::render::{output, Features, Frame, FramePlan, RenderOptions};
-use crate::scene::car::{pose_seen, Car};
+use crate::scene::car::{Car, SeenCars};
 use crate::scene::{stage_cars, Camera, FrameRays, Lights, Scene, Sight, Staged};
 use crate::session::Session;
 use crate::svo::Svo;
@@ -167,12 +167,12 @@ struct App {
     seen: Option<Seen>,
 }
 
-/// The cars' radii and the box of visible surfaces, with what they were computed for.
+/// The box of visible surfaces with what it was computed for, and what posing keeps.
 struct Seen {
     /// Part edits, level of detail, travel, cars.
     key: (u64, u32, bool, usize),
-    radii: Vec<f64>,
     surfaces: (DVec3, DVec3),
+    cars: SeenCars,
 }
 
 impl App {
