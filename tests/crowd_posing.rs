@@ -48,24 +48,9 @@ fn a_cars_radius_holds_its_parts_in_every_pose() {
             for (car, r) in st.cars.iter().zip(&radii) {
                 let origin = voxray::scene::car::body_origin(car, t);
                 assert!((origin - st.scene.world(car.body).translation).length() < 1e-9, "t {t}: body origin");
-                let ids = [
-                    car.body,
-                    car.wheels[0],
-                    car.wheels[1],
-                    car.wheels[2],
-                    car.wheels[3],
-                    car.doors[0],
-                    car.doors[1],
-                    car.steering,
-                ];
-                for i in ids {
+                for i in car.instances() {
                     let (lo, hi) = st.scene.parts[st.scene.instances()[i].part].occupied_box(max_level);
-                    for c in 0..8 {
-                        let corner = DVec3::new(
-                            if c & 1 == 0 { lo.x } else { hi.x },
-                            if c & 2 == 0 { lo.y } else { hi.y },
-                            if c & 4 == 0 { lo.z } else { hi.z },
-                        );
+                    for corner in voxray::scene::instances::box_corners(lo, hi) {
                         let d = (st.scene.world(i).transform_point3(corner) - origin).length();
                         assert!(d <= *r + 1e-9, "level {max_level}, t {t}: instance {i}'s corner at {d} > {r}");
                         closest = closest.min(r - d);

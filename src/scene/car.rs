@@ -8,7 +8,7 @@
 //! and angles stay in f64 and are wrapped to one period before use, so a clip evaluated at
 //! t = 10⁶ s looks like one in its first minute.
 
-use super::instances::{Instance, Scene, SceneError};
+use super::instances::{box_corners, Instance, Scene, SceneError};
 use super::sight::Sight;
 use super::transform::Transform;
 use crate::model::car::{rig, WHEELBASE, WHEEL_RADIUS};
@@ -46,6 +46,14 @@ pub struct Car {
     /// Whether the body travels along the figure-eight (false: it stays at `origin` while its
     /// wheels, steering and doors move as if driving, like a car on rollers).
     pub travel: bool,
+}
+
+impl Car {
+    /// Its eight instances: body, four wheels, two doors, steering wheel.
+    pub fn instances(&self) -> [usize; 8] {
+        let (w, d) = (self.wheels, self.doors);
+        [self.body, w[0], w[1], w[2], w[3], d[0], d[1], self.steering]
+    }
 }
 
 /// Adds a car whose eight parts are `scene.parts[first_part..first_part + 8]` in the order of
@@ -270,32 +278,14 @@ pub fn body_origin(car: &Car, t: f64) -> DVec3 {
 /// distance from the pivot) of the body's origin.
 pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> f64 {
     let r = rig();
-    let ids = [
-        car.body,
-        car.wheels[0],
-        car.wheels[1],
-        car.wheels[2],
-        car.wheels[3],
-        car.doors[0],
-        car.doors[1],
-        car.steering,
-    ];
+    let ids = car.instances();
     let mut radius: f64 = 0.0;
     for (k, &i) in ids.iter().enumerate() {
         let part = &scene.parts[scene.instances()[i].part];
         let (lo, hi) = part.occupied_box(max_level);
         // The body does not turn relative to itself: its pivot is its origin.
         let pivot = if k == 0 { DVec3::ZERO } else { r[k].0.as_dvec3() };
-        let far = (0..8)
-            .map(|c| {
-                let corner = DVec3::new(
-                    if c & 1 == 0 { lo.x } else { hi.x },
-                    if c & 2 == 0 { lo.y } else { hi.y },
-                    if c & 4 == 0 { lo.z } else { hi.z },
-                );
-                (corner - pivot).length()
-            })
-            .fold(0.0, f64::max);
+        let far = box_corners(lo, hi).iter().map(|c| (*c - pivot).length()).fold(0.0, f64::max);
         radius = radius.max(pivot.length() + far);
     }
     radius
@@ -304,16 +294,7 @@ pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> f64 {
 /// The parts of a car's eight instances (None: an instance is missing).
 fn car_parts(scene: &Scene, car: &Car) -> Option<[usize; 8]> {
     let inst = scene.instances();
-    let ids = [
-        car.body,
-        car.wheels[0],
-        car.wheels[1],
-        car.wheels[2],
-        car.wheels[3],
-        car.doors[0],
-        car.doors[1],
-        car.steering,
-    ];
+    let ids = car.instances();
     let mut out = [0; 8];
     for (o, i) in out.iter_mut().zip(ids) {
         *o = inst.get(i)?.part;

@@ -131,6 +131,17 @@ fn chunk_runs(starts: &[usize], n: usize) -> Vec<usize> {
     out
 }
 
+/// The eight corners of the box [lo, hi].
+pub fn box_corners(lo: DVec3, hi: DVec3) -> [DVec3; 8] {
+    std::array::from_fn(|c| {
+        DVec3::new(
+            if c & 1 == 0 { lo.x } else { hi.x },
+            if c & 2 == 0 { lo.y } else { hi.y },
+            if c & 4 == 0 { lo.z } else { hi.z },
+        )
+    })
+}
+
 impl Scene {
     /// A scene over these parts, with no instances.
     pub fn new(parts: Vec<Arc<Svo>>) -> Self {

@@ -4,6 +4,7 @@
 
 use super::animation::Rig;
 use super::car::{add_car, clip_bounds, layout, pose_all, reach_box, Car, SeenCars};
+use super::instances::box_corners;
 use super::sight::Sight;
 use super::{ground, Instance, Scene, Transform};
 use crate::svo::Svo;
@@ -109,9 +110,7 @@ impl Staged {
         if self.cars.is_empty() {
             return self.scene.bounds();
         }
-        self.scene.bounds_of(self.cars.iter().flat_map(|c| {
-            [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering]
-        }))
+        self.scene.bounds_of(self.cars.iter().flat_map(|c| c.instances()))
     }
 }
 
@@ -121,7 +120,7 @@ impl Staged {
 pub fn surfaces(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, DVec3), crate::Error> {
     let mut of_car = vec![false; scene.instances().len()];
     for c in cars {
-        for i in [c.body, c.wheels[0], c.wheels[1], c.wheels[2], c.wheels[3], c.doors[0], c.doors[1], c.steering] {
+        for i in c.instances() {
             if let Some(slot) = of_car.get_mut(i) {
                 *slot = true;
             }
@@ -132,12 +131,7 @@ pub fn surfaces(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, D
     let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
     for i in (0..of_car.len()).filter(|&i| !of_car[i]) {
         let (a, b) = scene.parts[scene.instances()[i].part].occupied_box(max_level);
-        for c in 0..8 {
-            let corner = DVec3::new(
-                if c & 1 == 0 { a.x } else { b.x },
-                if c & 2 == 0 { a.y } else { b.y },
-                if c & 4 == 0 { a.z } else { b.z },
-            );
+        for corner in box_corners(a, b) {
             let p = scene.world(i).transform_point3(corner);
             lo = lo.min(p);
             hi = hi.max(p);

@@ -69,7 +69,11 @@ impl App {
             surfaces: (DVec3::ZERO, DVec3::ZERO),
             cars: SeenCars::default(),
         });
-        posing.cars.pose(&mut self.scene, &self.cars, self.time, sight.as_ref(), self.ui.lod).map_err(scene_error)?;
+        let posed = posing
+            .cars
+            .pose(&mut self.scene, &self.cars, self.time, sight.as_ref(), self.ui.lod)
+            .map_err(scene_error)?;
+        self.ui.posed = (posed, self.cars.len());
         if let Some(a) = &self.opts.animated {
             a.rig.pose(&mut self.scene, a.clip, self.time).map_err(|e| ViewerError::Other(e.to_string()))?;
         }

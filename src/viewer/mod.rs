@@ -275,6 +275,7 @@ pub fn run(
             reused: 0.0,
             mrays: 0.0,
             per_ray: (0.0, 0.0),
+            posed: (0, 0),
             gi_on: false,
             // Interactive: by default the half-resolution gather (the same error, a quarter of
             // the cones; docs/accuracy.md), switchable in the panel.

@@ -24,6 +24,8 @@ pub(super) struct Ui {
     pub(super) reused: f64,
     pub(super) mrays: f64,
     pub(super) per_ray: (f64, f64),
+    /// Cars posed this frame (those some ray can reach) and all cars.
+    pub(super) posed: (usize, usize),
     pub(super) gi_on: bool,
     pub(super) gi: crate::gi::GiSettings,
     pub(super) gi_ms: Option<f64>,
@@ -250,6 +252,12 @@ impl App {
                         ui_.label(format!(
                             "per traced ray: {:.2} instances traversed, {:.2} spheres culled",
                             ui.per_ray.0, ui.per_ray.1
+                        ));
+                    }
+                    if ui.posed.1 > 0 {
+                        ui_.label(format!(
+                            "cars posed: {} of {} (the others no ray reaches)",
+                            ui.posed.0, ui.posed.1
                         ));
                     }
                     // Frame-time graph, last 180 frames, scaled to the slowest.
