@@ -275,20 +275,22 @@ pub fn body_origin(car: &Car, t: f64) -> DVec3 {
 /// The radius of a sphere about a car's body origin that holds its eight parts' occupied
 /// cells at `max_level` (what rays at that level of detail can hit) in every pose: each
 /// child turns about its pivot, so its points stay within |pivot| + (their farthest
-/// distance from the pivot) of the body's origin.
-pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> f64 {
+/// distance from the pivot) of the body's origin. Refused when one of its instances or their
+/// parts is missing.
+pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> Result<f64, SceneError> {
     let r = rig();
     let ids = car.instances();
     let mut radius: f64 = 0.0;
     for (k, &i) in ids.iter().enumerate() {
-        let part = &scene.parts[scene.instances()[i].part];
+        let inst = scene.instances().get(i).ok_or(SceneError::Instance(i))?;
+        let part = scene.parts.get(inst.part).ok_or(SceneError::Part(inst.part))?;
         let (lo, hi) = part.occupied_box(max_level);
         // The body does not turn relative to itself: its pivot is its origin.
         let pivot = if k == 0 { DVec3::ZERO } else { r[k].0.as_dvec3() };
         let far = box_corners(lo, hi).iter().map(|c| (*c - pivot).length()).fold(0.0, f64::max);
         radius = radius.max(pivot.length() + far);
     }
-    radius
+    Ok(radius)
 }
 
 /// The parts of a car's eight instances (None: an instance is missing).
@@ -311,7 +313,7 @@ pub fn car_radii(scene: &Scene, cars: &[Car], max_level: u32) -> Result<Vec<f64>
         let r = match radii.iter().find(|(k, _)| *k == key) {
             Some(&(_, r)) => r,
             None => {
-                let r = car_radius(scene, car, max_level);
+                let r = car_radius(scene, car, max_level)?;
                 radii.push((key, r));
                 r
             }

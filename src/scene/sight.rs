@@ -134,11 +134,11 @@ impl Sight {
             return true;
         }
         // A shadow ray from p towards the sun meets the sphere when p lies in the sphere swept
-        // away from the sun; only the stretch of that sweep inside the surfaces' box (grown by
-        // r) can hold a visible p.
+        // away from the sun; only the stretch of that sweep whose centre lies inside the
+        // surfaces' box grown by r can hold a visible p.
         let (lo, hi) = (self.surfaces.0 - eye - DVec3::splat(r), self.surfaces.1 - eye + DVec3::splat(r));
-        self.suns.iter().any(|&to_sun| match sweep_length(c, -to_sun, lo, hi) {
-            Some(s) => self.primary_meets_capsule(c, c - to_sun * s, r),
+        self.suns.iter().any(|&to_sun| match sweep_span(c, -to_sun, lo, hi) {
+            Some((s0, s1)) => self.primary_meets_capsule(c - to_sun * s0, c - to_sun * s1, r),
             None => false,
         })
     }
@@ -206,21 +206,23 @@ impl Sight {
     }
 }
 
-/// How far from `c` along unit `dir` the line stays inside the box [lo, hi] (c inside it);
-/// None when c lies outside.
-fn sweep_length(c: DVec3, dir: DVec3, lo: DVec3, hi: DVec3) -> Option<f64> {
-    if !(c.cmpge(lo).all() && c.cmple(hi).all()) {
-        return None;
-    }
-    let mut s = f64::INFINITY;
+/// The stretch [s0, s1] (s ≥ 0) of the ray `c + s·dir` inside the box [lo, hi]; None when
+/// the ray misses it. (The sphere's centre itself may lie outside: an occluder above the
+/// visible surfaces still shadows them.)
+fn sweep_span(c: DVec3, dir: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
+    let (mut s0, mut s1) = (0.0f64, f64::INFINITY);
     for k in 0..3 {
-        if dir[k] > 0.0 {
-            s = s.min((hi[k] - c[k]) / dir[k]);
-        } else if dir[k] < 0.0 {
-            s = s.min((lo[k] - c[k]) / dir[k]);
+        if dir[k] == 0.0 {
+            if c[k] < lo[k] || c[k] > hi[k] {
+                return None;
+            }
+            continue;
         }
+        let (a, b) = ((lo[k] - c[k]) / dir[k], (hi[k] - c[k]) / dir[k]);
+        s0 = s0.max(a.min(b));
+        s1 = s1.min(a.max(b));
     }
-    s.is_finite().then_some(s.max(0.0))
+    (s0 <= s1 && s1.is_finite()).then_some((s0, s1))
 }
 
 /// The distance between the ray from the origin along unit `d` (t ≥ 0) and the segment a–b.
@@ -309,7 +311,7 @@ mod tests {
         let (mut shadowing, mut only_by_shadow) = (0, 0);
         for _ in 0..1500 {
             let c =
-                DVec3::new(rng.range(-11.0, 11.0) as f64, rng.range(-0.5, 5.0) as f64, rng.range(-11.0, 11.0) as f64);
+                DVec3::new(rng.range(-11.0, 11.0) as f64, rng.range(-0.5, 12.0) as f64, rng.range(-11.0, 11.0) as f64);
             let r = 0.05 + rng.f64() * 0.6;
             // Points along each pixel's ray inside the box, every few centimetres.
             let shadows = (0..h).any(|y| {
