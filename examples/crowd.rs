@@ -4,7 +4,7 @@
 //! shades). Prints the median of each over the timed frames. `voxray bench --scenarios
 //! instances` is the full comparison.
 //!
-//! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::pose_seen`]), as the
+//! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::SeenCars::pose`]), as the
 //! harness does; a third argument `all` poses every car.
 //!
 //! `cargo run --release --example crowd [-- CARS [FRAMES [all]]]` (default 10 000 cars, 20 frames).

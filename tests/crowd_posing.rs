@@ -1,4 +1,4 @@
-//! Posing only the cars a frame's rays can reach (`scene::car::pose_seen`, `scene::Sight`):
+//! Posing only the cars a frame's rays can reach (`scene::car::SeenCars::pose`, `scene::Sight`):
 //! each car's radius holds its parts in every pose, and frames of a crowd posed that way
 //! equal, bit for bit, the frames of the crowd with every car posed — over a clip, with the
 //! sun's shadows (cars out of view whose shadows fall into it), the hit buffer carried from

@@ -27,7 +27,7 @@ pub struct Features {
     /// Beams: primary rays start where their tile's cone first meets each instance.
     #[cfg_attr(feature = "json", serde(default = "yes"))]
     pub beams: bool,
-    /// Pose only the cars some ray of the frame can reach ([`crate::scene::car::pose_seen`];
+    /// Pose only the cars some ray of the frame can reach ([`crate::scene::car::SeenCars::pose`];
     /// the callers that pose cars read it, the plan does not).
     #[cfg_attr(feature = "json", serde(default = "yes"))]
     pub pose_seen: bool,

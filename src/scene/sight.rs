@@ -1,6 +1,6 @@
 //! What a frame's rays can reach: whether any primary ray of a camera, or any sun's shadow
 //! ray from a point those rays can see, can meet a given sphere. A crowd poses only the cars
-//! whose bounds some ray can reach ([`super::car::pose_seen`]); a car no ray reaches in its
+//! whose bounds some ray can reach ([`super::car::SeenCars::pose`]); a car no ray reaches in its
 //! old pose nor in its new one looks the same in the picture whether it is posed or not.
 //!
 //! The test is conservative: it may say a sphere is reached when no ray meets it (the sphere
