@@ -6,6 +6,8 @@
 //! shadow rays of its pixels), so these comparisons check the packets against the rays one
 //! by one as well.
 
+mod common;
+use common::assert_same_frames;
 use glam::{DQuat, DVec3};
 use std::sync::{Arc, OnceLock};
 use voxray::pipeline::build_parts;
@@ -44,21 +46,6 @@ fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
     let plan = FramePlan::new(s, cam, &lights, &features, None);
     assert_eq!(plan.beams, beams, "{}", plan.explain());
     render(s, cam, &lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
-}
-
-/// The frames with and without beams agree bit for bit: every pixel's t, instance and normal,
-/// and the image.
-fn assert_same_frames(with: &Frame, without: &Frame, what: &str) {
-    for k in 0..with.t.len() {
-        assert_eq!(with.t[k].to_bits(), without.t[k].to_bits(), "{what}, pixel {k}: t");
-        assert_eq!(with.instance[k], without.instance[k], "{what}, pixel {k}: instance");
-        assert_eq!(
-            with.normal[k].to_array().map(f32::to_bits),
-            without.normal[k].to_array().map(f32::to_bits),
-            "{what}, pixel {k}: normal"
-        );
-    }
-    assert_eq!(with.radiance, without.radiance, "{what}: image");
 }
 
 #[test]

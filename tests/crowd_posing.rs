@@ -5,6 +5,8 @@
 //! frame to frame, a camera that holds still and then turns onto cars left unposed, and a
 //! coarser level of detail.
 
+mod common;
+use common::assert_same_frames;
 use glam::{DQuat, DVec3};
 use std::sync::{Arc, OnceLock};
 use voxray::pipeline::build_parts;
@@ -16,19 +18,6 @@ use voxray::voxelize::Resolution;
 fn car_parts() -> Vec<Arc<Svo>> {
     static PARTS: OnceLock<Vec<Arc<Svo>>> = OnceLock::new();
     PARTS.get_or_init(|| build_parts(&voxray::model::car::mesh(), Resolution::Depth(7)).unwrap()).clone()
-}
-
-fn assert_same_frames(a: &Frame, b: &Frame, what: &str) {
-    for k in 0..a.t.len() {
-        assert_eq!(a.t[k].to_bits(), b.t[k].to_bits(), "{what}, pixel {k}: t");
-        assert_eq!(a.instance[k], b.instance[k], "{what}, pixel {k}: instance");
-        assert_eq!(
-            a.normal[k].to_array().map(f32::to_bits),
-            b.normal[k].to_array().map(f32::to_bits),
-            "{what}, pixel {k}: normal"
-        );
-    }
-    assert_eq!(a.radiance, b.radiance, "{what}: image");
 }
 
 /// Over many times of the clip and two levels of detail, every corner of every instance's

@@ -386,9 +386,8 @@ impl Scene {
         let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
         for i in which {
             let c = &self.parts[self.instances[i].part].bounds;
-            for k in 0..8 {
-                let corner = c.min.as_dvec3()
-                    + DVec3::new((k & 1) as f64, ((k >> 1) & 1) as f64, (k >> 2) as f64) * c.size as f64;
+            let min = c.min.as_dvec3();
+            for corner in box_corners(min, min + DVec3::splat(c.size as f64)) {
                 let p = self.world[i].transform_point3(corner);
                 lo = lo.min(p);
                 hi = hi.max(p);

@@ -54,25 +54,19 @@ impl App {
         // Only the cars some ray of this frame can reach are posed (the picture is the same).
         let sight = if features.pose_seen && self.opts.animated.is_none() && !self.cars.is_empty() {
             let key = (self.scene.part_edits(), self.ui.lod, self.ui.travel, self.cars.len());
-            if self.seen.as_ref().is_none_or(|s| s.key != key) {
-                let surfaces = crate::scene::stage::surfaces(&self.scene, &self.cars, self.ui.lod).map_err(other)?;
-                self.seen = Some(Seen { key, surfaces, cars: SeenCars::default() });
-            }
+            let surfaces = match self.surfaces {
+                Some((k, surfaces)) if k == key => surfaces,
+                _ => crate::scene::stage::surfaces(&self.scene, &self.cars, self.ui.lod).map_err(other)?,
+            };
+            self.surfaces = Some((key, surfaces));
             let rays = FrameRays::of(&self.scene, &features, session.gi().is_some(), &opts);
-            self.seen.as_ref().and_then(|s| Sight::new(&camera, &self.lights, rays, s.surfaces).ok())
+            Sight::new(&camera, &self.lights, rays, surfaces).ok()
         } else {
             None
         };
         let scene_error = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
-        let posing = &mut self.seen.get_or_insert_with(|| Seen {
-            key: (0, 0, false, 0),
-            surfaces: (DVec3::ZERO, DVec3::ZERO),
-            cars: SeenCars::default(),
-        });
-        let posed = posing
-            .cars
-            .pose(&mut self.scene, &self.cars, self.time, sight.as_ref(), self.ui.lod)
-            .map_err(scene_error)?;
+        let posed =
+            self.seen.pose(&mut self.scene, &self.cars, self.time, sight.as_ref(), self.ui.lod).map_err(scene_error)?;
         self.ui.posed = (posed, self.cars.len());
         if let Some(a) = &self.opts.animated {
             a.rig.pose(&mut self.scene, a.clip, self.time).map_err(|e| ViewerError::Other(e.to_string()))?;

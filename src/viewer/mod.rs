@@ -163,17 +163,14 @@ struct App {
     times: Vec<f64>,
     want_screenshot: bool,
     ui: Ui,
-    /// What posing only the cars a frame can see needs.
-    seen: Option<Seen>,
+    /// What posing only the cars a frame can see keeps between frames.
+    seen: SeenCars,
+    /// The box of visible surfaces, with what it was computed for.
+    surfaces: Option<(SurfacesKey, (DVec3, DVec3))>,
 }
 
-/// The box of visible surfaces with what it was computed for, and what posing keeps.
-struct Seen {
-    /// Part edits, level of detail, travel, cars.
-    key: (u64, u32, bool, usize),
-    surfaces: (DVec3, DVec3),
-    cars: SeenCars,
-}
+/// What the box of visible surfaces depends on: part edits, level of detail, travel, cars.
+type SurfacesKey = (u64, u32, bool, usize);
 
 impl App {
     fn camera(&self, w: u32, h: u32) -> Camera {
@@ -290,7 +287,8 @@ pub fn run(
             on_device: false,
             reset: false,
         },
-        seen: None,
+        seen: SeenCars::default(),
+        surfaces: None,
     };
     app.ui.travel = app.cars.first().is_some_and(|c| c.travel);
     app.ui.gi_on = app.opts.gi;

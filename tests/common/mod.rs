@@ -1,5 +1,8 @@
 //! Helpers shared by the integration tests.
 
+// Each test binary that includes this uses some of the helpers, not all.
+#![allow(dead_code)]
+
 use std::path::{Path, PathBuf};
 
 /// A scratch folder of one test, removed when the test ends (pass or fail).
@@ -33,4 +36,18 @@ impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// Two frames agree bit for bit: every pixel's t, instance and normal, and the image.
+pub fn assert_same_frames(a: &voxray::render::Frame, b: &voxray::render::Frame, what: &str) {
+    for k in 0..a.t.len() {
+        assert_eq!(a.t[k].to_bits(), b.t[k].to_bits(), "{what}, pixel {k}: t");
+        assert_eq!(a.instance[k], b.instance[k], "{what}, pixel {k}: instance");
+        assert_eq!(
+            a.normal[k].to_array().map(f32::to_bits),
+            b.normal[k].to_array().map(f32::to_bits),
+            "{what}, pixel {k}: normal"
+        );
+    }
+    assert_eq!(a.radiance, b.radiance, "{what}: image");
 }
