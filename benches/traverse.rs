@@ -102,6 +102,7 @@ fn car_primary_rays(c: &mut Criterion) {
                 opts: Default::default(),
                 beams,
                 bvh_beams: false,
+                lists: None,
                 moved: &[],
                 missed_before: &[],
             };

@@ -77,6 +77,7 @@ fn main() -> Result<(), voxray::Error> {
                 opts: Default::default(),
                 beams,
                 bvh_beams: false,
+                lists: None,
                 moved: &[],
                 missed_before: &[],
             };

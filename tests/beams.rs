@@ -143,11 +143,13 @@ fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
     assert!(!plan.beams, "{}", plan.explain());
 }
 
-/// A crowd past the instance limit (20 driving cars, 160 instances) gets beams through the
-/// instance BVH: tiles whose rays' pyramid meets no instance store misses untraced. Over a
-/// clip of moving cars and a turning camera, with a hit buffer carried from frame to frame
-/// (a beam's miss already stored is not written again), with the hit buffer on and off,
-/// every frame equals the one rendered with beams off, bit for bit, and tiles are settled.
+/// A crowd past the instance limit (20 driving cars, 160 instances) searches per-pixel sphere
+/// lists (`render::pixel_spheres`) instead of walking the instance BVH, or, with the lists off,
+/// gets beams through the BVH: tiles whose rays' pyramid meets no instance store misses
+/// untraced. Over a clip of moving cars and a turning camera, with a hit buffer carried from
+/// frame to frame (a beam's miss already stored is not written again), with the hit buffer on
+/// and off, every frame of both equals the one rendered with beams off, bit for bit, and tiles
+/// are settled.
 #[test]
 fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
     let parts = car_parts();
@@ -159,7 +161,7 @@ fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
         let mut st = voxray::scene::stage_cars(&parts, cars, true, ground).unwrap();
         let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
         let base = Camera::framing(lo, hi, 192, 112);
-        let mut kept = [voxray::render::HitBuffer::new(), voxray::render::HitBuffer::new()];
+        let mut kept: [voxray::render::HitBuffer; 3] = Default::default();
         for f in 0..4 {
             // Three seconds a frame: cars leave tiles that held them.
             let t = 0.2 + f as f64 * 3.0;
@@ -169,18 +171,21 @@ fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
             let turn = DQuat::from_rotation_y(if f == 3 { 0.05 } else { 0.0 });
             let cam = Camera { eye: base.target + turn * (base.eye - base.target), ..base };
             let mut frames = Vec::new();
-            for (k, beams) in [true, false].into_iter().enumerate() {
+            // Sphere lists, beams through the BVH without them, neither.
+            for (k, (beams, lists)) in [(true, true), (true, false), (false, false)].into_iter().enumerate() {
                 let features = Features { beams, hit_buffer, ..Features::default() };
-                let plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&kept[k]));
-                assert_eq!(plan.bvh_beams, beams, "{}", plan.explain());
+                let mut plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&kept[k]));
+                assert_eq!((plan.bvh_beams, plan.sphere_lists), (beams, beams), "{}", plan.explain());
                 assert!(!plan.beams && plan.bvh, "{}", plan.explain());
+                plan.sphere_lists = lists;
                 let opts = RenderOptions::default();
                 frames.push(render(&st.scene, &cam, &lights, &plan, &opts, Some(&mut kept[k]), &|_, _| {}).unwrap());
             }
             let what = format!("ground {ground}, hit buffer {hit_buffer}, frame {f}");
             let covered = frames[0].instance.iter().filter(|&&i| i >= 0).count();
             assert!(covered > 100, "{what}: the crowd covers only {covered} pixels");
-            assert_same_frames(&frames[0], &frames[1], &what);
+            assert_same_frames(&frames[0], &frames[2], &format!("{what}, sphere lists"));
+            assert_same_frames(&frames[1], &frames[2], &format!("{what}, beams through the BVH"));
             if hit_buffer {
                 // The kept hits and colours (with the sun's shadow rays checked against the
                 // 320 moved spheres through their BVH) against a frame rendered afresh.
@@ -197,11 +202,17 @@ fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
             if f == 0 && !ground {
                 // Rays of settled tiles test no leaf's spheres.
                 assert!(
-                    frames[0].spheres_culled < frames[1].spheres_culled,
+                    frames[1].spheres_culled < frames[2].spheres_culled,
                     "{what}: no tile settled ({} spheres culled with, {} without)",
-                    frames[0].spheres_culled,
-                    frames[1].spheres_culled
+                    frames[1].spheres_culled,
+                    frames[2].spheres_culled
                 );
+                // The lists were built (they are, unless the spheres overlap deeply): a ray
+                // traces the instances of its list, as the depth-sorted search does.
+                let prepared = voxray::render::instances::prepare(&st.scene, cam.eye, true);
+                let spheres: Vec<_> = prepared.iter().map(|p| (p.centre, p.radius)).collect();
+                let lists = voxray::render::pixel_spheres::PixelSpheres::build(&cam, &spheres);
+                assert!(lists.is_some_and(|l| !l.is_empty()), "{what}: no sphere lists");
             }
         }
     }

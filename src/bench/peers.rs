@@ -162,6 +162,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 opts: Default::default(),
                 beams: true,
                 bvh_beams: false,
+                lists: None,
                 moved: &[],
                 missed_before: &[],
             };

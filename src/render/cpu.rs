@@ -8,6 +8,7 @@ use super::bvh::Bvh;
 use super::emitters::{emitter_light, EmitterShadows, EmitterTable, ShadowCone};
 use super::hitbuffer::{HitBuffer, HitRecord, Rendered, TileSummary};
 use super::instances::{prepare_changed, prepare_into, Prepared};
+use super::pixel_spheres::PixelSpheres;
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
@@ -526,7 +527,18 @@ pub fn render_lit(
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are decided first, so a tile that reuses all traces nothing.
     let moved = reuse.as_ref().map_or(&[][..], |r| r.moved_search());
+    // A crowd's rays search the spheres their pixel meets, not the BVH.
+    let lists = if plan.sphere_lists && !splatting {
+        match hits.as_deref().filter(|_| bvh.is_some()) {
+            // The spheres the BVH was just refitted to.
+            Some(h) => PixelSpheres::build(camera, h.bvh_spheres()),
+            None => PixelSpheres::build(camera, &prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
+        }
+    } else {
+        None
+    };
     let primary = Primary {
+        lists: lists.as_ref(),
         instances: fi,
         camera,
         search,

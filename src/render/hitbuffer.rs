@@ -281,6 +281,12 @@ impl HitBuffer {
         bvh
     }
 
+    /// The spheres (camera-relative centre, radius) of the prepared instances the last
+    /// [`HitBuffer::take_bvh`] was given, in instance order.
+    pub fn bvh_spheres(&self) -> &[(DVec3, f64)] {
+        &self.bvh_spheres
+    }
+
     /// Hands a frame the caller is done with back to the renderer: the next frame of the same
     /// size is written into its buffers instead of fresh memory.
     pub fn recycle(&mut self, frame: super::cpu::Frame) {

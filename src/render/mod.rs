@@ -11,6 +11,7 @@ pub mod gather;
 pub mod hitbuffer;
 pub mod instances;
 pub mod output;
+pub mod pixel_spheres;
 pub mod plan;
 pub mod primary;
 pub mod radiance_cache;

@@ -90,6 +90,12 @@ pub struct FramePlan {
     /// pyramid meets no instance's sphere stores misses without tracing ([`super::beam::meets_any`]).
     #[cfg_attr(feature = "json", serde(default))]
     pub bvh_beams: bool,
+    /// Per-pixel sphere lists for primary rays, for more instances than beams take: every
+    /// instance's sphere projected onto the pixels whose rays it meets, so that a ray searches
+    /// only its list instead of walking the BVH ([`super::pixel_spheres`]); where the spheres
+    /// overlap too deeply, `bvh_beams` as before.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub sphere_lists: bool,
     /// GI in this frame (None: off): what it kept from the frame before and the volume's
     /// layout. Decided as GI runs; [`crate::session::Session::frame`] fills it in and adds
     /// its reason line.
@@ -179,8 +185,9 @@ impl FramePlan {
             )
         } else if bvh_beams {
             format!(
-                "beams: through the BVH ({n} instances > {}: a {1}×{1} tile whose rays' pyramid meets no instance stores misses untraced)",
+                "beams: per-pixel sphere lists ({n} instances > {}: each sphere projected onto the pixels whose rays it meets, a ray searches only its own; through the BVH where they overlap more than {} deep: a {2}×{2} tile whose rays' pyramid meets no instance stores misses untraced)",
                 super::beam::MAX_INSTANCES,
+                super::pixel_spheres::MAX_PER_PIXEL,
                 super::beam::TILE
             )
         } else {
@@ -197,6 +204,7 @@ impl FramePlan {
             shadows,
             beams,
             bvh_beams,
+            sphere_lists: bvh_beams,
             gi: None,
             reasons,
         }
@@ -215,6 +223,7 @@ impl FramePlan {
     pub fn without_beams(&mut self, why: &str) {
         self.beams = false;
         self.bvh_beams = false;
+        self.sphere_lists = false;
         if let Some(r) = self.reasons.iter_mut().find(|r| r.starts_with("beams:")) {
             *r = format!("beams: off ({why})");
         }

@@ -3,8 +3,9 @@
 //! renderer's trace pass and library users who only want the hits share this loop.
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
+use super::pixel_spheres::PixelSpheres;
 use super::tile_search::{each, nearest_moved_tile, nearest_tile, TileScratch};
-use super::visibility::{nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
+use super::visibility::{nearest_listed, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
 use glam::DVec3;
@@ -26,6 +27,9 @@ pub struct Primary<'a> {
     /// Settle the tiles whose rays' pyramid meets no instance through the instance BVH (for
     /// crowds, where `beams` is off): their rays miss without a search.
     pub bvh_beams: bool,
+    /// Per pixel, the instances whose sphere its ray meets ([`PixelSpheres`]): when given
+    /// (and `beams` is off), [`Todo::All`] pixels search their list instead of the BVH.
+    pub lists: Option<&'a PixelSpheres>,
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
     pub moved: &'a [u32],
@@ -150,6 +154,7 @@ pub fn trace_tiles<T: Send, S>(
             } else {
                 // Through the BVH: the tile's pyramid meets no instance's sphere.
                 let settled = p.bvh_beams
+                    && p.lists.is_none()
                     && p.instances.bvh.is_some_and(|bvh| {
                         let tile =
                             TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
@@ -210,9 +215,24 @@ pub fn trace_tiles<T: Send, S>(
                 continue;
             }
             for k in each(todo) {
-                let d = dir(k);
-                let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work);
-                store(&mut rows[at(k)], hit.map(|h| (h, d)));
+                let hit = match p.lists {
+                    Some(lists) => {
+                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                        if listed.is_empty() {
+                            // The ray meets no sphere: a miss, without forming its direction.
+                            work.culled += fi.prepared.len() as u64;
+                            store(&mut rows[at(k)], None);
+                            continue;
+                        }
+                        let d = dir(k);
+                        nearest_listed(&fi, DVec3::ZERO, d, listed, &p.opts, &mut work).map(|h| (h, d))
+                    }
+                    None => {
+                        let d = dir(k);
+                        nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d))
+                    }
+                };
+                store(&mut rows[at(k)], hit);
             }
             for k in each(partial) {
                 let d = dir(k);

@@ -182,25 +182,15 @@ pub fn nearest_work(
             }
         }
         Search::CullSort => {
-            let mut cands: Vec<(f64, usize)> = fi
+            let mut cands: Vec<(f64, u32)> = fi
                 .prepared
                 .iter()
                 .enumerate()
                 .filter(|&(i, _)| !beam_misses(fi, i))
-                .filter_map(|(i, p)| sphere_interval(p.centre, p.radius, o, d).map(|(t0, _)| (t0, i)))
+                .filter_map(|(i, p)| sphere_interval(p.centre, p.radius, o, d).map(|(t0, _)| (t0, i as u32)))
                 .collect();
-            work.culled += (fi.prepared.len() - cands.len()) as u64;
             cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            for (entry, i) in cands {
-                let t_max = bound(&best);
-                if entry > t_max as f64 {
-                    break; // every later sphere starts beyond the nearest hit
-                }
-                work.traced += 1;
-                if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
-                    keep(&mut best, i, h);
-                }
-            }
+            return nearest_listed(fi, o, d, &cands, opts, work);
         }
         Search::Bvh => {
             let Some(bvh) = fi.bvh else { return nearest_work(fi, o, d, Search::CullSort, opts, work) };
@@ -249,6 +239,34 @@ pub fn nearest_work(
                     }
                 }
             }
+        }
+    }
+    best
+}
+
+/// The nearest hit along `o + t·d` among the instances `listed` as (sphere entry t,
+/// instance), ascending by t then instance: when the list holds every instance whose sphere
+/// the ray meets (and the tile's beam lets through), the nearest hit among all instances.
+/// Visits them in order, each traced up to the best hit so far, and stops at the first whose
+/// sphere starts beyond it (the depth-sorted early-out). The others count as culled.
+pub fn nearest_listed(
+    fi: &FrameInstances,
+    o: DVec3,
+    d: DVec3,
+    listed: &[(f64, u32)],
+    opts: &TraceOptions,
+    work: &mut Work,
+) -> Option<InstanceHit> {
+    let mut best: Option<InstanceHit> = None;
+    work.culled += fi.prepared.len().saturating_sub(listed.len()) as u64;
+    for &(entry, i) in listed {
+        let t_max = best.map_or(opts.t_max, |b| b.hit.t);
+        if entry > t_max as f64 {
+            break; // every later sphere starts beyond the nearest hit
+        }
+        work.traced += 1;
+        if let Some(h) = trace_one(fi, i as usize, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
+            keep(&mut best, i as usize, h);
         }
     }
     best

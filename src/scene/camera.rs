@@ -73,6 +73,130 @@ impl Basis {
     }
 }
 
+/// The pixels whose rays may pass near a point or segment: see [`PixelGrid::near`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PixelRect {
+    /// No pixel centre's ray can pass that near.
+    Empty,
+    /// The shape reaches the eye's plane: its projection is unbounded (any pixel may).
+    Unbounded,
+    /// Only the rays of these pixels may (inclusive bounds).
+    Pixels {
+        /// First column.
+        x0: u32,
+        /// First row.
+        y0: u32,
+        /// Last column.
+        x1: u32,
+        /// Last row.
+        y1: u32,
+    },
+}
+
+impl PixelRect {
+    /// How many pixels the rectangle holds (`Unbounded`: the whole image of `camera`).
+    pub fn area(&self, camera: &Camera) -> u64 {
+        match *self {
+            PixelRect::Empty => 0,
+            PixelRect::Unbounded => camera.width as u64 * camera.height as u64,
+            PixelRect::Pixels { x0, y0, x1, y1 } => (x1 - x0 + 1) as u64 * (y1 - y0 + 1) as u64,
+        }
+    }
+}
+
+/// A camera's pixel centres as slopes from its view axis, for bounding where spheres project
+/// ([`PixelGrid::near`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelGrid {
+    basis: Basis,
+    width: u32,
+    height: u32,
+    /// Pixels per unit of screen slope, across and down.
+    per_x: f64,
+    per_y: f64,
+}
+
+impl PixelGrid {
+    /// The grid of `camera`'s pixels (`basis` is its [`Camera::basis`]).
+    pub fn new(camera: &Camera, basis: &Basis) -> PixelGrid {
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        PixelGrid {
+            basis: *basis,
+            width: camera.width,
+            height: camera.height,
+            per_x: 0.5 * w / (basis.tan_half * w / h),
+            per_y: 0.5 * h / basis.tan_half,
+        }
+    }
+
+    /// The rectangle of pixels whose centre's ray (from the eye) may pass within `r` of one of
+    /// `ends` (camera-relative points; two ends: of every point of the segment between them):
+    /// per end, the slopes X/Z of the sphere's bounding box, [x ± r] over [z ± r], mapped to
+    /// the pixel centres as [`Camera::screen_x`] and [`Camera::screen_y`] place them (the
+    /// segment's spheres project inside the two ends' rectangles' bounding rectangle). No
+    /// roots or library calls: a crowd bounds tens of thousands of spheres a frame. Rounding
+    /// is of order 10⁻¹⁵ of the slopes; callers pad `r` well beyond it and test the pixels
+    /// inside one by one.
+    #[inline]
+    pub fn near(&self, ends: &[DVec3], r: f64) -> PixelRect {
+        let b = &self.basis;
+        let mut slopes = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+        for p in ends {
+            let z = p.dot(b.forward);
+            if !(z > r * (1.0 + 1e-9)) {
+                // One sphere wholly behind the eye: no ray from it meets it at t ≥ 0. Else it
+                // reaches the eye's plane, and its projection is unbounded.
+                return if ends.len() == 1 && z < -r { PixelRect::Empty } else { PixelRect::Unbounded };
+            }
+            let (x, y) = (p.dot(b.right), p.dot(b.up));
+            // One division for both reciprocals.
+            let inv = 1.0 / ((z - r) * (z + r));
+            let (near, far) = ((z + r) * inv, (z - r) * inv);
+            for (a, lo, hi) in [(x, 0, 1), (y, 2, 3)] {
+                slopes[lo] = slopes[lo].min((a - r) * if a - r < 0.0 { near } else { far });
+                slopes[hi] = slopes[hi].max((a + r) * if a + r > 0.0 { near } else { far });
+            }
+        }
+        let (w, h) = (self.width as f64, self.height as f64);
+        // Columns whose centre's slope lies in [slopes0, slopes1]; rows the same, flipped.
+        let x0 = ceil_within(slopes[0] * self.per_x + 0.5 * w - 0.5, w);
+        let x1 = floor_within(slopes[1] * self.per_x + 0.5 * w - 0.5, w);
+        let y0 = ceil_within(0.5 * h - slopes[3] * self.per_y - 0.5, h);
+        let y1 = floor_within(0.5 * h - slopes[2] * self.per_y - 0.5, h);
+        let (x0, y0) = (x0.max(0), y0.max(0));
+        let (x1, y1) = (x1.min(self.width as i64 - 1), y1.min(self.height as i64 - 1));
+        if x0 > x1 || y0 > y1 {
+            return PixelRect::Empty;
+        }
+        PixelRect::Pixels { x0: x0 as u32, y0: y0 as u32, x1: x1 as u32, y1: y1 as u32 }
+    }
+}
+
+/// ⌈v⌉ for v clamped to [−1, n], by truncation (a NaN gives 0, a column that exists): without
+/// SSE4.1 `f64::ceil` is a library call, and a crowd's projection makes four per sphere.
+#[inline]
+fn ceil_within(v: f64, n: f64) -> i64 {
+    let v = v.clamp(-1.0, n);
+    let t = v as i64;
+    if (t as f64) < v {
+        t + 1
+    } else {
+        t
+    }
+}
+
+/// ⌊v⌋ for v clamped to [−1, n], as [`ceil_within`].
+#[inline]
+fn floor_within(v: f64, n: f64) -> i64 {
+    let v = v.clamp(-1.0, n);
+    let t = v as i64;
+    if (t as f64) > v {
+        t - 1
+    } else {
+        t
+    }
+}
+
 impl Camera {
     /// A camera looking at a bounding box from the front-left, three-quarters above, framed
     /// to fit it.

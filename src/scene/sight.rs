@@ -8,6 +8,7 @@
 //! fraction of their radius and of their distance, far beyond the rounding of the renderer's
 //! f32 and f64 rays.
 
+use super::camera::{PixelGrid, PixelRect};
 use super::{Camera, Lights};
 use glam::DVec3;
 
@@ -32,6 +33,8 @@ pub struct Sight {
     /// [`Camera::screen_x`] of each pixel column and [`Camera::screen_y`] of each row.
     columns: Vec<f64>,
     rows: Vec<f64>,
+    /// Where spheres project among the pixels.
+    grid: PixelGrid,
 }
 
 /// Why a frame's rays cannot be bounded by a [`Sight`] (every instance must then be posed).
@@ -118,7 +121,8 @@ impl Sight {
         let basis = camera.basis();
         let columns = (0..camera.width).map(|px| camera.screen_x(&basis, px)).collect();
         let rows = (0..camera.height).map(|py| camera.screen_y(&basis, py)).collect();
-        Ok(Sight { camera: *camera, basis, suns, surfaces, columns, rows })
+        let grid = PixelGrid::new(camera, &basis);
+        Ok(Sight { camera: *camera, basis, suns, surfaces, columns, rows, grid })
     }
 
     /// Whether some ray of the frame may meet the sphere (world `centre`, `radius`): a
@@ -147,43 +151,12 @@ impl Sight {
     /// radius `r` around the segment a–b.
     fn primary_meets_capsule(&self, a: DVec3, b: DVec3, r: f64) -> bool {
         let (cam, bs) = (&self.camera, &self.basis);
-        let (w, h) = (cam.width as f64, cam.height as f64);
-        let mut rect = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
         let ends = if a == b { 1 } else { 2 };
-        for p in [a, b].into_iter().take(ends) {
-            let z = p.dot(bs.forward);
-            // A sphere reaching the eye's plane: its projection is unbounded.
-            if !(z > r * (1.0 + 1e-9)) {
-                return true;
-            }
-            let (x, y) = (p.dot(bs.right), p.dot(bs.up));
-            // The two lines through the eye tangent to the sphere's circle in each axis's
-            // plane, as slopes s = axis / forward: (axis − s z)² = r² (1 + s²).
-            let den = z * z - r * r;
-            let inv = 1.0 / den;
-            for (axis, lo, hi) in [(x, 0, 1), (y, 2, 3)] {
-                let root = r * (axis * axis + den).max(0.0).sqrt();
-                rect[lo] = rect[lo].min((axis * z - root) * inv);
-                rect[hi] = rect[hi].max((axis * z + root) * inv);
-            }
-        }
-        // The pixel columns whose centre's screen_x lies in [rect0, rect1] and the rows whose
-        // screen_y lies in [rect2, rect3]: only their rays can meet the sphere. A sphere
-        // between pixel centres has none. (Rounding here is of order 10⁻¹⁵ of the slopes; the
-        // radius's padding moves them by at least 10⁻⁶.)
-        let half_w = 0.5 * w / (bs.tan_half * w / h);
-        let half_h = 0.5 * h / bs.tan_half;
-        let col = |sx: f64| sx * half_w + 0.5 * w - 0.5;
-        let row = |sy: f64| 0.5 * h - sy * half_h - 0.5;
-        let clamp = |v: f64, n: f64| v.clamp(-1.0, n) as i64;
-        let (x0, x1) = (clamp(col(rect[0]).ceil(), w), clamp(col(rect[1]).floor(), w));
-        let (y0, y1) = (clamp(row(rect[3]).ceil(), h), clamp(row(rect[2]).floor(), h));
-        let (x0, y0) = (x0.max(0), y0.max(0));
-        let (x1, y1) = (x1.min(cam.width as i64 - 1), y1.min(cam.height as i64 - 1));
-        if x0 > x1 || y0 > y1 {
-            return false;
-        }
-        if ((x1 - x0 + 1) * (y1 - y0 + 1)) as u64 > MAX_TESTED_PIXELS {
+        let rect = self.grid.near(&[a, b][..ends], r);
+        let PixelRect::Pixels { x0, y0, x1, y1 } = rect else {
+            return rect == PixelRect::Unbounded;
+        };
+        if rect.area(cam) > MAX_TESTED_PIXELS {
             return true;
         }
         // In the camera's frame a pixel's ray runs along D = (screen_x, screen_y, 1); it
@@ -199,7 +172,7 @@ impl Sight {
                     let along = p.dot(d);
                     reach * d.length_squared() <= along * along
                 } else {
-                    ray_segment_distance(cam.ray_dir(bs, px as u32, py as u32), a, b) <= r
+                    ray_segment_distance(cam.ray_dir(bs, px, py), a, b) <= r
                 }
             })
         })

@@ -1,0 +1,233 @@
+//! Per pixel, the instances whose bounding sphere its primary ray meets, with the t at which
+//! it enters each, nearest first: found once per frame by projecting every sphere onto the
+//! screen and testing the pixel centres inside its projection, instead of walking the
+//! instance BVH once per ray.
+//!
+//! In a crowd, most instances cover a pixel or less and most rays pass between them: a ray's
+//! walk tests a dozen BVH nodes to find that it meets two spheres or none (docs/benchmarks.md,
+//! step 51), while a sphere's projection holds zero or one pixel centre. A pixel's list is
+//! exactly what the depth-sorted search collects for its ray ([`super::visibility::nearest_listed`]):
+//! the same [`sphere_interval`] of the same direction, so the hits are bit for bit those of
+//! every other search.
+//!
+//! When the spheres overlap deeply (more than [`MAX_PER_PIXEL`] pixel tests per pixel on
+//! average, or a sphere around the eye), [`PixelSpheres::build`] gives up and the rays walk
+//! the BVH as before.
+
+use super::instances::sphere_interval;
+use crate::scene::camera::{Camera, PixelGrid, PixelRect};
+use glam::DVec3;
+
+/// Pixel tests per pixel, on average over the image, beyond which the lists are not built.
+pub const MAX_PER_PIXEL: u64 = 8;
+
+/// Instances per parallel chunk of the projection.
+#[cfg(feature = "parallel")]
+const CHUNK: usize = 2048;
+
+/// The lists of one frame's primary rays.
+#[derive(Clone, Debug, Default)]
+pub struct PixelSpheres {
+    width: u32,
+    /// Per pixel (row-major), where its entries start in `entries`; one more at the end.
+    start: Vec<u32>,
+    /// (sphere entry t, instance): per pixel ascending by t, then by instance.
+    entries: Vec<(f64, u32)>,
+}
+
+/// What one chunk of instances found: (pixel, entry t, instance), in instance order.
+type Found = Vec<(u32, f64, u32)>;
+
+impl PixelSpheres {
+    /// The lists for `camera`'s pixels (rays through their centres from the camera-relative
+    /// origin, as [`super::primary::trace_tiles`] forms them) among the instances' spheres
+    /// (camera-relative centre and radius of each [`Prepared`](super::instances::Prepared),
+    /// in instance order: read from a compact list, a crowd's projection is not held up by
+    /// memory); None when the
+    /// camera is not valid or the spheres would need more than [`MAX_PER_PIXEL`] tests per
+    /// pixel.
+    pub fn build(camera: &Camera, spheres: &[(DVec3, f64)]) -> Option<PixelSpheres> {
+        Self::build_within(camera, spheres, MAX_PER_PIXEL)
+    }
+
+    /// [`PixelSpheres::build`] with at most `per_pixel` tests per pixel on average.
+    fn build_within(camera: &Camera, spheres: &[(DVec3, f64)], per_pixel: u64) -> Option<PixelSpheres> {
+        camera.validate().ok()?;
+        let basis = camera.basis();
+        let (w, h) = (camera.width, camera.height);
+        let pixels = w as u64 * h as u64;
+        if pixels > u32::MAX as u64 || spheres.len() > u32::MAX as usize {
+            return None;
+        }
+        let limit = per_pixel.saturating_mul(pixels);
+        let grid = PixelGrid::new(camera, &basis);
+        let columns: Vec<f64> = (0..w).map(|x| camera.screen_x(&basis, x)).collect();
+        let rows: Vec<f64> = (0..h).map(|y| camera.screen_y(&basis, y)).collect();
+        // One chunk's spheres, tested pixel by pixel inside their projections; None beyond
+        // the limit (each chunk stops early; the chunks' sum is checked below).
+        let project = |first: usize, chunk: &[(DVec3, f64)]| -> Option<(Found, u64)> {
+            let mut found = Vec::new();
+            let mut tested = 0u64;
+            for (k, &(centre, radius)) in chunk.iter().enumerate() {
+                // A centre that is not finite gives no interval for any ray; a radius that is
+                // not a number neither.
+                if !centre.is_finite() || radius.is_nan() {
+                    continue;
+                }
+                let rect = match grid.near(&[centre], padded(centre, radius)) {
+                    PixelRect::Empty => continue,
+                    PixelRect::Unbounded => PixelRect::Pixels { x0: 0, y0: 0, x1: w - 1, y1: h - 1 },
+                    rect => rect,
+                };
+                tested += rect.area(camera);
+                if tested > limit {
+                    return None;
+                }
+                let PixelRect::Pixels { x0, y0, x1, y1 } = rect else { continue };
+                let i = (first + k) as u32;
+                for y in y0..=y1 {
+                    for x in x0..=x1 {
+                        let d = basis.dir(columns[x as usize], rows[y as usize]);
+                        if let Some((t0, _)) = sphere_interval(centre, radius, DVec3::ZERO, d) {
+                            found.push((y * w + x, t0, i));
+                        }
+                    }
+                }
+            }
+            Some((found, tested))
+        };
+        #[cfg(feature = "parallel")]
+        let parts: Vec<(Found, u64)> = {
+            use rayon::prelude::*;
+            spheres.par_chunks(CHUNK).enumerate().map(|(c, chunk)| project(c * CHUNK, chunk)).collect::<Option<_>>()?
+        };
+        #[cfg(not(feature = "parallel"))]
+        let parts: Vec<(Found, u64)> = vec![project(0, spheres)?];
+        if parts.iter().map(|p| p.1).sum::<u64>() > limit {
+            return None;
+        }
+        // Counting sort by pixel: chunks and instances in order, so each pixel's entries
+        // arrive by ascending instance; then each list by entry t (ties keep that order).
+        let mut start = vec![0u32; pixels as usize + 1];
+        for (found, _) in &parts {
+            for &(px, _, _) in found {
+                start[px as usize + 1] += 1;
+            }
+        }
+        for k in 1..start.len() {
+            start[k] += start[k - 1];
+        }
+        let total = start[pixels as usize] as usize;
+        let mut entries = vec![(0.0, 0u32); total];
+        let mut next = start.clone();
+        for (found, _) in &parts {
+            for &(px, t0, i) in found {
+                let slot = &mut next[px as usize];
+                entries[*slot as usize] = (t0, i);
+                *slot += 1;
+            }
+        }
+        for px in 0..pixels as usize {
+            let list = &mut entries[start[px] as usize..start[px + 1] as usize];
+            if list.len() > 1 {
+                list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            }
+        }
+        Some(PixelSpheres { width: w, start, entries })
+    }
+
+    /// The list of pixel (x, y): (sphere entry t, instance), nearest first.
+    #[inline]
+    pub fn at(&self, x: u32, y: u32) -> &[(f64, u32)] {
+        let px = (y * self.width + x) as usize;
+        &self.entries[self.start[px] as usize..self.start[px + 1] as usize]
+    }
+
+    /// Entries over all pixels (how many ray–sphere crossings the frame's rays have).
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether no pixel's ray meets any sphere.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+/// A radius that holds every ray [`sphere_interval`] lets through in f64: it accepts a ray
+/// whose squared distance from the centre exceeds r² by its rounding, a few units of 2⁻⁵²
+/// times the squared distance L² of the centre; 10⁻¹³ L² is far beyond that, and the
+/// relative 10⁻⁹ covers the rectangle's own rounding.
+fn padded(centre: DVec3, r: f64) -> f64 {
+    // (r + a·L₁)² ≥ r² + a²L² with a² > 10⁻¹³ and the L¹ norm above L: no root per sphere.
+    r * (1.0 + 1e-9) + 3.2e-7 * centre.abs().element_sum() + f64::MIN_POSITIVE
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    fn sphere(centre: DVec3, radius: f64) -> (DVec3, f64) {
+        (centre, radius)
+    }
+
+    fn camera(w: u32, h: u32) -> Camera {
+        let mut c = Camera::framing(glam::Vec3::splat(-10.0), glam::Vec3::splat(10.0), w, h);
+        c.eye = DVec3::ZERO;
+        c.target = DVec3::new(0.3, -0.2, 1.0);
+        c
+    }
+
+    /// Every pixel's list against every sphere tested with every pixel's ray: the same
+    /// instances, entries and order. Tiny far spheres (between pixel centres or on one), large
+    /// ones, spheres behind the eye, beside the view, around the eye and at the rim.
+    #[test]
+    fn the_lists_are_every_sphere_each_pixel_ray_meets() {
+        let cam = camera(37, 23);
+        let basis = cam.basis();
+        let mut rng = Rng::new(11);
+        let mut spheres: Vec<(DVec3, f64)> = (0..3000)
+            .map(|k| {
+                let dir = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() * 1.2 - 0.2);
+                let dist = [0.5, 3.0, 40.0, 2000.0][k % 4] * (0.5 + rng.f64());
+                let radius = dist * [1e-4, 3e-3, 0.02, 0.2][(k / 4) % 4] * rng.f64();
+                sphere(dir.normalize_or_zero() * dist, radius)
+            })
+            .collect();
+        // Exactly tangent-ish, the eye inside, non-finite.
+        spheres.push(sphere(DVec3::new(0.0, 0.0, 0.5), 1.0));
+        spheres.push(sphere(DVec3::new(f64::NAN, 0.0, 1.0), 1.0));
+        spheres.push(sphere(DVec3::new(0.0, 0.0, -5.0), 1.0));
+        let lists = PixelSpheres::build_within(&cam, &spheres, u64::MAX).expect("no limit");
+        let mut crossings = 0;
+        for y in 0..cam.height {
+            for x in 0..cam.width {
+                let d = basis.dir(cam.screen_x(&basis, x), cam.screen_y(&basis, y));
+                let mut want: Vec<(f64, u32)> = spheres
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, &(c, r))| sphere_interval(c, r, DVec3::ZERO, d).map(|(t0, _)| (t0, i as u32)))
+                    .collect();
+                want.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                crossings += want.len();
+                assert_eq!(lists.at(x, y), &want[..], "pixel ({x}, {y})");
+            }
+        }
+        assert_eq!(lists.len(), crossings);
+        assert!(crossings > 851 * 4, "the spheres should cross many rays ({crossings})");
+    }
+
+    /// Spheres that would need more tests than the limit: no lists (the rays walk the BVH).
+    #[test]
+    fn deep_overlap_gives_up() {
+        let cam = camera(16, 16);
+        let big: Vec<(DVec3, f64)> =
+            (0..MAX_PER_PIXEL + 1).map(|k| sphere(DVec3::new(0.0, 0.0, 5.0 + k as f64), 50.0)).collect();
+        assert!(PixelSpheres::build(&cam, &big).is_none());
+        assert!(PixelSpheres::build(&cam, &big[..MAX_PER_PIXEL as usize]).is_some());
+        let mut bad = cam;
+        bad.width = 0;
+        assert!(PixelSpheres::build(&bad, &big[..1]).is_none());
+    }
+}
