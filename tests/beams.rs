@@ -226,3 +226,30 @@ fn check_crowd_frame(scene: &Scene, cam: &Camera, name: &str) {
     assert_same_frames(&with, &without, name);
     assert!(with.instances_traced < without.instances_traced, "{name}: beams ruled no instance out");
 }
+
+/// A crowd frame without shadow rays searches its sphere lists and leaves the instance BVH
+/// as it was (nothing else in it walks the tree); the next frame with shadows refits the kept
+/// tree, every box of it, to its own spheres. Every frame equals one rendered afresh.
+#[test]
+fn a_frame_without_shadow_rays_leaves_the_bvh_for_the_next() {
+    let parts = car_parts();
+    let cars = voxray::render::beam::MAX_INSTANCES / parts.len() + 4;
+    let lights = Lights::default();
+    let mut st = voxray::scene::stage_cars(&parts, cars, true, true).unwrap();
+    let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 192, 112);
+    let mut kept = voxray::render::HitBuffer::new();
+    for f in 0..4 {
+        voxray::scene::car::pose_all(&mut st.scene, &st.cars, 0.2 + f as f64 * 3.0).unwrap();
+        st.scene.update().unwrap();
+        let features = Features { shadows: f % 2 == 1, hit_buffer: false, ..Features::default() };
+        let plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&kept));
+        assert!(plan.sphere_lists && plan.bvh, "{}", plan.explain());
+        let opts = RenderOptions::default();
+        let with = render(&st.scene, &cam, &lights, &plan, &opts, Some(&mut kept), &|_, _| {}).unwrap();
+        let plan = FramePlan::new(&st.scene, &cam, &lights, &features, None);
+        let fresh = render(&st.scene, &cam, &lights, &plan, &opts, None, &|_, _| {}).unwrap();
+        assert_same_frames(&with, &fresh, &format!("frame {f}"));
+        // Frame 0 built no tree; frame 1 built one; frame 2 left it; frame 3 refitted it.
+        assert_eq!(kept.bvh.is_some(), f > 0, "frame {f}");
+    }
+}

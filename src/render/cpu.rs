@@ -489,14 +489,27 @@ pub fn render_lit(
         }
         None => prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared),
     }
-    let bvh = plan.bvh.then(|| match hits.as_deref_mut() {
-        Some(h) => h.take_bvh(&prepared),
-        None => Bvh::build(&prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
+    let splatting = opts.renderer == Renderer::Splat;
+    let spheres_of = |p: &[Prepared]| p.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>();
+    // A crowd's primary rays search the spheres their pixel meets, not the BVH.
+    let want_lists = plan.sphere_lists && !splatting;
+    if let Some(h) = hits.as_deref_mut().filter(|_| plan.bvh || want_lists) {
+        h.fill_spheres(&prepared);
+    }
+    let lists = match hits.as_deref() {
+        _ if !want_lists => None,
+        Some(h) => PixelSpheres::build(camera, h.bvh_spheres()),
+        None => PixelSpheres::build(camera, &spheres_of(&prepared)),
+    };
+    // Shadow rays search the BVH, and so do primary rays without lists; a frame with neither
+    // leaves it as it was (the next one that needs it refits every box).
+    let bvh = (plan.bvh && (plan.shadows || lists.is_none())).then(|| match hits.as_deref_mut() {
+        Some(h) => h.take_bvh_filled(),
+        None => Bvh::build(&spheres_of(&prepared)),
     });
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();
     let trace_opts = TraceOptions { max_level: opts.max_level, ..TraceOptions::default() };
-    let splatting = opts.renderer == Renderer::Splat;
     // The parts' splat lists live in the hit buffer between frames.
     let mut splat_cache = hits.as_deref_mut().map(|h| std::mem::take(&mut h.splats)).unwrap_or_default();
     // Splatted records are not the ray tracer's: nothing is reused from them, or into them.
@@ -527,16 +540,6 @@ pub fn render_lit(
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are decided first, so a tile that reuses all traces nothing.
     let moved = reuse.as_ref().map_or(&[][..], |r| r.moved_search());
-    // A crowd's rays search the spheres their pixel meets, not the BVH.
-    let lists = if plan.sphere_lists && !splatting {
-        match hits.as_deref().filter(|_| bvh.is_some()) {
-            // The spheres the BVH was just refitted to.
-            Some(h) => PixelSpheres::build(camera, h.bvh_spheres()),
-            None => PixelSpheres::build(camera, &prepared.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>()),
-        }
-    } else {
-        None
-    };
     let primary = Primary {
         lists: lists.as_ref(),
         instances: fi,
@@ -871,7 +874,9 @@ pub fn render_lit(
         }
         b.records_missed(traced.missed, camera.width, camera.height);
         b.rendered(Rendered::of(&f, sky));
-        b.bvh = bvh;
+        if bvh.is_some() || !plan.bvh {
+            b.bvh = bvh;
+        }
         b.prepared = prepared;
     }
     Ok((f, ambient_ms))

@@ -272,8 +272,19 @@ impl HitBuffer {
     /// This frame's instance BVH: the stored frame's refitted, or a new one (counted in
     /// [`HitBuffer::bvh_builds`]). Store it back with `self.bvh = Some(..)` after the frame.
     pub fn take_bvh(&mut self, prepared: &[Prepared]) -> super::bvh::Bvh {
+        self.fill_spheres(prepared);
+        self.take_bvh_filled()
+    }
+
+    /// Keeps the spheres (camera-relative centre, radius) of `prepared`, in instance order,
+    /// for [`HitBuffer::bvh_spheres`] and [`HitBuffer::take_bvh_filled`].
+    pub fn fill_spheres(&mut self, prepared: &[Prepared]) {
         self.bvh_spheres.clear();
         self.bvh_spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
+    }
+
+    /// [`HitBuffer::take_bvh`] for the spheres last given to [`HitBuffer::fill_spheres`].
+    pub fn take_bvh_filled(&mut self) -> super::bvh::Bvh {
         let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), &self.bvh_spheres);
         if bvh.refits == 0 {
             self.bvh_builds += 1;
@@ -281,8 +292,7 @@ impl HitBuffer {
         bvh
     }
 
-    /// The spheres (camera-relative centre, radius) of the prepared instances the last
-    /// [`HitBuffer::take_bvh`] was given, in instance order.
+    /// The spheres last given to [`HitBuffer::fill_spheres`] (or [`HitBuffer::take_bvh`]).
     pub fn bvh_spheres(&self) -> &[(DVec3, f64)] {
         &self.bvh_spheres
     }
