@@ -496,9 +496,9 @@ pub fn render_lit(
     if let Some(h) = hits.as_deref_mut().filter(|_| plan.bvh || want_lists) {
         h.fill_spheres(&prepared);
     }
-    let lists = match hits.as_deref() {
+    let lists = match hits.as_deref_mut() {
         _ if !want_lists => None,
-        Some(h) => PixelSpheres::build(camera, h.bvh_spheres()),
+        Some(h) => PixelSpheres::rebuild(h.pixel_spheres.take(), camera, h.bvh_spheres()),
         None => PixelSpheres::build(camera, &spheres_of(&prepared)),
     };
     // Shadow rays search the BVH, and so do primary rays without lists; a frame with neither
@@ -877,6 +877,7 @@ pub fn render_lit(
         if bvh.is_some() || !plan.bvh {
             b.bvh = bvh;
         }
+        b.pixel_spheres = lists;
         b.prepared = prepared;
     }
     Ok((f, ambient_ms))

@@ -81,6 +81,9 @@ pub struct HitBuffer {
     /// The instances' spheres of the last [`HitBuffer::take_bvh`], kept for the next frame's
     /// (their memory, not their values: a crowd's were megabytes allocated every frame).
     bvh_spheres: Vec<(DVec3, f64)>,
+    /// The last frame's per-pixel sphere lists, which the next frame's take over where its
+    /// camera and spheres are the same ([`super::pixel_spheres::PixelSpheres::rebuild`]).
+    pub(crate) pixel_spheres: Option<super::pixel_spheres::PixelSpheres>,
     /// Each pixel's colour in the stored frame.
     pub radiance: Vec<Vec3>,
     /// Each pixel's ambient occlusion in the stored frame (empty without GI).

@@ -33,6 +33,11 @@ pub struct PixelSpheres {
     start: Vec<u32>,
     /// (sphere entry t, instance): per pixel ascending by t, then by instance.
     entries: Vec<(f64, u32)>,
+    /// What the next frame's lists may take over: the camera and spheres these were built
+    /// for, and every (pixel, entry t, instance) found, by ascending instance.
+    camera: Option<Camera>,
+    spheres: Vec<(DVec3, f64)>,
+    found: Vec<(u32, f64, u32)>,
 }
 
 /// What one chunk of instances found: (pixel, entry t, instance), in instance order.
@@ -47,12 +52,29 @@ impl PixelSpheres {
     /// camera is not valid or the spheres would need more than [`MAX_PER_PIXEL`] tests per
     /// pixel.
     pub fn build(camera: &Camera, spheres: &[(DVec3, f64)]) -> Option<PixelSpheres> {
-        Self::build_within(camera, spheres, MAX_PER_PIXEL)
+        Self::build_within(None, camera, spheres, MAX_PER_PIXEL)
     }
 
-    /// [`PixelSpheres::build`] with at most `per_pixel` tests per pixel on average.
-    fn build_within(camera: &Camera, spheres: &[(DVec3, f64)], per_pixel: u64) -> Option<PixelSpheres> {
+    /// [`PixelSpheres::build`] taking over from `previous` (last frame's lists) what still
+    /// holds: with the same camera, a sphere whose centre and radius are the same bits as
+    /// then meets the same pixels' rays at the same t, and is not projected again. A crowd
+    /// whose cars are posed only where they are seen leaves most spheres as they were.
+    pub fn rebuild(previous: Option<PixelSpheres>, camera: &Camera, spheres: &[(DVec3, f64)]) -> Option<PixelSpheres> {
+        Self::build_within(previous, camera, spheres, MAX_PER_PIXEL)
+    }
+
+    /// [`PixelSpheres::rebuild`] with at most `per_pixel` tests per pixel on average.
+    fn build_within(
+        previous: Option<PixelSpheres>,
+        camera: &Camera,
+        spheres: &[(DVec3, f64)],
+        per_pixel: u64,
+    ) -> Option<PixelSpheres> {
         camera.validate().ok()?;
+        let mut kept = previous.unwrap_or_default();
+        // Last frame's spheres and findings, when they were made for these rays.
+        let same = kept.camera == Some(*camera) && kept.spheres.len() == spheres.len();
+        let (old_spheres, old_found) = if same { (&kept.spheres[..], &kept.found[..]) } else { (&[][..], &[][..]) };
         let basis = camera.basis();
         let (w, h) = (camera.width, camera.height);
         let pixels = w as u64 * h as u64;
@@ -68,7 +90,21 @@ impl PixelSpheres {
         let project = |first: usize, chunk: &[(DVec3, f64)]| -> Option<(Found, u64)> {
             let mut found = Vec::new();
             let mut tested = 0u64;
+            // Last frame's findings for this chunk's instances, walked alongside.
+            let from = old_found.partition_point(|f| (f.2 as usize) < first);
+            let mut old = &old_found[from..];
             for (k, &(centre, radius)) in chunk.iter().enumerate() {
+                let i = (first + k) as u32;
+                while old.first().is_some_and(|f| f.2 < i) {
+                    old = &old[1..];
+                }
+                if old_spheres.get(i as usize).is_some_and(|&o| same_bits(o, (centre, radius))) {
+                    while let Some(&f) = old.first().filter(|f| f.2 == i) {
+                        found.push(f);
+                        old = &old[1..];
+                    }
+                    continue;
+                }
                 // A centre that is not finite gives no interval for any ray; a radius that is
                 // not a number neither.
                 if !centre.is_finite() || radius.is_nan() {
@@ -84,7 +120,6 @@ impl PixelSpheres {
                     return None;
                 }
                 let PixelRect::Pixels { x0, y0, x1, y1 } = rect else { continue };
-                let i = (first + k) as u32;
                 for y in y0..=y1 {
                     for x in x0..=x1 {
                         let d = basis.dir(columns[x as usize], rows[y as usize]);
@@ -108,7 +143,9 @@ impl PixelSpheres {
         }
         // Counting sort by pixel: chunks and instances in order, so each pixel's entries
         // arrive by ascending instance; then each list by entry t (ties keep that order).
-        let mut start = vec![0u32; pixels as usize + 1];
+        let mut start = std::mem::take(&mut kept.start);
+        start.clear();
+        start.resize(pixels as usize + 1, 0);
         for (found, _) in &parts {
             for &(px, _, _) in found {
                 start[px as usize + 1] += 1;
@@ -118,7 +155,9 @@ impl PixelSpheres {
             start[k] += start[k - 1];
         }
         let total = start[pixels as usize] as usize;
-        let mut entries = vec![(0.0, 0u32); total];
+        let mut entries = std::mem::take(&mut kept.entries);
+        entries.clear();
+        entries.resize(total, (0.0, 0));
         let mut next = start.clone();
         for (found, _) in &parts {
             for &(px, t0, i) in found {
@@ -133,7 +172,13 @@ impl PixelSpheres {
                 list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             }
         }
-        Some(PixelSpheres { width: w, start, entries })
+        kept.spheres.clear();
+        kept.spheres.extend_from_slice(spheres);
+        kept.found.clear();
+        for (found, _) in parts {
+            kept.found.extend_from_slice(&found);
+        }
+        Some(PixelSpheres { width: w, start, entries, camera: Some(*camera), spheres: kept.spheres, found: kept.found })
     }
 
     /// The list of pixel (x, y): (sphere entry t, instance), nearest first.
@@ -152,6 +197,12 @@ impl PixelSpheres {
     pub fn is_empty(&self) -> bool {
         self.entries.is_empty()
     }
+}
+
+/// Whether two spheres are the same bits (NaN included).
+#[inline]
+fn same_bits(a: (DVec3, f64), b: (DVec3, f64)) -> bool {
+    a.0.to_array().map(f64::to_bits) == b.0.to_array().map(f64::to_bits) && a.1.to_bits() == b.1.to_bits()
 }
 
 /// A radius that holds every ray [`sphere_interval`] lets through in f64: it accepts a ray
@@ -199,7 +250,7 @@ mod tests {
         spheres.push(sphere(DVec3::new(0.0, 0.0, 0.5), 1.0));
         spheres.push(sphere(DVec3::new(f64::NAN, 0.0, 1.0), 1.0));
         spheres.push(sphere(DVec3::new(0.0, 0.0, -5.0), 1.0));
-        let lists = PixelSpheres::build_within(&cam, &spheres, u64::MAX).expect("no limit");
+        let lists = PixelSpheres::build_within(None, &cam, &spheres, u64::MAX).expect("no limit");
         let mut crossings = 0;
         for y in 0..cam.height {
             for x in 0..cam.width {
@@ -216,6 +267,50 @@ mod tests {
         }
         assert_eq!(lists.len(), crossings);
         assert!(crossings > 851 * 4, "the spheres should cross many rays ({crossings})");
+    }
+
+    /// Lists rebuilt from last frame's equal lists built afresh: some spheres moved, some
+    /// not, one turned NaN, then the camera turned, then an instance more.
+    #[test]
+    fn rebuilt_lists_equal_fresh_ones() {
+        let cam = camera(41, 29);
+        let mut rng = Rng::new(5);
+        let mut spheres: Vec<(DVec3, f64)> = (0..4000)
+            .map(|_| {
+                let dir = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, 1.0);
+                (dir * (5.0 + 50.0 * rng.f64()), 0.02 + 0.3 * rng.f64())
+            })
+            .collect();
+        let same = |a: &PixelSpheres, b: &PixelSpheres, what: &str| {
+            assert_eq!(a.len(), b.len(), "{what}");
+            for y in 0..29 {
+                for x in 0..41 {
+                    assert_eq!(a.at(x, y), b.at(x, y), "{what}: pixel ({x}, {y})");
+                }
+            }
+        };
+        let mut lists = PixelSpheres::build(&cam, &spheres);
+        let mut cam = cam;
+        for step in 0..4 {
+            match step {
+                0 => {
+                    for (k, s) in spheres.iter_mut().enumerate() {
+                        if k % 3 == 0 {
+                            s.0.x += 0.4;
+                        }
+                    }
+                    spheres[7].1 = f64::NAN;
+                }
+                1 => cam.target.x += 0.01,
+                2 => spheres.push((DVec3::new(0.0, 0.0, 9.0), 1.0)),
+                _ => {}
+            }
+            let rebuilt = PixelSpheres::rebuild(lists, &cam, &spheres).expect("within the limit");
+            let fresh = PixelSpheres::build(&cam, &spheres).expect("within the limit");
+            same(&rebuilt, &fresh, &format!("step {step}"));
+            assert!(rebuilt.len() > 500, "step {step}: {} crossings", rebuilt.len());
+            lists = Some(rebuilt);
+        }
     }
 
     /// Spheres that would need more tests than the limit: no lists (the rays walk the BVH).
