@@ -4,8 +4,8 @@
 //! instance BVH once per ray.
 //!
 //! In a crowd, most instances cover a pixel or less and most rays pass between them: a ray's
-//! walk tests a dozen BVH nodes to find that it meets two spheres or none (docs/benchmarks.md,
-//! step 51), while a sphere's projection holds zero or one pixel centre. A pixel's list is
+//! walk tests node after node of the BVH to find that it meets a sphere or two, or none
+//! (docs/benchmarks.md, step 51), while a sphere's projection holds zero or one pixel centre. A pixel's list is
 //! exactly what the depth-sorted search collects for its ray ([`super::visibility::nearest_listed`]):
 //! the same [`sphere_interval`] of the same direction, so the hits are bit for bit those of
 //! every other search.
