@@ -52,6 +52,50 @@ fn a_cars_radius_holds_its_parts_in_every_pose() {
     }
 }
 
+/// The box in a car's body frame ([`voxray::scene::car::car_box`], what posing tests against
+/// the frame's rays) holds every corner of every instance's occupied box over 300 poses at two
+/// levels, taken into the body frame that `body_world` gives without posing; and it is not
+/// loose by more than a wheel's or a door's turn on any side.
+#[test]
+fn a_cars_box_holds_its_parts_in_every_pose() {
+    let parts = car_parts();
+    let mut st = voxray::scene::stage_cars(&parts, 3, true, false).unwrap();
+    for max_level in [u32::MAX, 3] {
+        let boxes = voxray::scene::car::car_boxes(&st.scene, &st.cars, max_level).unwrap();
+        let (mut reach_lo, mut reach_hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for k in 0..300 {
+            let t = k as f64 * 0.173;
+            voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
+            st.scene.update().unwrap();
+            for (car, &(lo, hi)) in st.cars.iter().zip(&boxes) {
+                let body = voxray::scene::car::body_world(car, t);
+                let posed = st.scene.world(car.body);
+                assert!(
+                    (body.translation - posed.translation).length() < 1e-9
+                        && (body.matrix3 - posed.matrix3).abs().to_cols_array().iter().all(|e| *e < 1e-12),
+                    "t {t}: body world"
+                );
+                let into_body = body.inverse();
+                for i in car.instances() {
+                    let (a, b) = st.scene.parts[st.scene.instances()[i].part].occupied_box(max_level);
+                    for corner in voxray::scene::instances::box_corners(a, b) {
+                        let p = into_body.transform_point3(st.scene.world(i).transform_point3(corner));
+                        let slack = DVec3::splat(1e-9);
+                        assert!(
+                            p.cmpge(lo - slack).all() && p.cmple(hi + slack).all(),
+                            "level {max_level}, t {t}: instance {i}'s corner {p} outside {lo}..{hi}"
+                        );
+                        (reach_lo, reach_hi) = (reach_lo.min(p), reach_hi.max(p));
+                    }
+                }
+            }
+        }
+        // Every side is reached to within a door's swing the clip does not open it to.
+        let loose = (reach_lo - boxes[0].0).max(boxes[0].1 - reach_hi).max_element();
+        assert!(loose < 1.0, "level {max_level}: the box is {loose} larger than needed on a side");
+    }
+}
+
 struct World {
     st: Staged,
     kept: HitBuffer,

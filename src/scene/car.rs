@@ -12,7 +12,7 @@ use super::instances::{box_corners, Instance, Scene, SceneError};
 use super::sight::Sight;
 use super::transform::Transform;
 use crate::model::car::{rig, WHEELBASE, WHEEL_RADIUS};
-use glam::{DQuat, DVec3};
+use glam::{DAffine3, DQuat, DVec3};
 use std::f64::consts::{PI, TAU};
 
 /// Figure-eight half-length (m).
@@ -293,6 +293,84 @@ pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> Result<f64, Scene
     Ok(radius)
 }
 
+/// A box in a car's body frame that holds its eight parts' occupied cells at `max_level` in
+/// every pose: the body's own box, and for each child the box around the cylinder its cells
+/// sweep turning about their axis through its pivot, as [`car_pose`] turns them (the front
+/// wheels' spinning cylinder swept again about the vertical, for the steering). A sphere
+/// about every pivot ([`car_radius`]) is far looser: a door's hinge stands on the ground.
+/// Refused when one of its instances or their parts is missing.
+pub fn car_box(scene: &Scene, car: &Car, max_level: u32) -> Result<(DVec3, DVec3), SceneError> {
+    let r = rig();
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for (k, &i) in car.instances().iter().enumerate() {
+        let inst = scene.instances().get(i).ok_or(SceneError::Instance(i))?;
+        let part = scene.parts.get(inst.part).ok_or(SceneError::Part(inst.part))?;
+        let (mut a, mut b) = part.occupied_box(max_level);
+        if k > 0 {
+            let (pivot, axis) = (r[k].0.as_dvec3(), r[k].1.as_dvec3().normalize());
+            (a, b) = swept(a, b, pivot, axis);
+            // The front wheels (wheels 0 and 1) also steer about the vertical.
+            if k == 1 || k == 2 {
+                (a, b) = swept(a, b, pivot, DVec3::Y);
+            }
+        }
+        (lo, hi) = (lo.min(a), hi.max(b));
+    }
+    Ok((lo, hi))
+}
+
+/// The box around every turn of the box `lo..hi` about the unit `axis` through `pivot`: its
+/// corners' range along the axis, and their largest distance from it, make a cylinder (which
+/// holds every turn of the box, the distance from an axis being convex); the box around that
+/// cylinder.
+fn swept(lo: DVec3, hi: DVec3, pivot: DVec3, axis: DVec3) -> (DVec3, DVec3) {
+    let (mut h0, mut h1, mut radial) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+    for c in box_corners(lo, hi) {
+        let v = c - pivot;
+        let h = v.dot(axis);
+        (h0, h1) = (h0.min(h), h1.max(h));
+        radial = radial.max((v - axis * h).length());
+    }
+    // A cylinder of radius ρ about a unit axis a reaches ρ·√(1 − aᵢ²) beyond its axis
+    // segment along coordinate i.
+    let reach = (DVec3::ONE - axis * axis).max(DVec3::ZERO).map(f64::sqrt) * radial;
+    let (e0, e1) = (pivot + axis * h0, pivot + axis * h1);
+    (e0.min(e1) - reach, e0.max(e1) + reach)
+}
+
+/// [`car_box`] of every car, computed once per distinct set of parts.
+pub fn car_boxes(scene: &Scene, cars: &[Car], max_level: u32) -> Result<Vec<(DVec3, DVec3)>, SceneError> {
+    let mut boxes: Vec<([usize; 8], (DVec3, DVec3))> = Vec::new();
+    let mut out = Vec::with_capacity(cars.len());
+    for car in cars {
+        let key = car_parts(scene, car).ok_or(SceneError::Instance(car.body))?;
+        let b = match boxes.iter().find(|(k, _)| *k == key) {
+            Some(&(_, b)) => b,
+            None => {
+                let b = car_box(scene, car, max_level)?;
+                boxes.push((key, b));
+                b
+            }
+        };
+        out.push(b);
+    }
+    Ok(out)
+}
+
+/// A car's body world transform at time t, as [`car_pose`] places its body (which has no
+/// parent), without the rest of the pose.
+pub fn body_world(car: &Car, t: f64) -> DAffine3 {
+    if !car.travel {
+        return DAffine3::from_translation(car.origin);
+    }
+    // As drive_state forms the path parameter and the body's heading.
+    let t = t + car.phase;
+    let laps = (t / PATH_PERIOD).floor();
+    let s = (t - laps * PATH_PERIOD) * TAU / PATH_PERIOD;
+    let (p, v, _) = path(s);
+    Transform { translation: p + car.origin, rotation: heading(v), scale: DVec3::ONE }.to_affine()
+}
+
 /// The parts of a car's eight instances (None: an instance is missing).
 fn car_parts(scene: &Scene, car: &Car) -> Option<[usize; 8]> {
     let inst = scene.instances();
@@ -337,16 +415,17 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 }
 
 /// Posing only the cars a frame's rays can reach, with what it keeps between frames: the
-/// cars' radii at a level of detail, and per car the last position of its body tested under
-/// the last frame's [`Sight`] and the answer (so a car that stays where it was is not tested
-/// again while the sight stays the same).
+/// cars' boxes ([`car_box`]) and radii ([`car_radius`]) at a level of detail, and per car the last placement of its body
+/// tested under the last frame's [`Sight`] and the answer (so a car that stays where it was
+/// is not tested again while the sight stays the same).
 #[derive(Clone, Debug, Default)]
 pub struct SeenCars {
-    /// Part edits, level, car count and the parts' addresses the radii are for.
-    radii_for: Option<(u64, u32, usize, Vec<usize>)>,
-    radii: Vec<f64>,
+    /// Part edits, level, car count and the parts' addresses the boxes are for.
+    boxes_for: Option<(u64, u32, usize, Vec<usize>)>,
+    /// Per car, its [`car_box`] and [`car_radius`].
+    boxes: Vec<(DVec3, DVec3, f64)>,
     sight: Option<Sight>,
-    known: Vec<(DVec3, bool)>,
+    known: Vec<(DAffine3, bool)>,
 }
 
 impl SeenCars {
@@ -370,31 +449,32 @@ impl SeenCars {
         };
         let parts = scene.parts.iter().map(|p| std::sync::Arc::as_ptr(p) as usize).collect();
         let key = Some((scene.part_edits(), max_level, cars.len(), parts));
-        if self.radii_for != key {
-            self.radii = car_radii(scene, cars, max_level)?;
-            self.radii_for = key;
+        if self.boxes_for != key {
+            let radii = car_radii(scene, cars, max_level)?;
+            self.boxes =
+                car_boxes(scene, cars, max_level)?.into_iter().zip(radii).map(|((lo, hi), r)| (lo, hi, r)).collect();
+            self.boxes_for = key;
             self.sight = None;
         }
         if self.sight.as_ref() != Some(sight) {
             // Nothing known holds under another sight.
             self.known.clear();
-            self.known.resize(cars.len(), (DVec3::NAN, false));
+            self.known.resize(cars.len(), (DAffine3::from_translation(DVec3::NAN), false));
             self.sight = Some(sight.clone());
         }
-        let (scene_ref, radii) = (&*scene, &self.radii);
-        let seen = |k: usize, known: &mut (DVec3, bool)| {
+        let (scene_ref, boxes) = (&*scene, &self.boxes);
+        let seen = |k: usize, known: &mut (DAffine3, bool)| {
             let car = &cars[k];
-            let r = radii[k];
+            let (lo, hi, r) = boxes[k];
             // A missing body: posing reports it.
-            let Some(old) = scene_ref.worlds().get(car.body) else { return true };
-            let new = body_origin(car, t);
-            if sight.reaches(new, r) {
+            let Some(&old) = scene_ref.worlds().get(car.body) else { return true };
+            let new = body_world(car, t);
+            if sight.reaches_box(&new, lo, hi, r) {
                 *known = (new, true);
                 return true;
             }
             // Where the car was last tested, under this sight: the same answer.
-            let old = old.translation;
-            let old_seen = if known.0 == old { known.1 } else { sight.reaches(old, r) };
+            let old_seen = if known.0 == old { known.1 } else { sight.reaches_box(&old, lo, hi, r) };
             *known = if old_seen { (new, false) } else { (old, false) };
             old_seen
         };

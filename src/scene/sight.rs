@@ -10,7 +10,7 @@
 
 use super::camera::{PixelGrid, PixelRect};
 use super::{Camera, Lights};
-use glam::DVec3;
+use glam::{DAffine3, DVec3};
 
 /// Relative padding of a tested sphere's radius.
 const RADIUS_PAD: f64 = 1e-3;
@@ -134,16 +134,82 @@ impl Sight {
         if !(c.is_finite() && r.is_finite()) {
             return true;
         }
-        if self.primary_meets_capsule(c, c, r) {
+        self.primary_meets_capsule(c, c, r) || self.sun_reaches(c, r)
+    }
+
+    /// Whether some ray of the frame may meet what lies both in the box `lo..hi` placed by
+    /// `world` (an invertible affine map; a car body's world transform) and within `radius`
+    /// of `world`'s origin: a primary ray, tested against the box itself (grown by the
+    /// padding [`Sight::reaches`] gives a radius), or a sun's shadow ray, tested against the
+    /// sphere (as [`Sight::reaches`]). The box is the tighter outline on screen; the sphere,
+    /// swept towards the sun, the simpler shadow.
+    pub fn reaches_box(&self, world: &DAffine3, lo: DVec3, hi: DVec3, radius: f64) -> bool {
+        let eye = self.camera.eye;
+        let m = world.matrix3;
+        let e = (hi - lo).abs() * 0.5;
+        // The farthest corner from the centre, |±ex·c0 ± ey·c1 + ez·c2| over the columns c
+        // (as the renderer bounds an instance's box).
+        let (a, b, z) = (m.x_axis * e.x + m.y_axis * e.y, m.x_axis * e.x - m.y_axis * e.y, m.z_axis * e.z);
+        let corner = (z + a)
+            .length_squared()
+            .max((z - a).length_squared())
+            .max((z + b).length_squared())
+            .max((z - b).length_squared())
+            .sqrt();
+        let c = world.transform_point3((lo + hi) * 0.5) - eye;
+        // As `reaches` pads a radius.
+        let pad = corner * RADIUS_PAD + c.length() * DISTANCE_PAD + 1e-9;
+        let inverse = world.inverse();
+        if !(c.is_finite() && pad.is_finite() && inverse.is_finite()) {
             return true;
         }
+        if self.primary_meets_box(&inverse, lo, hi, c, corner + pad, pad) {
+            return true;
+        }
+        let o = world.translation - eye;
+        let r = radius * (1.0 + RADIUS_PAD) + o.length() * DISTANCE_PAD + 1e-9;
+        !(o.is_finite() && r.is_finite()) || self.sun_reaches(o, r)
+    }
+
+    /// Whether a sun's shadow ray from a point inside the visible surfaces' box may meet the
+    /// sphere about `c` (camera-relative) of radius `r` (padded).
+    fn sun_reaches(&self, c: DVec3, r: f64) -> bool {
         // A shadow ray from p towards the sun meets the sphere when p lies in the sphere swept
         // away from the sun; only the stretch of that sweep whose centre lies inside the
         // surfaces' box grown by r can hold a visible p.
+        let eye = self.camera.eye;
         let (lo, hi) = (self.surfaces.0 - eye - DVec3::splat(r), self.surfaces.1 - eye + DVec3::splat(r));
         self.suns.iter().any(|&to_sun| match sweep_span(c, -to_sun, lo, hi) {
             Some((s0, s1)) => self.primary_meets_capsule(c - to_sun * s0, c - to_sun * s1, r),
             None => false,
+        })
+    }
+
+    /// Whether a pixel's primary ray meets the box `lo..hi` in the frame `inverse` maps world
+    /// points into, grown by the world length `pad`: the pixels inside the rectangle of its
+    /// bounding sphere (about `c`, camera-relative, radius `r`, padded), each ray taken into
+    /// the box's frame and tested against its slabs.
+    fn primary_meets_box(&self, inverse: &DAffine3, lo: DVec3, hi: DVec3, c: DVec3, r: f64, pad: f64) -> bool {
+        let rect = self.grid.near(&[c], r);
+        let PixelRect::Pixels { x0, y0, x1, y1 } = rect else {
+            return rect == PixelRect::Unbounded;
+        };
+        if rect.area(&self.camera) > MAX_TESTED_PIXELS {
+            return true;
+        }
+        // The world padding in the box's units: the inverse stretches no length by more than
+        // its columns' Frobenius norm.
+        let im = inverse.matrix3;
+        let stretch = (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt();
+        let grow = DVec3::splat(pad * stretch);
+        let (lo, hi) = (lo - grow, hi + grow);
+        let o = inverse.transform_point3(self.camera.eye);
+        (y0..=y1).any(|py| {
+            let sy = self.rows[py as usize];
+            (x0..=x1).any(|px| {
+                let d = inverse.transform_vector3(self.basis.dir(self.columns[px as usize], sy));
+                ray_meets_box(o, d, lo, hi)
+            })
         })
     }
 
@@ -177,6 +243,28 @@ impl Sight {
             })
         })
     }
+}
+
+/// Whether the ray `o + t·d`, t ≥ 0, meets the box `lo..hi` (slabs; a zero component tests
+/// the position). Anything not finite counts as a meeting.
+fn ray_meets_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> bool {
+    if !(o.is_finite() && d.is_finite()) {
+        return true;
+    }
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return false;
+            }
+            continue;
+        }
+        let inv = 1.0 / d[k];
+        let (a, b) = ((lo[k] - o[k]) * inv, (hi[k] - o[k]) * inv);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    t0 <= t1
 }
 
 /// The stretch [s0, s1] (s ≥ 0) of the ray `c + s·dir` inside the box [lo, hi]; None when
@@ -264,6 +352,37 @@ mod tests {
         }
         // Both kinds occur, and most spheres no ray meets are spared.
         assert!(met > 400 && spared > 1500, "met {met}, spared {spared}");
+    }
+
+    /// Every box (turned, stretched, placed anywhere about the view) that some pixel's ray
+    /// meets is reached, the box tested exactly by the ray's slabs; most that none meets are
+    /// spared, also where their bounding sphere's rectangle holds pixels.
+    #[test]
+    fn every_box_a_pixel_ray_meets_is_reached() {
+        let mut rng = Rng::new(21);
+        let (w, h) = (40, 24);
+        let cam = camera(DVec3::new(3.0, 4.0, -20.0), w, h);
+        let sight = Sight::new(&cam, &Lights::default(), PRIMARY, (DVec3::splat(-30.0), DVec3::splat(30.0))).unwrap();
+        let b = cam.basis();
+        let (mut met, mut spared) = (0, 0);
+        for k in 0..3000 {
+            let q = glam::DQuat::from_euler(glam::EulerRot::XYZ, rng.f64() * 6.3, rng.f64() * 6.3, rng.f64() * 6.3);
+            let scale = DVec3::new(0.5 + rng.f64(), 0.5 + rng.f64(), 0.5 + rng.f64());
+            let at = DVec3::new(rng.f64() * 50.0 - 25.0, rng.f64() * 50.0 - 25.0, rng.f64() * 70.0 - 40.0);
+            let world = DAffine3::from_scale_rotation_translation(scale, q, at);
+            let size = if k % 2 == 0 { 0.05 + rng.f64() * 0.3 } else { rng.f64() * 3.0 };
+            let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
+            let inverse = world.inverse();
+            let o = inverse.transform_point3(cam.eye);
+            let meets = (0..h)
+                .any(|y| (0..w).any(|x| ray_meets_box(o, inverse.transform_vector3(cam.ray_dir(&b, x, y)), lo, hi)));
+            // Without a sun the sphere's radius plays no part.
+            let reached = sight.reaches_box(&world, lo, hi, 0.0);
+            assert!(reached || !meets, "box {k} at {at}: a pixel ray meets it but it is not reached");
+            met += meets as u32;
+            spared += (!reached) as u32;
+        }
+        assert!(met > 300 && spared > 1200, "met {met}, spared {spared}");
     }
 
     /// With a sun, every sphere that shadows some visible point of a pixel ray (a point on
