@@ -1,11 +1,12 @@
 //! What a frame's rays can reach: whether any primary ray of a camera, or any sun's shadow
-//! ray from a point those rays can see, can meet a given sphere. A crowd poses only the cars
-//! whose bounds some ray can reach ([`super::car::SeenCars::pose`]); a car no ray reaches in its
-//! old pose nor in its new one looks the same in the picture whether it is posed or not.
+//! ray from a point those rays can see, can meet a given sphere ([`Sight::reaches`]), or a
+//! placed box and sphere ([`Sight::reaches_box`]). A crowd poses only the cars whose bounds
+//! some ray can reach ([`super::car::SeenCars::pose`]); a car no ray reaches in its old pose
+//! nor in its new one looks the same in the picture whether it is posed or not.
 //!
-//! The test is conservative: it may say a sphere is reached when no ray meets it (the sphere
-//! is then posed for nothing), never the other way round. The spheres are padded by a
-//! fraction of their radius and of their distance, far beyond the rounding of the renderer's
+//! The test is conservative: it may say a bound is reached when no ray meets it (the car is
+//! then posed for nothing), never the other way round. Spheres and boxes are padded by a
+//! fraction of their size and of their distance, far beyond the rounding of the renderer's
 //! f32 and f64 rays.
 
 use super::camera::{PixelGrid, PixelRect};
