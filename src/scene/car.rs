@@ -340,19 +340,29 @@ fn swept(lo: DVec3, hi: DVec3, pivot: DVec3, axis: DVec3) -> (DVec3, DVec3) {
 
 /// [`car_box`] of every car, computed once per distinct set of parts.
 pub fn car_boxes(scene: &Scene, cars: &[Car], max_level: u32) -> Result<Vec<(DVec3, DVec3)>, SceneError> {
-    let mut boxes: Vec<([usize; 8], (DVec3, DVec3))> = Vec::new();
+    per_parts(scene, cars, |car| car_box(scene, car, max_level))
+}
+
+/// `of(car)` for every car, computed once per set of parts the cars share (a bound that
+/// depends only on the parts).
+fn per_parts<T: Copy>(
+    scene: &Scene,
+    cars: &[Car],
+    of: impl Fn(&Car) -> Result<T, SceneError>,
+) -> Result<Vec<T>, SceneError> {
+    let mut done: Vec<([usize; 8], T)> = Vec::new();
     let mut out = Vec::with_capacity(cars.len());
     for car in cars {
         let key = car_parts(scene, car).ok_or(SceneError::Instance(car.body))?;
-        let b = match boxes.iter().find(|(k, _)| *k == key) {
-            Some(&(_, b)) => b,
+        let v = match done.iter().find(|(k, _)| *k == key) {
+            Some(&(_, v)) => v,
             None => {
-                let b = car_box(scene, car, max_level)?;
-                boxes.push((key, b));
-                b
+                let v = of(car)?;
+                done.push((key, v));
+                v
             }
         };
-        out.push(b);
+        out.push(v);
     }
     Ok(out)
 }
@@ -384,21 +394,7 @@ fn car_parts(scene: &Scene, car: &Car) -> Option<[usize; 8]> {
 
 /// [`car_radius`] of each car, computed once per set of parts the cars share.
 pub fn car_radii(scene: &Scene, cars: &[Car], max_level: u32) -> Result<Vec<f64>, SceneError> {
-    let mut radii: Vec<([usize; 8], f64)> = Vec::new();
-    let mut out = Vec::with_capacity(cars.len());
-    for car in cars {
-        let key = car_parts(scene, car).ok_or(SceneError::Instance(car.body))?;
-        let r = match radii.iter().find(|(k, _)| *k == key) {
-            Some(&(_, r)) => r,
-            None => {
-                let r = car_radius(scene, car, max_level)?;
-                radii.push((key, r));
-                r
-            }
-        };
-        out.push(r);
-    }
-    Ok(out)
+    per_parts(scene, cars, |car| car_radius(scene, car, max_level))
 }
 
 /// A box holding every car at every time of its clip, as far as rays at `max_level` can

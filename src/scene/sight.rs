@@ -249,23 +249,8 @@ impl Sight {
 /// Whether the ray `o + t·d`, t ≥ 0, meets the box `lo..hi` (slabs; a zero component tests
 /// the position). Anything not finite counts as a meeting.
 fn ray_meets_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> bool {
-    if !(o.is_finite() && d.is_finite()) {
-        return true;
-    }
-    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-    for k in 0..3 {
-        if d[k] == 0.0 {
-            if o[k] < lo[k] || o[k] > hi[k] {
-                return false;
-            }
-            continue;
-        }
-        let inv = 1.0 / d[k];
-        let (a, b) = ((lo[k] - o[k]) * inv, (hi[k] - o[k]) * inv);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
-    }
-    t0 <= t1
+    // (An unbounded box would give an unbounded span, which `sweep_span` reports as none.)
+    !(o.is_finite() && d.is_finite() && lo.is_finite() && hi.is_finite()) || sweep_span(o, d, lo, hi).is_some()
 }
 
 /// The stretch [s0, s1] (s ≥ 0) of the ray `c + s·dir` inside the box [lo, hi]; None when
