@@ -181,11 +181,21 @@ impl PixelSpheres {
         Some(PixelSpheres { width: w, start, entries, camera: Some(*camera), spheres: kept.spheres, found: kept.found })
     }
 
-    /// The list of pixel (x, y): (sphere entry t, instance), nearest first.
+    /// The list of pixel (x, y): (sphere entry t, instance), nearest first; empty outside the
+    /// image.
     #[inline]
     pub fn at(&self, x: u32, y: u32) -> &[(f64, u32)] {
-        let px = (y * self.width + x) as usize;
-        &self.entries[self.start[px] as usize..self.start[px + 1] as usize]
+        let px = y as usize * self.width as usize + x as usize;
+        match (x < self.width, self.start.get(px), self.start.get(px + 1)) {
+            (true, Some(&a), Some(&b)) => &self.entries[a as usize..b as usize],
+            _ => &[],
+        }
+    }
+
+    /// Whether these are the lists of `camera`'s pixels (a search through lists made for
+    /// another camera would find other rays' spheres).
+    pub fn is_for(&self, camera: &Camera) -> bool {
+        self.camera.as_ref() == Some(camera)
     }
 
     /// Entries over all pixels (how many ray–sphere crossings the frame's rays have).
@@ -311,6 +321,17 @@ mod tests {
             assert!(rebuilt.len() > 500, "step {step}: {} crossings", rebuilt.len());
             lists = Some(rebuilt);
         }
+    }
+
+    /// Lists know their camera, and a pixel outside their image has none.
+    #[test]
+    fn lists_belong_to_their_camera() {
+        let cam = camera(12, 8);
+        let lists = PixelSpheres::build(&cam, &[(DVec3::new(0.3, -0.2, 1.0) * 10.0, 8.0)]).expect("within the limit");
+        assert!(lists.is_for(&cam));
+        assert!(!lists.is_for(&Camera { eye: cam.eye + DVec3::X, ..cam }));
+        assert!(!lists.at(5, 4).is_empty(), "the sphere fills the view");
+        assert!(lists.at(12, 0).is_empty() && lists.at(0, 8).is_empty() && lists.at(u32::MAX, u32::MAX).is_empty());
     }
 
     /// Spheres that would need more tests than the limit: no lists (the rays walk the BVH).

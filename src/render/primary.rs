@@ -93,6 +93,8 @@ pub fn trace_tiles<T: Send, S>(
     // Per tile: the pixels stored, and of those the ones stored as misses by a beam.
     let mut masks = vec![[0u64; 2]; tiles_x * (p.camera.height as usize).div_ceil(TILE as usize)];
     let basis = p.camera.basis();
+    // Lists made for another camera are not this frame's: its rays walk the BVH.
+    let lists = p.lists.filter(|l| l.is_for(p.camera));
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let moved_only = AtomicU64::new(0);
     let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| {
@@ -154,7 +156,7 @@ pub fn trace_tiles<T: Send, S>(
             } else {
                 // Through the BVH: the tile's pyramid meets no instance's sphere.
                 let settled = p.bvh_beams
-                    && p.lists.is_none()
+                    && lists.is_none()
                     && p.instances.bvh.is_some_and(|bvh| {
                         let tile =
                             TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
@@ -215,7 +217,7 @@ pub fn trace_tiles<T: Send, S>(
                 continue;
             }
             for k in each(todo) {
-                let hit = match p.lists {
+                let hit = match lists {
                     Some(lists) => {
                         let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
                         if listed.is_empty() {
