@@ -35,7 +35,7 @@ fn a_cars_radius_holds_its_parts_in_every_pose() {
             voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
             st.scene.update().unwrap();
             for (car, r) in st.cars.iter().zip(&radii) {
-                let origin = voxray::scene::car::body_origin(car, t);
+                let origin = voxray::scene::car::body_world(car, t).translation;
                 assert!((origin - st.scene.world(car.body).translation).length() < 1e-9, "t {t}: body origin");
                 for i in car.instances() {
                     let (lo, hi) = st.scene.parts[st.scene.instances()[i].part].occupied_box(max_level);

@@ -490,22 +490,26 @@ pub fn render_lit(
         None => prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared),
     }
     let splatting = opts.renderer == Renderer::Splat;
-    let spheres_of = |p: &[Prepared]| p.iter().map(|p| (p.centre, p.radius)).collect::<Vec<_>>();
     // A crowd's primary rays search the spheres their pixel meets, not the BVH.
     let want_lists = plan.sphere_lists && !splatting;
-    if let Some(h) = hits.as_deref_mut().filter(|_| plan.bvh || want_lists) {
-        h.fill_spheres(&prepared);
+    // The instances' spheres, for the lists and the BVH: kept in the hit buffer, or here.
+    let mut own_spheres = Vec::new();
+    if plan.bvh || want_lists {
+        match hits.as_deref_mut() {
+            Some(h) => h.fill_spheres(&prepared),
+            None => own_spheres.extend(prepared.iter().map(|p| (p.centre, p.radius))),
+        }
     }
     let lists = match hits.as_deref_mut() {
         _ if !want_lists => None,
         Some(h) => PixelSpheres::rebuild(h.pixel_spheres.take(), camera, h.bvh_spheres()),
-        None => PixelSpheres::build(camera, &spheres_of(&prepared)),
+        None => PixelSpheres::build(camera, &own_spheres),
     };
     // Shadow rays search the BVH, and so do primary rays without lists; a frame with neither
     // leaves it as it was (the next one that needs it refits every box).
     let bvh = (plan.bvh && (plan.shadows || lists.is_none())).then(|| match hits.as_deref_mut() {
         Some(h) => h.take_bvh_filled(),
-        None => Bvh::build(&spheres_of(&prepared)),
+        None => Bvh::build(&own_spheres),
     });
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();

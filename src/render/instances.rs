@@ -7,7 +7,7 @@
 //! origin).
 
 use crate::scene::Scene;
-use glam::{DAffine3, DVec3};
+use glam::{DAffine3, DMat3, DVec3};
 
 /// Sphere radii are padded by this fraction of themselves and of the part cube's sphere, so
 /// that hits computed in f32 never fall outside the sphere computed in f64 (culling,
@@ -173,20 +173,13 @@ fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut 
         };
         // The sphere holds the occupied cells at the traced level, not the whole cube (a
         // car's body fills a third of its cube's height): about the transformed centre of
-        // their box, through its farthest corners e·(±x, ±y, z) mapped by the linear part's
-        // columns c, |±ex·c0 ± ey·c1 + ez·c2|.
+        // their box, through its farthest corner.
         let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
         let (centre_obj, e) = boxes[inst.part];
-        let (a, b, z) = (c0 * e.x + c1 * e.y, c0 * e.x - c1 * e.y, c2 * e.z);
-        let corner2 = (z + a)
-            .length_squared()
-            .max((z - a).length_squared())
-            .max((z + b).length_squared())
-            .max((z - b).length_squared());
         let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
         // Rounding in f32 traversal scales with the cube, not with the box: the padding is
         // also a fraction of a bound on the cube's sphere (|M·(±h, ±h, h)| ≤ 3h·max stretch).
-        let radius = corner2.sqrt() * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
+        let radius = farthest_corner(&w.matrix3, e) * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
         slot.part = inst.part;
         slot.to_unit = to_unit;
         slot.centre = w.transform_point3(centre_obj) - eye;
@@ -222,6 +215,19 @@ fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut 
             fill(i, slot);
         }
     }
+}
+
+/// How far a box's farthest corner lies from its centre once mapped by `m`, for half
+/// extents `e`: its corners e·(±x, ±y, z) (the other four are their negatives) mapped by the
+/// columns c, |±ex·c0 ± ey·c1 + ez·c2|.
+pub fn farthest_corner(m: &DMat3, e: DVec3) -> f64 {
+    let (a, b, z) = (m.x_axis * e.x + m.y_axis * e.y, m.x_axis * e.x - m.y_axis * e.y, m.z_axis * e.z);
+    (z + a)
+        .length_squared()
+        .max((z - a).length_squared())
+        .max((z + b).length_squared())
+        .max((z - b).length_squared())
+        .sqrt()
 }
 
 /// Whether the eye (the camera-relative origin `prepared` was made for) lies inside a voxel

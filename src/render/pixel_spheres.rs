@@ -5,14 +5,14 @@
 //!
 //! In a crowd, most instances cover a pixel or less and most rays pass between them: a ray's
 //! walk tests node after node of the BVH to find that it meets a sphere or two, or none
-//! (docs/benchmarks.md, step 51), while a sphere's projection holds zero or one pixel centre. A pixel's list is
-//! exactly what the depth-sorted search collects for its ray ([`super::visibility::nearest_listed`]):
-//! the same [`sphere_interval`] of the same direction, so the hits are bit for bit those of
-//! every other search.
+//! (docs/benchmarks.md, step 51), while a sphere's projection holds zero or one pixel
+//! centre. A pixel's list is exactly what the depth-sorted search collects for its ray
+//! ([`super::visibility::nearest_listed`]): the same [`sphere_interval`] of the same
+//! direction, so the hits are bit for bit those of every other search.
 //!
 //! When the spheres overlap deeply (more than [`MAX_PER_PIXEL`] pixel tests per pixel on
-//! average, or a sphere around the eye), [`PixelSpheres::build`] gives up and the rays walk
-//! the BVH as before.
+//! average; a sphere around the eye costs a whole image's), [`PixelSpheres::build`] gives up
+//! and the rays walk the BVH as before.
 
 use super::instances::sphere_interval;
 use crate::scene::camera::{Camera, PixelGrid, PixelRect};
@@ -47,10 +47,8 @@ impl PixelSpheres {
     /// The lists for `camera`'s pixels (rays through their centres from the camera-relative
     /// origin, as [`super::primary::trace_tiles`] forms them) among the instances' spheres
     /// (camera-relative centre and radius of each [`Prepared`](super::instances::Prepared),
-    /// in instance order: read from a compact list, a crowd's projection is not held up by
-    /// memory); None when the
-    /// camera is not valid or the spheres would need more than [`MAX_PER_PIXEL`] tests per
-    /// pixel.
+    /// in instance order); None when the camera is not valid or the spheres would need more
+    /// than [`MAX_PER_PIXEL`] tests per pixel.
     pub fn build(camera: &Camera, spheres: &[(DVec3, f64)]) -> Option<PixelSpheres> {
         Self::build_within(None, camera, spheres, MAX_PER_PIXEL)
     }

@@ -198,13 +198,17 @@ fn door_angle(t: f64) -> f64 {
     DOOR_OPEN * (smooth(ramp(0.25, 0.4)) - smooth(ramp(0.7, 0.85)))
 }
 
+/// The whole laps driven by time t and the path parameter within the lap: time is wrapped to
+/// one lap before angles are formed (f64 keeps t = 10⁶ s exact to ~1e-10 s).
+fn lap_and_parameter(t: f64) -> (f64, f64) {
+    let laps = (t / PATH_PERIOD).floor();
+    (laps, (t - laps * PATH_PERIOD) * TAU / PATH_PERIOD)
+}
+
 /// The body's local transform (identity unless `travel`), the steering angle and the
 /// distance driven at time t.
 pub fn drive_state(t: f64, travel: bool) -> (Transform, f64, f64) {
-    // Wrap time to one lap before forming angles (f64 keeps t = 10⁶ s exact to ~1e-10 s).
-    let laps = (t / PATH_PERIOD).floor();
-    let tm = t - laps * PATH_PERIOD;
-    let s = tm * TAU / PATH_PERIOD;
+    let (laps, s) = lap_and_parameter(t);
     let (p, v, a) = path(s);
     let curvature = (a.x * v.z - v.x * a.z) / v.length().powi(3);
     let steer = (WHEELBASE as f64 * curvature).atan().clamp(-STEER_MAX, STEER_MAX);
@@ -257,19 +261,6 @@ pub fn pose(scene: &mut Scene, car: &Car, t: f64) -> Result<(), SceneError> {
 /// Poses many cars at time t, computing their transforms in parallel (when enabled).
 pub fn pose_all(scene: &mut Scene, cars: &[Car], t: f64) -> Result<(), SceneError> {
     scene.set_locals_from(cars.len(), |k| car_pose(&cars[k], t))
-}
-
-/// Where a car's body origin is at time t (the translation of its body's world transform,
-/// as [`car_pose`] places it), without the rest of the pose.
-pub fn body_origin(car: &Car, t: f64) -> DVec3 {
-    if !car.travel {
-        return car.origin;
-    }
-    // As drive_state forms the path parameter.
-    let t = t + car.phase;
-    let laps = (t / PATH_PERIOD).floor();
-    let s = (t - laps * PATH_PERIOD) * TAU / PATH_PERIOD;
-    path(s).0 + car.origin
 }
 
 /// The radius of a sphere about a car's body origin that holds its eight parts' occupied
@@ -373,11 +364,8 @@ pub fn body_world(car: &Car, t: f64) -> DAffine3 {
     if !car.travel {
         return DAffine3::from_translation(car.origin);
     }
-    // As drive_state forms the path parameter and the body's heading.
-    let t = t + car.phase;
-    let laps = (t / PATH_PERIOD).floor();
-    let s = (t - laps * PATH_PERIOD) * TAU / PATH_PERIOD;
-    let (p, v, _) = path(s);
+    // As drive_state forms the body's place and heading.
+    let (p, v, _) = path(lap_and_parameter(t + car.phase).1);
     Transform { translation: p + car.origin, rotation: heading(v), scale: DVec3::ONE }.to_affine()
 }
 
@@ -411,9 +399,9 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 }
 
 /// Posing only the cars a frame's rays can reach, with what it keeps between frames: the
-/// cars' boxes ([`car_box`]) and radii ([`car_radius`]) at a level of detail, and per car the last placement of its body
-/// tested under the last frame's [`Sight`] and the answer (so a car that stays where it was
-/// is not tested again while the sight stays the same).
+/// cars' boxes ([`car_box`]) and radii ([`car_radius`]) at a level of detail, and per car the
+/// last placement of its body tested under the last frame's [`Sight`] and the answer (so a
+/// car that stays where it was is not tested again while the sight stays the same).
 #[derive(Clone, Debug, Default)]
 pub struct SeenCars {
     /// Part edits, level, car count and the parts' addresses the boxes are for.
