@@ -482,34 +482,40 @@ pub fn render_lit(
     let mut hits = hits;
     // Last frame's instances' memory, refilled.
     let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
-    match hits.as_deref_mut() {
-        // Only the instances changed since last frame, when the eye and the rest are the same.
-        Some(h) => {
-            prepare_changed(scene, camera.eye, plan.transform, opts.max_level, &mut prepared, &mut h.prepared_for)
-        }
-        None => prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared),
-    }
+    // Their spheres, for the lists and the BVH.
+    let mut spheres = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared_spheres)).unwrap_or_default();
     let splatting = opts.renderer == Renderer::Splat;
     // A crowd's primary rays search the spheres their pixel meets, not the BVH.
     let want_lists = plan.sphere_lists && !splatting;
-    // The instances' spheres, for the lists and the BVH: kept in the hit buffer, or here.
-    let mut own_spheres = Vec::new();
-    if plan.bvh || want_lists {
-        match hits.as_deref_mut() {
-            Some(h) => h.fill_spheres(&prepared),
-            None => own_spheres.extend(prepared.iter().map(|p| (p.centre, p.radius))),
+    match hits.as_deref_mut() {
+        // Only the instances changed since last frame, when the eye and the rest are the same
+        // (and only their spheres: a crowd's 80 000 prepared instances are not read again).
+        Some(h) => prepare_changed(
+            scene,
+            camera.eye,
+            plan.transform,
+            opts.max_level,
+            &mut prepared,
+            &mut spheres,
+            &mut h.prepared_for,
+        ),
+        None => {
+            prepare_into(scene, camera.eye, plan.transform, opts.max_level, &mut prepared);
+            if plan.bvh || want_lists {
+                spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
+            }
         }
     }
     let lists = match hits.as_deref_mut() {
         _ if !want_lists => None,
-        Some(h) => PixelSpheres::rebuild(h.pixel_spheres.take(), camera, h.bvh_spheres()),
-        None => PixelSpheres::build(camera, &own_spheres),
+        Some(h) => PixelSpheres::rebuild(h.pixel_spheres.take(), camera, &spheres),
+        None => PixelSpheres::build(camera, &spheres),
     };
     // Shadow rays search the BVH, and so do primary rays without lists; a frame with neither
     // leaves it as it was (the next one that needs it refits every box).
     let bvh = (plan.bvh && (plan.shadows || lists.is_none())).then(|| match hits.as_deref_mut() {
-        Some(h) => h.take_bvh_filled(),
-        None => Bvh::build(&own_spheres),
+        Some(h) => h.take_bvh_of(&spheres),
+        None => Bvh::build(&spheres),
     });
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
     let search = plan.search();
@@ -883,6 +889,7 @@ pub fn render_lit(
         }
         b.pixel_spheres = lists;
         b.prepared = prepared;
+        b.prepared_spheres = spheres;
     }
     Ok((f, ambient_ms))
 }

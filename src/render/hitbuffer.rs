@@ -81,6 +81,8 @@ pub struct HitBuffer {
     /// The instances' spheres of the last [`HitBuffer::take_bvh`], kept for the next frame's
     /// (their memory, not their values: a crowd's were megabytes allocated every frame).
     bvh_spheres: Vec<(DVec3, f64)>,
+    /// `prepared`'s spheres (camera-relative centre, radius), refilled alongside it.
+    pub(crate) prepared_spheres: Vec<(DVec3, f64)>,
     /// The last frame's per-pixel sphere lists, which the next frame's take over where its
     /// camera and spheres are the same ([`super::pixel_spheres::PixelSpheres::rebuild`]).
     pub(crate) pixel_spheres: Option<super::pixel_spheres::PixelSpheres>,
@@ -275,29 +277,22 @@ impl HitBuffer {
     /// This frame's instance BVH: the stored frame's refitted, or a new one (counted in
     /// [`HitBuffer::bvh_builds`]). Store it back with `self.bvh = Some(..)` after the frame.
     pub fn take_bvh(&mut self, prepared: &[Prepared]) -> super::bvh::Bvh {
-        self.fill_spheres(prepared);
-        self.take_bvh_filled()
+        let mut spheres = std::mem::take(&mut self.bvh_spheres);
+        spheres.clear();
+        spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
+        let bvh = self.take_bvh_of(&spheres);
+        self.bvh_spheres = spheres;
+        bvh
     }
 
-    /// Keeps the spheres (camera-relative centre, radius) of `prepared`, in instance order,
-    /// for [`HitBuffer::bvh_spheres`] and [`HitBuffer::take_bvh_filled`].
-    pub fn fill_spheres(&mut self, prepared: &[Prepared]) {
-        self.bvh_spheres.clear();
-        self.bvh_spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
-    }
-
-    /// [`HitBuffer::take_bvh`] for the spheres last given to [`HitBuffer::fill_spheres`].
-    pub fn take_bvh_filled(&mut self) -> super::bvh::Bvh {
-        let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), &self.bvh_spheres);
+    /// [`HitBuffer::take_bvh`] for the instances' spheres (camera-relative centre, radius),
+    /// in instance order.
+    pub fn take_bvh_of(&mut self, spheres: &[(DVec3, f64)]) -> super::bvh::Bvh {
+        let bvh = super::bvh::Bvh::refit_or_build(self.bvh.take(), spheres);
         if bvh.refits == 0 {
             self.bvh_builds += 1;
         }
         bvh
-    }
-
-    /// The spheres last given to [`HitBuffer::fill_spheres`] (or [`HitBuffer::take_bvh`]).
-    pub fn bvh_spheres(&self) -> &[(DVec3, f64)] {
-        &self.bvh_spheres
     }
 
     /// Hands a frame the caller is done with back to the renderer: the next frame of the same

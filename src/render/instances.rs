@@ -90,7 +90,7 @@ pub fn prepare(scene: &Scene, eye: DVec3, transform: bool) -> Vec<Prepared> {
 /// prepares tens of thousands of instances every frame reuses last frame's vector instead of
 /// faulting in fresh pages.
 pub fn prepare_into(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut Vec<Prepared>) {
-    refill(scene, eye, transform, max_level, out, None);
+    refill(scene, eye, transform, max_level, out, None, None);
 }
 
 /// What a list of prepared instances was made from: the scene (its number and update), the
@@ -125,24 +125,37 @@ impl PreparedFor {
 /// [`prepare_into`] for a list `out` that was prepared as `made` says: when only the scene's
 /// updates differ (same scene, eye, ray map, level, parts and instances), refills only the
 /// instances those updates changed (a still camera over a crowd whose cars are posed only
-/// when seen); else all of them. `made` then describes `out`.
+/// when seen); else all of them. `made` then describes `out`. `spheres` is kept as `out`'s
+/// (centre, radius) pairs, in instance order, and refilled alongside: a crowd's frame reads
+/// them without going through every prepared instance.
 pub fn prepare_changed(
     scene: &Scene,
     eye: DVec3,
     transform: bool,
     max_level: u32,
     out: &mut Vec<Prepared>,
+    spheres: &mut Vec<(DVec3, f64)>,
     made: &mut PreparedFor,
 ) {
     let now = PreparedFor::of(scene, eye, transform, max_level);
     let since = PreparedFor { epoch: made.epoch, ..now.clone() };
-    let same = *made == since && out.len() == now.instances && scene.epoch() >= made.epoch;
-    refill(scene, eye, transform, max_level, out, same.then_some(made.epoch));
+    let same =
+        *made == since && out.len() == now.instances && spheres.len() == now.instances && scene.epoch() >= made.epoch;
+    refill(scene, eye, transform, max_level, out, Some(spheres), same.then_some(made.epoch));
     *made = now;
 }
 
-/// Fills `out` for every instance, or (with `since`) only for those whose stamp is later.
-fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut Vec<Prepared>, since: Option<u64>) {
+/// Fills `out` (and `spheres`, when given) for every instance, or (with `since`) only for
+/// those whose stamp is later.
+fn refill(
+    scene: &Scene,
+    eye: DVec3,
+    transform: bool,
+    max_level: u32,
+    out: &mut Vec<Prepared>,
+    spheres: Option<&mut Vec<(DVec3, f64)>>,
+    since: Option<u64>,
+) {
     // Per part (a handful, shared by thousands of instances): its occupied box's centre and
     // half extents at the traced level.
     let boxes: Vec<(DVec3, DVec3)> = scene
@@ -155,7 +168,7 @@ fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut 
         .collect();
     // Fills a slot field by field: built whole and assigned, each 152-byte instance went
     // through a memcpy (3.5 % of a 10 000-car frame).
-    let fill = |i: usize, slot: &mut Prepared| {
+    let fill = |i: usize, slot: &mut Prepared, sphere: Option<&mut (DVec3, f64)>| {
         let inst = &scene.instances()[i];
         let cube = scene.parts[inst.part].bounds;
         let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
@@ -185,6 +198,9 @@ fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut 
         slot.centre = w.transform_point3(centre_obj) - eye;
         slot.radius = radius + f64::MIN_POSITIVE;
         slot.max_stretch = max_stretch;
+        if let Some(sphere) = sphere {
+            *sphere = (slot.centre, slot.radius);
+        }
     };
     let n = scene.instances().len();
     // Last frame's slots, refilled in place.
@@ -196,25 +212,38 @@ fn refill(scene: &Scene, eye: DVec3, transform: bool, max_level: u32, out: &mut 
         max_stretch: 0.0,
     };
     out.resize(n, blank);
+    // Without spheres to keep, an empty slice: each slot's sphere is then None.
+    let spheres = match spheres {
+        Some(s) => {
+            s.resize(n, (DVec3::ZERO, 0.0));
+            &mut s[..]
+        }
+        None => &mut [][..],
+    };
+    // One run of slots from `first`, with their spheres (or none).
+    let fill_run = |first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)]| {
+        for (k, slot) in slots.iter_mut().enumerate() {
+            if since.is_none_or(|e| scene.stamp(first + k) > e) {
+                fill(first + k, slot, spheres.get_mut(k));
+            }
+        }
+    };
     // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
     if n >= 1024 {
         use rayon::prelude::*;
         const CHUNK: usize = 512;
-        out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
-            for (k, slot) in chunk.iter_mut().enumerate() {
-                if since.is_none_or(|e| scene.stamp(c * CHUNK + k) > e) {
-                    fill(c * CHUNK + k, slot);
-                }
-            }
-        });
+        if spheres.is_empty() {
+            out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, slots)| fill_run(c * CHUNK, slots, &mut []));
+        } else {
+            out.par_chunks_mut(CHUNK)
+                .zip(spheres.par_chunks_mut(CHUNK))
+                .enumerate()
+                .for_each(|(c, (slots, spheres))| fill_run(c * CHUNK, slots, spheres));
+        }
         return;
     }
-    for (i, slot) in out.iter_mut().enumerate() {
-        if since.is_none_or(|e| scene.stamp(i) > e) {
-            fill(i, slot);
-        }
-    }
+    fill_run(0, out, spheres);
 }
 
 /// How far a box's farthest corner lies from its centre once mapped by `m`, for half
@@ -405,16 +434,22 @@ mod tests {
             scene.add(Instance { part: i % 3, parent, local }).unwrap();
         }
         scene.update().unwrap();
-        let (mut kept, mut made) = (Vec::new(), PreparedFor::default());
+        let (mut kept, mut spheres, mut made) = (Vec::new(), Vec::new(), PreparedFor::default());
         let mut eye = DVec3::new(1.0, 2.0, 3.0);
         let mut level = u32::MAX;
         let mut check = |scene: &Scene, eye: DVec3, level: u32, what: &str| {
-            prepare_changed(scene, eye, true, level, &mut kept, &mut made);
+            // Spheres that lost their tail (kept by someone else): all are refilled.
+            if what == "step 10" {
+                spheres.truncate(spheres.len() / 2);
+            }
+            prepare_changed(scene, eye, true, level, &mut kept, &mut spheres, &mut made);
             let mut fresh = Vec::new();
             prepare_into(scene, eye, true, level, &mut fresh);
             assert_eq!(kept.len(), fresh.len(), "{what}");
+            assert_eq!(spheres.len(), fresh.len(), "{what}");
             for (i, (a, b)) in kept.iter().zip(&fresh).enumerate() {
                 assert_eq!(a, b, "{what}: instance {i}");
+                assert_eq!(spheres[i], (b.centre, b.radius), "{what}: sphere {i}");
             }
         };
         check(&scene, eye, level, "first");
