@@ -487,7 +487,7 @@ pub fn render_lit(
     let splatting = opts.renderer == Renderer::Splat;
     // A crowd's primary rays search the spheres their pixel meets, not the BVH.
     let want_lists = plan.sphere_lists && !splatting;
-    match hits.as_deref_mut() {
+    let refilled = match hits.as_deref_mut() {
         // Only the instances changed since last frame, when the eye and the rest are the same
         // (and only their spheres: a crowd's 80 000 prepared instances are not read again).
         Some(h) => prepare_changed(
@@ -504,11 +504,17 @@ pub fn render_lit(
             if plan.bvh || want_lists {
                 spheres.extend(prepared.iter().map(|p| (p.centre, p.radius)));
             }
+            None
         }
-    }
+    };
     let lists = match hits.as_deref_mut() {
         _ if !want_lists => None,
-        Some(h) => PixelSpheres::rebuild(h.pixel_spheres.take(), camera, &spheres),
+        // Last frame's lists were made with the spheres of last frame's prepared instances:
+        // only those prepared again may have moved.
+        Some(h) => match &refilled {
+            Some(moved) => PixelSpheres::rebuild_moved(h.pixel_spheres.take(), camera, &spheres, moved),
+            None => PixelSpheres::rebuild(h.pixel_spheres.take(), camera, &spheres),
+        },
         None => PixelSpheres::build(camera, &spheres),
     };
     // Shadow rays search the BVH, and so do primary rays without lists; a frame with neither

@@ -127,7 +127,9 @@ impl PreparedFor {
 /// instances those updates changed (a still camera over a crowd whose cars are posed only
 /// when seen); else all of them. `made` then describes `out`. `spheres` is kept as `out`'s
 /// (centre, radius) pairs, in instance order, and refilled alongside: a crowd's frame reads
-/// them without going through every prepared instance.
+/// them without going through every prepared instance. Returns the instances refilled, in
+/// ascending order, when only those were (the others are as they were); None when every
+/// instance was.
 pub fn prepare_changed(
     scene: &Scene,
     eye: DVec3,
@@ -136,17 +138,18 @@ pub fn prepare_changed(
     out: &mut Vec<Prepared>,
     spheres: &mut Vec<(DVec3, f64)>,
     made: &mut PreparedFor,
-) {
+) -> Option<Vec<u32>> {
     let now = PreparedFor::of(scene, eye, transform, max_level);
     let since = PreparedFor { epoch: made.epoch, ..now.clone() };
     let same =
         *made == since && out.len() == now.instances && spheres.len() == now.instances && scene.epoch() >= made.epoch;
-    refill(scene, eye, transform, max_level, out, Some(spheres), same.then_some(made.epoch));
+    let refilled = refill(scene, eye, transform, max_level, out, Some(spheres), same.then_some(made.epoch));
     *made = now;
+    refilled
 }
 
 /// Fills `out` (and `spheres`, when given) for every instance, or (with `since`) only for
-/// those whose stamp is later.
+/// those whose stamp is later; returns those (ascending) when `since` was given.
 fn refill(
     scene: &Scene,
     eye: DVec3,
@@ -155,7 +158,7 @@ fn refill(
     out: &mut Vec<Prepared>,
     spheres: Option<&mut Vec<(DVec3, f64)>>,
     since: Option<u64>,
-) {
+) -> Option<Vec<u32>> {
     // Per part (a handful, shared by thousands of instances): its occupied box's centre and
     // half extents at the traced level.
     let boxes: Vec<(DVec3, DVec3)> = scene
@@ -220,30 +223,39 @@ fn refill(
         }
         None => &mut [][..],
     };
-    // One run of slots from `first`, with their spheres (or none).
-    let fill_run = |first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)]| {
+    // One run of slots from `first`, with their spheres (or none); the instances refilled.
+    let fill_run = |first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)], refilled: &mut Vec<u32>| {
         for (k, slot) in slots.iter_mut().enumerate() {
-            if since.is_none_or(|e| scene.stamp(first + k) > e) {
-                fill(first + k, slot, spheres.get_mut(k));
+            let i = first + k;
+            if since.is_none_or(|e| scene.stamp(i) > e) {
+                fill(i, slot, spheres.get_mut(k));
+                if since.is_some() {
+                    // (Instances are counted in u32 by the renderer's records.)
+                    refilled.push(i as u32);
+                }
             }
         }
     };
+    let mut refilled = Vec::new();
     // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
     if n >= 1024 {
         use rayon::prelude::*;
         const CHUNK: usize = 512;
-        if spheres.is_empty() {
-            out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, slots)| fill_run(c * CHUNK, slots, &mut []));
+        let each = |(c, (slots, spheres)): (usize, (&mut [Prepared], &mut [(DVec3, f64)]))| {
+            let mut refilled = Vec::new();
+            fill_run(c * CHUNK, slots, spheres, &mut refilled);
+            refilled
+        };
+        let runs: Vec<Vec<u32>> = if spheres.is_empty() {
+            out.par_chunks_mut(CHUNK).map(|slots| (slots, &mut [][..])).enumerate().map(each).collect()
         } else {
-            out.par_chunks_mut(CHUNK)
-                .zip(spheres.par_chunks_mut(CHUNK))
-                .enumerate()
-                .for_each(|(c, (slots, spheres))| fill_run(c * CHUNK, slots, spheres));
-        }
-        return;
+            out.par_chunks_mut(CHUNK).zip(spheres.par_chunks_mut(CHUNK)).enumerate().map(each).collect()
+        };
+        return since.map(|_| runs.concat());
     }
-    fill_run(0, out, spheres);
+    fill_run(0, out, spheres, &mut refilled);
+    since.map(|_| refilled)
 }
 
 /// How far a box's farthest corner lies from its centre once mapped by `m`, for half

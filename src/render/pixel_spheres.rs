@@ -50,7 +50,7 @@ impl PixelSpheres {
     /// in instance order); None when the camera is not valid or the spheres would need more
     /// than [`MAX_PER_PIXEL`] tests per pixel.
     pub fn build(camera: &Camera, spheres: &[(DVec3, f64)]) -> Option<PixelSpheres> {
-        Self::build_within(None, camera, spheres, MAX_PER_PIXEL)
+        Self::build_within(None, camera, spheres, None, MAX_PER_PIXEL)
     }
 
     /// [`PixelSpheres::build`] taking over from `previous` (last frame's lists) what still
@@ -58,66 +58,67 @@ impl PixelSpheres {
     /// then meets the same pixels' rays at the same t, and is not projected again. A crowd
     /// whose cars are posed only where they are seen leaves most spheres as they were.
     pub fn rebuild(previous: Option<PixelSpheres>, camera: &Camera, spheres: &[(DVec3, f64)]) -> Option<PixelSpheres> {
-        Self::build_within(previous, camera, spheres, MAX_PER_PIXEL)
+        Self::build_within(previous, camera, spheres, None, MAX_PER_PIXEL)
     }
 
-    /// [`PixelSpheres::rebuild`] with at most `per_pixel` tests per pixel on average.
+    /// [`PixelSpheres::rebuild`] for spheres of which only those listed in `moved`
+    /// (ascending instances) may differ from the ones `previous` was built for: the others
+    /// are not even compared (a crowd's 80 000 spheres were read twice and copied every
+    /// frame to find the few thousand that moved). The renderer knows them: they are the
+    /// instances it prepared again.
+    pub(crate) fn rebuild_moved(
+        previous: Option<PixelSpheres>,
+        camera: &Camera,
+        spheres: &[(DVec3, f64)],
+        moved: &[u32],
+    ) -> Option<PixelSpheres> {
+        Self::build_within(previous, camera, spheres, Some(moved), MAX_PER_PIXEL)
+    }
+
+    /// [`PixelSpheres::rebuild`] (or [`PixelSpheres::rebuild_moved`]) with at most
+    /// `per_pixel` tests per pixel on average.
     fn build_within(
         previous: Option<PixelSpheres>,
         camera: &Camera,
         spheres: &[(DVec3, f64)],
+        moved: Option<&[u32]>,
         per_pixel: u64,
     ) -> Option<PixelSpheres> {
         camera.validate().ok()?;
         let mut kept = previous.unwrap_or_default();
         // Last frame's spheres and findings, when they were made for these rays.
         let same = kept.camera == Some(*camera) && kept.spheres.len() == spheres.len();
-        let (old_spheres, old_found) = if same { (&kept.spheres[..], &kept.found[..]) } else { (&[][..], &[][..]) };
-        let basis = camera.basis();
+        if !same {
+            kept.spheres.clear();
+            kept.found.clear();
+        }
         let (w, h) = (camera.width, camera.height);
         let pixels = w as u64 * h as u64;
         if pixels > u32::MAX as u64 || spheres.len() > u32::MAX as usize {
             return None;
         }
+        let basis = camera.basis();
         let limit = per_pixel.saturating_mul(pixels);
         let grid = PixelGrid::new(camera, &basis);
         let columns: Vec<f64> = (0..w).map(|x| camera.screen_x(&basis, x)).collect();
         let rows: Vec<f64> = (0..h).map(|y| camera.screen_y(&basis, y)).collect();
-        // One chunk's spheres, tested pixel by pixel inside their projections; None beyond
-        // the limit (each chunk stops early; the chunks' sum is checked below).
-        let project = |first: usize, chunk: &[(DVec3, f64)]| -> Option<(Found, u64)> {
-            let mut found = Vec::new();
-            let mut tested = 0u64;
-            // Last frame's findings for this chunk's instances, walked alongside.
-            let from = old_found.partition_point(|f| (f.2 as usize) < first);
-            let mut old = &old_found[from..];
-            for (k, &(centre, radius)) in chunk.iter().enumerate() {
-                let i = (first + k) as u32;
-                while old.first().is_some_and(|f| f.2 < i) {
-                    old = &old[1..];
-                }
-                if old_spheres.get(i as usize).is_some_and(|&o| same_bits(o, (centre, radius))) {
-                    while let Some(&f) = old.first().filter(|f| f.2 == i) {
-                        found.push(f);
-                        old = &old[1..];
-                    }
-                    continue;
-                }
-                // A centre that is not finite gives no interval for any ray; a radius that is
-                // not a number neither.
-                if !centre.is_finite() || radius.is_nan() {
-                    continue;
-                }
-                let rect = match grid.near(&[centre], padded(centre, radius)) {
-                    PixelRect::Empty => continue,
-                    PixelRect::Unbounded => PixelRect::Pixels { x0: 0, y0: 0, x1: w - 1, y1: h - 1 },
-                    rect => rect,
-                };
-                tested += rect.area(camera);
-                if tested > limit {
-                    return None;
-                }
-                let PixelRect::Pixels { x0, y0, x1, y1 } = rect else { continue };
+        // One sphere, tested pixel by pixel inside its projection: its findings and the
+        // pixels tested.
+        let project = |i: u32, (centre, radius): (DVec3, f64), found: &mut Found| -> u64 {
+            // A centre that is not finite gives no interval for any ray; a radius that is not
+            // a number neither.
+            if !centre.is_finite() || radius.is_nan() {
+                return 0;
+            }
+            let rect = match grid.near(&[centre], padded(centre, radius)) {
+                PixelRect::Empty => return 0,
+                PixelRect::Unbounded => PixelRect::Pixels { x0: 0, y0: 0, x1: w - 1, y1: h - 1 },
+                rect => rect,
+            };
+            let PixelRect::Pixels { x0, y0, x1, y1 } = rect else { return 0 };
+            let tested = rect.area(camera);
+            // Past the limit the lists are not made: not worth testing its pixels.
+            if tested <= limit {
                 for y in y0..=y1 {
                     for x in x0..=x1 {
                         let d = basis.dir(columns[x as usize], rows[y as usize]);
@@ -127,42 +128,134 @@ impl PixelSpheres {
                     }
                 }
             }
-            Some((found, tested))
+            tested
         };
-        #[cfg(feature = "parallel")]
-        let parts: Vec<(Found, u64)> = {
-            use rayon::prelude::*;
-            spheres.par_chunks(CHUNK).enumerate().map(|(c, chunk)| project(c * CHUNK, chunk)).collect::<Option<_>>()?
+        let found = match moved.filter(|_| same) {
+            Some(moved) => {
+                // The listed spheres that changed, projected again: (findings, which, tested)
+                // per chunk, in instance order.
+                let old = &kept.spheres;
+                let each = |ids: &[u32]| -> Option<(Found, Vec<u32>, u64)> {
+                    let (mut found, mut again, mut tested) = (Vec::new(), Vec::new(), 0u64);
+                    for &i in ids {
+                        let (Some(&now), Some(&then)) = (spheres.get(i as usize), old.get(i as usize)) else {
+                            continue;
+                        };
+                        if same_bits(now, then) {
+                            continue;
+                        }
+                        again.push(i);
+                        tested += project(i, now, &mut found);
+                        if tested > limit {
+                            return None;
+                        }
+                    }
+                    Some((found, again, tested))
+                };
+                #[cfg(feature = "parallel")]
+                let parts: Vec<(Found, Vec<u32>, u64)> = {
+                    use rayon::prelude::*;
+                    moved.par_chunks(CHUNK).map(each).collect::<Option<_>>()?
+                };
+                #[cfg(not(feature = "parallel"))]
+                let parts: Vec<(Found, Vec<u32>, u64)> = vec![each(moved)?];
+                if parts.iter().map(|p| p.2).sum::<u64>() > limit {
+                    return None;
+                }
+                // Last frame's findings but those of the spheres projected again, merged
+                // with theirs by instance.
+                let mut fresh = parts.iter().flat_map(|p| p.0.iter().copied()).peekable();
+                let mut again = parts.iter().flat_map(|p| p.1.iter().copied()).peekable();
+                let mut merged = Vec::with_capacity(kept.found.len());
+                for &f in &kept.found {
+                    while let Some(n) = fresh.next_if(|n| n.2 < f.2) {
+                        merged.push(n);
+                    }
+                    while again.next_if(|&a| a < f.2).is_some() {}
+                    if again.peek() != Some(&f.2) {
+                        merged.push(f);
+                    }
+                }
+                merged.extend(fresh);
+                for (_, again, _) in &parts {
+                    for &i in again {
+                        kept.spheres[i as usize] = spheres[i as usize];
+                    }
+                }
+                merged
+            }
+            None => {
+                let (old_spheres, old_found) = (&kept.spheres[..], &kept.found[..]);
+                // One chunk's spheres; None beyond the limit (each chunk stops early; the
+                // chunks' sum is checked below).
+                let each = |first: usize, chunk: &[(DVec3, f64)]| -> Option<(Found, u64)> {
+                    let mut found = Vec::new();
+                    let mut tested = 0u64;
+                    // Last frame's findings for this chunk's instances, walked alongside.
+                    let from = old_found.partition_point(|f| (f.2 as usize) < first);
+                    let mut old = &old_found[from..];
+                    for (k, &sphere) in chunk.iter().enumerate() {
+                        let i = (first + k) as u32;
+                        while old.first().is_some_and(|f| f.2 < i) {
+                            old = &old[1..];
+                        }
+                        if old_spheres.get(i as usize).is_some_and(|&o| same_bits(o, sphere)) {
+                            while let Some(&f) = old.first().filter(|f| f.2 == i) {
+                                found.push(f);
+                                old = &old[1..];
+                            }
+                            continue;
+                        }
+                        tested += project(i, sphere, &mut found);
+                        if tested > limit {
+                            return None;
+                        }
+                    }
+                    Some((found, tested))
+                };
+                #[cfg(feature = "parallel")]
+                let parts: Vec<(Found, u64)> = {
+                    use rayon::prelude::*;
+                    spheres
+                        .par_chunks(CHUNK)
+                        .enumerate()
+                        .map(|(c, chunk)| each(c * CHUNK, chunk))
+                        .collect::<Option<_>>()?
+                };
+                #[cfg(not(feature = "parallel"))]
+                let parts: Vec<(Found, u64)> = vec![each(0, spheres)?];
+                if parts.iter().map(|p| p.1).sum::<u64>() > limit {
+                    return None;
+                }
+                kept.spheres.clear();
+                kept.spheres.extend_from_slice(spheres);
+                let mut all = std::mem::take(&mut kept.found);
+                all.clear();
+                for (found, _) in parts {
+                    all.extend_from_slice(&found);
+                }
+                all
+            }
         };
-        #[cfg(not(feature = "parallel"))]
-        let parts: Vec<(Found, u64)> = vec![project(0, spheres)?];
-        if parts.iter().map(|p| p.1).sum::<u64>() > limit {
-            return None;
-        }
-        // Counting sort by pixel: chunks and instances in order, so each pixel's entries
-        // arrive by ascending instance; then each list by entry t (ties keep that order).
+        // Counting sort by pixel: instances in order, so each pixel's entries arrive by
+        // ascending instance; then each list by entry t (ties keep that order).
         let mut start = std::mem::take(&mut kept.start);
         start.clear();
         start.resize(pixels as usize + 1, 0);
-        for (found, _) in &parts {
-            for &(px, _, _) in found {
-                start[px as usize + 1] += 1;
-            }
+        for &(px, _, _) in &found {
+            start[px as usize + 1] += 1;
         }
         for k in 1..start.len() {
             start[k] += start[k - 1];
         }
-        let total = start[pixels as usize] as usize;
         let mut entries = std::mem::take(&mut kept.entries);
         entries.clear();
-        entries.resize(total, (0.0, 0));
+        entries.resize(found.len(), (0.0, 0));
         let mut next = start.clone();
-        for (found, _) in &parts {
-            for &(px, t0, i) in found {
-                let slot = &mut next[px as usize];
-                entries[*slot as usize] = (t0, i);
-                *slot += 1;
-            }
+        for &(px, t0, i) in &found {
+            let slot = &mut next[px as usize];
+            entries[*slot as usize] = (t0, i);
+            *slot += 1;
         }
         for px in 0..pixels as usize {
             let list = &mut entries[start[px] as usize..start[px + 1] as usize];
@@ -170,13 +263,7 @@ impl PixelSpheres {
                 list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             }
         }
-        kept.spheres.clear();
-        kept.spheres.extend_from_slice(spheres);
-        kept.found.clear();
-        for (found, _) in parts {
-            kept.found.extend_from_slice(&found);
-        }
-        Some(PixelSpheres { width: w, start, entries, camera: Some(*camera), spheres: kept.spheres, found: kept.found })
+        Some(PixelSpheres { width: w, start, entries, camera: Some(*camera), spheres: kept.spheres, found })
     }
 
     /// The list of pixel (x, y): (sphere entry t, instance), nearest first; empty outside the
@@ -258,7 +345,7 @@ mod tests {
         spheres.push(sphere(DVec3::new(0.0, 0.0, 0.5), 1.0));
         spheres.push(sphere(DVec3::new(f64::NAN, 0.0, 1.0), 1.0));
         spheres.push(sphere(DVec3::new(0.0, 0.0, -5.0), 1.0));
-        let lists = PixelSpheres::build_within(None, &cam, &spheres, u64::MAX).expect("no limit");
+        let lists = PixelSpheres::build_within(None, &cam, &spheres, None, u64::MAX).expect("no limit");
         let mut crossings = 0;
         for y in 0..cam.height {
             for x in 0..cam.width {
@@ -317,6 +404,63 @@ mod tests {
             let fresh = PixelSpheres::build(&cam, &spheres).expect("within the limit");
             same(&rebuilt, &fresh, &format!("step {step}"));
             assert!(rebuilt.len() > 500, "step {step}: {} crossings", rebuilt.len());
+            lists = Some(rebuilt);
+        }
+    }
+
+    /// Lists rebuilt from the spheres listed as moved equal fresh ones: over steps where some
+    /// listed spheres moved (onto the screen, off it, into NaN), some listed ones did not,
+    /// the last step's moves were undone, none moved, and the camera turned (then nothing is
+    /// taken over).
+    #[test]
+    fn lists_rebuilt_from_the_moved_equal_fresh_ones() {
+        let mut cam = camera(43, 27);
+        let mut rng = Rng::new(9);
+        let place = |rng: &mut Rng| {
+            // In front, beside the view or behind the eye.
+            let dir = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, [1.0, 0.6, -1.0][rng.below(3) as usize]);
+            (dir * (20.0 + 60.0 * rng.f64()), 0.1 + 0.7 * rng.f64())
+        };
+        let mut spheres: Vec<(DVec3, f64)> = (0..4000).map(|_| place(&mut rng)).collect();
+        let mut lists = Some(PixelSpheres::build(&cam, &spheres).expect("within the limit"));
+        let (mut before, mut last_moved) = (spheres.clone(), Vec::new());
+        for step in 0..6 {
+            let mut moved: Vec<u32> = Vec::new();
+            let now = spheres.clone();
+            match step {
+                2 => {
+                    spheres = before.clone();
+                    moved = last_moved.clone();
+                }
+                4 => cam.target.y += 0.02,
+                5 => {}
+                _ => {
+                    for i in 0..spheres.len() {
+                        match rng.below(10) {
+                            0 => spheres[i] = place(&mut rng),
+                            1 => spheres[i].0.x += 0.3,
+                            // Listed, not moved.
+                            2 => {}
+                            _ => continue,
+                        }
+                        moved.push(i as u32);
+                    }
+                    spheres[3 * step + 1].1 = f64::NAN;
+                    moved.push(3 * step as u32 + 1);
+                    moved.sort_unstable();
+                    moved.dedup();
+                }
+            }
+            (before, last_moved) = (now, moved.clone());
+            let rebuilt = PixelSpheres::rebuild_moved(lists, &cam, &spheres, &moved).expect("within the limit");
+            let fresh = PixelSpheres::build(&cam, &spheres).expect("within the limit");
+            assert_eq!(rebuilt.len(), fresh.len(), "step {step}");
+            for y in 0..cam.height {
+                for x in 0..cam.width {
+                    assert_eq!(rebuilt.at(x, y), fresh.at(x, y), "step {step}: pixel ({x}, {y})");
+                }
+            }
+            assert!(rebuilt.len() > 300, "step {step}: {} crossings", rebuilt.len());
             lists = Some(rebuilt);
         }
     }
