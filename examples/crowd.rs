@@ -32,7 +32,7 @@ fn main() -> Result<(), voxray::Error> {
     let all = std::env::args().nth(3).is_some_and(|a| a == "all");
     let rays = voxray::scene::FrameRays::of(&st.scene, &features, false, &RenderOptions::default());
     let sight = voxray::scene::Sight::new(&camera, &lights, rays, st.surfaces(u32::MAX)?).ok().filter(|_| !all);
-    let mut posed = Vec::new();
+    let (mut posed, mut tested) = (Vec::new(), Vec::new());
     let mut times: [Vec<f64>; 4] = Default::default();
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
@@ -48,6 +48,7 @@ fn main() -> Result<(), voxray::Error> {
         std::hint::black_box(frame);
         if f >= 2 {
             posed.push(n as f64);
+            tested.push(st.cars_tested() as f64);
             for (v, d) in times.iter_mut().zip([t1 - t0, t2 - t1, t3 - t2, t3 - t0]) {
                 v.push(d.as_secs_f64() * 1e3);
             }
@@ -60,13 +61,14 @@ fn main() -> Result<(), voxray::Error> {
     let [pose, update, draw, total] = &mut times;
     println!(
         "{cars} cars ({} instances), 320×192, median of {frames} frames: pose {:.2} ms, update {:.2} ms, \
-         render {:.2} ms, frame {:.2} ms; cars posed {}",
+         render {:.2} ms, frame {:.2} ms; cars posed {}, tested {}",
         st.scene.instances().len(),
         median(pose),
         median(update),
         median(draw),
         median(total),
-        median(&mut posed)
+        median(&mut posed),
+        median(&mut tested)
     );
     Ok(())
 }

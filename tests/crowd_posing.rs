@@ -168,3 +168,48 @@ fn posing_only_the_seen_cars_draws_the_same_frames() {
     }
     assert_eq!(cases, 21);
 }
+
+/// A far camera over a crowd whose cars are smaller than the gaps between pixels' rays, and
+/// frames a thirtieth of a second apart (then back in time, then far ahead, then on): cars
+/// found clear of the rays are let go untested while their motion cannot bring them near a
+/// ray, and every frame still equals, bit for bit, the crowd's with every car posed.
+#[test]
+fn cars_clear_of_the_rays_go_untested_and_the_frames_stay_the_same() {
+    let parts = car_parts();
+    let cars = 144;
+    let lights = Lights::default();
+    for hit_buffer in [true, false] {
+        let features = Features { shadows: false, hit_buffer, ..Features::default() };
+        let stage = || voxray::scene::stage_cars(&parts, cars, true, false).unwrap();
+        let (mut lazy, mut all) =
+            (World { st: stage(), kept: HitBuffer::new() }, World { st: stage(), kept: HitBuffer::new() });
+        let (lo, hi) = lazy.st.bounds;
+        let cam = Camera::framing(lo.as_vec3(), hi.as_vec3(), 56, 36);
+        let rays = FrameRays::of(&lazy.st.scene, &features, false, &RenderOptions::default());
+        let sight = Sight::new(&cam, &lights, rays, lazy.st.surfaces(u32::MAX).unwrap()).unwrap();
+        let times: Vec<f64> = (0..16)
+            .map(|f| 2.0 + f as f64 / 30.0)
+            .chain([1.7, 1.72, 9.0])
+            .chain((1..8).map(|f| 9.0 + f as f64 / 30.0))
+            .collect();
+        let (mut tested, mut posed_total, mut covered) = (0, 0, 0);
+        for (f, &t) in times.iter().enumerate() {
+            let posed = lazy.st.pose_seen(t, Some(&sight), u32::MAX).unwrap();
+            all.st.pose_seen(t, None, u32::MAX).unwrap();
+            let a = draw(&mut lazy, &cam, &lights, &features, u32::MAX, f == 0);
+            let b = draw(&mut all, &cam, &lights, &features, u32::MAX, f == 0);
+            let what = format!("hit buffer {hit_buffer}, frame {f} at {t} s ({posed} cars posed)");
+            assert_same_frames(&a, &b, &what);
+            if f > 0 {
+                tested += lazy.st.cars_tested();
+            }
+            posed_total += posed;
+            covered += a.instance.iter().filter(|&&i| i >= 0).count();
+        }
+        let frames = times.len() - 1;
+        // Under 70 % of the tests of every car every frame; the cars are seen and posed.
+        assert!(tested * 10 < cars * frames * 7, "hit buffer {hit_buffer}: {tested} tests over {frames} frames");
+        assert!(posed_total < cars * times.len() / 2 && posed_total > times.len() * 4, "{posed_total} cars posed");
+        assert!(covered > 400, "the cars cover {covered} pixels over the clip");
+    }
+}

@@ -242,7 +242,8 @@ fn refill(
     if n >= 1024 {
         use rayon::prelude::*;
         const CHUNK: usize = 512;
-        let each = |(c, (slots, spheres)): (usize, (&mut [Prepared], &mut [(DVec3, f64)]))| {
+        type Run<'a> = (usize, (&'a mut [Prepared], &'a mut [(DVec3, f64)]));
+        let each = |(c, (slots, spheres)): Run<'_>| {
             let mut refilled = Vec::new();
             fill_run(c * CHUNK, slots, spheres, &mut refilled);
             refilled

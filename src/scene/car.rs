@@ -358,6 +358,41 @@ fn per_parts<T: Copy>(
     Ok(out)
 }
 
+/// A bound on the speed of a driving car's body origin: |dp/dt|² = A²w²(cos² s + cos² 2s)
+/// ≤ 2A²w² along the figure-eight ([`path`]).
+fn max_speed() -> f64 {
+    std::f64::consts::SQRT_2 * PATH_A * TAU / PATH_PERIOD
+}
+
+/// A bound on a driving car's yaw rate |dθ/dt|: along the figure-eight it is
+/// w·|2 cos s sin 2s − cos 2s sin s| / (cos² s + cos² 2s), whose numerator changes by at most
+/// 3 per unit of s and denominator (at least 0.4375) by at most 3. Over 4096 pieces of a
+/// lap, each piece's value at its middle, numerator raised and denominator lowered by what
+/// half a piece can change them: about 0.84 rad/s, where the plain bound 3w/0.4375 is 1.8.
+fn max_yaw_rate() -> f64 {
+    const PIECES: usize = 4096;
+    let (w, half) = (TAU / PATH_PERIOD, PI / PIECES as f64);
+    (0..PIECES)
+        .map(|k| {
+            let s = (2 * k + 1) as f64 * half;
+            let num = (2.0 * s.cos() * (2.0 * s).sin() - (2.0 * s).cos() * s.sin()).abs() + 3.0 * half;
+            let den = s.cos().powi(2) + (2.0 * s).cos().powi(2) - 3.0 * half;
+            w * num / den
+        })
+        .fold(0.0, f64::max)
+}
+
+/// How fast any point of a car's box (`lo..hi` in its body frame) can move while it drives:
+/// its origin's speed plus its yaw rate times the box's farthest reach from the vertical
+/// axis through the origin (the body turns about it only). 0 for a parked car.
+fn box_speed(car: &Car, lo: DVec3, hi: DVec3, yaw_rate: f64) -> f64 {
+    if !car.travel {
+        return 0.0;
+    }
+    let reach = (lo.x.abs().max(hi.x.abs()).powi(2) + lo.z.abs().max(hi.z.abs()).powi(2)).sqrt();
+    max_speed() + yaw_rate * reach
+}
+
 /// A car's body world transform at time t, as [`car_pose`] places its body (which has no
 /// parent), without the rest of the pose.
 pub fn body_world(car: &Car, t: f64) -> DAffine3 {
@@ -401,18 +436,53 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 /// Posing only the cars a frame's rays can reach, with what it keeps between frames: the
 /// cars' boxes ([`car_box`]) and radii ([`car_radius`]) at a level of detail, and per car the
 /// last placement of its body tested under the last frame's [`Sight`] and the answer (so a
-/// car that stays where it was is not tested again while the sight stays the same).
+/// car that stays where it was is not tested again while the sight stays the same), and
+/// the times over which the car cannot come near any ray.
 #[derive(Clone, Debug, Default)]
 pub struct SeenCars {
     /// Part edits, level, car count and the parts' addresses the boxes are for.
     boxes_for: Option<(u64, u32, usize, Vec<usize>)>,
-    /// Per car, its [`car_box`] and [`car_radius`].
-    boxes: Vec<(DVec3, DVec3, f64)>,
+    /// Per car, its [`car_box`], [`car_radius`] and how fast its box's points can move.
+    boxes: Vec<(DVec3, DVec3, f64, f64)>,
     sight: Option<Sight>,
-    known: Vec<(DAffine3, bool)>,
+    known: Vec<Known>,
+    /// Cars tested against the sight by the last [`SeenCars::pose`].
+    tested: usize,
 }
 
+/// What is known of one car under the last sight.
+#[derive(Clone, Copy, Debug)]
+struct Known {
+    /// The body placement last tested, and whether a ray can reach the car placed so.
+    placed: DAffine3,
+    seen: bool,
+    /// Times at which the car, wherever it drives then, is reached by no ray (empty when
+    /// not known)...
+    clear: (f64, f64),
+    /// ...for the car driving as it did then: its origin, phase and whether it travels.
+    motion: (DVec3, f64, bool),
+}
+
+impl Known {
+    const NONE: Known = Known {
+        placed: DAffine3 { matrix3: glam::DMat3::IDENTITY, translation: DVec3::new(f64::NAN, f64::NAN, f64::NAN) },
+        seen: false,
+        clear: (f64::INFINITY, f64::NEG_INFINITY),
+        motion: (DVec3::ZERO, 0.0, false),
+    };
+}
+
+/// Longest stretch of time a car is let go untested after a test found it clear of the
+/// rays (s): the room it is tested for is its speed times this.
+const CLEAR_FOR: f64 = 0.1;
+
 impl SeenCars {
+    /// How many cars the last [`SeenCars::pose`] tested against its sight (every car when
+    /// it had none); the others were known clear of the rays where they stood and drove.
+    pub fn tested(&self) -> usize {
+        self.tested
+    }
+
     /// Poses at time t only the cars that some ray of the frame `sight` describes can reach,
     /// in their new pose or in the one they were last given (None: every car), and returns
     /// how many were posed. A car left out is not reached in either pose, so the frame's
@@ -427,6 +497,7 @@ impl SeenCars {
         max_level: u32,
     ) -> Result<usize, SceneError> {
         let Some(sight) = sight else {
+            self.tested = cars.len();
             pose_all(scene, cars, t)?;
             self.sight = None;
             return Ok(cars.len());
@@ -435,46 +506,74 @@ impl SeenCars {
         let key = Some((scene.part_edits(), max_level, cars.len(), parts));
         if self.boxes_for != key {
             let radii = car_radii(scene, cars, max_level)?;
-            self.boxes =
-                car_boxes(scene, cars, max_level)?.into_iter().zip(radii).map(|((lo, hi), r)| (lo, hi, r)).collect();
+            let yaw_rate = max_yaw_rate();
+            self.boxes = car_boxes(scene, cars, max_level)?
+                .into_iter()
+                .zip(radii)
+                .zip(cars)
+                .map(|(((lo, hi), r), car)| (lo, hi, r, box_speed(car, lo, hi, yaw_rate)))
+                .collect();
             self.boxes_for = key;
             self.sight = None;
         }
         if self.sight.as_ref() != Some(sight) {
             // Nothing known holds under another sight.
             self.known.clear();
-            self.known.resize(cars.len(), (DAffine3::from_translation(DVec3::NAN), false));
+            self.known.resize(cars.len(), Known::NONE);
             self.sight = Some(sight.clone());
         }
         let (scene_ref, boxes) = (&*scene, &self.boxes);
-        let seen = |k: usize, known: &mut (DAffine3, bool)| {
+        // Whether car k is posed, and whether it was tested.
+        let seen = |k: usize, known: &mut Known| -> (bool, bool) {
             let car = &cars[k];
-            let (lo, hi, r) = boxes[k];
+            let (lo, hi, r, speed) = boxes[k];
             // A missing body: posing reports it.
-            let Some(&old) = scene_ref.worlds().get(car.body) else { return true };
-            let new = body_world(car, t);
-            if sight.reaches_box(&new, lo, hi, r) {
-                *known = (new, true);
-                return true;
+            let Some(&old) = scene_ref.worlds().get(car.body) else { return (true, false) };
+            let motion = (car.origin, car.phase, car.travel);
+            // Still placed where it was found clear, and clear wherever it drives now.
+            let same_motion = known.motion.0 == motion.0 && known.motion.1 == motion.1 && known.motion.2 == motion.2;
+            if !known.seen && known.placed == old && same_motion && known.clear.0 <= t && t <= known.clear.1 {
+                return (false, false);
             }
+            let new = body_world(car, t);
+            let Some(room) = sight.box_slack(&new, lo, hi, r, speed * CLEAR_FOR) else {
+                *known = Known { placed: new, seen: true, clear: Known::NONE.clear, motion };
+                return (true, true);
+            };
+            // Its points cover the room in no less than room / speed (a parked car, never).
+            let clear = match room / speed {
+                _ if speed == 0.0 => (f64::NEG_INFINITY, f64::INFINITY),
+                d if d > 0.0 => (t - d, t + d),
+                _ => Known::NONE.clear,
+            };
             // Where the car was last tested, under this sight: the same answer.
-            let old_seen = if known.0 == old { known.1 } else { sight.reaches_box(&old, lo, hi, r) };
-            *known = if old_seen { (new, false) } else { (old, false) };
-            old_seen
+            let old_seen = if known.placed == old { known.seen } else { sight.reaches_box(&old, lo, hi, r) };
+            // Posed (its old place is seen) it stands where it was found clear; else it stays.
+            *known = Known { placed: if old_seen { new } else { old }, seen: false, clear, motion };
+            (old_seen, true)
+        };
+        // Per car: posed, tested.
+        let each = |(mut list, tested): (Vec<usize>, usize), (k, known): (usize, &mut Known)| {
+            let (posed, was_tested) = seen(k, known);
+            if posed {
+                list.push(k);
+            }
+            (list, tested + was_tested as usize)
         };
         #[cfg(feature = "parallel")]
-        let list: Vec<usize> = {
+        let (list, tested) = {
             use rayon::prelude::*;
-            self.known
-                .par_iter_mut()
-                .enumerate()
-                .with_min_len(256)
-                .filter_map(|(k, known)| seen(k, known).then_some(k))
-                .collect()
+            self.known.par_iter_mut().enumerate().with_min_len(256).fold(|| (Vec::new(), 0), each).reduce(
+                || (Vec::new(), 0),
+                |(mut a, n), (b, m)| {
+                    a.extend_from_slice(&b);
+                    (a, n + m)
+                },
+            )
         };
         #[cfg(not(feature = "parallel"))]
-        let list: Vec<usize> =
-            self.known.iter_mut().enumerate().filter_map(|(k, known)| seen(k, known).then_some(k)).collect();
+        let (list, tested) = self.known.iter_mut().enumerate().fold((Vec::new(), 0), each);
+        self.tested = tested;
         if let Err(e) = scene.set_locals_from(list.len(), |k| car_pose(&cars[list[k]], t)) {
             self.sight = None;
             return Err(e);
@@ -508,6 +607,42 @@ pub fn clip_bounds(n: usize) -> (DVec3, DVec3) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The motion bounds hold and are near the truth: over a lap, the yaw rate found by
+    /// differences stays below the bound and comes within 2 % of it, and no corner of a
+    /// car-sized box moves faster than its box speed (the fastest at over 60 % of it: the
+    /// fastest drive and the fastest turn come at different places).
+    #[test]
+    fn a_cars_box_moves_no_faster_than_its_bound() {
+        let car = Car {
+            body: 0,
+            wheels: [1, 2, 3, 4],
+            doors: [5, 6],
+            steering: 7,
+            origin: DVec3::new(5.0, 0.0, -3.0),
+            phase: 1.3,
+            travel: true,
+        };
+        let (lo, hi) = (DVec3::new(-2.2, -0.1, -1.9), DVec3::new(2.1, 1.5, 1.95));
+        let yaw_rate = max_yaw_rate();
+        let speed = box_speed(&car, lo, hi, yaw_rate);
+        let dt = 1e-4;
+        let (mut fastest_yaw, mut fastest) = (0.0f64, 0.0f64);
+        for k in 0..24_000 {
+            let t = k as f64 * PATH_PERIOD / 24_000.0;
+            let (a, b) = (body_world(&car, t), body_world(&car, t + dt));
+            let turn = (a.matrix3.transpose() * b.matrix3).x_axis;
+            fastest_yaw = fastest_yaw.max(turn.z.atan2(turn.x).abs() / dt);
+            for p in box_corners(lo, hi) {
+                let moved = (b.transform_point3(p) - a.transform_point3(p)).length() / dt;
+                assert!(moved <= speed, "t {t}: a corner moves at {moved} m/s, over the bound {speed}");
+                fastest = fastest.max(moved);
+            }
+        }
+        assert!(fastest_yaw <= yaw_rate && fastest_yaw > 0.98 * yaw_rate, "yaw rate {fastest_yaw} against {yaw_rate}");
+        assert!(fastest > 0.6 * speed, "fastest corner {fastest} against the bound {speed}");
+        assert_eq!(box_speed(&Car { travel: false, ..car }, lo, hi, yaw_rate), 0.0);
+    }
 
     #[test]
     fn wheels_roll_by_the_distance_driven() {

@@ -12,7 +12,7 @@
 use super::camera::{PixelGrid, PixelRect};
 use super::{Camera, Lights};
 use crate::render::instances::farthest_corner;
-use glam::{DAffine3, DVec3};
+use glam::{DAffine3, DMat3, DVec3};
 
 /// Relative padding of a tested sphere's radius.
 const RADIUS_PAD: f64 = 1e-3;
@@ -163,6 +163,59 @@ impl Sight {
         !(o.is_finite() && r.is_finite()) || self.sun_reaches(o, r)
     }
 
+    /// [`Sight::reaches_box`], with room: None when some ray of the frame may meet the box;
+    /// else a world distance s ≤ `cap` such that the box with each of its points moved by
+    /// less than s is still met by no pixel's primary ray (a crowd's car keeps clear of the
+    /// rays for as long as its motion takes to cover s). Suns' shadow rays give no room: an
+    /// unreached box then has s = 0.
+    pub fn box_slack(&self, world: &DAffine3, lo: DVec3, hi: DVec3, radius: f64, cap: f64) -> Option<f64> {
+        if !self.suns.is_empty() {
+            return (!self.reaches_box(world, lo, hi, radius)).then_some(0.0);
+        }
+        let cap = if cap.is_finite() { cap.max(0.0) } else { 0.0 };
+        let corner = farthest_corner(&world.matrix3, (hi - lo).abs() * 0.5);
+        let c = world.transform_point3((lo + hi) * 0.5) - self.camera.eye;
+        let pad = padding(corner, c);
+        if !(c.is_finite() && pad.is_finite()) {
+            return None;
+        }
+        // Pixels outside this rectangle: their rays pass farther than the padding and `cap`
+        // from every point of the box.
+        let rect = self.grid.near(&[c], corner + pad + cap);
+        let (x0, y0, x1, y1) = match rect {
+            PixelRect::Empty => return Some(cap),
+            PixelRect::Pixels { x0, y0, x1, y1 } if rect.area(&self.camera) <= MAX_TESTED_PIXELS => (x0, y0, x1, y1),
+            // Close to the eye: the box itself, without room.
+            _ => return (!self.primary_meets_box(world, lo, hi, c, corner + pad, pad)).then_some(0.0),
+        };
+        let inverse = world.inverse();
+        if !inverse.is_finite() {
+            return None;
+        }
+        let im = inverse.matrix3;
+        // The padding as `primary_meets_box` grows the box.
+        let stretch = (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt();
+        let grow = DVec3::splat(pad * stretch);
+        let (lo, hi) = (lo - grow, hi + grow);
+        let o = inverse.transform_point3(self.camera.eye);
+        let mut need = f64::INFINITY;
+        for py in y0..=y1 {
+            let sy = self.rows[py as usize];
+            for px in x0..=x1 {
+                let d = inverse.transform_vector3(self.basis.dir(self.columns[px as usize], sy));
+                let g = growth_to_meet(o, d, lo, hi);
+                if !(g > 0.0) {
+                    return None;
+                }
+                need = need.min(g);
+            }
+        }
+        // A world distance s is at most s·‖inverse‖ in the box's frame; a hundredth and the
+        // padding again are left for the rounding of it all and of the moved box's padding.
+        let room = need / spectral_bound(&im) * 0.99 - pad;
+        Some(if room.is_finite() { room.clamp(0.0, cap) } else { 0.0 })
+    }
+
     /// Whether a sun's shadow ray from a point inside the visible surfaces' box may meet the
     /// sphere about `c` (camera-relative) of radius `r` (padded).
     fn sun_reaches(&self, c: DVec3, r: f64) -> bool {
@@ -255,6 +308,53 @@ fn ray_meets_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> bool {
     !(o.is_finite() && d.is_finite() && lo.is_finite() && hi.is_finite()) || sweep_span(o, d, lo, hi).is_some()
 }
 
+/// How far the box `lo..hi` must grow on every side (each face moved out by g) before the
+/// ray `o + t·d`, t ≥ 0, meets it: at most 0 when the ray meets it already. Grown by g, slab
+/// k holds the ray over [near_k − g/|d_k|, far_k + g/|d_k|], and the ray meets the box when
+/// every slab's entry precedes every slab's exit and no exit is behind the origin; each
+/// such pair of bounds gives the g it needs. Anything not finite counts as a meeting.
+fn growth_to_meet(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    let mut need = f64::NEG_INFINITY;
+    let mut slabs = [(0.0, 0.0, 0.0); 3];
+    let mut moving = 0;
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            // The ray stays at o[k]: the slab must grow to hold it.
+            need = need.max(lo[k] - o[k]).max(o[k] - hi[k]);
+            continue;
+        }
+        let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
+        let (near, far, per) = (a.min(b), a.max(b), 1.0 / d[k].abs());
+        if !(near.is_finite() && far.is_finite() && per.is_finite()) {
+            return 0.0;
+        }
+        // The exit must not be behind the origin: far + g·per ≥ 0.
+        need = need.max(-far / per);
+        slabs[moving] = (near, far, per);
+        moving += 1;
+    }
+    for (i, &(near, _, pi)) in slabs[..moving].iter().enumerate() {
+        for (j, &(_, far, pj)) in slabs[..moving].iter().enumerate() {
+            if i != j {
+                need = need.max((near - far) / (pi + pj));
+            }
+        }
+    }
+    if need.is_finite() {
+        need
+    } else {
+        0.0
+    }
+}
+
+/// A bound on the largest factor by which `m` stretches a vector (its spectral norm): the
+/// square root of the largest absolute row sum of MᵀM (Gershgorin); 1 for a rotation.
+fn spectral_bound(m: &DMat3) -> f64 {
+    let g = m.transpose() * *m;
+    let rows = [g.row(0), g.row(1), g.row(2)];
+    rows.iter().map(|r| r.abs().element_sum()).fold(0.0, f64::max).sqrt()
+}
+
 /// The stretch [s0, s1] (s ≥ 0) of the ray `c + s·dir` inside the box [lo, hi]; None when
 /// the ray misses it. (The sphere's centre itself may lie outside: an occluder above the
 /// visible surfaces still shadows them.)
@@ -303,6 +403,7 @@ mod tests {
     use super::*;
     use crate::render::instances::sphere_interval;
     use crate::rng::Rng;
+    use crate::scene::instances::box_corners;
     use crate::scene::Sun;
     use glam::Vec3;
 
@@ -375,6 +476,81 @@ mod tests {
             by_box += (!reached && sphere) as u32;
         }
         assert!(met > 300 && spared > 1200 && by_box > 50, "met {met}, spared {spared}, by the box alone {by_box}");
+    }
+
+    /// A box's slack is room: the box turned about a point and moved so that none of its
+    /// points travels as far as the slack is still met by no pixel's ray (brute force over
+    /// all pixels, and `reaches_box`). It is not much more: grown by a little more than the
+    /// slack, a turned box below the cap is reached. With a sun there is no room.
+    #[test]
+    fn a_box_moved_within_its_slack_stays_clear_of_the_rays() {
+        let mut rng = Rng::new(33);
+        let (w, h) = (40, 24);
+        let cam = camera(DVec3::new(3.0, 4.0, -20.0), w, h);
+        let sight = Sight::new(&cam, &Lights::default(), PRIMARY, (DVec3::splat(-30.0), DVec3::splat(30.0))).unwrap();
+        let b = cam.basis();
+        let met_by_a_ray = |world: &DAffine3, lo: DVec3, hi: DVec3| {
+            let inverse = world.inverse();
+            let o = inverse.transform_point3(cam.eye);
+            (0..h).any(|y| (0..w).any(|x| ray_meets_box(o, inverse.transform_vector3(cam.ray_dir(&b, x, y)), lo, hi)))
+        };
+        let cap = 1.5;
+        let (mut roomy, mut tight) = (0, 0);
+        for k in 0..2500 {
+            let yaw = rng.f64() * 6.3;
+            let q = if k % 3 == 0 {
+                glam::DQuat::from_euler(glam::EulerRot::XYZ, rng.f64() * 6.3, yaw, rng.f64() * 6.3)
+            } else {
+                glam::DQuat::from_rotation_y(yaw)
+            };
+            let scale =
+                if k % 3 == 0 { DVec3::new(0.5 + rng.f64(), 0.5 + rng.f64(), 0.5 + rng.f64()) } else { DVec3::ONE };
+            let at = DVec3::new(rng.f64() * 50.0 - 25.0, rng.f64() * 30.0 - 15.0, rng.f64() * 70.0 - 40.0);
+            let world = DAffine3::from_scale_rotation_translation(scale, q, at);
+            let size = 0.1 + rng.f64() * 2.0;
+            let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
+            let slack = sight.box_slack(&world, lo, hi, 0.0, cap);
+            assert_eq!(slack.is_none(), sight.reaches_box(&world, lo, hi, 0.0), "box {k}: slack {slack:?}");
+            let Some(slack) = slack else { continue };
+            assert!((0.0..=cap).contains(&slack), "box {k}: slack {slack}");
+            if slack == 0.0 {
+                continue;
+            }
+            roomy += 1;
+            // Turned about its origin by up to half the slack at its farthest point, moved by
+            // up to the other half.
+            let far = box_corners(lo, hi).iter().map(|&p| world.transform_vector3(p).length()).fold(0.0, f64::max);
+            let turn = glam::DQuat::from_axis_angle(rng.unit_vector().as_dvec3().normalize(), 0.49 * slack / far);
+            let shift = rng.unit_vector().as_dvec3().normalize() * 0.49 * slack * rng.f64();
+            let moved = DAffine3::from_translation(at + shift)
+                * DAffine3::from_quat(turn)
+                * DAffine3::from_translation(-at)
+                * world;
+            assert!(!met_by_a_ray(&moved, lo, hi), "box {k}: moved within its slack {slack}, a ray meets it");
+            assert!(!sight.reaches_box(&moved, lo, hi, 0.0), "box {k}: moved within its slack {slack}, reached");
+            // Every face pushed out by the slack (in the box's frame, where a world length
+            // shrinks by the scale) holds every such move: still met by no ray.
+            let g = DVec3::splat(slack / scale.max_element());
+            assert!(!met_by_a_ray(&world, lo - g, hi + g), "box {k}: grown by its slack {slack}, a ray meets it");
+            if k % 3 != 0 && slack < 0.9 * cap {
+                // Grown by a little more than the slack (and the paddings): reached.
+                let pad = padding(size * 1.2, world.translation - cam.eye);
+                let g = DVec3::splat(slack * 1.02 + 4.0 * pad);
+                assert!(sight.reaches_box(&world, lo - g, hi + g, 0.0), "box {k}: slack {slack} is too small");
+                tight += 1;
+            }
+        }
+        assert!(roomy > 1000 && tight > 200, "{roomy} boxes with room, {tight} checked for tightness");
+        // With a sun's shadow rays: no room.
+        let sunny = Sight::new(
+            &cam,
+            &sun_lights(Vec3::new(0.3, 1.0, 0.2)),
+            FrameRays { shadows: true, ..PRIMARY },
+            (DVec3::splat(-30.0), DVec3::splat(30.0)),
+        )
+        .unwrap();
+        let far_away = DAffine3::from_translation(DVec3::new(0.0, 0.0, -100.0));
+        assert_eq!(sunny.box_slack(&far_away, -DVec3::ONE, DVec3::ONE, 1.8, cap), Some(0.0));
     }
 
     /// With a sun, every sphere that shadows some visible point of a pixel ray (a point on

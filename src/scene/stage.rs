@@ -93,6 +93,12 @@ impl Staged {
         Ok(posed)
     }
 
+    /// How many cars the last [`Staged::pose_seen`] tested against its sight
+    /// ([`SeenCars::tested`]).
+    pub fn cars_tested(&self) -> usize {
+        self.seen.tested()
+    }
+
     /// A box holding every surface a ray at level of detail `max_level` can see at any time
     /// of the clip: [`surfaces`] and [`Staged::bounds`].
     pub fn surfaces(&self, max_level: u32) -> Result<(DVec3, DVec3), crate::Error> {
