@@ -382,14 +382,18 @@ fn max_yaw_rate() -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// How fast any point of a car's box (`lo..hi` in its body frame) can move while it drives:
-/// its origin's speed plus its yaw rate times the box's farthest reach from the vertical
-/// axis through the origin (the body turns about it only). 0 for a parked car.
-fn box_speed(car: &Car, lo: DVec3, hi: DVec3, yaw_rate: f64) -> f64 {
+/// How far a box (`lo..hi` in a car's body frame) reaches from the vertical axis through the
+/// body's origin, about which the body turns.
+fn axis_reach(lo: DVec3, hi: DVec3) -> f64 {
+    (lo.x.abs().max(hi.x.abs()).powi(2) + lo.z.abs().max(hi.z.abs()).powi(2)).sqrt()
+}
+
+/// How fast any point of a car's box can move while it drives: its origin's speed plus the
+/// yaw rate (bounded by `yaw_rate`) times the box's [`axis_reach`] `reach`. 0 for a parked car.
+fn box_speed(car: &Car, reach: f64, yaw_rate: f64) -> f64 {
     if !car.travel {
         return 0.0;
     }
-    let reach = (lo.x.abs().max(hi.x.abs()).powi(2) + lo.z.abs().max(hi.z.abs()).powi(2)).sqrt();
     max_speed() + yaw_rate * reach
 }
 
@@ -442,8 +446,10 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 pub struct SeenCars {
     /// Part edits, level, car count and the parts' addresses the boxes are for.
     boxes_for: Option<(u64, u32, usize, Vec<usize>)>,
-    /// Per car, its [`car_box`], [`car_radius`] and how fast its box's points can move.
+    /// Per car, its [`car_box`], [`car_radius`] and the box's [`axis_reach`].
     boxes: Vec<(DVec3, DVec3, f64, f64)>,
+    /// [`max_yaw_rate`], once.
+    yaw_rate: f64,
     sight: Option<Sight>,
     known: Vec<Known>,
     /// Cars tested against the sight by the last [`SeenCars::pose`].
@@ -506,12 +512,11 @@ impl SeenCars {
         let key = Some((scene.part_edits(), max_level, cars.len(), parts));
         if self.boxes_for != key {
             let radii = car_radii(scene, cars, max_level)?;
-            let yaw_rate = max_yaw_rate();
+            self.yaw_rate = max_yaw_rate();
             self.boxes = car_boxes(scene, cars, max_level)?
                 .into_iter()
                 .zip(radii)
-                .zip(cars)
-                .map(|(((lo, hi), r), car)| (lo, hi, r, box_speed(car, lo, hi, yaw_rate)))
+                .map(|((lo, hi), r)| (lo, hi, r, axis_reach(lo, hi)))
                 .collect();
             self.boxes_for = key;
             self.sight = None;
@@ -522,11 +527,13 @@ impl SeenCars {
             self.known.resize(cars.len(), Known::NONE);
             self.sight = Some(sight.clone());
         }
-        let (scene_ref, boxes) = (&*scene, &self.boxes);
+        let (scene_ref, boxes, yaw_rate) = (&*scene, &self.boxes, self.yaw_rate);
         // Whether car k is posed, and whether it was tested.
         let seen = |k: usize, known: &mut Known| -> (bool, bool) {
             let car = &cars[k];
-            let (lo, hi, r, speed) = boxes[k];
+            let (lo, hi, r, reach) = boxes[k];
+            // (Of the car as it drives now: whether it travels is not part of the boxes' key.)
+            let speed = box_speed(car, reach, yaw_rate);
             // A missing body: posing reports it.
             let Some(&old) = scene_ref.worlds().get(car.body) else { return (true, false) };
             let motion = (car.origin, car.phase, car.travel);
@@ -625,7 +632,7 @@ mod tests {
         };
         let (lo, hi) = (DVec3::new(-2.2, -0.1, -1.9), DVec3::new(2.1, 1.5, 1.95));
         let yaw_rate = max_yaw_rate();
-        let speed = box_speed(&car, lo, hi, yaw_rate);
+        let speed = box_speed(&car, axis_reach(lo, hi), yaw_rate);
         let dt = 1e-4;
         let (mut fastest_yaw, mut fastest) = (0.0f64, 0.0f64);
         for k in 0..24_000 {
@@ -641,7 +648,7 @@ mod tests {
         }
         assert!(fastest_yaw <= yaw_rate && fastest_yaw > 0.98 * yaw_rate, "yaw rate {fastest_yaw} against {yaw_rate}");
         assert!(fastest > 0.6 * speed, "fastest corner {fastest} against the bound {speed}");
-        assert_eq!(box_speed(&Car { travel: false, ..car }, lo, hi, yaw_rate), 0.0);
+        assert_eq!(box_speed(&Car { travel: false, ..car }, axis_reach(lo, hi), yaw_rate), 0.0);
     }
 
     #[test]

@@ -188,16 +188,8 @@ impl Sight {
             // Close to the eye: the box itself, without room.
             _ => return (!self.primary_meets_box(world, lo, hi, c, corner + pad, pad)).then_some(0.0),
         };
-        let inverse = world.inverse();
-        if !inverse.is_finite() {
-            return None;
-        }
+        let (inverse, o, lo, hi) = self.box_frame(world, lo, hi, pad)?;
         let im = inverse.matrix3;
-        // The padding as `primary_meets_box` grows the box.
-        let stretch = (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt();
-        let grow = DVec3::splat(pad * stretch);
-        let (lo, hi) = (lo - grow, hi + grow);
-        let o = inverse.transform_point3(self.camera.eye);
         let mut need = f64::INFINITY;
         for py in y0..=y1 {
             let sy = self.rows[py as usize];
@@ -243,17 +235,7 @@ impl Sight {
             return true;
         }
         // Inverted only here: most of a crowd's boxes hold no pixel centre.
-        let inverse = world.inverse();
-        if !inverse.is_finite() {
-            return true;
-        }
-        // The world padding in the box's units: the inverse stretches no length by more than
-        // its columns' Frobenius norm.
-        let im = inverse.matrix3;
-        let stretch = (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt();
-        let grow = DVec3::splat(pad * stretch);
-        let (lo, hi) = (lo - grow, hi + grow);
-        let o = inverse.transform_point3(self.camera.eye);
+        let Some((inverse, o, lo, hi)) = self.box_frame(world, lo, hi, pad) else { return true };
         (y0..=y1).any(|py| {
             let sy = self.rows[py as usize];
             (x0..=x1).any(|px| {
@@ -261,6 +243,20 @@ impl Sight {
                 ray_meets_box(o, d, lo, hi)
             })
         })
+    }
+
+    /// The box's frame for pixel rays: `world`'s inverse, the eye in it, and the box grown
+    /// by the world length `pad` (the inverse stretches no length by more than its columns'
+    /// Frobenius norm). None when the inverse is not finite.
+    fn box_frame(&self, world: &DAffine3, lo: DVec3, hi: DVec3, pad: f64) -> Option<(DAffine3, DVec3, DVec3, DVec3)> {
+        let inverse = world.inverse();
+        if !inverse.is_finite() {
+            return None;
+        }
+        let im = inverse.matrix3;
+        let stretch = (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt();
+        let grow = DVec3::splat(pad * stretch);
+        Some((inverse, inverse.transform_point3(self.camera.eye), lo - grow, hi + grow))
     }
 
     /// Whether a pixel's primary ray (from the eye, camera-relative) meets the capsule of
