@@ -5,7 +5,9 @@
 //! instances` is the full comparison.
 //!
 //! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::SeenCars::pose`]), as the
-//! harness does; a third argument `all` poses every car.
+//! harness does, and also printed are the cars tested against the frame's rays (a car found
+//! clear of them is let go untested while its motion cannot bring it near one); a third
+//! argument `all` poses every car.
 //!
 //! `cargo run --release --example crowd [-- CARS [FRAMES [all]]]` (default 10 000 cars, 20 frames).
 

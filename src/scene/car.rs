@@ -538,8 +538,8 @@ impl SeenCars {
             let Some(&old) = scene_ref.worlds().get(car.body) else { return (true, false) };
             let motion = (car.origin, car.phase, car.travel);
             // Still placed where it was found clear, and clear wherever it drives now.
-            let same_motion = known.motion.0 == motion.0 && known.motion.1 == motion.1 && known.motion.2 == motion.2;
-            if !known.seen && known.placed == old && same_motion && known.clear.0 <= t && t <= known.clear.1 {
+            if !known.seen && known.placed == old && known.motion == motion && known.clear.0 <= t && t <= known.clear.1
+            {
                 return (false, false);
             }
             let new = body_world(car, t);

@@ -310,6 +310,10 @@ fn ray_meets_box(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> bool {
 /// every slab's entry precedes every slab's exit and no exit is behind the origin; each
 /// such pair of bounds gives the g it needs. Anything not finite counts as a meeting.
 fn growth_to_meet(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    // (`f64::max` would pass over a NaN from a position that is not finite.)
+    if !(o.is_finite() && d.is_finite() && lo.is_finite() && hi.is_finite()) {
+        return 0.0;
+    }
     let mut need = f64::NEG_INFINITY;
     let mut slabs = [(0.0, 0.0, 0.0); 3];
     let mut moving = 0;
