@@ -216,6 +216,16 @@ pub fn trace_tiles<T: Send, S>(
                 }
                 continue;
             }
+            if let Some(lists) = lists {
+                // The tile's rays read their nearest spheres' instances first: scattered over
+                // a crowd's megabytes, asked for together they load while the first rays trace.
+                for k in each(todo) {
+                    let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                    if let Some(&(_, i)) = listed.first() {
+                        fi.prefetch_ray_map(i as usize);
+                    }
+                }
+            }
             for k in each(todo) {
                 let hit = match lists {
                     Some(lists) => {

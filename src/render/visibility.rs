@@ -47,6 +47,17 @@ pub struct FrameInstances<'a> {
     pub starts: Option<&'a [f32]>,
 }
 
+impl FrameInstances<'_> {
+    /// Asks the cache for what tracing instance `i` reads first (its part and ray map), if
+    /// there is such an instance; the caller goes on meanwhile.
+    #[inline(always)]
+    pub fn prefetch_ray_map(&self, i: usize) {
+        if let Some(p) = self.prepared.get(i) {
+            crate::prefetch::prefetch_bytes(p, std::mem::offset_of!(Prepared, centre));
+        }
+    }
+}
+
 /// The nearest hit of a ray among the instances.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InstanceHit {
@@ -259,10 +270,13 @@ pub fn nearest_listed(
 ) -> Option<InstanceHit> {
     let mut best: Option<InstanceHit> = None;
     work.culled += fi.prepared.len().saturating_sub(listed.len()) as u64;
-    for &(entry, i) in listed {
+    for (j, &(entry, i)) in listed.iter().enumerate() {
         let t_max = best.map_or(opts.t_max, |b| b.hit.t);
         if entry > t_max as f64 {
             break; // every later sphere starts beyond the nearest hit
+        }
+        if let Some(&(_, next)) = listed.get(j + 1) {
+            fi.prefetch_ray_map(next as usize);
         }
         work.traced += 1;
         if let Some(h) = trace_one(fi, i as usize, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {

@@ -24,6 +24,7 @@ use super::lanes::Lanes;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{avx8_supported, Avx8};
 use super::{finish, finish_into, max, min, trace_unit, Below, Cell, Hit, Planes, Reached, TraceOptions, Walk};
+use crate::prefetch::prefetch;
 use crate::ray::UnitRay;
 use crate::svo::{Svo, MAX_DEPTH};
 use glam::{Vec3A, Vec4};
@@ -210,20 +211,6 @@ fn next_group<V: Lanes>(groups: &mut u64) -> usize {
     let q = groups.trailing_zeros() as usize / V::W;
     *groups &= *groups - 1;
     q
-}
-
-/// Asks the cache for the line at `p` without waiting for it (no-op off x86-64): the walk
-/// goes on while a hit's attributes load.
-#[inline(always)]
-fn prefetch<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: SSE is part of x86-64's baseline, and a prefetch reads nothing and cannot fault,
-    // whatever the address.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p.cast())
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
 }
 
 impl<V: Kernel> Pass<'_, V> {
