@@ -147,6 +147,40 @@ fn sweep_scene<'s>(
     }
 }
 
+/// A record named for its place in the matrix.
+fn label(r: Record, cfg: &MatrixConfig, group: &str, name: String, setting: String, x: f64) -> Record {
+    Record { group: group.into(), name, setting, x, command: cfg.command.clone(), machine: cfg.machine.clone(), ..r }
+}
+
+/// One crowd's clip for the instance sweep: with the BVH or with depth-sorted spheres,
+/// primary rays only, no hit buffer.
+fn crowd_clip<'a>(
+    st: &'a mut crate::scene::Staged,
+    camera: &'a Camera,
+    lights: &'a Lights,
+    bvh: bool,
+    warmup: usize,
+    frames: usize,
+) -> Clip<'a> {
+    Clip {
+        scene: &mut st.scene,
+        cars: &st.cars,
+        animated: None,
+        renderer: Renderer::Trace,
+        splat_draw: SplatDraw::Compute,
+        camera,
+        lights,
+        features: Features { bvh, hit_buffer: false, shadows: false, ..Features::default() },
+        lod: u32::MAX,
+        warmup,
+        frames,
+        fps: 30.0,
+    }
+}
+
+/// Rounds the instance sweep's BVH points are timed in (see [`run`]).
+pub const INSTANCE_ROUNDS: usize = 5;
+
 /// `n` cars driving their figure-eights with no ground, and the sweep's camera framing them all.
 fn crowd(car: &CarModel, n: usize, cfg: &MatrixConfig) -> Result<(crate::scene::Staged, Camera), crate::Error> {
     let st = stage_cars(&car.parts, n, true, false)?;
@@ -183,22 +217,17 @@ pub fn run(
     let lights = Lights::default();
     let mut out = Vec::new();
     let gpu = session.backend().kind_name() == "gpu";
-    let mut measure = |group: &str,
-                       name: String,
-                       setting: String,
-                       x: f64,
-                       clip: Clip<'_>,
-                       progress: &mut dyn FnMut(&str)|
+    let measure = |session: &mut Session,
+                   group: &str,
+                   name: String,
+                   setting: String,
+                   x: f64,
+                   clip: Clip<'_>,
+                   progress: &mut dyn FnMut(&str)|
      -> Result<(Record, Frame), crate::Error> {
         progress(&name);
-        let (mut r, frame) = run_clip(session, backend_name, clip)?;
-        r.group = group.into();
-        r.name = name;
-        r.setting = setting;
-        r.x = x;
-        r.command = cfg.command.clone();
-        r.machine = cfg.machine.clone();
-        Ok((r, frame))
+        let (r, frame) = run_clip(session, backend_name, clip)?;
+        Ok((label(r, cfg, group, name, setting, x), frame))
     };
     for &scenario in &cfg.scenarios {
         let group = scenario.group();
@@ -247,7 +276,7 @@ pub fn run(
                             fps: 30.0,
                         };
                         let name = format!("{what}: {setting}");
-                        let (mut r, frame) = measure(group, name, setting.into(), x, clip, progress)?;
+                        let (mut r, frame) = measure(session, group, name, setting.into(), x, clip, progress)?;
                         match &traced {
                             None => traced = Some(frame),
                             Some(t) => {
@@ -325,37 +354,43 @@ pub fn run(
                         fps: 30.0,
                     };
                     let name = format!("{label}{tag}: {what}");
-                    out.push(measure(group, name, tag.into(), i as f64, clip, progress)?.0);
+                    out.push(measure(session, group, name, tag.into(), i as f64, clip, progress)?.0);
                 }
             }
             Scenario::Instances => {
                 let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
-                for &n in &cfg.cars {
-                    let (mut st, camera) = crowd(car, n, cfg)?;
-                    for bvh in [true, false] {
-                        let features = Features { bvh, hit_buffer: false, shadows: false, ..Features::default() };
-                        let setting = if bvh { "BVH" } else { "sorted spheres" };
-                        let clip = Clip {
-                            scene: &mut st.scene,
-                            cars: &st.cars,
-                            animated: None,
-                            renderer: crate::render::Renderer::Trace,
-                            splat_draw: SplatDraw::Compute,
-                            camera: &camera,
-                            lights: &lights,
-                            features,
-                            lod: u32::MAX,
-                            // The BVH's frames are short at any count: they are timed like
-                            // the other scenarios' (the median of five ~1 ms one-car frames
-                            // ranged over 1.0–2.3 ms between runs, and every crowd's ratio is
-                            // to it); sorting 80 000 spheres per ray takes seconds a frame.
-                            warmup: if bvh { cfg.warmup } else { cfg.warmup.min(2) },
-                            frames: if bvh { cfg.frames } else { cfg.sweep_frames },
-                            fps: 30.0,
-                        };
-                        let name = format!("{n} cars, {setting}");
-                        out.push(measure(group, name, setting.into(), n as f64, clip, progress)?.0);
+                let mut crowds =
+                    cfg.cars.iter().map(|&n| crowd(car, n, cfg).map(|c| (n, c))).collect::<Result<Vec<_>, _>>()?;
+                // The BVH points, whose ratios to one car are the sweep's figure, are timed in
+                // rounds, each count in turn, so that every count's frames spread over the
+                // same stretch of the run: timed one after another, a one-car median moved
+                // by 2× between runs with the host's load (0.46–0.91 ms) and every ratio
+                // with it. Each round warms up afresh and replays the same frames.
+                let rounds = INSTANCE_ROUNDS.min(cfg.frames).max(1);
+                let per_round = cfg.frames.div_ceil(rounds);
+                let mut timed: Vec<Vec<(Record, Vec<f64>)>> = crowds.iter().map(|_| Vec::new()).collect();
+                for round in 0..rounds {
+                    for ((n, (st, camera)), timed) in crowds.iter_mut().zip(&mut timed) {
+                        progress(&format!("{n} cars, BVH (round {} of {rounds})", round + 1));
+                        let (r, _, times) = super::run_clip_timed(
+                            session,
+                            backend_name,
+                            crowd_clip(st, camera, &lights, true, cfg.warmup, per_round),
+                        )?;
+                        timed.push((r, times));
                     }
+                }
+                for ((n, (st, camera)), timed) in crowds.iter_mut().zip(timed) {
+                    if let Some(r) = super::pool_rounds(timed) {
+                        out.push(label(r, cfg, group, format!("{n} cars, BVH"), "BVH".into(), *n as f64));
+                    }
+                    let setting = "sorted spheres";
+                    let name = format!("{n} cars, {setting}");
+                    progress(&name);
+                    // (Sorting 80 000 spheres per ray takes seconds a frame.)
+                    let c = crowd_clip(st, camera, &lights, false, cfg.warmup.min(2), cfg.sweep_frames);
+                    let (r, _) = run_clip(session, backend_name, c)?;
+                    out.push(label(r, cfg, group, name, setting.into(), *n as f64));
                 }
             }
             Scenario::Resolution => {
@@ -379,7 +414,9 @@ pub fn run(
                         fps: 30.0,
                     };
                     let name = format!("{w}×{h}");
-                    out.push(measure(group, format!("{label}{name}"), name, (w * h) as f64, clip, progress)?.0);
+                    out.push(
+                        measure(session, group, format!("{label}{name}"), name, (w * h) as f64, clip, progress)?.0,
+                    );
                 }
             }
             Scenario::Depth => {
@@ -413,7 +450,7 @@ pub fn run(
                     let setting =
                         if level == full { format!("level {level} (full)") } else { format!("level {level}") };
                     let name = format!("{label}LOD {setting}");
-                    let (mut r, frame) = measure(group, name, setting, level as f64, clip, progress)?;
+                    let (mut r, frame) = measure(session, group, name, setting, level as f64, clip, progress)?;
                     let reference = reference.get_or_insert(frame.clone());
                     r.error = Some(metrics::compare(&frame, reference).map_err(|e| crate::Error::Io {
                         path: "bench".into(),

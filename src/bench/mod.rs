@@ -159,6 +159,16 @@ pub struct Clip<'a> {
 /// which renders the first timed frame's pose (from the first timed frame itself when there
 /// is no warm-up).
 pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
+    run_clip_timed(session, backend_name, clip).map(|(r, f, _)| (r, f))
+}
+
+/// [`run_clip`], also returning each timed frame's wall time (ms), for callers that pool the
+/// frames of several clips ([`pool_rounds`]).
+pub fn run_clip_timed(
+    session: &mut Session,
+    backend_name: &str,
+    clip: Clip<'_>,
+) -> Result<(Record, Frame, Vec<f64>), crate::Error> {
     let (mut times, mut rays, mut reused, mut busy) = (Vec::new(), 0u64, 0u64, 0.0f64);
     let (mut traced, mut culled) = (0u64, 0u64);
     let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
@@ -267,7 +277,45 @@ pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Re
         path: "bench".into(),
         source: std::io::Error::other("no frame was rendered"),
     })?;
-    Ok((record, first))
+    Ok((record, first, times))
+}
+
+/// One record of the same clip timed in several rounds (each with its own warm-up, in turn
+/// with other clips): the median, 95th percentile and minimum of all their frames together,
+/// the per-frame averages (rays per second, reuse, instances per ray) averaged over the
+/// rounds by their frames, the GPU's pass times the median of the rounds' medians, the rest
+/// from the first round. None without rounds.
+pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
+    let frames: usize = rounds.iter().map(|(r, _)| r.frames).sum();
+    let times: Vec<f64> = rounds.iter().flat_map(|(_, t)| t.iter().copied()).collect();
+    let mean = |field: fn(&Record) -> f64| {
+        rounds.iter().map(|(r, _)| field(r) * r.frames as f64).sum::<f64>() / frames.max(1) as f64
+    };
+    let (mrays_per_s, reused_fraction) = (mean(|r| r.mrays_per_s), mean(|r| r.reused_fraction));
+    let (instances_per_ray, culled_per_ray) = (mean(|r| r.instances_per_ray), mean(|r| r.culled_per_ray));
+    // The GPU's pass times: the median of the rounds' medians.
+    let median_of = |field: fn(&Record) -> Option<f64>| {
+        let v: Vec<f64> = rounds.iter().filter_map(|(r, _)| field(r)).collect();
+        (!v.is_empty()).then(|| summarize(&v).0)
+    };
+    let (gpu_trace_ms, gpu_shade_ms) = (median_of(|r| r.gpu_trace_ms), median_of(|r| r.gpu_shade_ms));
+    let gpu_host_ms = median_of(|r| r.gpu_host_ms);
+    let (first, _) = rounds.into_iter().next()?;
+    let (median_ms, p95_ms, min_ms) = summarize(&times);
+    Some(Record {
+        frames,
+        median_ms,
+        p95_ms,
+        min_ms,
+        mrays_per_s,
+        reused_fraction,
+        instances_per_ray,
+        culled_per_ray,
+        gpu_trace_ms,
+        gpu_shade_ms,
+        gpu_host_ms,
+        ..first
+    })
 }
 
 /// CPU model and thread count, for records.
@@ -286,6 +334,30 @@ pub fn machine() -> String {
 
 #[cfg(test)]
 mod tests {
+    /// Rounds pool their frames: the median of all of them (not of the rounds' medians), the
+    /// averages weighted by frames, the GPU times the median of the rounds'.
+    #[test]
+    fn rounds_pool_their_frames() {
+        use super::{pool_rounds, Record};
+        let round = |frames: usize, mrays: f64, gpu: Option<f64>, times: &[f64]| {
+            let r = Record { frames, mrays_per_s: mrays, gpu_trace_ms: gpu, name: "crowd".into(), ..Record::default() };
+            (r, times.to_vec())
+        };
+        let pooled = pool_rounds(vec![
+            round(3, 10.0, Some(2.0), &[1.0, 1.1, 1.2]),
+            round(1, 30.0, Some(4.0), &[9.0]),
+            round(3, 10.0, Some(3.0), &[5.0, 5.1, 5.2]),
+        ])
+        .expect("rounds");
+        // The rounds' medians are 1.1, 9 and 5.1 (their median 5.1); all seven frames' is 5.
+        assert_eq!((pooled.median_ms, pooled.min_ms, pooled.p95_ms), (5.0, 1.0, 9.0));
+        assert_eq!(pooled.frames, 7);
+        assert!((pooled.mrays_per_s - 90.0 / 7.0).abs() < 1e-12);
+        assert_eq!(pooled.gpu_trace_ms, Some(3.0));
+        assert_eq!(pooled.name, "crowd");
+        assert!(pool_rounds(Vec::new()).is_none());
+    }
+
     #[test]
     fn percentiles() {
         let (m, p95, min) = super::summarize(&[5.0, 1.0, 3.0, 2.0, 4.0]);

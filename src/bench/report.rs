@@ -202,7 +202,9 @@ waits for the frame, so the frame time is the whole frame's):\n\n";
 primary rays only, no hit buffer, only the cars some ray can reach posed (records before step 48 \
 below posed every car). With the BVH on, past 128 instances the CPU's primary rays search per-pixel \
 sphere lists (since step 51) and the BVH is left unrefitted (no shadow rays); the GPU walks the BVH. \
-The BVH points time `--frames` frames, the sorted spheres `--sweep-frames`.\n\n";
+The BVH points time `--frames` frames in five rounds, the counts in turn within each round (every \
+round warmed up afresh), so that the host's load over the run weighs on every count alike; the \
+sorted spheres time `--sweep-frames` after them.\n\n";
         md += &provenance(&rs);
         md += "\n| cars | instances | backend | BVH median ms | BVH ÷ one car | sorted spheres median ms | BVH speed-up |\n|---|---|---|---|---|---|---|\n";
         for r in rs.iter().filter(|r| r.setting == "BVH") {
