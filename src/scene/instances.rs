@@ -280,9 +280,21 @@ impl Scene {
             undo.clear();
             let mut run_changed = false;
             let mut next_run = runs.iter().copied().peekable();
-            for k in 0..world.len() {
-                let i = start + k;
-                if next_run.next_if(|&r| r <= i).is_some() {
+            let edited = &dirty[start..start + world.len()];
+            let mut next = 0;
+            while next < world.len() {
+                if !run_changed {
+                    // Nothing carries over: on to the next instance edited (the crowd's
+                    // untouched instances are passed over as a scan of flags).
+                    match edited[next..].iter().position(|&d| d) {
+                        Some(skip) => next += skip,
+                        None => break,
+                    }
+                }
+                let (k, i) = (next, start + next);
+                next += 1;
+                // A run starting here (or passed over) starts unchanged.
+                while next_run.next_if(|&r| r <= i).is_some() {
                     run_changed = false;
                 }
                 if !dirty[i] && !run_changed {
