@@ -22,7 +22,6 @@ use glam::DVec3;
 pub const MAX_PER_PIXEL: u64 = 8;
 
 /// Instances per parallel chunk of the projection.
-#[cfg(feature = "parallel")]
 const CHUNK: usize = 2048;
 
 /// The lists of one frame's primary rays.
@@ -130,35 +129,50 @@ impl PixelSpheres {
             }
             tested
         };
-        let found = match moved.filter(|_| same) {
+        // (The merge below takes the moved instances in ascending order; any other list is
+        // rebuilt whole.)
+        let ascending = |m: &&[u32]| m.windows(2).all(|w| w[0] < w[1]);
+        let found = match moved.filter(|_| same).filter(ascending) {
             Some(moved) => {
-                // The listed spheres that changed, projected again: (findings, which, tested)
-                // per chunk, in instance order.
-                let old = &kept.spheres;
-                let each = |ids: &[u32]| -> Option<(Found, Vec<u32>, u64)> {
-                    let (mut found, mut again, mut tested) = (Vec::new(), Vec::new(), 0u64);
-                    for &i in ids {
-                        let (Some(&now), Some(&then)) = (spheres.get(i as usize), old.get(i as usize)) else {
-                            continue;
-                        };
-                        if same_bits(now, then) {
-                            continue;
+                // The listed spheres that changed, projected again and written over last
+                // frame's copy while it is in the cache: (findings, which, tested) per chunk,
+                // in instance order. Each chunk's ascending instances own the stretch of the
+                // copy up to the next chunk's first.
+                let mut pieces = Vec::with_capacity(moved.len().div_ceil(CHUNK));
+                let (mut rest, mut offset) = (&mut kept.spheres[..], 0usize);
+                for ids in moved.chunks(CHUNK) {
+                    let end = ids.last().map_or(offset, |&l| l as usize + 1).clamp(offset, offset + rest.len());
+                    let (mine, tail) = std::mem::take(&mut rest).split_at_mut(end - offset);
+                    pieces.push((ids, offset, mine));
+                    (rest, offset) = (tail, end);
+                }
+                let each =
+                    |(ids, offset, copy): (&[u32], usize, &mut [(DVec3, f64)])| -> Option<(Found, Vec<u32>, u64)> {
+                        let (mut found, mut again, mut tested) = (Vec::new(), Vec::new(), 0u64);
+                        for &i in ids {
+                            let (Some(&now), Some(then)) = (spheres.get(i as usize), copy.get_mut(i as usize - offset))
+                            else {
+                                continue;
+                            };
+                            if same_bits(now, *then) {
+                                continue;
+                            }
+                            *then = now;
+                            again.push(i);
+                            tested += project(i, now, &mut found);
+                            if tested > limit {
+                                return None;
+                            }
                         }
-                        again.push(i);
-                        tested += project(i, now, &mut found);
-                        if tested > limit {
-                            return None;
-                        }
-                    }
-                    Some((found, again, tested))
-                };
+                        Some((found, again, tested))
+                    };
                 #[cfg(feature = "parallel")]
                 let parts: Vec<(Found, Vec<u32>, u64)> = {
                     use rayon::prelude::*;
-                    moved.par_chunks(CHUNK).map(each).collect::<Option<_>>()?
+                    pieces.into_par_iter().map(each).collect::<Option<_>>()?
                 };
                 #[cfg(not(feature = "parallel"))]
-                let parts: Vec<(Found, Vec<u32>, u64)> = vec![each(moved)?];
+                let parts: Vec<(Found, Vec<u32>, u64)> = pieces.into_iter().map(each).collect::<Option<_>>()?;
                 if parts.iter().map(|p| p.2).sum::<u64>() > limit {
                     return None;
                 }
@@ -177,11 +191,6 @@ impl PixelSpheres {
                     }
                 }
                 merged.extend(fresh);
-                for (_, again, _) in &parts {
-                    for &i in again {
-                        kept.spheres[i as usize] = spheres[i as usize];
-                    }
-                }
                 merged
             }
             None => {
@@ -410,8 +419,8 @@ mod tests {
 
     /// Lists rebuilt from the spheres listed as moved equal fresh ones: over steps where some
     /// listed spheres moved (onto the screen, off it, into NaN), some listed ones did not,
-    /// the last step's moves were undone, none moved, and the camera turned (then nothing is
-    /// taken over).
+    /// the last step's moves were undone, none moved, the camera turned (then nothing is
+    /// taken over), an instance past the end was listed, and the list was out of order.
     #[test]
     fn lists_rebuilt_from_the_moved_equal_fresh_ones() {
         let mut cam = camera(43, 27);
@@ -421,10 +430,11 @@ mod tests {
             let dir = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, [1.0, 0.6, -1.0][rng.below(3) as usize]);
             (dir * (20.0 + 60.0 * rng.f64()), 0.1 + 0.7 * rng.f64())
         };
-        let mut spheres: Vec<(DVec3, f64)> = (0..4000).map(|_| place(&mut rng)).collect();
+        // Enough for the moved to span several parallel chunks.
+        let mut spheres: Vec<(DVec3, f64)> = (0..10_000).map(|_| place(&mut rng)).collect();
         let mut lists = Some(PixelSpheres::build(&cam, &spheres).expect("within the limit"));
         let (mut before, mut last_moved) = (spheres.clone(), Vec::new());
-        for step in 0..6 {
+        for step in 0..7 {
             let mut moved: Vec<u32> = Vec::new();
             let now = spheres.clone();
             match step {
@@ -449,6 +459,13 @@ mod tests {
                     moved.push(3 * step as u32 + 1);
                     moved.sort_unstable();
                     moved.dedup();
+                    match step {
+                        // An instance past the end.
+                        3 => moved.push(spheres.len() as u32 + 5),
+                        // Out of order: rebuilt whole.
+                        6 => moved.reverse(),
+                        _ => {}
+                    }
                 }
             }
             (before, last_moved) = (now, moved.clone());
