@@ -146,19 +146,11 @@ impl Sight {
     /// sphere (as [`Sight::reaches`]). The box is the tighter outline on screen; the sphere,
     /// swept towards the sun, the simpler shadow.
     pub fn reaches_box(&self, world: &DAffine3, lo: DVec3, hi: DVec3, radius: f64) -> bool {
-        let eye = self.camera.eye;
-        // The box's own bounding sphere, as the renderer bounds an instance's box: its
-        // rectangle holds the pixels whose rays may meet the box.
-        let corner = farthest_corner(&world.matrix3, (hi - lo).abs() * 0.5);
-        let c = world.transform_point3((lo + hi) * 0.5) - eye;
-        let pad = padding(corner, c);
-        if !(c.is_finite() && pad.is_finite()) {
-            return true;
-        }
+        let Some((c, corner, pad)) = self.box_sphere(world, lo, hi) else { return true };
         if self.primary_meets_box(world, lo, hi, c, corner + pad, pad) {
             return true;
         }
-        let o = world.translation - eye;
+        let o = world.translation - self.camera.eye;
         let r = radius + padding(radius, o);
         !(o.is_finite() && r.is_finite()) || self.sun_reaches(o, r)
     }
@@ -173,12 +165,7 @@ impl Sight {
             return (!self.reaches_box(world, lo, hi, radius)).then_some(0.0);
         }
         let cap = if cap.is_finite() { cap.max(0.0) } else { 0.0 };
-        let corner = farthest_corner(&world.matrix3, (hi - lo).abs() * 0.5);
-        let c = world.transform_point3((lo + hi) * 0.5) - self.camera.eye;
-        let pad = padding(corner, c);
-        if !(c.is_finite() && pad.is_finite()) {
-            return None;
-        }
+        let (c, corner, pad) = self.box_sphere(world, lo, hi)?;
         // Pixels outside this rectangle: their rays pass farther than the padding and `cap`
         // from every point of the box.
         let rect = self.grid.near(&[c], corner + pad + cap);
@@ -243,6 +230,16 @@ impl Sight {
                 ray_meets_box(o, d, lo, hi)
             })
         })
+    }
+
+    /// The box's own bounding sphere, as the renderer bounds an instance's box (its
+    /// rectangle holds the pixels whose rays may meet the box): the camera-relative centre,
+    /// the radius to the farthest corner and the padding for it. None when not finite.
+    fn box_sphere(&self, world: &DAffine3, lo: DVec3, hi: DVec3) -> Option<(DVec3, f64, f64)> {
+        let corner = farthest_corner(&world.matrix3, (hi - lo).abs() * 0.5);
+        let c = world.transform_point3((lo + hi) * 0.5) - self.camera.eye;
+        let pad = padding(corner, c);
+        (c.is_finite() && pad.is_finite()).then_some((c, corner, pad))
     }
 
     /// The box's frame for pixel rays: `world`'s inverse, the eye in it, and the box grown
@@ -443,16 +440,28 @@ mod tests {
         assert!(met > 400 && spared > 1500, "met {met}, spared {spared}");
     }
 
+    /// The box tests' 40×24 view and its primary rays' sight.
+    fn box_view() -> (Camera, Sight) {
+        let cam = camera(DVec3::new(3.0, 4.0, -20.0), 40, 24);
+        let sight = Sight::new(&cam, &Lights::default(), PRIMARY, (DVec3::splat(-30.0), DVec3::splat(30.0))).unwrap();
+        (cam, sight)
+    }
+
+    /// Brute force: whether some pixel's primary ray meets the box `lo..hi` placed by `world`.
+    fn met_by_a_pixel_ray(cam: &Camera, world: &DAffine3, lo: DVec3, hi: DVec3) -> bool {
+        let (b, inverse) = (cam.basis(), world.inverse());
+        let o = inverse.transform_point3(cam.eye);
+        (0..cam.height)
+            .any(|y| (0..cam.width).any(|x| ray_meets_box(o, inverse.transform_vector3(cam.ray_dir(&b, x, y)), lo, hi)))
+    }
+
     /// Every box (turned, stretched, placed anywhere about the view) that some pixel's ray
     /// meets is reached, the box tested exactly by the ray's slabs; most that none meets are
     /// spared, also where their bounding sphere's rectangle holds pixels.
     #[test]
     fn every_box_a_pixel_ray_meets_is_reached() {
         let mut rng = Rng::new(21);
-        let (w, h) = (40, 24);
-        let cam = camera(DVec3::new(3.0, 4.0, -20.0), w, h);
-        let sight = Sight::new(&cam, &Lights::default(), PRIMARY, (DVec3::splat(-30.0), DVec3::splat(30.0))).unwrap();
-        let b = cam.basis();
+        let (cam, sight) = box_view();
         let (mut met, mut spared, mut by_box) = (0, 0, 0);
         for k in 0..3000 {
             let q = glam::DQuat::from_euler(glam::EulerRot::XYZ, rng.f64() * 6.3, rng.f64() * 6.3, rng.f64() * 6.3);
@@ -461,10 +470,7 @@ mod tests {
             let world = DAffine3::from_scale_rotation_translation(scale, q, at);
             let size = if k % 2 == 0 { 0.05 + rng.f64() * 0.3 } else { rng.f64() * 3.0 };
             let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
-            let inverse = world.inverse();
-            let o = inverse.transform_point3(cam.eye);
-            let meets = (0..h)
-                .any(|y| (0..w).any(|x| ray_meets_box(o, inverse.transform_vector3(cam.ray_dir(&b, x, y)), lo, hi)));
+            let meets = met_by_a_pixel_ray(&cam, &world, lo, hi);
             // Without a sun the sphere's radius plays no part.
             let reached = sight.reaches_box(&world, lo, hi, 0.0);
             assert!(reached || !meets, "box {k} at {at}: a pixel ray meets it but it is not reached");
@@ -485,15 +491,8 @@ mod tests {
     #[test]
     fn a_box_moved_within_its_slack_stays_clear_of_the_rays() {
         let mut rng = Rng::new(33);
-        let (w, h) = (40, 24);
-        let cam = camera(DVec3::new(3.0, 4.0, -20.0), w, h);
-        let sight = Sight::new(&cam, &Lights::default(), PRIMARY, (DVec3::splat(-30.0), DVec3::splat(30.0))).unwrap();
-        let b = cam.basis();
-        let met_by_a_ray = |world: &DAffine3, lo: DVec3, hi: DVec3| {
-            let inverse = world.inverse();
-            let o = inverse.transform_point3(cam.eye);
-            (0..h).any(|y| (0..w).any(|x| ray_meets_box(o, inverse.transform_vector3(cam.ray_dir(&b, x, y)), lo, hi)))
-        };
+        let (cam, sight) = box_view();
+        let met_by_a_ray = |world: &DAffine3, lo: DVec3, hi: DVec3| met_by_a_pixel_ray(&cam, world, lo, hi);
         let cap = 1.5;
         let (mut roomy, mut tight) = (0, 0);
         for k in 0..2500 {
