@@ -1,7 +1,8 @@
 //! Where a crowd's frame goes: N driving cars (8 instances each) at 320×192, primary rays
 //! only, as the harness's instance sweep renders them, with the frame split into posing, the
-//! transform update and the render (which prepares the instances, refits the BVH, traces and
-//! shades). Prints the median of each over the timed frames. `voxray bench --scenarios
+//! transform update and the render (which prepares the instances, lists or refits their
+//! bounds, traces and shades; through a CPU session, as the harness renders, so each frame
+//! refills the last one's memory). Prints the median of each over the timed frames. `voxray bench --scenarios
 //! instances` is the full comparison.
 //!
 //! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::SeenCars::pose`]), as the
@@ -14,8 +15,9 @@
 use std::sync::Arc;
 use std::time::Instant;
 use voxray::pipeline::{build_part, shared_resolution};
-use voxray::render::{render, Features, FramePlan, HitBuffer, RenderOptions};
+use voxray::render::{Features, RenderOptions};
 use voxray::scene::{Camera, Lights};
+use voxray::session::Session;
 use voxray::voxelize::{Resolution, VoxelizeOptions};
 
 fn main() -> Result<(), voxray::Error> {
@@ -30,7 +32,9 @@ fn main() -> Result<(), voxray::Error> {
     let camera = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 320, 192);
     let lights = Lights::default();
     let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
-    let mut kept = HitBuffer::new();
+    // Frames go through a CPU session, as the harness renders them: each frame's memory is
+    // the last one's, refilled.
+    let mut session = Session::new(voxray::backend::Backend::Cpu(Box::default()), "CPU".into());
     let all = std::env::args().nth(3).is_some_and(|a| a == "all");
     let rays = voxray::scene::FrameRays::of(&st.scene, &features, false, &RenderOptions::default());
     let sight = voxray::scene::Sight::new(&camera, &lights, rays, st.surfaces(u32::MAX)?).ok().filter(|_| !all);
@@ -43,11 +47,9 @@ fn main() -> Result<(), voxray::Error> {
         let t1 = Instant::now();
         st.scene.update()?;
         let t2 = Instant::now();
-        let plan = FramePlan::new(&st.scene, &camera, &lights, &features, None);
-        let frame =
-            render(&st.scene, &camera, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {}).unwrap();
+        session.frame(&st.scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
         let t3 = Instant::now();
-        std::hint::black_box(frame);
+        std::hint::black_box(session.last_frame());
         if f >= 2 {
             posed.push(n as f64);
             tested.push(st.cars_tested() as f64);
