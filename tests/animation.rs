@@ -595,42 +595,50 @@ fn session_frames_written_only_where_pixels_changed_match_fresh_frames() {
 }
 
 /// Over the sky: cars drive across an empty background, under a static and an orbiting
-/// camera, and the sky changes colour halfway. Pixels that the beams store as misses are not
-/// rewritten in a session's own frame when they showed the same sky before; every frame must
-/// equal a fresh one, where a car has just left a pixel too.
+/// camera, and the sky changes colour halfway. Pixels stored as misses without a search (a
+/// beam met nothing: two cars; a crowd's pixel lists hold no sphere: past the beams' limit,
+/// with and without the hit buffer) are not rewritten in a session's own frame when they
+/// showed the same sky before; every frame must equal a fresh one, where a car has just left
+/// a pixel too.
 #[test]
 fn session_frames_over_the_sky_match_fresh_frames() {
     use voxray::backend::Backend;
     use voxray::scene::lights::Ambient;
     use voxray::session::Session;
-    let mut st = voxray::scene::stage_cars(&car_parts(), 2, true, false).unwrap();
-    let (lo, hi) = st.bounds;
-    let base = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
-    for orbit in [0.0, 20.0] {
-        let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
-        let mut uncovered = 0;
-        let mut before: Option<Frame> = None;
-        for f in 0..10 {
-            // Long steps: a car leaves whole tiles (and their beams) between two frames.
-            let t = f as f64 * 1.1;
-            voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
-            st.scene.update().unwrap();
-            let q = DQuat::from_rotation_y((orbit * t).to_radians());
-            let cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
-            let sky = if f < 5 { Vec3::new(0.5, 0.6, 0.8) } else { Vec3::new(0.8, 0.4, 0.2) };
-            let lights = Lights { ambient: Some(Ambient { radiance: sky }), ..Lights::default() };
-            session
-                .frame(&st.scene, &cam, &lights, &Features::default(), &RenderOptions::default(), &|_, _| {})
-                .unwrap();
-            let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
-            let fresh = render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
-            assert_same_pixels(session.last_frame().unwrap(), &fresh, &format!("orbit {orbit}, frame {f}"));
-            if let Some(b) = &before {
-                uncovered += b.instance.iter().zip(&fresh.instance).filter(|(a, b)| **a >= 0 && **b < 0).count();
+    let crowd = voxray::render::beam::MAX_INSTANCES / 8 + 4;
+    for (cars, hit_buffer) in [(2, true), (crowd, true), (crowd, false)] {
+        let mut st = voxray::scene::stage_cars(&car_parts(), cars, true, false).unwrap();
+        let (lo, hi) = st.bounds;
+        let base = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
+        let features = Features { hit_buffer, ..Features::default() };
+        for orbit in [0.0, 20.0] {
+            let what = format!("{cars} cars, hit buffer {hit_buffer}, orbit {orbit}");
+            let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
+            let mut uncovered = 0;
+            let mut before: Option<Frame> = None;
+            for f in 0..10 {
+                // Long steps: a car leaves whole tiles (and their beams) between two frames.
+                let t = f as f64 * 1.1;
+                voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
+                st.scene.update().unwrap();
+                let q = DQuat::from_rotation_y((orbit * t).to_radians());
+                let cam = Camera { eye: base.target + q * (base.eye - base.target), ..base };
+                let sky = if f < 5 { Vec3::new(0.5, 0.6, 0.8) } else { Vec3::new(0.8, 0.4, 0.2) };
+                let lights = Lights { ambient: Some(Ambient { radiance: sky }), ..Lights::default() };
+                let report =
+                    session.frame(&st.scene, &cam, &lights, &features, &RenderOptions::default(), &|_, _| {}).unwrap();
+                assert_eq!(report.plan.sphere_lists, cars == crowd, "{what}: {}", report.plan.explain());
+                let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
+                let fresh =
+                    render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+                assert_same_pixels(session.last_frame().unwrap(), &fresh, &format!("{what}, frame {f}"));
+                if let Some(b) = &before {
+                    uncovered += b.instance.iter().zip(&fresh.instance).filter(|(a, b)| **a >= 0 && **b < 0).count();
+                }
+                before = Some(fresh);
             }
-            before = Some(fresh);
+            assert!(uncovered > 50, "{what}: cars uncovered only {uncovered} pixels of sky");
         }
-        assert!(uncovered > 50, "orbit {orbit}: cars uncovered only {uncovered} pixels of sky");
     }
 }
 

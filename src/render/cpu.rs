@@ -792,8 +792,20 @@ pub fn render_lit(
                 continue;
             }
             let (mut summary, mut shaded_here) = (TileSummary::NONE, 0u64);
+            // Misses stored without a search, and of those the ones this frame already shows.
+            let missed = traced.missed.get(t).copied().unwrap_or(0);
+            let shown = shown_missed.get(t).copied().unwrap_or(0);
             for x in span {
                 let k = y * w + x;
+                let bit = 1 << (row_shift + x % TILE as usize);
+                if missed & bit != 0 {
+                    if shown & bit == 0 {
+                        row.surface(x, &HitRecord::MISS);
+                        row.radiance[x] = sky;
+                    }
+                    shaded_here |= bit;
+                    continue;
+                }
                 if let Some((reuse, prev)) = shade_from {
                     if kept_hit(x, y)
                         && (!plan.shadows
@@ -813,7 +825,7 @@ pub fn render_lit(
                 }
                 let r = &records[k];
                 summary = summary.with(r);
-                shaded_here |= 1 << (row_shift + x % TILE as usize);
+                shaded_here |= bit;
                 row.surface(x, r);
                 row.radiance[x] = if r.instance < 0 {
                     sky

@@ -286,6 +286,20 @@ impl PixelSpheres {
         }
     }
 
+    /// Whether the rays of every pixel in x0..x1 × y0..y1 (clipped to the image) meet no
+    /// sphere: each row's lists are contiguous, so a row is one comparison of its ends.
+    pub fn all_empty(&self, x0: u32, y0: u32, x1: u32, y1: u32) -> bool {
+        let w = self.width as usize;
+        let (x1, y1) = (x1.min(self.width) as usize, (y1 as usize).min(self.start.len().saturating_sub(1) / w.max(1)));
+        if x0 as usize >= x1 {
+            return true;
+        }
+        (y0 as usize..y1).all(|y| match (self.start.get(y * w + x0 as usize), self.start.get(y * w + x1)) {
+            (Some(a), Some(b)) => a == b,
+            _ => true,
+        })
+    }
+
     /// Whether these are the lists of `camera`'s pixels (a search through lists made for
     /// another camera would find other rays' spheres).
     pub fn is_for(&self, camera: &Camera) -> bool {
@@ -491,6 +505,36 @@ mod tests {
         assert!(!lists.is_for(&Camera { eye: cam.eye + DVec3::X, ..cam }));
         assert!(!lists.at(5, 4).is_empty(), "the sphere fills the view");
         assert!(lists.at(12, 0).is_empty() && lists.at(0, 8).is_empty() && lists.at(u32::MAX, u32::MAX).is_empty());
+    }
+
+    /// A window's emptiness against its pixels' lists one by one: windows of every size at
+    /// every place over a few small spheres, some reaching past the image's edges.
+    #[test]
+    fn empty_windows_are_those_whose_every_list_is_empty() {
+        let cam = camera(21, 13);
+        let mut rng = Rng::new(3);
+        let mut spheres: Vec<(DVec3, f64)> = (0..12)
+            .map(|_| (DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, 1.0) * 30.0, 0.3 + 0.5 * rng.f64()))
+            .collect();
+        // On the left edge: a window past the right edge must not read the next row's lists.
+        let basis = cam.basis();
+        spheres.extend([2, 7, 12].map(|y| (cam.ray_dir(&basis, 0, y) * 30.0, 0.2)));
+        let lists = PixelSpheres::build(&cam, &spheres).expect("within the limit");
+        let (mut empty, mut not) = (0, 0);
+        for (y0, y1) in (0..16).flat_map(|a| (a..16).map(move |b| (a, b))) {
+            for (x0, x1) in (0..24).flat_map(|a| (a..24).map(move |b| (a, b))) {
+                let want = (y0..y1).all(|y| (x0..x1).all(|x| lists.at(x, y).is_empty()));
+                assert_eq!(lists.all_empty(x0, y0, x1, y1), want, "pixels {x0}..{x1} × {y0}..{y1}");
+                if x0 < x1 && y0 < y1 && y0 < cam.height && x0 < cam.width {
+                    if want {
+                        empty += 1;
+                    } else {
+                        not += 1;
+                    }
+                }
+            }
+        }
+        assert!(empty > 1000 && not > 1000, "{empty} empty windows, {not} others");
     }
 
     /// Spheres that would need more tests than the limit: no lists (the rays walk the BVH).

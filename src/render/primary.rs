@@ -33,8 +33,8 @@ pub struct Primary<'a> {
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
     pub moved: &'a [u32],
-    /// Per tile (as [`Traced::stored`]), the pixels whose item already holds a miss (the
-    /// last frame's beams stored one there): a beam miss is not stored again.
+    /// Per tile (as [`Traced::stored`]), the pixels whose item already holds a miss (last
+    /// frame's [`Traced::missed`]): such a miss is not stored again.
     pub missed_before: &'a [u64],
 }
 
@@ -50,8 +50,9 @@ pub struct Traced {
     /// Per tile (row-major, `width.div_ceil(TILE)` tiles to a row), a mask of the pixels
     /// stored: bit `ty·TILE + tx` for the pixel at (tx, ty) in the tile.
     pub stored: Vec<u64>,
-    /// Per tile as `stored`, the pixels stored as misses without a search because their
-    /// tile's beam met no instance (a subset of `stored`; empty without beams).
+    /// Per tile as `stored`, the pixels stored as misses without a search: their tile's beam
+    /// met no instance, or their list holds no sphere (a subset of `stored`; empty without
+    /// beams or lists).
     pub missed: Vec<u64>,
 }
 
@@ -154,14 +155,26 @@ pub fn trace_tiles<T: Send, S>(
                 }
                 (FrameInstances { starts: Some(&starts), ..p.instances }, all_miss)
             } else {
-                // Through the BVH: the tile's pyramid meets no instance's sphere.
-                let settled = p.bvh_beams
-                    && lists.is_none()
-                    && p.instances.bvh.is_some_and(|bvh| {
-                        let tile =
-                            TileRays::new(p.camera, &basis, x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32);
-                        TilePyramid::new(&tile).is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared))
-                    });
+                let settled = match lists {
+                    // No ray of the tile meets any sphere: a crowd's sky, most of its tiles.
+                    Some(lists) => lists.all_empty(x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32),
+                    // Through the BVH: the tile's pyramid meets no instance's sphere.
+                    None => {
+                        p.bvh_beams
+                            && p.instances.bvh.is_some_and(|bvh| {
+                                let tile = TileRays::new(
+                                    p.camera,
+                                    &basis,
+                                    x0 as u32,
+                                    y0 as u32,
+                                    x1 as u32,
+                                    (y0 + tile_h) as u32,
+                                );
+                                TilePyramid::new(&tile)
+                                    .is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared))
+                            })
+                    }
+                };
                 (p.instances, settled)
             };
             if all_miss {
@@ -226,14 +239,20 @@ pub fn trace_tiles<T: Send, S>(
                     }
                 }
             }
+            let missed_before =
+                p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
             for k in each(todo) {
                 let hit = match lists {
                     Some(lists) => {
                         let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
                         if listed.is_empty() {
-                            // The ray meets no sphere: a miss, without forming its direction.
+                            // The ray meets no sphere: a miss, without forming its direction,
+                            // and not stored again where last frame stored one.
                             work.culled += fi.prepared.len() as u64;
-                            store(&mut rows[at(k)], None);
+                            masks[x0 / TILE as usize][1] |= 1 << k;
+                            if missed_before >> k & 1 == 0 {
+                                store(&mut rows[at(k)], None);
+                            }
                             continue;
                         }
                         let d = dir(k);
@@ -280,7 +299,11 @@ pub fn trace_tiles<T: Send, S>(
         rays: rays.into_inner(),
         moved_only: moved_only.into_inner(),
         stored: masks.iter().map(|m| m[0]).collect(),
-        missed: if p.beams || p.bvh_beams { masks.iter().map(|m| m[1]).collect() } else { Vec::new() },
+        missed: if p.beams || p.bvh_beams || lists.is_some() {
+            masks.iter().map(|m| m[1]).collect()
+        } else {
+            Vec::new()
+        },
     }
 }
 
