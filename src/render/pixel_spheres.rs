@@ -247,12 +247,20 @@ impl PixelSpheres {
             }
         };
         // Counting sort by pixel: instances in order, so each pixel's entries arrive by
-        // ascending instance; then each list by entry t (ties keep that order).
+        // ascending instance; then each list by entry t (ties keep that order). A crowd's
+        // frame has a few thousand entries over tens of thousands of pixels: only the
+        // entries are walked, but for one pass that sums the counts.
         let mut start = std::mem::take(&mut kept.start);
         start.clear();
         start.resize(pixels as usize + 1, 0);
+        // The pixels listing more than one sphere, whose entries need sorting by t.
+        let mut crowded = Vec::new();
         for &(px, _, _) in &found {
-            start[px as usize + 1] += 1;
+            let count = &mut start[px as usize + 1];
+            *count += 1;
+            if *count == 2 {
+                crowded.push(px);
+            }
         }
         for k in 1..start.len() {
             start[k] += start[k - 1];
@@ -260,17 +268,19 @@ impl PixelSpheres {
         let mut entries = std::mem::take(&mut kept.entries);
         entries.clear();
         entries.resize(found.len(), (0.0, 0));
-        let mut next = start.clone();
-        for &(px, t0, i) in &found {
-            let slot = &mut next[px as usize];
-            entries[*slot as usize] = (t0, i);
-            *slot += 1;
+        // Each entry to the end of its pixel's stretch, from the last found: the stretch's
+        // start moves down to where it began while the entries keep their order.
+        for &(px, t0, i) in found.iter().rev() {
+            let end = &mut start[px as usize + 1];
+            *end -= 1;
+            entries[*end as usize] = (t0, i);
         }
-        for px in 0..pixels as usize {
-            let list = &mut entries[start[px] as usize..start[px + 1] as usize];
-            if list.len() > 1 {
-                list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            }
+        // start[px + 1] now holds where pixel px's entries begin: one place back.
+        start.copy_within(1.., 0);
+        start[pixels as usize] = found.len() as u32;
+        for px in crowded {
+            let list = &mut entries[start[px as usize] as usize..start[px as usize + 1] as usize];
+            list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         }
         Some(PixelSpheres { width: w, start, entries, camera: Some(*camera), spheres: kept.spheres, found })
     }
