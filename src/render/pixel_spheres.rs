@@ -154,9 +154,8 @@ impl PixelSpheres {
                             else {
                                 continue;
                             };
-                            if same_bits(now, *then) {
-                                continue;
-                            }
+                            // Written, not compared: a listed instance has almost always
+                            // moved, and reading last frame's copy stalled on the cache.
                             *then = now;
                             again.push(i);
                             tested += project(i, now, &mut found);
