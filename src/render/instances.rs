@@ -254,6 +254,16 @@ fn refill(
             fill(refilled[j] as usize, &mut slots[k], spheres.get_mut(k));
         }
     };
+    // Only the last update since: the scene lists what it changed, and only those slots are
+    // visited (no scan of every instance's stamp).
+    if since.is_some_and(|e| e.checked_add(1) == Some(scene.epoch())) {
+        let changed = scene.changed_by_last_update();
+        refill_listed(changed, scene.worlds(), out, spheres, &fill);
+        return Some(changed.to_vec());
+    }
+    if since == Some(scene.epoch()) {
+        return Some(Vec::new());
+    }
     let mut refilled = Vec::new();
     // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
@@ -275,6 +285,59 @@ fn refill(
     }
     fill_run(0, out, spheres, &mut refilled);
     since.map(|_| refilled)
+}
+
+/// Fills the slots (and spheres, when there are any) of the instances `ids` (ascending) with
+/// `fill` (which reads each one's world transform in `worlds`), each while the memory of one a few places on is asked for (a crowd's moved cars lie
+/// scattered over megabytes of slots); in parallel chunks of ids, each owning the stretch of
+/// slots up to its last one.
+fn refill_listed<F: Fn(usize, &mut Prepared, Option<&mut (DVec3, f64)>) + Sync>(
+    ids: &[u32],
+    worlds: &[DAffine3],
+    out: &mut [Prepared],
+    spheres: &mut [(DVec3, f64)],
+    fill: &F,
+) {
+    const AHEAD: usize = 4;
+    let run = |ids: &[u32], first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)]| {
+        for (j, &i) in ids.iter().enumerate() {
+            if let Some(&next) = ids.get(j + AHEAD) {
+                if let Some(world) = worlds.get(next as usize) {
+                    crate::prefetch::prefetch_bytes(world, std::mem::size_of::<DAffine3>());
+                }
+                if let Some(slot) = slots.get(next as usize - first) {
+                    crate::prefetch::prefetch_bytes(slot, std::mem::size_of::<Prepared>());
+                }
+                if let Some(sphere) = spheres.get(next as usize - first) {
+                    crate::prefetch::prefetch(sphere);
+                }
+            }
+            let k = i as usize - first;
+            if let Some(slot) = slots.get_mut(k) {
+                fill(i as usize, slot, spheres.get_mut(k));
+            }
+        }
+    };
+    #[cfg(feature = "parallel")]
+    if ids.len() >= 1024 {
+        use rayon::prelude::*;
+        const CHUNK: usize = 512;
+        let mut pieces = Vec::with_capacity(ids.len().div_ceil(CHUNK));
+        let (mut slots, mut rest, mut offset) = (out, spheres, 0usize);
+        for chunk in ids.chunks(CHUNK) {
+            // Up to the chunk's last instance (clamped: the ids are the scene's, the slots
+            // as many as its instances).
+            let end = chunk.last().map_or(offset, |&l| l as usize + 1).clamp(offset, offset + slots.len());
+            let (a, b) = std::mem::take(&mut slots).split_at_mut(end - offset);
+            let split = (end - offset).min(rest.len());
+            let (c, d) = std::mem::take(&mut rest).split_at_mut(split);
+            pieces.push((chunk, offset, a, c));
+            (slots, rest, offset) = (b, d, end);
+        }
+        pieces.into_par_iter().for_each(|(chunk, first, a, c)| run(chunk, first, a, c));
+        return;
+    }
+    run(ids, 0, out, spheres);
 }
 
 /// How far a box's farthest corner lies from its centre once mapped by `m`, for half
@@ -437,7 +500,8 @@ mod tests {
     /// Prepared instances kept from frame to frame and refilled where the scene changed equal
     /// instances prepared afresh, bit for bit, through moved instances (some of them parents
     /// of others), a part swapped, an added instance, a moved eye, another level, a part list
-    /// edited in place, a refused update, and a clone of the scene edited apart from it.
+    /// edited in place, a refused update, a clone of the scene edited apart from it, no update
+    /// and two updates between two frames.
     #[test]
     fn prepared_instances_refilled_where_changed_equal_fresh_ones() {
         let grid = |k: u32| {
@@ -459,7 +523,9 @@ mod tests {
             )
             .unwrap()
         };
-        for i in 0..3000 {
+        // Enough that the changed instances of one update fill several parallel chunks.
+        let n = 8000;
+        for i in 0..n {
             let parent = (i % 4 != 0).then_some(i - i % 4);
             let local = random_local(&mut rng);
             scene.add(Instance { part: i % 3, parent, local }).unwrap();
@@ -485,10 +551,13 @@ mod tests {
         };
         check(&scene, eye, level, "first");
         for step in 0..12 {
+            if step == 2 {
+                // No update since the last check: nothing is refilled.
+                check(&scene, eye, level, "no update");
+            }
             // Some instances move: every 7th of a random offset, parents carrying children.
             let offset = step % 7;
-            let edits: Vec<(usize, Transform)> =
-                (offset..3000).step_by(7).map(|i| (i, random_local(&mut rng))).collect();
+            let edits: Vec<(usize, Transform)> = (offset..n).step_by(7).map(|i| (i, random_local(&mut rng))).collect();
             scene.set_locals(&edits).unwrap();
             match step {
                 3 => scene.set_part(10, 2).unwrap(),
@@ -503,10 +572,10 @@ mod tests {
                     // is refused, after the other moved instances were composed: nothing
                     // changes, and the prepared instances stay as they were.
                     let tiny = Transform { scale: DVec3::splat(2e-6), ..Transform::IDENTITY };
-                    scene.set_locals(&[(3000 - 4, tiny), (3000 - 3, tiny)]).unwrap();
+                    scene.set_locals(&[(n - 4, tiny), (n - 3, tiny)]).unwrap();
                     assert!(scene.update().is_err());
                     check(&scene, eye, level, "refused");
-                    scene.set_locals(&[(3000 - 4, Transform::IDENTITY), (3000 - 3, Transform::IDENTITY)]).unwrap();
+                    scene.set_locals(&[(n - 4, Transform::IDENTITY), (n - 3, Transform::IDENTITY)]).unwrap();
                 }
                 9 => {
                     // A clone edited apart from the scene: prepared for the clone, then for the
@@ -515,6 +584,11 @@ mod tests {
                     other.set_locals(&[(1, random_local(&mut rng))]).unwrap();
                     other.update().unwrap();
                     check(&other, eye, level, "the clone");
+                }
+                11 => {
+                    // Two updates since the last check: the stamps are scanned.
+                    scene.update().unwrap();
+                    scene.set_locals(&[(5, random_local(&mut rng)), (n - 1, random_local(&mut rng))]).unwrap();
                 }
                 _ => {}
             }

@@ -30,6 +30,9 @@ pub enum SceneError {
     /// Bad transform.
     #[error(transparent)]
     Transform(#[from] TransformError),
+    /// No more instances fit (they are numbered in 32 bits).
+    #[error("a scene holds at most {} instances", u32::MAX)]
+    Full,
 }
 
 /// Parts (built once) and their instances.
@@ -57,6 +60,8 @@ pub struct Scene {
     /// for the changed instances only.
     epoch: u64,
     stamps: Vec<u64>,
+    /// The instances whose stamp is `epoch` (ascending): what the last update changed.
+    last_changed: Vec<u32>,
 }
 
 /// A number no other scene of the process has: a new scene and every clone draw a fresh one.
@@ -159,6 +164,9 @@ impl Scene {
             }
         }
         Transform::new(inst.local.translation, inst.local.rotation, inst.local.scale)?;
+        if self.instances.len() >= u32::MAX as usize {
+            return Err(SceneError::Full);
+        }
         self.splits.clear();
         self.instances.push(inst);
         self.world.push(DAffine3::IDENTITY);
@@ -355,6 +363,12 @@ impl Scene {
             return Err(TransformError::Singular(bad).into());
         }
         self.epoch = epoch;
+        // What each chunk changed, in order: its undo list (a crowd's renderer refills just
+        // these, instead of scanning every instance's stamp).
+        self.last_changed.clear();
+        for (w, undo) in chunks.windows(2).zip(&sc.undo) {
+            self.last_changed.extend(undo.iter().map(|&(k, _, _)| (w[0] + k) as u32));
+        }
         self.dirty.fill(false);
         self.scratch = sc;
         Ok(())
@@ -395,6 +409,12 @@ impl Scene {
     /// (`u64::MAX` for an instance added since the last update).
     pub fn stamp(&self, i: usize) -> u64 {
         self.stamps[i]
+    }
+
+    /// The instances the last successful update changed (those whose [`Scene::stamp`] is
+    /// [`Scene::epoch`]), ascending; empty before the first update.
+    pub fn changed_by_last_update(&self) -> &[u32] {
+        &self.last_changed
     }
 
     /// Whether any instance still has an unapplied local change.
@@ -481,6 +501,10 @@ mod tests {
         s.update().unwrap();
         assert_eq!(s.worlds(), &serial(&s)[..]);
         assert!(s.splits.len() > 100, "runs found: {}", s.splits.len());
+        // What the update changed: the edited instances and their descendants, in order.
+        let stamped: Vec<u32> = (0..n).filter(|&i| s.stamp(i) == s.epoch()).map(|i| i as u32).collect();
+        assert_eq!(s.changed_by_last_update(), &stamped[..]);
+        assert!(stamped.len() > 3 && stamped.len() < n / 2, "{} changed", stamped.len());
     }
 
     /// A near-singular composition deep in a run is refused and leaves every world
