@@ -172,7 +172,8 @@ fn posing_only_the_seen_cars_draws_the_same_frames() {
 /// A far camera over a crowd whose cars are smaller than the gaps between pixels' rays, and
 /// frames a thirtieth of a second apart (then back in time, then far ahead, then on): cars
 /// found clear of the rays are let go untested while their motion cannot bring them near a
-/// ray, and every frame still equals, bit for bit, the crowd's with every car posed.
+/// ray, cars found in sight are posed again untested for a moment, and every frame still
+/// equals, bit for bit, the crowd's with every car posed.
 #[test]
 fn cars_clear_of_the_rays_go_untested_and_the_frames_stay_the_same() {
     let parts = car_parts();
@@ -207,8 +208,9 @@ fn cars_clear_of_the_rays_go_untested_and_the_frames_stay_the_same() {
             covered += a.instance.iter().filter(|&&i| i >= 0).count();
         }
         let frames = times.len() - 1;
-        // Under 70 % of the tests of every car every frame; the cars are seen and posed.
-        assert!(tested * 10 < cars * frames * 7, "hit buffer {hit_buffer}: {tested} tests over {frames} frames");
+        // Under 45 % of the tests of every car every frame (56 % when the cars found in sight
+        // are tested every frame too); the cars are seen and posed.
+        assert!(tested * 100 < cars * frames * 45, "hit buffer {hit_buffer}: {tested} tests over {frames} frames");
         assert!(posed_total < cars * times.len() / 2 && posed_total > times.len() * 4, "{posed_total} cars posed");
         assert!(covered > 400, "the cars cover {covered} pixels over the clip");
     }

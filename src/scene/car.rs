@@ -441,7 +441,8 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 /// cars' boxes ([`car_box`]) and radii ([`car_radius`]) at a level of detail, and per car the
 /// last placement of its body tested under the last frame's [`Sight`] and the answer (so a
 /// car that stays where it was is not tested again while the sight stays the same), and
-/// the times over which the car cannot come near any ray.
+/// the times over which the car cannot come near any ray (or, found in sight, over which it
+/// is posed again without a test).
 #[derive(Clone, Debug, Default)]
 pub struct SeenCars {
     /// Part edits, level, car count and the parts' addresses the boxes are for.
@@ -463,7 +464,7 @@ struct Known {
     placed: DAffine3,
     seen: bool,
     /// Times at which the car, wherever it drives then, is reached by no ray (empty when
-    /// not known)...
+    /// not known); for a car `seen`, the times over which it is posed untested...
     clear: (f64, f64),
     /// ...for the car driving as it did then: its origin, phase and whether it travels.
     motion: (DVec3, f64, bool),
@@ -481,6 +482,11 @@ impl Known {
 /// Longest stretch of time a car is let go untested after a test found it clear of the
 /// rays (s): the room it is tested for is its speed times this.
 const CLEAR_FOR: f64 = 0.1;
+
+/// How long a car found in sight is posed again without a test (s): posing a car no ray
+/// reaches changes no pixel, and a test costs a fifth of posing one. Of 0.05, 0.1 and 0.2 s,
+/// 0.1 s tested the fewest cars for the fewest posed (docs/benchmarks.md, step 67).
+const SEEN_FOR: f64 = 0.1;
 
 impl SeenCars {
     /// How many cars the last [`SeenCars::pose`] tested against its sight (every car when
@@ -537,14 +543,19 @@ impl SeenCars {
             // A missing body: posing reports it.
             let Some(&old) = scene_ref.worlds().get(car.body) else { return (true, false) };
             let motion = (car.origin, car.phase, car.travel);
+            let within = known.motion == motion && known.clear.0 <= t && t <= known.clear.1;
             // Still placed where it was found clear, and clear wherever it drives now.
-            if !known.seen && known.placed == old && known.motion == motion && known.clear.0 <= t && t <= known.clear.1
-            {
+            if within && !known.seen && known.placed == old {
                 return (false, false);
+            }
+            // Found in sight a moment ago: posed again untested (posing a car no ray reaches
+            // changes no pixel).
+            if within && known.seen {
+                return (true, false);
             }
             let new = body_world(car, t);
             let Some(room) = sight.box_slack(&new, lo, hi, r, speed * CLEAR_FOR) else {
-                *known = Known { placed: new, seen: true, clear: Known::NONE.clear, motion };
+                *known = Known { placed: new, seen: true, clear: (t - SEEN_FOR, t + SEEN_FOR), motion };
                 return (true, true);
             };
             // Its points cover the room in no less than room / speed (a parked car, never).
