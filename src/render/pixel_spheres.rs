@@ -22,6 +22,7 @@ use glam::DVec3;
 pub const MAX_PER_PIXEL: u64 = 8;
 
 /// Instances per parallel chunk of the projection.
+#[cfg(feature = "parallel")]
 const CHUNK: usize = 2048;
 
 /// Moved instances per parallel chunk of their projection: a crowd's ten thousand moved

@@ -485,7 +485,7 @@ const CLEAR_FOR: f64 = 0.1;
 
 /// How long a car found in sight is posed again without a test (s): posing a car no ray
 /// reaches changes no pixel, and a test costs a fifth of posing one. Of 0.05, 0.1 and 0.2 s,
-/// 0.1 s tested the fewest cars for the fewest posed (docs/benchmarks.md, step 67).
+/// 0.1 s tested the fewest cars for the fewest posed (docs/benchmarks.md, step 68).
 const SEEN_FOR: f64 = 0.1;
 
 impl SeenCars {
