@@ -226,71 +226,47 @@ fn refill(
         }
         None => &mut [][..],
     };
-    // One run of slots from `first`, with their spheres (or none); the instances refilled.
-    let fill_run = |first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)], refilled: &mut Vec<u32>| {
-        let Some(since) = since else {
-            // Every slot in order: the hardware's prefetcher follows.
-            for (k, slot) in slots.iter_mut().enumerate() {
-                fill(first + k, slot, spheres.get_mut(k));
-            }
-            return;
+    if let Some(since) = since {
+        // The changed instances only: when one update has passed, the scene's own list of
+        // them; else those whose stamp is later (a scan; counted in u32 by the renderer's
+        // records).
+        let changed: Vec<u32> = if since.checked_add(1) == Some(scene.epoch()) {
+            scene.changed_by_last_update().to_vec()
+        } else {
+            (0..n).filter(|&i| scene.stamp(i) > since).map(|i| i as u32).collect()
         };
-        // The changed instances first (a sequential scan of their stamps; counted in u32 by
-        // the renderer's records), then each filled while the memory of one a few places on
-        // is asked for: a crowd's moved cars lie scattered over megabytes of slots.
-        let start = refilled.len();
-        refilled.extend((first..first + slots.len()).filter(|&i| scene.stamp(i) > since).map(|i| i as u32));
-        const AHEAD: usize = 4;
-        for j in start..refilled.len() {
-            if let Some(&next) = refilled.get(j + AHEAD) {
-                let k = next as usize - first;
-                crate::prefetch::prefetch_bytes(&scene.worlds()[next as usize], std::mem::size_of::<DAffine3>());
-                crate::prefetch::prefetch_bytes(&slots[k], std::mem::size_of::<Prepared>());
-                if let Some(sphere) = spheres.get(k) {
-                    crate::prefetch::prefetch(sphere);
-                }
-            }
-            let k = refilled[j] as usize - first;
-            fill(refilled[j] as usize, &mut slots[k], spheres.get_mut(k));
+        refill_listed(&changed, scene.worlds(), out, spheres, &fill);
+        return Some(changed);
+    }
+    // Every slot in order: the hardware's prefetcher follows. Thousands of instances (a crowd
+    // of cars) in parallel chunks: every one is independent.
+    let fill_run = |first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)]| {
+        for (k, slot) in slots.iter_mut().enumerate() {
+            fill(first + k, slot, spheres.get_mut(k));
         }
     };
-    // Only the last update since: the scene lists what it changed, and only those slots are
-    // visited (no scan of every instance's stamp).
-    if since.is_some_and(|e| e.checked_add(1) == Some(scene.epoch())) {
-        let changed = scene.changed_by_last_update();
-        refill_listed(changed, scene.worlds(), out, spheres, &fill);
-        return Some(changed.to_vec());
-    }
-    if since == Some(scene.epoch()) {
-        return Some(Vec::new());
-    }
-    let mut refilled = Vec::new();
-    // Thousands of instances (a crowd of cars): every one is independent.
     #[cfg(feature = "parallel")]
     if n >= 1024 {
         use rayon::prelude::*;
         const CHUNK: usize = 512;
-        type Run<'a> = (usize, (&'a mut [Prepared], &'a mut [(DVec3, f64)]));
-        let each = |(c, (slots, spheres)): Run<'_>| {
-            let mut refilled = Vec::new();
-            fill_run(c * CHUNK, slots, spheres, &mut refilled);
-            refilled
-        };
-        let runs: Vec<Vec<u32>> = if spheres.is_empty() {
-            out.par_chunks_mut(CHUNK).map(|slots| (slots, &mut [][..])).enumerate().map(each).collect()
+        if spheres.is_empty() {
+            out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, slots)| fill_run(c * CHUNK, slots, &mut []));
         } else {
-            out.par_chunks_mut(CHUNK).zip(spheres.par_chunks_mut(CHUNK)).enumerate().map(each).collect()
-        };
-        return since.map(|_| runs.concat());
+            out.par_chunks_mut(CHUNK)
+                .zip(spheres.par_chunks_mut(CHUNK))
+                .enumerate()
+                .for_each(|(c, (slots, spheres))| fill_run(c * CHUNK, slots, spheres));
+        }
+        return None;
     }
-    fill_run(0, out, spheres, &mut refilled);
-    since.map(|_| refilled)
+    fill_run(0, out, spheres);
+    None
 }
 
 /// Fills the slots (and spheres, when there are any) of the instances `ids` (ascending) with
-/// `fill` (which reads each one's world transform in `worlds`), each while the memory of one a few places on is asked for (a crowd's moved cars lie
-/// scattered over megabytes of slots); in parallel chunks of ids, each owning the stretch of
-/// slots up to its last one.
+/// `fill` (which reads each one's world transform in `worlds`), each while the memory of one
+/// a few places on is asked for (a crowd's moved cars lie scattered over megabytes of slots);
+/// in parallel chunks of ids, each owning the stretch of slots up to its last one.
 fn refill_listed<F: Fn(usize, &mut Prepared, Option<&mut (DVec3, f64)>) + Sync>(
     ids: &[u32],
     worlds: &[DAffine3],

@@ -134,6 +134,9 @@ pub fn trace_tiles<T: Send, S>(
             if todo | partial == 0 {
                 continue;
             }
+            // This tile's pixels whose item holds a miss already.
+            let missed_before =
+                p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
             masks[x0 / TILE as usize][0] = todo;
             band_rays += (todo | partial).count_ones() as u64;
             band_moved += partial.count_ones() as u64;
@@ -181,7 +184,7 @@ pub fn trace_tiles<T: Send, S>(
                 // Every pending ray misses (and no moved instance beats a bound); a miss stored
                 // there by last frame's beams is already in place.
                 masks[x0 / TILE as usize][1] = todo;
-                todo &= !p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
+                todo &= !missed_before;
                 while todo != 0 {
                     let k = todo.trailing_zeros() as usize;
                     todo &= todo - 1;
@@ -239,8 +242,6 @@ pub fn trace_tiles<T: Send, S>(
                     }
                 }
             }
-            let missed_before =
-                p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
             for k in each(todo) {
                 let hit = match lists {
                     Some(lists) => {
