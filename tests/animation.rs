@@ -545,6 +545,45 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
     }
 }
 
+/// Past the beams' limit each pixel searches its own sphere list; with the hit buffer, a
+/// pixel whose stored hit is on a still instance (or a miss), crossed by a moved sphere,
+/// searches only the moved instances of its list against that hit. Here three cars drive
+/// figure-eights in front of a row of eight parked ones (never posed: still; 88 instances,
+/// past where the hit buffer's frames take lists over beams), and every frame must equal
+/// one rendered afresh, hit for hit.
+#[test]
+fn a_crowds_moved_pixels_search_the_moved_instances_of_their_lists() {
+    let mut scene = Scene::new(car_parts());
+    for k in 0..8 {
+        add_car(&mut scene, 0, DVec3::new(-17.5 + 5.0 * k as f64, 0.0, 0.0), 0.0, false).unwrap();
+    }
+    let driving: Vec<Car> = (0..3)
+        .map(|k| add_car(&mut scene, 0, DVec3::new(-4.0 + 4.0 * k as f64, 0.0, 6.0), 1.7 * k as f64, true).unwrap())
+        .collect();
+    scene.update().unwrap();
+    assert!(scene.instances().len() > voxray::render::beam::LISTS_OVER_REUSED);
+    let lights = Lights::default();
+    let features = Features { shadows: false, ..Features::default() };
+    let cam = Camera { width: 96, height: 48, ..camera() };
+    let mut hits = HitBuffer::new();
+    let mut moved_only = 0;
+    for f in 0..8 {
+        for c in &driving {
+            pose(&mut scene, c, 0.6 * f as f64).unwrap();
+        }
+        scene.update().unwrap();
+        let plan = FramePlan::new(&scene, &cam, &lights, &features, (f > 0).then_some(&hits));
+        assert!(plan.sphere_lists, "{}", plan.explain());
+        let fast =
+            render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
+        let plain = FramePlan::new(&scene, &cam, &lights, &Features::NONE, None);
+        let slow = render(&scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+        assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+        moved_only += fast.moved_only;
+    }
+    assert!(moved_only > 100, "the moved-only search ran for {moved_only} pixels");
+}
+
 /// Every per-pixel buffer of `a` and `b`, bit for bit.
 fn assert_same_pixels(a: &Frame, b: &Frame, what: &str) {
     let bits = |v: &[Vec3]| v.iter().flat_map(|c| c.to_array().map(f32::to_bits)).collect::<Vec<_>>();

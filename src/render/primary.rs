@@ -5,7 +5,9 @@
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::pixel_spheres::PixelSpheres;
 use super::tile_search::{each, nearest_moved_tile, nearest_tile, TileScratch};
-use super::visibility::{nearest_listed, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
+use super::visibility::{
+    nearest_listed, nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work,
+};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
 use glam::DVec3;
@@ -96,6 +98,17 @@ pub fn trace_tiles<T: Send, S>(
     let basis = p.camera.basis();
     // Lists made for another camera are not this frame's: its rays walk the BVH.
     let lists = p.lists.filter(|l| l.is_for(p.camera));
+    // With lists, the moved instances as bits (instance i: bit i % 64 of word i / 64), so a
+    // [`Todo::Moved`] pixel traces the moved instances of its own list.
+    let moved_bits = lists.filter(|_| !p.moved.is_empty()).map(|_| {
+        let mut bits = vec![0u64; p.instances.prepared.len().div_ceil(64)];
+        for &i in p.moved {
+            if let Some(w) = bits.get_mut(i as usize / 64) {
+                *w |= 1 << (i % 64);
+            }
+        }
+        bits
+    });
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let moved_only = AtomicU64::new(0);
     let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| {
@@ -267,9 +280,36 @@ pub fn trace_tiles<T: Send, S>(
                 store(&mut rows[at(k)], hit);
             }
             for k in each(partial) {
-                let d = dir(k);
                 let (t, instance) = bounds[k];
-                if let Some(hit) = nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work) {
+                let found = match (lists, &moved_bits) {
+                    (Some(lists), Some(bits)) => {
+                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                        if listed.is_empty() {
+                            // No moved sphere meets the ray: the stored hit stands.
+                            work.culled += p.moved.len() as u64;
+                            continue;
+                        }
+                        let d = dir(k);
+                        nearest_listed_moved(
+                            &fi,
+                            DVec3::ZERO,
+                            d,
+                            listed,
+                            bits,
+                            p.moved.len(),
+                            t,
+                            instance,
+                            &p.opts,
+                            &mut work,
+                        )
+                        .map(|h| (h, d))
+                    }
+                    _ => {
+                        let d = dir(k);
+                        nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work).map(|h| (h, d))
+                    }
+                };
+                if let Some((hit, d)) = found {
                     store(&mut rows[at(k)], Some((hit, d)));
                     masks[x0 / TILE as usize][0] |= 1 << k;
                 }

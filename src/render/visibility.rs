@@ -322,6 +322,72 @@ pub fn nearest_listed(
     best
 }
 
+/// [`nearest_moved`] through a pixel's sphere list ([`nearest_listed`]'s `listed`, nearest
+/// entry first): of the listed instances, only those `moved` marks (bit i of word i / 64)
+/// are traced, nearest entry first, up to the nearer of the best hit and the bound `(t,
+/// instance)`. The list holds every instance whose sphere the ray meets, so this is the
+/// answer [`nearest_moved`] gives, without testing every moved instance's sphere.
+#[allow(clippy::too_many_arguments)]
+pub fn nearest_listed_moved(
+    fi: &FrameInstances,
+    o: DVec3,
+    d: DVec3,
+    listed: &[(f64, u32)],
+    moved: &[u64],
+    moved_count: usize,
+    t: f32,
+    instance: i32,
+    opts: &TraceOptions,
+    work: &mut Work,
+) -> Option<InstanceHit> {
+    let mut beat = Beating::new(t, instance);
+    let mut listed_moved = 0;
+    for &(entry, i) in listed {
+        if moved.get(i as usize / 64).is_none_or(|w| w >> (i % 64) & 1 == 0) {
+            continue;
+        }
+        listed_moved += 1;
+        if entry > beat.t_max(opts) as f64 {
+            break; // every later sphere starts beyond the nearest hit
+        }
+        beat.trace(fi, i as usize, o, d, opts, work);
+    }
+    work.culled += moved_count.saturating_sub(listed_moved) as u64;
+    beat.best
+}
+
+/// A moved-only search's nearest hit so far, which must beat the bound set by the instances
+/// that did not move (equal t: the lower index wins, as in [`nearest`]).
+struct Beating {
+    t: f32,
+    instance: usize,
+    best: Option<InstanceHit>,
+}
+
+impl Beating {
+    /// The bound `(t, instance)` (instance −1: none).
+    fn new(t: f32, instance: i32) -> Self {
+        Beating { t, instance: usize::try_from(instance).unwrap_or(usize::MAX), best: None }
+    }
+
+    /// How far a ray is traced: the nearer of the bound and `opts.t_max`.
+    fn t_max(&self, opts: &TraceOptions) -> f32 {
+        self.t.min(opts.t_max)
+    }
+
+    /// Traces instance `i` up to [`Beating::t_max`] and keeps its hit if it beats the bound.
+    fn trace(&mut self, fi: &FrameInstances, i: usize, o: DVec3, d: DVec3, opts: &TraceOptions, work: &mut Work) {
+        work.traced += 1;
+        let t_max = widen(self.t_max(opts));
+        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max, ..*opts }) {
+            if h.t < self.t || (h.t == self.t && i < self.instance) {
+                (self.t, self.instance) = (h.t, i);
+                self.best = Some(InstanceHit { instance: i, hit: h });
+            }
+        }
+    }
+}
+
 /// One BVH leaf item of a nearest-hit search: culled by the tile's beam or its sphere, skipped
 /// when its sphere starts beyond the best hit, traced up to the best hit otherwise.
 #[inline]
@@ -422,8 +488,7 @@ pub fn nearest_moved(
     opts: &TraceOptions,
     work: &mut Work,
 ) -> Option<InstanceHit> {
-    let (mut best_t, mut best_i) = (t, if instance < 0 { usize::MAX } else { instance as usize });
-    let mut best = None;
+    let mut beat = Beating::new(t, instance);
     for &i in moved {
         let i = i as usize;
         let p = &fi.prepared[i];
@@ -432,19 +497,12 @@ pub fn nearest_moved(
             work.culled += 1;
             continue;
         };
-        let t_max = best_t.min(opts.t_max);
-        if t0 > t_max as f64 {
+        if t0 > beat.t_max(opts) as f64 {
             continue;
         }
-        work.traced += 1;
-        if let Some(h) = trace_one(fi, i, o, d, &TraceOptions { t_max: widen(t_max), ..*opts }) {
-            if h.t < best_t || (h.t == best_t && i < best_i) {
-                (best_t, best_i) = (h.t, i);
-                best = Some(InstanceHit { instance: i, hit: h });
-            }
-        }
+        beat.trace(fi, i, o, d, opts, work);
     }
-    best
+    beat.best
 }
 
 /// Whether anything blocks `o + t·d` for t in (0, `t_max`] (shadow rays; `d` unit length, so
