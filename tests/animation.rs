@@ -548,20 +548,21 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
 /// Past the beams' limit each pixel searches its own sphere list; with the hit buffer, a
 /// pixel whose stored hit is on a still instance (or a miss), crossed by a moved sphere,
 /// searches only the moved instances of its list against that hit. Here three cars drive
-/// figure-eights in front of a row of eight parked ones (never posed: still; 88 instances,
-/// past where the hit buffer's frames take lists over beams), and every frame must equal
-/// one rendered afresh, hit for hit.
+/// figure-eights in front of two rows of eight parked ones (never posed: still; 152
+/// instances, past the beams' limit, 24 of them moving), and every frame must equal one
+/// rendered afresh, hit for hit.
 #[test]
 fn a_crowds_moved_pixels_search_the_moved_instances_of_their_lists() {
     let mut scene = Scene::new(car_parts());
-    for k in 0..8 {
-        add_car(&mut scene, 0, DVec3::new(-17.5 + 5.0 * k as f64, 0.0, 0.0), 0.0, false).unwrap();
+    for k in 0..16 {
+        let (x, z) = ((k % 8) as f64, (k / 8) as f64);
+        add_car(&mut scene, 0, DVec3::new(-17.5 + 5.0 * x, 0.0, -6.0 * z), 0.0, false).unwrap();
     }
     let driving: Vec<Car> = (0..3)
         .map(|k| add_car(&mut scene, 0, DVec3::new(-4.0 + 4.0 * k as f64, 0.0, 6.0), 1.7 * k as f64, true).unwrap())
         .collect();
     scene.update().unwrap();
-    assert!(scene.instances().len() > voxray::render::beam::LISTS_OVER_REUSED);
+    assert!(scene.instances().len() > voxray::render::beam::MAX_INSTANCES);
     let lights = Lights::default();
     let features = Features { shadows: false, ..Features::default() };
     let cam = Camera { width: 96, height: 48, ..camera() };

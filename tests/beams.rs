@@ -40,16 +40,10 @@ fn scene() -> Scene {
     s
 }
 
-/// A frame with beams on or off. Where the BVH is on, the plan gives a frame that traces
-/// every pixel sphere lists instead; beams through the BVH are what it picks while the hit
-/// buffer is reused, and are asked for here.
 fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
     let lights = Lights::default();
     let features = Features { beams, hit_buffer: false, ..Features::default() };
-    let mut plan = FramePlan::new(s, cam, &lights, &features, None);
-    if beams && plan.sphere_lists {
-        (plan.beams, plan.bvh_beams, plan.sphere_lists) = (true, false, false);
-    }
+    let plan = FramePlan::new(s, cam, &lights, &features, None);
     assert_eq!(plan.beams, beams, "{}", plan.explain());
     render(s, cam, &lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
 }
@@ -120,8 +114,7 @@ fn beams_keep_the_specks_at_tile_corners() {
 
 /// A crowd at the beams' instance limit (`beam::MAX_INSTANCES`: 16 driving cars, 128
 /// instances, with shadows): beams on and off give the same hits, normals and image bit for
-/// bit, and the crowd one car more is past the limit (without the BVH, where the limit is
-/// what takes beams away).
+/// bit, and the crowd one car more is past the limit.
 #[test]
 fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
     let parts = car_parts();
@@ -146,8 +139,7 @@ fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
         check_crowd_frame(&st.scene, &cam, name);
     }
     let more = voxray::scene::stage_cars(&parts, cars + 1, true, false).unwrap();
-    let features = Features { bvh: false, hit_buffer: false, ..Features::default() };
-    let plan = FramePlan::new(&more.scene, &close, &Lights::default(), &features, None);
+    let plan = FramePlan::new(&more.scene, &close, &Lights::default(), &Features::default(), None);
     assert!(!plan.beams, "{}", plan.explain());
 }
 
@@ -259,37 +251,5 @@ fn a_frame_without_shadow_rays_leaves_the_bvh_for_the_next() {
         assert_same_frames(&with, &fresh, &format!("frame {f}"));
         // Frame 0 built no tree; frame 1 built one; frame 2 left it; frame 3 refitted it.
         assert_eq!(kept.bvh.is_some(), f > 0, "frame {f}");
-    }
-}
-
-/// Which primary-ray search a crowd's frame plan picks: beams below the BVH's threshold
-/// (24 instances) or without the BVH, per-pixel sphere lists from it when every pixel is
-/// traced (32 instances, first frame), beams again while the hit buffer is reused up to
-/// `beam::LISTS_OVER_REUSED` instances, lists past it.
-#[test]
-fn the_plan_takes_sphere_lists_over_beams_where_they_pay() {
-    let parts = car_parts();
-    let lights = Lights::default();
-    let reused = voxray::render::beam::LISTS_OVER_REUSED / parts.len();
-    for (cars, features, reuse, lists) in [
-        (3, Features::default(), false, false),
-        (4, Features::default(), false, true),
-        (4, Features { bvh: false, ..Features::default() }, false, false),
-        (4, Features::default(), true, false),
-        (reused, Features::default(), true, false),
-        (reused + 1, Features::default(), true, true),
-        (reused + 1, Features::default(), false, true),
-    ] {
-        let st = voxray::scene::stage_cars(&parts, cars, true, false).unwrap();
-        let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 48, 32);
-        let mut hits = voxray::render::HitBuffer::new();
-        if reuse {
-            let plan = FramePlan::new(&st.scene, &cam, &lights, &features, None);
-            render(&st.scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
-        }
-        let plan = FramePlan::new(&st.scene, &cam, &lights, &features, reuse.then_some(&hits));
-        let what = format!("{cars} cars, reuse {reuse}: {}", plan.explain());
-        assert_eq!(plan.hit_buffer, reuse, "{what}");
-        assert_eq!((plan.beams, plan.sphere_lists), (!lists, lists), "{what}");
     }
 }

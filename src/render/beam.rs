@@ -27,17 +27,8 @@ pub const BEAM_WIDTH: u32 = 4 * TILE;
 /// Instances above this count get no beams (a per-tile start for every instance would cost
 /// more than it saves; the BVH culls them instead). Measured on crowds of driving cars
 /// (docs/benchmarks.md, step 36): beams save a third at 80 instances, break even near 150
-/// and cost three times over at 800. With the BVH on (from
-/// [`super::plan::BVH_MIN_INSTANCES`]) per-pixel sphere lists replace them sooner: always
-/// when every pixel is traced, past [`LISTS_OVER_REUSED`] when the hit buffer is reused.
+/// and cost three times over at 800.
 pub const MAX_INSTANCES: usize = 128;
-
-/// With the hit buffer reused, beams serve up to this many instances before per-pixel
-/// sphere lists do: the buffer keeps most pixels, so the lists save less tracing, while
-/// projecting every moved sphere costs as much as ever. Measured on crowds of driving cars
-/// (docs/benchmarks.md, step 70): beams faster up to 8 cars (64 instances), even at 10, the
-/// lists faster at 16; without the hit buffer the lists were faster from 4 cars (32).
-pub const LISTS_OVER_REUSED: usize = 80;
 
 /// Unit-cube distance by which node cubes are grown and start distances shrunk: far above the
 /// f32 rounding of traversal (~2⁻²³) and its touching tolerance (2⁻²⁰), so a voxel that the

@@ -699,11 +699,8 @@ pub fn render_lit(
     let shadow_cone = relative_cone.as_ref().map(|c| c as &ShadowCone);
     // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
     // answers as one by one); kept hits whose colour turns out not to be kept ask later.
-    // With beams switched on (through the BVH too) up to the beams' instance limit: packets
-    // lost time past it (docs/benchmarks.md, step 70).
-    let packets = (plan.beams || plan.bvh_beams) && prepared.len() <= super::beam::MAX_INSTANCES;
     let sun_rays = match lights.sun {
-        Some(sun) if plan.shadows && packets => {
+        Some(sun) if plan.shadows && plan.beams && prepared.len() <= super::beam::MAX_INSTANCES => {
             // (A kept colour's record is not read: most of the frame's records stay untouched.)
             let needs = |x: usize, y: usize| {
                 !kept_colour(x, y) && {

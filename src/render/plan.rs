@@ -174,11 +174,7 @@ impl FramePlan {
             (true, false) => "shadows: off (no sun, no sampled emitter)".into(),
             _ => "shadows: on".into(),
         });
-        // Past the BVH's threshold a crowd's per-pixel sphere lists cost less than beams,
-        // unless the hit buffer keeps most pixels (then only the pixels that moved spheres
-        // cross are traced, yet the lists still project every moved sphere).
-        let lists_instead = bvh && (!hit_buffer || n > super::beam::LISTS_OVER_REUSED);
-        let beams = features.beams && n <= super::beam::MAX_INSTANCES && !lists_instead;
+        let beams = features.beams && n <= super::beam::MAX_INSTANCES;
         let bvh_beams = features.beams && bvh && !beams;
         reasons.push(if !features.beams {
             "beams: off (switched off)".into()
@@ -188,15 +184,9 @@ impl FramePlan {
                 super::beam::TILE
             )
         } else if bvh_beams {
-            let why = if n > super::beam::MAX_INSTANCES {
-                format!("{n} instances > {}", super::beam::MAX_INSTANCES)
-            } else if hit_buffer {
-                format!("{n} instances > {} with the hit buffer", super::beam::LISTS_OVER_REUSED)
-            } else {
-                format!("{n} instances with the BVH, every pixel traced")
-            };
             format!(
-                "beams: per-pixel sphere lists ({why}: each sphere projected onto the pixels whose rays it meets, a ray searches only its own; through the BVH where they overlap more than {} deep: a {1}×{1} tile whose rays' pyramid meets no instance stores misses untraced)",
+                "beams: per-pixel sphere lists ({n} instances > {}: each sphere projected onto the pixels whose rays it meets, a ray searches only its own; through the BVH where they overlap more than {} deep: a {2}×{2} tile whose rays' pyramid meets no instance stores misses untraced)",
+                super::beam::MAX_INSTANCES,
                 super::pixel_spheres::MAX_PER_PIXEL,
                 super::beam::TILE
             )
