@@ -30,7 +30,8 @@ pub struct Primary<'a> {
     /// crowds, where `beams` is off): their rays miss without a search.
     pub bvh_beams: bool,
     /// Per pixel, the instances whose sphere its ray meets ([`PixelSpheres`]): when given
-    /// (and `beams` is off), [`Todo::All`] pixels search their list instead of the BVH.
+    /// (and `beams` is off), [`Todo::All`] pixels search their list instead of the BVH, and
+    /// [`Todo::Moved`] pixels the moved instances of their list.
     pub lists: Option<&'a PixelSpheres>,
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.

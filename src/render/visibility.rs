@@ -341,18 +341,22 @@ pub fn nearest_listed_moved(
     work: &mut Work,
 ) -> Option<InstanceHit> {
     let mut beat = Beating::new(t, instance);
-    let mut listed_moved = 0;
-    for &(entry, i) in listed {
-        if moved.get(i as usize / 64).is_none_or(|w| w >> (i % 64) & 1 == 0) {
+    let is_moved = |i: u32| moved.get(i as usize / 64).is_some_and(|w| w >> (i % 64) & 1 == 1);
+    // The moved instances whose sphere the ray meets (the others count as culled).
+    let mut met = 0;
+    for (j, &(entry, i)) in listed.iter().enumerate() {
+        if !is_moved(i) {
             continue;
         }
-        listed_moved += 1;
         if entry > beat.t_max(opts) as f64 {
-            break; // every later sphere starts beyond the nearest hit
+            // Every later sphere starts beyond the nearest hit.
+            met += listed[j..].iter().filter(|&&(_, i)| is_moved(i)).count();
+            break;
         }
+        met += 1;
         beat.trace(fi, i as usize, o, d, opts, work);
     }
-    work.culled += moved_count.saturating_sub(listed_moved) as u64;
+    work.culled += moved_count.saturating_sub(met) as u64;
     beat.best
 }
 
