@@ -104,6 +104,7 @@ fn car_primary_rays(c: &mut Criterion) {
                 bvh_beams: false,
                 lists: None,
                 moved: &[],
+                moved_flags: &[],
                 missed_before: &[],
             };
             let name = format!("{}_{threads}_threads", if beams { "beams_packets" } else { "no_beams_one_by_one" });

@@ -79,6 +79,7 @@ fn main() -> Result<(), voxray::Error> {
                 bvh_beams: false,
                 lists: None,
                 moved: &[],
+                moved_flags: &[],
                 missed_before: &[],
             };
             let mut t_hit = vec![f32::INFINITY; (camera.width * camera.height) as usize];

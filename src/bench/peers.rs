@@ -164,6 +164,7 @@ pub fn run(scene: &PeerScene<'_>, progress: &mut dyn FnMut(&str)) -> Result<Vec<
                 bvh_beams: false,
                 lists: None,
                 moved: &[],
+                moved_flags: &[],
                 missed_before: &[],
             };
             let mut t_hit = vec![f32::INFINITY; (view.camera.width * view.camera.height) as usize];

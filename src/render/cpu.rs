@@ -556,6 +556,7 @@ pub fn render_lit(
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are decided first, so a tile that reuses all traces nothing.
     let moved = reuse.as_ref().map_or(&[][..], |r| r.moved_search());
+    let moved_flags = reuse.as_ref().filter(|_| !moved.is_empty()).map_or(&[][..], |r| &r.moved[..]);
     let primary = Primary {
         lists: lists.as_ref(),
         instances: fi,
@@ -565,6 +566,7 @@ pub fn render_lit(
         beams: plan.beams,
         bvh_beams: plan.bvh_beams,
         moved,
+        moved_flags,
         missed_before: &records_missed,
     };
     // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).

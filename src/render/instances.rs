@@ -298,22 +298,33 @@ fn refill_listed<F: Fn(usize, &mut Prepared, Option<&mut (DVec3, f64)>) + Sync>(
     if ids.len() >= 1024 {
         use rayon::prelude::*;
         const CHUNK: usize = 512;
-        let mut pieces = Vec::with_capacity(ids.len().div_ceil(CHUNK));
-        let (mut slots, mut rest, mut offset) = (out, spheres, 0usize);
-        for chunk in ids.chunks(CHUNK) {
-            // Up to the chunk's last instance (clamped: the ids are the scene's, the slots
-            // as many as its instances).
-            let end = chunk.last().map_or(offset, |&l| l as usize + 1).clamp(offset, offset + slots.len());
-            let (a, b) = std::mem::take(&mut slots).split_at_mut(end - offset);
-            let split = (end - offset).min(rest.len());
-            let (c, d) = std::mem::take(&mut rest).split_at_mut(split);
-            pieces.push((chunk, offset, a, c));
-            (slots, rest, offset) = (b, d, end);
-        }
-        pieces.into_par_iter().for_each(|(chunk, first, a, c)| run(chunk, first, a, c));
+        // (The spheres are as many as the slots, or none: their stretches start where the
+        // slots' do, or are all empty.)
+        let pieces: Vec<_> = stretches(ids, CHUNK, out).into_iter().zip(stretches(ids, CHUNK, spheres)).collect();
+        pieces.into_par_iter().for_each(|((chunk, first, a), (_, _, c))| run(chunk, first, a, c));
         return;
     }
     run(ids, 0, out, spheres);
+}
+
+/// `items` (one per instance) split among the chunks of `ids` (ascending instances, `chunk`
+/// at a time) so that each owns the stretch from the end of the one before up to its own
+/// last instance (clamped to `items`): each chunk with its first slot's instance and its
+/// stretch. Parallel chunks can then write their instances' items.
+pub(super) fn stretches<'a, T>(
+    ids: &'a [u32],
+    chunk: usize,
+    items: &'a mut [T],
+) -> Vec<(&'a [u32], usize, &'a mut [T])> {
+    let mut pieces = Vec::with_capacity(ids.len().div_ceil(chunk.max(1)));
+    let (mut rest, mut offset) = (items, 0usize);
+    for ids in ids.chunks(chunk.max(1)) {
+        let end = ids.last().map_or(offset, |&l| l as usize + 1).clamp(offset, offset + rest.len());
+        let (mine, tail) = std::mem::take(&mut rest).split_at_mut(end - offset);
+        pieces.push((ids, offset, mine));
+        (rest, offset) = (tail, end);
+    }
+    pieces
 }
 
 /// How far a box's farthest corner lies from its centre once mapped by `m`, for half

@@ -143,14 +143,7 @@ impl PixelSpheres {
                 // frame's copy while it is in the cache: (findings, which, tested) per chunk,
                 // in instance order. Each chunk's ascending instances own the stretch of the
                 // copy up to the next chunk's first.
-                let mut pieces = Vec::with_capacity(moved.len().div_ceil(MOVED_CHUNK));
-                let (mut rest, mut offset) = (&mut kept.spheres[..], 0usize);
-                for ids in moved.chunks(MOVED_CHUNK) {
-                    let end = ids.last().map_or(offset, |&l| l as usize + 1).clamp(offset, offset + rest.len());
-                    let (mine, tail) = std::mem::take(&mut rest).split_at_mut(end - offset);
-                    pieces.push((ids, offset, mine));
-                    (rest, offset) = (tail, end);
-                }
+                let pieces = super::instances::stretches(moved, MOVED_CHUNK, &mut kept.spheres[..]);
                 let each =
                     |(ids, offset, copy): (&[u32], usize, &mut [(DVec3, f64)])| -> Option<(Found, Vec<u32>, u64)> {
                         let (mut found, mut again, mut tested) = (Vec::new(), Vec::new(), 0u64);

@@ -36,6 +36,9 @@ pub struct Primary<'a> {
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
     pub moved: &'a [u32],
+    /// Per instance, whether it is one of `moved` (or empty): with `lists`, a
+    /// [`Todo::Moved`] pixel then traces the moved instances of its own list.
+    pub moved_flags: &'a [bool],
     /// Per tile (as [`Traced::stored`]), the pixels whose item already holds a miss (last
     /// frame's [`Traced::missed`]): such a miss is not stored again.
     pub missed_before: &'a [u64],
@@ -99,17 +102,8 @@ pub fn trace_tiles<T: Send, S>(
     let basis = p.camera.basis();
     // Lists made for another camera are not this frame's: its rays walk the BVH.
     let lists = p.lists.filter(|l| l.is_for(p.camera));
-    // With lists, the moved instances as bits (instance i: bit i % 64 of word i / 64), so a
-    // [`Todo::Moved`] pixel traces the moved instances of its own list.
-    let moved_bits = lists.filter(|_| !p.moved.is_empty()).map(|_| {
-        let mut bits = vec![0u64; p.instances.prepared.len().div_ceil(64)];
-        for &i in p.moved {
-            if let Some(w) = bits.get_mut(i as usize / 64) {
-                *w |= 1 << (i % 64);
-            }
-        }
-        bits
-    });
+    // Flags for every instance, or the moved ones are searched one by one.
+    let moved_flags = (p.moved_flags.len() == p.instances.prepared.len()).then_some(p.moved_flags);
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let moved_only = AtomicU64::new(0);
     let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| {
@@ -282,8 +276,8 @@ pub fn trace_tiles<T: Send, S>(
             }
             for k in each(partial) {
                 let (t, instance) = bounds[k];
-                let found = match (lists, &moved_bits) {
-                    (Some(lists), Some(bits)) => {
+                let found = match (lists, moved_flags) {
+                    (Some(lists), Some(flags)) => {
                         let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
                         if listed.is_empty() {
                             // No moved sphere meets the ray: the stored hit stands.
@@ -296,7 +290,7 @@ pub fn trace_tiles<T: Send, S>(
                             DVec3::ZERO,
                             d,
                             listed,
-                            bits,
+                            flags,
                             p.moved.len(),
                             t,
                             instance,

@@ -323,7 +323,7 @@ pub fn nearest_listed(
 }
 
 /// [`nearest_moved`] through a pixel's sphere list ([`nearest_listed`]'s `listed`, nearest
-/// entry first): of the listed instances, only those `moved` marks (bit i of word i / 64)
+/// entry first): of the listed instances, only those `moved` marks (one flag per instance)
 /// are traced, nearest entry first, up to the nearer of the best hit and the bound `(t,
 /// instance)`. The list holds every instance whose sphere the ray meets, so this is the
 /// answer [`nearest_moved`] gives, without testing every moved instance's sphere.
@@ -333,7 +333,7 @@ pub fn nearest_listed_moved(
     o: DVec3,
     d: DVec3,
     listed: &[(f64, u32)],
-    moved: &[u64],
+    moved: &[bool],
     moved_count: usize,
     t: f32,
     instance: i32,
@@ -341,7 +341,7 @@ pub fn nearest_listed_moved(
     work: &mut Work,
 ) -> Option<InstanceHit> {
     let mut beat = Beating::new(t, instance);
-    let is_moved = |i: u32| moved.get(i as usize / 64).is_some_and(|w| w >> (i % 64) & 1 == 1);
+    let is_moved = |i: u32| moved.get(i as usize).copied().unwrap_or(false);
     // The moved instances whose sphere the ray meets (the others count as culled).
     let mut met = 0;
     for (j, &(entry, i)) in listed.iter().enumerate() {
