@@ -180,6 +180,16 @@ fn a_1024_volume_fits_sparse_and_bad_resolutions_are_refused() {
     assert_eq!(VolumeChoice::Auto.pick(128), Layout::Dense);
     assert_eq!(VolumeChoice::Auto.pick(256), Layout::Sparse);
     assert_eq!(VolumeChoice::Auto.pick(300), Layout::Dense);
+    // On the GPU the same, but a dense volume must fit one binding, and anisotropic levels
+    // keep it dense wherever it does.
+    let (big, small) = (4u64 << 30, 32u64 << 20);
+    assert_eq!(VolumeChoice::Auto.pick_on_gpu(128, big, false), Layout::Dense);
+    assert_eq!(VolumeChoice::Auto.pick_on_gpu(256, big, false), Layout::Sparse);
+    assert_eq!(VolumeChoice::Auto.pick_on_gpu(300, big, false), Layout::Dense);
+    assert_eq!(VolumeChoice::Auto.pick_on_gpu(128, small, false), Layout::Sparse);
+    assert_eq!(VolumeChoice::Auto.pick_on_gpu(256, big, true), Layout::Dense);
+    assert_eq!(VolumeChoice::Auto.pick_on_gpu(256, small, true), Layout::Sparse);
+    assert_eq!(VolumeChoice::Dense.pick_on_gpu(256, small, false), Layout::Dense);
     assert!(GiSettings { res: 1024, ..GiSettings::default() }.validated().is_ok());
     assert!(GiSettings { res: 1000, ..GiSettings::default() }.validated().is_ok());
     let e = GiSettings { res: 1001, ..GiSettings::default() }.validated().unwrap_err().to_string();

@@ -386,14 +386,20 @@ fn gpu_gi_stays_finite_for_extreme_knobs_and_skips_without_lights() {
         GiSettings { anisotropic: true, levels: voxray::gi::shade::LevelStore::Texture, ..Default::default() };
     let e = gpu.set_gi(Some(aniso_texture)).unwrap_err().to_string();
     assert!(e.contains("level buffer only"), "{e}");
-    // `auto` stays dense on the GPU (no readback) while this device can bind a dense volume's
-    // cells and up to 512³, sparse past it; a sparse volume needs a multiple of 8 cells per side.
+    // `auto` on the GPU is the CPU's choice (dense up to 128³, sparse above) where this device
+    // can bind a dense volume's cells, sparse where it cannot; anisotropic levels keep it dense
+    // wherever it fits. A sparse volume needs a multiple of 8 cells per side.
     let limit = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);
+    let fits = |res: u32| (res as u64).pow(3) * 40 + 4 <= limit;
     for res in [64, 256] {
         gpu.set_gi(Some(GiSettings { res, ..Default::default() })).unwrap();
-        let fits = (res as u64).pow(3) * 40 + 4 <= limit;
-        let want = if fits { voxray::gi::Layout::Dense } else { voxray::gi::Layout::Sparse };
+        let want = if fits(res) && res <= 128 { voxray::gi::Layout::Dense } else { voxray::gi::Layout::Sparse };
         assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(want), "{res}³, binding limit {limit}");
+    }
+    let aniso = gpu.set_gi(Some(GiSettings { res: 256, anisotropic: true, ..Default::default() }));
+    match fits(256) {
+        true => assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Dense)),
+        false => assert!(aniso.is_err_and(|e| e.to_string().contains("anisotropic")), "binding limit {limit}"),
     }
     gpu.set_gi(Some(GiSettings { res: 1024, ..Default::default() })).unwrap();
     assert_eq!(gpu.gi_settings().map(|s| s.layout()), Some(voxray::gi::Layout::Sparse));

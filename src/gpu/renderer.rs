@@ -445,10 +445,10 @@ impl GpuRenderer {
                 .into());
             }
         }
-        // `auto` stays dense while this device can hold a dense volume (VolumeChoice::pick_dense_first).
+        // `auto` as on the CPU where this device can hold a dense volume (VolumeChoice::pick_on_gpu).
         let max_binding = self.ctx.limits.max_storage_buffer_binding_size.min(self.ctx.limits.max_buffer_size);
         let settings = settings.map(|s| crate::gi::GiSettings {
-            volume: match s.volume.pick_dense_first(s.res, max_binding) {
+            volume: match s.volume.pick_on_gpu(s.res, max_binding, s.anisotropic) {
                 crate::gi::Layout::Dense => crate::gi::shade::VolumeChoice::Dense,
                 crate::gi::Layout::Sparse => crate::gi::shade::VolumeChoice::Sparse,
             },
