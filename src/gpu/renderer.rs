@@ -1407,6 +1407,30 @@ mod tests {
     use crate::svo::Cube;
     use glam::DVec3;
 
+    /// The device, or None (with a note) where there is none outside CI.
+    fn context() -> Option<Arc<GpuContext>> {
+        match GpuContext::headless() {
+            Ok(c) => Some(Arc::new(c)),
+            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
+            Err(e) => {
+                eprintln!("skipping GPU test: {e}");
+                None
+            }
+        }
+    }
+
+    /// A camera in front of [`two_blocks`].
+    fn blocks_camera() -> Camera {
+        Camera {
+            eye: DVec3::new(0.0, 1.0, 6.0),
+            target: DVec3::new(0.0, 0.5, 0.0),
+            up: DVec3::Y,
+            vfov_deg: 50.0,
+            width: 64,
+            height: 40,
+        }
+    }
+
     /// A 4×4×4 block of voxels as a scene of two instances side by side.
     fn two_blocks() -> Scene {
         let coords: Vec<[u32; 3]> = (0..64).map(|i| [i % 4, i / 4 % 4, i / 16]).collect();
@@ -1426,20 +1450,9 @@ mod tests {
     /// failed frame's block.
     #[test]
     fn a_frame_failed_after_its_submit_is_not_reused() {
-        let ctx = match GpuContext::headless() {
-            Ok(c) => Arc::new(c),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
-            Err(e) => return eprintln!("skipping GPU test: {e}"),
-        };
+        let Some(ctx) = context() else { return };
         let mut scene = two_blocks();
-        let camera = Camera {
-            eye: DVec3::new(0.0, 1.0, 6.0),
-            target: DVec3::new(0.0, 0.5, 0.0),
-            up: DVec3::Y,
-            vfov_deg: 50.0,
-            width: 64,
-            height: 40,
-        };
+        let camera = blocks_camera();
         let lights = Lights::default();
         let opts = RenderOptions::default();
         let mut gpu = GpuRenderer::new(ctx.clone());
@@ -1467,20 +1480,9 @@ mod tests {
     /// that moves (everything refilled).
     #[test]
     fn instances_converted_where_they_changed_equal_fresh_ones() {
-        let ctx = match GpuContext::headless() {
-            Ok(c) => Arc::new(c),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
-            Err(e) => return eprintln!("skipping GPU test: {e}"),
-        };
+        let Some(ctx) = context() else { return };
         let mut scene = two_blocks();
-        let mut camera = Camera {
-            eye: DVec3::new(0.0, 1.0, 6.0),
-            target: DVec3::new(0.0, 0.5, 0.0),
-            up: DVec3::Y,
-            vfov_deg: 50.0,
-            width: 64,
-            height: 40,
-        };
+        let mut camera = blocks_camera();
         let lights = Lights::default();
         let opts = RenderOptions::default();
         let mut gpu = GpuRenderer::new(ctx);
@@ -1510,11 +1512,7 @@ mod tests {
     /// renders what a renderer that writes everything afresh renders.
     #[test]
     fn instances_written_where_they_changed_render_as_fresh_ones() {
-        let ctx = match GpuContext::headless() {
-            Ok(c) => Arc::new(c),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
-            Err(e) => return eprintln!("skipping GPU test: {e}"),
-        };
+        let Some(ctx) = context() else { return };
         let mut scene = two_blocks();
         let at = |i: usize, y: f64| Transform::from_translation(DVec3::new(i as f64 * 1.25 - 25.0, y, 0.0));
         for i in 2..40 {
