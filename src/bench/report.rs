@@ -111,6 +111,16 @@ fn ms(v: Option<f64>) -> String {
     v.map_or("–".into(), |x| format!("{x:.2}"))
 }
 
+/// A frame time: two decimals below 10 ms (a GPU frame of half a millisecond would read 0.5
+/// whether it took 0.45 or 0.54), one above.
+fn frame_ms(x: f64) -> String {
+    if x < 10.0 {
+        format!("{x:.2}")
+    } else {
+        format!("{x:.1}")
+    }
+}
+
 /// Bytes in the unit that keeps them readable (B, KiB or MiB).
 fn bytes(b: f64) -> String {
     if b < 1024.0 {
@@ -150,13 +160,13 @@ it pays, hit buffer) plus shadow rays. Frame time covers posing, transform updat
         for r in &rs {
             let base = rs.iter().find(|b| b.setting == "a" && b.backend_kind == r.backend_kind);
             md += &format!(
-                "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {} | {:.1}% | {:.2} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} | {:.1}% | {:.2} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} |\n",
                 r.name,
                 r.backend_kind,
                 r.instances,
-                r.median_ms,
-                r.p95_ms,
-                r.min_ms,
+                frame_ms(r.median_ms),
+                frame_ms(r.p95_ms),
+                frame_ms(r.min_ms),
                 base.map_or("–".into(), |b| format!("{:.2}", r.median_ms / b.median_ms.max(1e-9))),
                 100.0 * r.reused_fraction,
                 r.instances_per_ray,
@@ -179,11 +189,11 @@ waits for the frame, so the frame time is the whole frame's):\n\n";
             md += "| scenario | median ms | GPU passes ms | host ms | read back per frame | buffers created/frame |\n|---|---|---|---|---|---|\n";
             for r in gpu {
                 md += &format!(
-                    "| {} | {:.1} | {} | {} | {} | {:.2} |\n",
+                    "| {} | {} | {} | {} | {} | {:.2} |\n",
                     r.name,
-                    r.median_ms,
+                    frame_ms(r.median_ms),
                     match (r.gpu_trace_ms, r.gpu_shade_ms) {
-                        (Some(t), Some(s)) => format!("{:.1}", t + s),
+                        (Some(t), Some(s)) => frame_ms(t + s),
                         _ => "–".into(),
                     },
                     ms(r.gpu_host_ms),
@@ -212,13 +222,13 @@ sorted spheres time `--sweep-frames` after them.\n\n";
             // Issue 14's crowd goal: a crowd's frame over one car's, same backend and size.
             let one = rs.iter().find(|o| o.setting == "BVH" && o.x == 1.0 && o.backend_kind == r.backend_kind);
             md += &format!(
-                "| {} | {} | {} | {:.1} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
                 r.x,
                 r.instances,
                 r.backend_kind,
-                r.median_ms,
+                frame_ms(r.median_ms),
                 one.map_or("–".into(), |o| format!("{:.1}×", r.median_ms / o.median_ms.max(1e-9))),
-                other.map_or("–".into(), |o| format!("{:.1}", o.median_ms)),
+                other.map_or("–".into(), |o| frame_ms(o.median_ms)),
                 other.map_or("–".into(), |o| format!("{:.2}×", o.median_ms / r.median_ms.max(1e-9))),
             );
         }
@@ -232,11 +242,11 @@ sorted spheres time `--sweep-frames` after them.\n\n";
         md += "\n| size | backend | median ms | p95 ms | Mrays/s traced | reused | GPU trace ms | GPU shade ms |\n|---|---|---|---|---|---|---|---|\n";
         for r in &rs {
             md += &format!(
-                "| {} | {} | {:.1} | {:.1} | {:.2} | {:.1}% | {} | {} |\n",
+                "| {} | {} | {} | {} | {:.2} | {:.1}% | {} | {} |\n",
                 r.name,
                 r.backend_kind,
-                r.median_ms,
-                r.p95_ms,
+                frame_ms(r.median_ms),
+                frame_ms(r.p95_ms),
                 r.mrays_per_s,
                 100.0 * r.reused_fraction,
                 ms(r.gpu_trace_ms),
@@ -259,10 +269,10 @@ hit-distance error where both hit the same instance. No hit buffer, shadows on.\
             let full = rs.iter().find(|f| f.setting.contains("full") && f.backend_kind == r.backend_kind);
             let e = r.error.unwrap_or_default();
             md += &format!(
-                "| {} | {} | {:.1} | {} | {:.4} | {:.2}% | {:.2e} |\n",
+                "| {} | {} | {} | {} | {:.4} | {:.2}% | {:.2e} |\n",
                 r.setting,
                 r.backend_kind,
-                r.median_ms,
+                frame_ms(r.median_ms),
                 full.map_or("–".into(), |f| format!("{:.2}", r.median_ms / f.median_ms.max(1e-9))),
                 e.rmse,
                 100.0 * e.mismatch,
@@ -307,13 +317,13 @@ same image).\n\n";
                         && r.backend_kind == s.backend_kind
                 });
                 md += &format!(
-                    "| {} | {} | {} | {:.1} | {} | {} | {} | {} |\n",
+                    "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
                     what,
                     s.backend_kind,
-                    t.map_or("–".into(), |t| format!("{:.1}", t.median_ms)),
-                    s.median_ms,
+                    t.map_or("–".into(), |t| frame_ms(t.median_ms)),
+                    frame_ms(s.median_ms),
                     t.map_or("–".into(), |t| format!("{:.2}", s.median_ms / t.median_ms.max(1e-9))),
-                    quads.map_or("–".into(), |q| format!("{:.1}", q.median_ms)),
+                    quads.map_or("–".into(), |q| frame_ms(q.median_ms)),
                     flip(s),
                     mismatch(s)
                 );
@@ -600,9 +610,13 @@ mod tests {
         ];
         let md = markdown(&rs, &[]);
         assert!(md.contains("| 10000 | 80000 | cpu | 15.0 | 7.5× | – | – |"), "{md}");
-        assert!(md.contains("| 1 | 8 | cpu | 2.0 | 1.0× | 2.5 | 1.25× |"), "{md}");
+        // Below 10 ms, two decimals.
+        assert!(md.contains("| 1 | 8 | cpu | 2.00 | 1.0× | 2.50 | 1.25× |"), "{md}");
         // No one-car row on the GPU: no ratio.
         assert!(md.contains("| 10000 | 80000 | gpu | 40.0 | – | – | – |"), "{md}");
+        let sub_ms = [row("gpu", 1.0, "BVH", 0.454), row("gpu", 10.0, "BVH", 0.536)];
+        let md = markdown(&sub_ms, &[]);
+        assert!(md.contains("| 10 | 80 | gpu | 0.54 | 1.2× | – | – |"), "{md}");
     }
 
     #[test]
