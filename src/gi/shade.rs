@@ -202,17 +202,9 @@ impl VolumeChoice {
     pub fn pick_on_gpu(self, res: u32, max_binding: u64, anisotropic: bool) -> Layout {
         let dense_fits = res <= Layout::Dense.max_res()
             && super::sparse::SparseVolume::dense_bytes(res).saturating_add(4) <= max_binding;
-        let bricks = res % super::sparse::BRICK == 0;
         match self {
-            VolumeChoice::Auto if !bricks => Layout::Dense,
-            VolumeChoice::Auto if anisotropic => {
-                if dense_fits {
-                    Layout::Dense
-                } else {
-                    Layout::Sparse
-                }
-            }
-            VolumeChoice::Auto if dense_fits && res <= SPARSE_ABOVE => Layout::Dense,
+            VolumeChoice::Auto if res % super::sparse::BRICK != 0 => Layout::Dense,
+            VolumeChoice::Auto if dense_fits && (anisotropic || res <= SPARSE_ABOVE) => Layout::Dense,
             VolumeChoice::Auto => Layout::Sparse,
             other => other.pick(res),
         }

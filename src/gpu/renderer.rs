@@ -867,11 +867,12 @@ impl GpuRenderer {
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         // The instance buffer holds last frame's instances (a frame that failed dropped its
         // own, so the next converts and writes them all): only the rewritten ones are sent.
-        let mut replaced = ensure(&ctx, &mut kept.insts, "instances", nonempty(&insts).len() as u64, false, storage);
+        let inst_bytes = nonempty(&insts);
+        let mut replaced = ensure(&ctx, &mut kept.insts, "instances", inst_bytes.len() as u64, false, storage);
         if let Some(buf) = kept.insts.as_ref() {
             match rewritten.as_deref() {
                 Some(ids) if !replaced && !insts.is_empty() => write_runs(&ctx, buf, &insts, ids),
-                _ => ctx.queue.write_buffer(buf, 0, &nonempty(&insts)),
+                _ => ctx.queue.write_buffer(buf, 0, &inst_bytes),
             }
         }
         let inputs: [Input<'_>; 9] = [
