@@ -7,10 +7,12 @@
 //!
 //! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::SeenCars::pose`]), as the
 //! harness does, and also printed are the cars tested against the frame's rays (a car found
-//! clear of them is let go untested while its motion cannot bring it near one); a third
-//! argument `all` poses every car.
+//! clear of them is let go untested while its motion cannot bring it near one); a further
+//! argument `all` poses every car, and `gpu` renders on the GPU backend (read back only its
+//! statistics, as the harness does; its pass times are printed too).
 //!
-//! `cargo run --release --example crowd [-- CARS [FRAMES [all]]]` (default 10 000 cars, 20 frames).
+//! `cargo run --release --example crowd [-- CARS [FRAMES [all] [gpu]]]` (default 10 000 cars,
+//! 20 frames).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -34,11 +36,20 @@ fn main() -> Result<(), voxray::Error> {
     let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
     // Frames go through a CPU session, as the harness renders them: each frame's memory is
     // the last one's, refilled.
-    let mut session = Session::new(voxray::backend::Backend::Cpu(Box::default()), "CPU".into());
-    let all = std::env::args().nth(3).is_some_and(|a| a == "all");
+    let flag = |name: &str| std::env::args().skip(3).any(|a| a == name);
+    let (all, gpu) = (flag("all"), flag("gpu"));
+    let (backend, name) = voxray::backend::Backend::open(if gpu {
+        voxray::backend::BackendKind::Gpu
+    } else {
+        voxray::backend::BackendKind::Cpu
+    })?;
+    let mut session = Session::new(backend, name.clone());
+    // The harness's GPU frames stay on the GPU: only the statistics come back.
+    session.set_counting(gpu);
+    session.set_read_back(!gpu);
     let rays = voxray::scene::FrameRays::of(&st.scene, &features, false, &RenderOptions::default());
     let sight = voxray::scene::Sight::new(&camera, &lights, rays, st.surfaces(u32::MAX)?).ok().filter(|_| !all);
-    let (mut posed, mut tested) = (Vec::new(), Vec::new());
+    let (mut posed, mut tested, mut passes) = (Vec::new(), Vec::new(), Vec::new());
     let mut times: [Vec<f64>; 4] = Default::default();
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
@@ -53,6 +64,9 @@ fn main() -> Result<(), voxray::Error> {
         if f >= 2 {
             posed.push(n as f64);
             tested.push(st.cars_tested() as f64);
+            if let Some((trace, shade)) = session.backend().pass_times() {
+                passes.push(trace + shade);
+            }
             for (v, d) in times.iter_mut().zip([t1 - t0, t2 - t1, t3 - t2, t3 - t0]) {
                 v.push(d.as_secs_f64() * 1e3);
             }
@@ -74,5 +88,8 @@ fn main() -> Result<(), voxray::Error> {
         median(&mut posed),
         median(&mut tested)
     );
+    if !passes.is_empty() {
+        println!("{name}: GPU passes {:.2} ms (trace and shade, timestamps)", median(&mut passes));
+    }
     Ok(())
 }

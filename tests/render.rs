@@ -316,7 +316,7 @@ fn a_recycled_frame_renders_like_a_fresh_one() {
 #[test]
 fn eye_inside_matches_the_voxel_set() {
     use std::collections::HashSet;
-    use voxray::render::instances::{eye_inside, prepare};
+    use voxray::render::instances::{eye_inside, eye_inside_listed, prepare};
     use voxray::svo::Cube;
     use voxray::voxelize::VoxelGrid;
     let mut rng = voxray::rng::Rng::new(11);
@@ -345,8 +345,11 @@ fn eye_inside_matches_the_voxel_set() {
                 assert_eq!(svo.contains(unit), set.contains(&c), "{c:?}");
                 let obj = cube.min.as_dvec3() + DVec3::new(x as f64, y as f64, z as f64) * size + size * 0.5;
                 let world = w.transform_point3(obj);
-                let found = eye_inside(&scene.parts, &prepare(&scene, world, true));
+                let prepared = prepare(&scene, world, true);
+                let found = eye_inside(&scene.parts, &prepared);
                 assert_eq!(found, set.contains(&c), "{c:?} at {world}");
+                let spheres: Vec<_> = prepared.iter().map(|p| (p.centre, p.radius)).collect();
+                assert_eq!(eye_inside_listed(&scene.parts, &prepared, &spheres), found, "{c:?}, listed");
                 inside += set.contains(&c) as u32;
             }
         }

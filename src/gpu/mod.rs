@@ -8,6 +8,7 @@ pub mod layout;
 pub mod prelude;
 pub mod rays;
 pub mod renderer;
+mod scatter;
 mod splat;
 
 pub use context::{GpuContext, GpuError};

@@ -193,6 +193,14 @@ pub struct GpuRenderer {
     /// 1.5 ms a frame to convert afresh).
     insts: Vec<GpuInstance>,
     inst_moved: Vec<bool>,
+    /// The passes that put the rewritten instances and BVH nodes in place (made on first
+    /// use; each has its own upload buffers, as both are written before the frame runs).
+    scatter_insts: Option<super::scatter::ScatterRows>,
+    scatter_bvh: Option<super::scatter::ScatterRows>,
+    /// Last frame's instance BVH as uploaded (the tree in `state`), and scratch for the
+    /// nodes a refit recomputed.
+    bvh_nodes: Vec<GpuBvhNode>,
+    bvh_dirty: Vec<u32>,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -229,23 +237,25 @@ pub(crate) fn plan_pipeline(
 /// A BVH's nodes as the shaders walk them: each box grown by more than the f32 slab test
 /// can lose, as the spheres are.
 fn gpu_bvh_nodes(b: &crate::render::bvh::Bvh) -> Vec<GpuBvhNode> {
-    let node = |nd: &crate::render::bvh::Node| {
-        let slack = glam::DVec3::splat(1e-6 * nd.lo.abs().max(nd.hi.abs()).max_element());
-        let (lo, hi) = (nd.lo - slack, nd.hi + slack);
-        GpuBvhNode {
-            lo: [lo.x as f32, lo.y as f32, lo.z as f32, f32::from_bits(nd.first)],
-            hi: [hi.x as f32, hi.y as f32, hi.z as f32, f32::from_bits(nd.count)],
-        }
-    };
-    // A crowd's tree has 160 000 nodes, converted every frame.
+    // A crowd's tree has 160 000 nodes.
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;
-        b.nodes.par_iter().with_min_len(4096).map(node).collect()
+        b.nodes.par_iter().with_min_len(4096).map(gpu_bvh_node).collect()
     }
     #[cfg(not(feature = "parallel"))]
     {
-        b.nodes.iter().map(node).collect()
+        b.nodes.iter().map(gpu_bvh_node).collect()
+    }
+}
+
+/// One node of [`gpu_bvh_nodes`].
+fn gpu_bvh_node(nd: &crate::render::bvh::Node) -> GpuBvhNode {
+    let slack = glam::DVec3::splat(1e-6 * nd.lo.abs().max(nd.hi.abs()).max_element());
+    let (lo, hi) = (nd.lo - slack, nd.hi + slack);
+    GpuBvhNode {
+        lo: [lo.x as f32, lo.y as f32, lo.z as f32, f32::from_bits(nd.first)],
+        hi: [hi.x as f32, hi.y as f32, hi.z as f32, f32::from_bits(nd.count)],
     }
 }
 
@@ -345,6 +355,10 @@ impl GpuRenderer {
             splat: None,
             insts: Vec::new(),
             inst_moved: Vec::new(),
+            scatter_insts: None,
+            scatter_bvh: None,
+            bvh_nodes: Vec::new(),
+            bvh_dirty: Vec::new(),
         }
         .with_device_limit()
     }
@@ -730,8 +744,30 @@ impl GpuRenderer {
         // cars tested 4 800 spheres per pixel); no bins: every sphere.
         let (moved_tiles_x, moved_bins) =
             reuse.as_ref().and_then(|r| r.tile_bins()).map_or((0, &[][..]), |(tx, bins)| (tx as u32, bins));
-        let bvh = plan.bvh.then(|| self.state.take_bvh_of(&spheres));
-        let bvh_nodes: Vec<GpuBvhNode> = bvh.as_ref().map_or(Vec::new(), gpu_bvh_nodes);
+        // The instance BVH refitted above the instances refilled (when only they changed
+        // since it was last fitted: it is last frame's or none), and only its recomputed
+        // nodes converted; a new or wholly refitted tree is converted whole. It has no wide
+        // tree: the GPU walks its own copy.
+        let mut bvh_dirty = std::mem::take(&mut self.bvh_dirty);
+        let mut bvh_nodes = std::mem::take(&mut self.bvh_nodes);
+        let bvh = plan.bvh.then(|| self.state.take_bvh_changed(&spheres, refilled.as_deref(), &mut bvh_dirty, false));
+        let bvh_whole = match &bvh {
+            Some((b, false)) if bvh_nodes.len() == b.nodes.len() => {
+                for &n in &bvh_dirty {
+                    bvh_nodes[n as usize] = gpu_bvh_node(&b.nodes[n as usize]);
+                }
+                false
+            }
+            Some((b, _)) => {
+                bvh_nodes = gpu_bvh_nodes(b);
+                true
+            }
+            None => {
+                bvh_nodes.clear();
+                true
+            }
+        };
+        let bvh = bvh.map(|(b, _)| b);
         let items: &[u32] = bvh.as_ref().map_or(&[], |b| &b.items);
         let emitter_samples = lights.emitter_sampling();
         let emitters = if emitter_samples > 0 { gpu_emitters(scene, camera.eye) } else { Vec::new() };
@@ -869,21 +905,37 @@ impl GpuRenderer {
         // own, so the next converts and writes them all): only the rewritten ones are sent.
         let inst_bytes = nonempty(&insts);
         let mut replaced = ensure(&ctx, &mut kept.insts, "instances", inst_bytes.len() as u64, false, storage);
-        if let Some(buf) = kept.insts.as_ref() {
-            match rewritten.as_deref() {
-                Some(ids) if !replaced && !insts.is_empty() => write_runs(&ctx, buf, &insts, ids),
-                _ => ctx.queue.write_buffer(buf, 0, &inst_bytes),
-            }
+        // Up to half of them rewritten, the rewritten ones are scattered into place by a pass
+        // (below, once there is an encoder); otherwise all are written.
+        let scattered =
+            rewritten.as_deref().filter(|ids| !replaced && !insts.is_empty() && ids.len() * 2 <= insts.len());
+        if let (Some(buf), None) = (kept.insts.as_ref(), scattered) {
+            ctx.queue.write_buffer(buf, 0, &inst_bytes);
         }
-        let inputs: [Input<'_>; 9] = [
+        // Likewise the BVH: its recomputed nodes scattered into place, its items written
+        // only with a new tree.
+        let nodes_bytes = nonempty(&bvh_nodes);
+        let bvh_replaced = ensure(&ctx, &mut kept.bvh, "bvh", nodes_bytes.len() as u64, false, storage);
+        let bvh_scattered = Some(&bvh_dirty[..])
+            .filter(|d| !bvh_whole && !bvh_replaced && !d.is_empty() && d.len() * 2 <= bvh_nodes.len());
+        if let (Some(buf), None, true) =
+            (kept.bvh.as_ref(), bvh_scattered, bvh_whole || bvh_replaced || !bvh_dirty.is_empty())
+        {
+            ctx.queue.write_buffer(buf, 0, &nodes_bytes);
+        }
+        let items_bytes = nonempty(items);
+        let items_replaced = ensure(&ctx, &mut kept.items, "bvh items", items_bytes.len() as u64, false, storage);
+        if let (Some(buf), true) = (kept.items.as_ref(), bvh_whole || items_replaced) {
+            ctx.queue.write_buffer(buf, 0, &items_bytes);
+        }
+        replaced |= bvh_replaced | items_replaced;
+        let inputs: [Input<'_>; 7] = [
             (
                 &mut kept.frame,
                 "frame",
                 std::borrow::Cow::Borrowed(bytemuck::bytes_of(&frame)),
                 wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             ),
-            (&mut kept.bvh, "bvh", nonempty(&bvh_nodes), storage),
-            (&mut kept.items, "bvh items", nonempty(items), storage),
             (&mut kept.moved, "moved", nonempty(&moved), storage),
             (&mut kept.moved_bins, "moved bins", nonempty(moved_bins), storage),
             (&mut kept.moved_bvh, "moved bvh", nonempty(&moved_bvh_nodes), storage),
@@ -1013,6 +1065,14 @@ impl GpuRenderer {
             })
         };
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        if let Some(ids) = scattered {
+            let scatter = self.scatter_insts.get_or_insert_with(|| super::scatter::ScatterRows::new(&ctx));
+            scatter.encode(&ctx, &mut enc, inst_buf, &insts, ids);
+        }
+        if let Some(ids) = bvh_scattered {
+            let scatter = self.scatter_bvh.get_or_insert_with(|| super::scatter::ScatterRows::new(&ctx));
+            scatter.encode(&ctx, &mut enc, bvh_buf, &bvh_nodes, ids);
+        }
         if counting {
             enc.clear_buffer(stats_buf, 0, None);
         }
@@ -1141,9 +1201,12 @@ impl GpuRenderer {
                 _ => None,
             };
             self.state.reused = 0;
-            self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
-            if splatting {
-                // Nothing to keep: a later traced frame starts afresh.
+            if plan.keep_hits && !splatting {
+                self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
+            } else {
+                // Nothing to keep (splatted records are not the ray tracer's, or the hit
+                // buffer is off: a crowd's copy of every world transform cost 2 ms a frame):
+                // a later frame with reuse starts afresh.
                 self.state.camera = None;
             }
             self.state.bvh = bvh;
@@ -1151,8 +1214,9 @@ impl GpuRenderer {
                 buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes) + splat_work.as_ref().map_or(0, |s| s.bytes);
             let now = self.ctx.traffic();
             self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
-            self.eye_inside = crate::render::instances::eye_inside(&scene.parts, &prepared);
+            self.eye_inside = crate::render::instances::eye_inside_listed(&scene.parts, &prepared, &spheres);
             self.keep_instances(prepared, spheres, insts, inst_moved);
+            (self.bvh_nodes, self.bvh_dirty) = (bvh_nodes, bvh_dirty);
             let st = self.stats.unwrap_or_default();
             return Ok(Frame {
                 width: w,
@@ -1232,9 +1296,10 @@ impl GpuRenderer {
             cache_stages: None,
         };
         self.state.reused = f.reused;
-        self.state.store(camera, scene, &prepared, records, opts.max_level);
-        if splatting {
-            // Nothing to keep: a later traced frame starts afresh.
+        if plan.keep_hits && !splatting {
+            self.state.store(camera, scene, &prepared, records, opts.max_level);
+        } else {
+            // Nothing to keep: a later frame with reuse starts afresh.
             self.state.camera = None;
         }
         self.state.bvh = bvh;
@@ -1243,6 +1308,7 @@ impl GpuRenderer {
         let now = self.ctx.traffic();
         self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
         self.keep_instances(prepared, spheres, insts, inst_moved);
+        (self.bvh_nodes, self.bvh_dirty) = (bvh_nodes, bvh_dirty);
         Ok(f)
     }
 
@@ -1264,35 +1330,6 @@ impl GpuRenderer {
 
 /// A buffer the frame writes: its slot, label, bytes and usage.
 type Input<'a> = (&'a mut Option<wgpu::Buffer>, &'static str, std::borrow::Cow<'a, [u8]>, wgpu::BufferUsages);
-
-/// Writes the instances `ids` (ascending) into `buf`, which holds the rest already: runs of
-/// ids close together go as one write, and past a quarter of the instances everything does
-/// (each write is a staging copy and a command of its own).
-fn write_runs(ctx: &GpuContext, buf: &wgpu::Buffer, insts: &[GpuInstance], ids: &[u32]) {
-    // Rewriting this many unchanged instances costs less than another write.
-    const GAP: usize = 32;
-    if ids.len() * 4 > insts.len() {
-        ctx.queue.write_buffer(buf, 0, bytemuck::cast_slice(insts));
-        return;
-    }
-    let size = std::mem::size_of::<GpuInstance>();
-    let mut k = 0;
-    while let Some(&first) = ids.get(k) {
-        let first = first as usize;
-        let mut last = first;
-        k += 1;
-        while let Some(&next) = ids.get(k) {
-            if next as usize > last + GAP {
-                break;
-            }
-            last = next as usize;
-            k += 1;
-        }
-        if let Some(run) = insts.get(first..=last) {
-            ctx.queue.write_buffer(buf, (first * size) as u64, bytemuck::cast_slice(run));
-        }
-    }
-}
 
 /// Every instance converted for upload, in parallel where the build has threads.
 fn fresh_instances(
@@ -1509,8 +1546,9 @@ mod tests {
     }
 
     /// With few of many instances changed, only theirs are written to the GPU's instance
-    /// buffer: a row of 40 blocks where one or two move a frame (apart, and side by side)
-    /// renders what a renderer that writes everything afresh renders.
+    /// buffer, and only the BVH nodes above them refitted and written (both scattered into
+    /// place by a pass): a row of 40 blocks where one or two move a frame (apart, and side by
+    /// side) renders what a renderer that writes everything afresh renders.
     #[test]
     fn instances_written_where_they_changed_render_as_fresh_ones() {
         let Some(ctx) = context() else { return };

@@ -295,6 +295,24 @@ impl HitBuffer {
         bvh
     }
 
+    /// [`HitBuffer::take_bvh_of`] knowing which instances changed since the kept tree was last
+    /// fitted (None: any may have): [`super::bvh::Bvh::refit_changed_or_build`], which fills
+    /// `dirty` with the nodes recomputed; returns the tree and whether all of it is new.
+    /// Without `wide`, the tree has no wide tree (for a tree walked only elsewhere).
+    pub fn take_bvh_changed(
+        &mut self,
+        spheres: &[(DVec3, f64)],
+        changed: Option<&[u32]>,
+        dirty: &mut Vec<u32>,
+        wide: bool,
+    ) -> (super::bvh::Bvh, bool) {
+        let (bvh, whole) = super::bvh::Bvh::refit_changed_or_build(self.bvh.take(), spheres, changed, dirty, wide);
+        if bvh.refits == 0 {
+            self.bvh_builds += 1;
+        }
+        (bvh, whole)
+    }
+
     /// Hands a frame the caller is done with back to the renderer: the next frame of the same
     /// size is written into its buffers instead of fresh memory.
     pub fn recycle(&mut self, frame: super::cpu::Frame) {

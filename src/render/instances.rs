@@ -346,9 +346,22 @@ pub fn farthest_corner(m: &DMat3, e: DVec3) -> f64 {
 /// [`super::Frame::eye_inside_fraction`] measures the same from the pixels. Only instances
 /// whose bounding sphere holds the eye are looked up.
 pub fn eye_inside(parts: &[std::sync::Arc<crate::svo::Svo>], prepared: &[Prepared]) -> bool {
-    prepared.iter().any(|p| {
-        p.centre.length() <= p.radius && parts.get(p.part).is_some_and(|svo| svo.contains(p.to_unit.point(DVec3::ZERO)))
-    })
+    prepared.iter().any(|p| p.centre.length() <= p.radius && holds_eye(parts, p))
+}
+
+/// [`eye_inside`] with the instances' spheres listed apart (as [`prepare_changed`] keeps
+/// them): a crowd's 80 000 spheres are read, not its 12 MB of prepared instances.
+pub fn eye_inside_listed(
+    parts: &[std::sync::Arc<crate::svo::Svo>],
+    prepared: &[Prepared],
+    spheres: &[(DVec3, f64)],
+) -> bool {
+    spheres.iter().zip(prepared).any(|(&(c, r), p)| c.length() <= r && holds_eye(parts, p))
+}
+
+/// Whether a voxel of `p`'s part holds the eye.
+fn holds_eye(parts: &[std::sync::Arc<crate::svo::Svo>], p: &Prepared) -> bool {
+    parts.get(p.part).is_some_and(|svo| svo.contains(p.to_unit.point(DVec3::ZERO)))
 }
 
 /// The interval of t over which the ray `o + t·d` (d unit length) is inside the sphere, or
