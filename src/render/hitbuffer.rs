@@ -228,44 +228,65 @@ pub const MOVED_SEARCH_MAX: usize = 64;
 /// box (a convex set in front of the camera projects inside their hull), one pixel wider on
 /// every side. A box reaching behind the image plane covers the whole image.
 pub fn screen_rect(camera: &Camera, centre: DVec3, radius: f64) -> [u32; 4] {
-    let b = camera.basis();
-    let (w, h) = (camera.width as f64, camera.height as f64);
-    let full = [0, 0, camera.width - 1, camera.height - 1];
-    let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
-    for k in 0..8 {
-        let s = DVec3::new(
-            if k & 1 == 0 { -1.0 } else { 1.0 },
-            if k & 2 == 0 { -1.0 } else { 1.0 },
-            if k & 4 == 0 { -1.0 } else { 1.0 },
-        );
-        let p = centre + s * radius;
-        let z = p.dot(b.forward);
-        if !(z > 1e-9 * p.length()) {
+    ScreenRects::new(camera).rect(centre, radius)
+}
+
+/// [`screen_rect`] for many spheres under one camera: its basis (a tangent and three
+/// normalisations) formed once, not per sphere (a crowd's hit buffer rectangles 20 000 moved
+/// spheres a frame).
+#[derive(Clone, Copy, Debug)]
+pub struct ScreenRects {
+    camera: Camera,
+    basis: crate::scene::camera::Basis,
+}
+
+impl ScreenRects {
+    /// The rectangles of `camera`'s image.
+    pub fn new(camera: &Camera) -> ScreenRects {
+        ScreenRects { camera: *camera, basis: camera.basis() }
+    }
+
+    /// [`screen_rect`] of the sphere at `centre` (camera-relative) with `radius`.
+    pub fn rect(&self, centre: DVec3, radius: f64) -> [u32; 4] {
+        let (camera, b) = (&self.camera, &self.basis);
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let full = [0, 0, camera.width - 1, camera.height - 1];
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        for k in 0..8 {
+            let s = DVec3::new(
+                if k & 1 == 0 { -1.0 } else { 1.0 },
+                if k & 2 == 0 { -1.0 } else { 1.0 },
+                if k & 4 == 0 { -1.0 } else { 1.0 },
+            );
+            let p = centre + s * radius;
+            let z = p.dot(b.forward);
+            if !(z > 1e-9 * p.length()) {
+                return full;
+            }
+            let sx = p.dot(b.right) / z / (b.tan_half * w / h);
+            let sy = p.dot(b.up) / z / b.tan_half;
+            // Inverse of the camera's pixel-centre mapping: sx = 2(px + 0.5)/W − 1, sy = 1 − 2(py + 0.5)/H.
+            let px = (sx + 1.0) * 0.5 * w - 0.5;
+            let py = (1.0 - sy) * 0.5 * h - 0.5;
+            x0 = x0.min(px);
+            x1 = x1.max(px);
+            y0 = y0.min(py);
+            y1 = y1.max(py);
+        }
+        if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
             return full;
         }
-        let sx = p.dot(b.right) / z / (b.tan_half * w / h);
-        let sy = p.dot(b.up) / z / b.tan_half;
-        // Inverse of the camera's pixel-centre mapping: sx = 2(px + 0.5)/W − 1, sy = 1 − 2(py + 0.5)/H.
-        let px = (sx + 1.0) * 0.5 * w - 0.5;
-        let py = (1.0 - sy) * 0.5 * h - 0.5;
-        x0 = x0.min(px);
-        x1 = x1.max(px);
-        y0 = y0.min(py);
-        y1 = y1.max(py);
+        let clamp = |v: f64, hi: u32| v.clamp(0.0, hi as f64) as u32;
+        if x1 < -1.0 || y1 < -1.0 || x0 > w || y0 > h {
+            return [1, 1, 0, 0]; // off screen: an empty rectangle
+        }
+        [
+            clamp(x0.floor() - 1.0, camera.width - 1),
+            clamp(y0.floor() - 1.0, camera.height - 1),
+            clamp(x1.ceil() + 1.0, camera.width - 1),
+            clamp(y1.ceil() + 1.0, camera.height - 1),
+        ]
     }
-    if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
-        return full;
-    }
-    let clamp = |v: f64, hi: u32| v.clamp(0.0, hi as f64) as u32;
-    if x1 < -1.0 || y1 < -1.0 || x0 > w || y0 > h {
-        return [1, 1, 0, 0]; // off screen: an empty rectangle
-    }
-    [
-        clamp(x0.floor() - 1.0, camera.width - 1),
-        clamp(y0.floor() - 1.0, camera.height - 1),
-        clamp(x1.ceil() + 1.0, camera.width - 1),
-        clamp(y1.ceil() + 1.0, camera.height - 1),
-    ]
 }
 
 impl HitBuffer {
@@ -371,19 +392,22 @@ impl HitBuffer {
     /// The reuse conditions for the current frame traced at `max_level`, or None if nothing
     /// can be reused (other camera, other instances, other level of detail).
     pub fn reuse(&self, camera: &Camera, scene: &Scene, prepared: &[Prepared], max_level: u32) -> Option<Reuse> {
-        let parts: Vec<usize> = scene.instances().iter().map(|i| i.part).collect();
-        if !self.same_camera(camera) || self.parts != parts || self.max_level != max_level {
+        let instances = scene.instances();
+        let same_parts =
+            self.parts.len() == instances.len() && self.parts.iter().zip(instances).all(|(&p, i)| p == i.part);
+        if !self.same_camera(camera) || !same_parts || self.max_level != max_level {
             return None;
         }
-        let mut moved = vec![false; parts.len()];
+        let mut moved = vec![false; instances.len()];
         let mut moved_spheres = Vec::new();
         let mut moved_instances = Vec::new();
+        let rects = ScreenRects::new(camera);
         for (i, w) in scene.worlds().iter().enumerate() {
             if *w != self.worlds[i] {
                 moved[i] = true;
                 moved_instances.push(i as u32);
                 for (c, r) in [self.spheres[i], (prepared[i].centre, prepared[i].radius)] {
-                    moved_spheres.push((c, r, screen_rect(camera, c, r)));
+                    moved_spheres.push((c, r, rects.rect(c, r)));
                 }
             }
         }
@@ -463,7 +487,9 @@ impl Reuse {
         let moved_bvh = (moved_spheres.len() >= MOVED_BVH_MIN).then(|| {
             let grown: Vec<(DVec3, f64)> =
                 moved_spheres.iter().map(|&(c, r, _)| (c, r + 1e-6 * (r + c.length()))).collect();
-            super::bvh::Bvh::build(&grown)
+            // Walked only by `any_item` (and on the GPU as its own copy): no wide tree, whose
+            // collapse was a tenth of building a crowd's 158 000-sphere tree every frame.
+            super::bvh::Bvh::build_with(&grown, false)
         });
         Reuse { moved, moved_spheres, moved_instances, moved_bits, moved_bvh, tile_bins: Vec::new(), tiles_x: 0 }
     }
