@@ -314,55 +314,13 @@ impl Bvh {
     /// [`Bvh::build`], with the wide tree or without it (a tree walked only elsewhere, as the
     /// GPU walks its own copy: refits then skip it).
     pub fn build_with(spheres: &[(DVec3, f64)], wide: bool) -> Bvh {
-        let mut bvh = Bvh {
-            nodes: Vec::with_capacity(2 * spheres.len() / LEAF + 1),
-            items: (0..spheres.len() as u32).collect(),
-            ..Bvh::default()
-        };
+        let mut bvh = Bvh::default();
         if spheres.is_empty() {
             return bvh;
         }
-        bvh.nodes.push(Node { lo: DVec3::ZERO, hi: DVec3::ZERO, first: 0, count: 0 });
-        // (node, start, end) ranges still to split.
-        let mut stack = vec![(0usize, 0usize, spheres.len())];
-        while let Some((n, start, end)) = stack.pop() {
-            let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-            let (mut clo, mut chi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-            for &i in &bvh.items[start..end] {
-                let (c, r) = spheres[i as usize];
-                lo = lo.min(c - r);
-                hi = hi.max(c + r);
-                clo = clo.min(c);
-                chi = chi.max(c);
-            }
-            bvh.nodes[n].lo = lo;
-            bvh.nodes[n].hi = hi;
-            if end - start <= LEAF {
-                bvh.nodes[n].first = start as u32;
-                bvh.nodes[n].count = (end - start) as u32;
-                continue;
-            }
-            // Median split on the axis where the centres spread most.
-            let ext = chi - clo;
-            let axis = if ext.x >= ext.y && ext.x >= ext.z {
-                0
-            } else if ext.y >= ext.z {
-                1
-            } else {
-                2
-            };
-            let mid = (start + end) / 2;
-            bvh.items[start..end].select_nth_unstable_by(mid - start, |a, b| {
-                spheres[*a as usize].0[axis].total_cmp(&spheres[*b as usize].0[axis])
-            });
-            let left = bvh.nodes.len();
-            bvh.nodes.push(Node { lo: DVec3::ZERO, hi: DVec3::ZERO, first: 0, count: 0 });
-            bvh.nodes.push(Node { lo: DVec3::ZERO, hi: DVec3::ZERO, first: 0, count: 0 });
-            bvh.nodes[n].first = left as u32;
-            bvh.nodes[n].count = 0;
-            stack.push((left, start, mid));
-            stack.push((left + 1, mid, end));
-        }
+        let mut items: Vec<u32> = (0..spheres.len() as u32).collect();
+        bvh.nodes = build_nodes(spheres, &mut items, 0);
+        bvh.items = items;
         bvh.area_sum = bvh.area_total();
         bvh.built_cost = bvh.kept_cost();
         if wide {
@@ -370,6 +328,90 @@ impl Bvh {
         }
         bvh
     }
+}
+
+/// Ranges at least this long are split in two built side by side (where the build has
+/// threads).
+#[cfg(feature = "parallel")]
+const PARALLEL_BUILD: usize = 16_384;
+
+/// The box around `work`'s spheres, and the axis along which their centres spread most.
+fn bounds(spheres: &[(DVec3, f64)], work: &[u32]) -> (DVec3, DVec3, usize) {
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    let (mut clo, mut chi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for &i in work {
+        let (c, r) = spheres[i as usize];
+        lo = lo.min(c - r);
+        hi = hi.max(c + r);
+        clo = clo.min(c);
+        chi = chi.max(c);
+    }
+    let ext = chi - clo;
+    let axis = if ext.x >= ext.y && ext.x >= ext.z {
+        0
+    } else if ext.y >= ext.z {
+        1
+    } else {
+        2
+    };
+    (lo, hi, axis)
+}
+
+/// Reorders `work` into leaf order and returns the nodes of its tree (root first, every
+/// node's children after it; leaves index `work` from `offset`, its place in the whole list):
+/// median splits on the axis where the centres spread most, down to [`LEAF`] spheres. Large
+/// ranges build their two halves on two threads and put the halves' nodes after the root.
+fn build_nodes(spheres: &[(DVec3, f64)], work: &mut [u32], offset: usize) -> Vec<Node> {
+    let key = |i: u32, axis: usize| spheres[i as usize].0[axis];
+    #[cfg(feature = "parallel")]
+    if work.len() >= PARALLEL_BUILD {
+        let (lo, hi, axis) = bounds(spheres, work);
+        let mid = work.len() / 2;
+        work.select_nth_unstable_by(mid, |&a, &b| key(a, axis).total_cmp(&key(b, axis)));
+        let (a, b) = work.split_at_mut(mid);
+        let (left, right) = rayon::join(|| build_nodes(spheres, a, offset), || build_nodes(spheres, b, offset + mid));
+        // The root, the halves' roots as its two children, then the rest of each half: a
+        // half's node k ≥ 1 lands at `base + k - 1`.
+        let (left_base, right_base) = (3, 3 + left.len() - 1);
+        let moved = |n: Node, base: usize| {
+            if n.count == 0 {
+                Node { first: (base + n.first as usize - 1) as u32, ..n }
+            } else {
+                n
+            }
+        };
+        let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
+        nodes.push(Node { lo, hi, first: 1, count: 0 });
+        nodes.push(moved(left[0], left_base));
+        nodes.push(moved(right[0], right_base));
+        nodes.extend(left[1..].iter().map(|&n| moved(n, left_base)));
+        nodes.extend(right[1..].iter().map(|&n| moved(n, right_base)));
+        return nodes;
+    }
+    let mut nodes = Vec::with_capacity(2 * work.len() / LEAF + 1);
+    nodes.push(Node { lo: DVec3::ZERO, hi: DVec3::ZERO, first: 0, count: 0 });
+    // (node, start, end) ranges still to split.
+    let mut stack = vec![(0usize, 0usize, work.len())];
+    while let Some((n, start, end)) = stack.pop() {
+        let (lo, hi, axis) = bounds(spheres, &work[start..end]);
+        nodes[n].lo = lo;
+        nodes[n].hi = hi;
+        if end - start <= LEAF {
+            nodes[n].first = (offset + start) as u32;
+            nodes[n].count = (end - start) as u32;
+            continue;
+        }
+        let mid = (start + end) / 2;
+        work[start..end].select_nth_unstable_by(mid - start, |&a, &b| key(a, axis).total_cmp(&key(b, axis)));
+        let left = nodes.len();
+        nodes.push(Node { lo: DVec3::ZERO, hi: DVec3::ZERO, first: 0, count: 0 });
+        nodes.push(Node { lo: DVec3::ZERO, hi: DVec3::ZERO, first: 0, count: 0 });
+        nodes[n].first = left as u32;
+        nodes[n].count = 0;
+        stack.push((left, start, mid));
+        stack.push((left + 1, mid, end));
+    }
+    nodes
 }
 
 /// Entry t of a ray into a box (`None` if it misses or the box is behind), with the ray's
@@ -491,6 +533,35 @@ mod tests {
         let many: Vec<u32> = (0..spheres.len() as u32 / 2).collect();
         let (_, all) = Bvh::refit_changed_or_build(Some(part), &spheres, Some(&many), &mut dirty, true);
         assert!(all && dirty.is_empty());
+    }
+
+    /// A tree built from halves built apart (past `PARALLEL_BUILD` spheres) is one tree:
+    /// every node after its parent, every sphere in exactly one leaf, and every box what a
+    /// refit of its own spheres makes it.
+    #[test]
+    fn a_tree_built_in_halves_is_one_tree() {
+        let mut rng = crate::rng::Rng::new(21);
+        let spheres: Vec<(DVec3, f64)> = (0..70_001)
+            .map(|_| (DVec3::new(rng.f64() * 900.0, rng.f64() * 5.0, rng.f64() * 300.0), 0.2 + rng.f64() * 3.0))
+            .collect();
+        let built = Bvh::build(&spheres);
+        let mut seen = vec![0u32; spheres.len()];
+        for (n, node) in built.nodes.iter().enumerate() {
+            if node.count == 0 {
+                assert!(node.first as usize > n && node.first as usize + 1 < built.nodes.len(), "node {n}");
+            } else {
+                for &i in &built.items[node.first as usize..(node.first + node.count) as usize] {
+                    seen[i as usize] += 1;
+                }
+            }
+        }
+        assert!(seen.iter().all(|&k| k == 1), "a sphere in no leaf or in two");
+        let mut refitted = built.clone();
+        refitted.refit(&spheres);
+        let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+        for (n, (a, b)) in built.nodes.iter().zip(&refitted.nodes).enumerate() {
+            assert_eq!((bits(a.lo), bits(a.hi)), (bits(b.lo), bits(b.hi)), "node {n}");
+        }
     }
 
     #[test]
