@@ -916,11 +916,11 @@ impl GpuRenderer {
         // only with a new tree.
         let nodes_bytes = nonempty(&bvh_nodes);
         let bvh_replaced = ensure(&ctx, &mut kept.bvh, "bvh", nodes_bytes.len() as u64, false, storage);
-        let bvh_scattered = Some(&bvh_dirty[..])
-            .filter(|d| !bvh_whole && !bvh_replaced && !d.is_empty() && d.len() * 2 <= bvh_nodes.len());
-        if let (Some(buf), None, true) =
-            (kept.bvh.as_ref(), bvh_scattered, bvh_whole || bvh_replaced || !bvh_dirty.is_empty())
-        {
+        let rewrite = bvh_whole || bvh_replaced;
+        let bvh_scattered =
+            Some(&bvh_dirty[..]).filter(|d| !rewrite && !d.is_empty() && d.len() * 2 <= bvh_nodes.len());
+        // Unless nothing changed, or the changes are scattered, all of it is written.
+        if let (Some(buf), true) = (kept.bvh.as_ref(), rewrite || (bvh_scattered.is_none() && !bvh_dirty.is_empty())) {
             ctx.queue.write_buffer(buf, 0, &nodes_bytes);
         }
         let items_bytes = nonempty(items);

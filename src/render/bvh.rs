@@ -1,8 +1,9 @@
 //! A bounding volume hierarchy over instance bounding spheres (their boxes), built in
 //! O(n log n) by median splits, so rays skip whole groups of instances and the cost per ray
-//! grows with log n rather than n. Frame to frame it is refitted in O(n) (same tree, boxes
-//! recomputed bottom-up) and built again only when refitting has made it
-//! [`REBUILD_RATIO`] times costlier than when it was built.
+//! grows with log n rather than n (large ranges split on two threads). Frame to frame it is
+//! refitted in O(n) (same tree, boxes recomputed bottom-up), or only above the instances that
+//! changed when the caller knows them ([`Bvh::refit_changed`]), and built again only when
+//! refitting has made it [`REBUILD_RATIO`] times costlier than when it was built.
 
 use glam::DVec3;
 
@@ -36,16 +37,14 @@ pub struct Bvh {
     /// The sum of the nodes' box areas as of the last build or refit ([`Bvh::cost`]'s
     /// numerator, kept up to date by the refit of a few instances without a pass over all).
     area_sum: f64,
-    /// Leaves and lanes for [`Bvh::refit_changed`] (made on its first call on this tree).
+    /// Leaves for [`Bvh::refit_changed`] (made on its first call on this tree).
     links: Links,
 }
 
-/// What refitting the boxes above a few instances needs: each instance's leaf, and the wide
-/// tree's lane that holds each node (`4 · wide node + lane`).
+/// What refitting the boxes above a few instances needs: each instance's leaf.
 #[derive(Clone, Debug, Default)]
 struct Links {
     leaf_of: Vec<u32>,
-    wide_of: Vec<u32>,
     /// Scratch: the nodes this refit recomputes (all false between refits).
     marked: Vec<bool>,
 }
@@ -180,8 +179,8 @@ impl Bvh {
     /// children before parents, from `spheres` as [`Bvh::refit`] does. Every other instance's
     /// sphere must be the one the tree was last fitted to; then every box comes out as a whole
     /// refit makes it. Fills `dirty` with the nodes recomputed, ascending (what a copy of the
-    /// tree elsewhere must update); the wide tree's lanes follow them (all of it when the
-    /// root's magnitude, its widening's scale, changed).
+    /// tree elsewhere must update). A wide tree, if the tree has one, is refitted whole (the
+    /// GPU's trees, which this serves, have none).
     pub fn refit_changed(&mut self, spheres: &[(DVec3, f64)], changed: &[u32], dirty: &mut Vec<u32>) {
         self.link();
         dirty.clear();
@@ -225,11 +224,12 @@ impl Bvh {
         }
         dirty.reverse();
         self.refits += 1;
-        let lanes = dirty.iter().map(|&n| links.wide_of[n as usize]).filter(|&l| l != u32::MAX);
-        self.wide.refit_lanes(&self.nodes, lanes);
+        if !self.wide.nodes.is_empty() {
+            self.wide.refit(&self.nodes);
+        }
     }
 
-    /// Makes the leaves and lanes [`Bvh::refit_changed`] reads, once per tree.
+    /// Makes the leaves [`Bvh::refit_changed`] reads, once per tree.
     fn link(&mut self) {
         let links = &mut self.links;
         if links.marked.len() == self.nodes.len() && links.leaf_of.len() == self.items.len() {
@@ -240,12 +240,6 @@ impl Bvh {
         for (n, node) in self.nodes.iter().enumerate().filter(|(_, node)| node.count > 0) {
             for &i in &self.items[node.first as usize..(node.first + node.count) as usize] {
                 links.leaf_of[i as usize] = n as u32;
-            }
-        }
-        links.wide_of = vec![u32::MAX; self.nodes.len()];
-        for (w, wn) in self.wide.nodes.iter().enumerate() {
-            for k in (0..4).filter(|k| wn.used & (1 << k) != 0) {
-                links.wide_of[wn.src[k] as usize] = (4 * w + k) as u32;
             }
         }
     }
@@ -501,7 +495,7 @@ mod tests {
         let mut dirty = Vec::new();
         let bits = |v: DVec3| v.to_array().map(f64::to_bits);
         // A few, one, a thousand (some twice) and none; then one flung far out, which widens
-        // the root and with it every lane of the wide tree.
+        // the root (and with it the wide tree's widening).
         for (round, count) in [10usize, 1, 1_000, 0, 1].into_iter().enumerate() {
             let before = part.nodes.clone();
             let changed: Vec<u32> = (0..count).map(|_| rng.below(spheres.len() as u64) as u32).collect();

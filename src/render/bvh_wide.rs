@@ -115,10 +115,18 @@ impl WideBvh {
             return;
         }
         let slack = DVec3::splat(self.scale * SLACK);
+        // Rounding to f32 moves a corner by at most 2⁻²⁴ of the scale, far inside the slack.
         let fill = |n: &mut Node4| {
-            let used = n.used;
-            for k in (0..4).filter(|k| used & (1 << k) != 0) {
-                fill_lane(n, k, binary, slack);
+            for k in 0..4 {
+                if n.used & (1 << k) == 0 {
+                    continue;
+                }
+                let c = &binary[n.src[k] as usize];
+                let (lo, hi) = ((c.lo - slack).as_vec3(), (c.hi + slack).as_vec3());
+                for axis in 0..3 {
+                    n.lo[axis][k] = lo[axis];
+                    n.hi[axis][k] = hi[axis];
+                }
             }
         };
         #[cfg(feature = "parallel")]
@@ -130,39 +138,10 @@ impl WideBvh {
         self.nodes.iter_mut().for_each(fill);
     }
 
-    /// Refills only the lanes `lanes` (`4 · node + lane`) from the binary tree's boxes, or the
-    /// whole tree when the root's magnitude (the widening's scale) is not what it was: each
-    /// lane comes out as [`WideBvh::refit`] makes it.
-    pub fn refit_lanes(&mut self, binary: &[super::bvh::Node], lanes: impl Iterator<Item = u32>) {
-        let Some(root) = binary.first() else { return };
-        let scale = root.lo.abs().max(root.hi.abs()).max_element();
-        if self.nodes.is_empty() || scale != self.scale {
-            self.refit(binary);
-            return;
-        }
-        let slack = DVec3::splat(self.scale * SLACK);
-        for l in lanes {
-            if let Some(n) = self.nodes.get_mut(l as usize / 4) {
-                fill_lane(n, l as usize % 4, binary, slack);
-            }
-        }
-    }
-
     /// Whether the f32 walk answers for rays from `o` (within the magnitude it was widened for).
     #[inline]
     pub fn covers_origin(&self, o: DVec3) -> bool {
         !self.nodes.is_empty() && o.abs().max_element() <= self.scale
-    }
-}
-
-/// Lane `k` of `n` from its binary node's box, widened by `slack`. Rounding to f32 moves a
-/// corner by at most 2⁻²⁴ of the scale, far inside the slack.
-fn fill_lane(n: &mut Node4, k: usize, binary: &[super::bvh::Node], slack: DVec3) {
-    let c = &binary[n.src[k] as usize];
-    let (lo, hi) = ((c.lo - slack).as_vec3(), (c.hi + slack).as_vec3());
-    for axis in 0..3 {
-        n.lo[axis][k] = lo[axis];
-        n.hi[axis][k] = hi[axis];
     }
 }
 
