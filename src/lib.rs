@@ -51,6 +51,7 @@ pub mod model;
 pub mod oracle;
 pub mod partial;
 pub mod pipeline;
+mod pool;
 mod prefetch;
 pub mod ray;
 pub mod render;

@@ -79,6 +79,12 @@ pub fn budget() -> u64 {
     }
 }
 
+/// The calling thread's own budget as [`with_budget`] set it (0: the process's).
+#[cfg(feature = "parallel")]
+pub(crate) fn thread_budget() -> u64 {
+    THREAD_BUDGET.with(Cell::get)
+}
+
 /// Runs `work` with the calling thread's budget set to `bytes`, other threads keeping the
 /// process's: jobs side by side in one process, each under its own limit. The checks run on
 /// the thread that asks for the memory, before worker threads start, so they see it.

@@ -476,6 +476,27 @@ pub fn render_lit(
     ambient: Option<&AmbientLight>,
     progress: &(dyn Fn(u32, u32) + Sync),
 ) -> Result<(Frame, f64), CameraError> {
+    // A crowd's frame runs its passes' parallel loops from one of the pool's threads
+    // (crate::pool); a few instances' frame has too few loops to repay the hand-over.
+    if scene.instances().len() > super::beam::MAX_INSTANCES {
+        crate::pool::on_pool(|| render_lit_here(scene, camera, lights, plan, opts, hits, ambient, progress))
+    } else {
+        render_lit_here(scene, camera, lights, plan, opts, hits, ambient, progress)
+    }
+}
+
+/// [`render_lit`] on the calling thread.
+#[allow(clippy::too_many_arguments)]
+fn render_lit_here(
+    scene: &Scene,
+    camera: &Camera,
+    lights: &Lights,
+    plan: &FramePlan,
+    opts: &RenderOptions,
+    hits: Option<&mut HitBuffer>,
+    ambient: Option<&AmbientLight>,
+    progress: &(dyn Fn(u32, u32) + Sync),
+) -> Result<(Frame, f64), CameraError> {
     camera.validate()?;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();

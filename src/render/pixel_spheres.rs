@@ -29,6 +29,9 @@ const CHUNK: usize = 2048;
 /// instances in five chunks left one of two threads with three.
 const MOVED_CHUNK: usize = 512;
 
+/// How many moved instances ahead their spheres are asked for.
+const AHEAD: usize = 4;
+
 /// The lists of one frame's primary rays.
 #[derive(Clone, Debug, Default)]
 pub struct PixelSpheres {
@@ -147,7 +150,17 @@ impl PixelSpheres {
                 let each =
                     |(ids, offset, copy): (&[u32], usize, &mut [(DVec3, f64)])| -> Option<(Found, Vec<u32>, u64)> {
                         let (mut found, mut again, mut tested) = (Vec::new(), Vec::new(), 0u64);
-                        for &i in ids {
+                        for (j, &i) in ids.iter().enumerate() {
+                            // Scattered over megabytes (a crowd's cars in sight): asked for
+                            // ahead, they load while the spheres before them are projected.
+                            if let Some(&next) = ids.get(j + AHEAD) {
+                                if let Some(s) = spheres.get(next as usize) {
+                                    crate::prefetch::prefetch_bytes(s, std::mem::size_of::<(DVec3, f64)>());
+                                }
+                                if let Some(s) = copy.get(next as usize - offset) {
+                                    crate::prefetch::prefetch_bytes(s, std::mem::size_of::<(DVec3, f64)>());
+                                }
+                            }
                             let (Some(&now), Some(then)) = (spheres.get(i as usize), copy.get_mut(i as usize - offset))
                             else {
                                 continue;

@@ -115,7 +115,8 @@ fn wrap(x: f64, period: f64) -> f64 {
 /// atan2(−v.z, v.x)), from the direction's cosine and sine by the half-angle formulas
 /// instead of an arctangent and a sine and cosine of it.
 fn heading(v: DVec3) -> DQuat {
-    let len = v.x.hypot(v.z);
+    // (The path's speeds are far from overflow: no need of `hypot`, a library call.)
+    let len = (v.x * v.x + v.z * v.z).sqrt();
     if !(len > 0.0) {
         return DQuat::IDENTITY;
     }

@@ -222,7 +222,11 @@ impl Scene {
             result = sequential(&mut locals);
         }
         if result.is_ok() {
-            for &(i, t) in &locals {
+            for (j, &(i, t)) in locals.iter().enumerate() {
+                // A crowd's posed cars lie scattered over its instances.
+                if let Some(inst) = locals.get(j + 4).and_then(|&(next, _)| self.instances.get(next)) {
+                    crate::prefetch::prefetch_bytes(inst, std::mem::size_of::<Instance>());
+                }
                 let inst = &mut self.instances[i];
                 if inst.local != t {
                     inst.local = t;
