@@ -157,7 +157,7 @@ impl PixelSpheres {
                                 if let Some(s) = spheres.get(next as usize) {
                                     crate::prefetch::prefetch_bytes(s, std::mem::size_of::<(DVec3, f64)>());
                                 }
-                                if let Some(s) = copy.get(next as usize - offset) {
+                                if let Some(s) = copy.get((next as usize).wrapping_sub(offset)) {
                                     crate::prefetch::prefetch_bytes(s, std::mem::size_of::<(DVec3, f64)>());
                                 }
                             }
