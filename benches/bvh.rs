@@ -3,6 +3,8 @@
 //!
 //! - `build`: a tree over 158 000 spheres, the size of the moved-sphere tree the hit buffer
 //!   builds every frame when 10 000 cars drive (old and new place of 79 000 instances);
+//! - `build_sorted`: the same by Morton order ([`Bvh::build_sorted`], the moved-sphere tree's
+//!   build since step 76);
 //! - `refit_whole`: every box of an 80 000-instance tree recomputed;
 //! - `refit_changed`: only the boxes above an eighth of its instances (what a crowd whose
 //!   seen cars are posed changes a frame), as the GPU renderer refits its tree.
@@ -33,6 +35,7 @@ fn instance_bvh(c: &mut Criterion) {
     g.sample_size(20);
     g.throughput(Throughput::Elements(moved.len() as u64));
     g.bench_function("build", |b| b.iter(|| Bvh::build_with(&moved, false).nodes.len()));
+    g.bench_function("build_sorted", |b| b.iter(|| Bvh::build_sorted(&moved, false).nodes.len()));
     g.throughput(Throughput::Elements(spheres.len() as u64));
     let mut tree = Bvh::build_with(&spheres, false);
     g.bench_function("refit_whole", |b| b.iter(|| tree.refit(&spheres)));

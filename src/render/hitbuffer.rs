@@ -484,7 +484,7 @@ impl Reuse {
                 moved_spheres.iter().map(|&(c, r, _)| (c, r + 1e-6 * (r + c.length()))).collect();
             // Walked only by `any_item` (and on the GPU as its own copy): no wide tree, whose
             // collapse was a tenth of building a crowd's 158 000-sphere tree every frame.
-            super::bvh::Bvh::build_with(&grown, false)
+            super::bvh::Bvh::build_sorted(&grown, false)
         });
         Reuse { moved, moved_spheres, moved_instances, moved_bits, moved_bvh, tile_bins: Vec::new(), tiles_x: 0 }
     }
