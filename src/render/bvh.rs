@@ -1,5 +1,6 @@
 //! A bounding volume hierarchy over instance bounding spheres (their boxes), built in
-//! O(n log n) by median splits, so rays skip whole groups of instances and the cost per ray
+//! O(n log n) by median splits (or, for a tree made afresh every frame, faster and looser by
+//! Morton order: [`Bvh::build_sorted`]), so rays skip whole groups of instances and the cost per ray
 //! grows with log n rather than n (large ranges split on two threads). Frame to frame it is
 //! refitted in O(n) (same tree, boxes recomputed bottom-up), or only above the instances that
 //! changed when the caller knows them ([`Bvh::refit_changed`]), and built again only when
@@ -379,9 +380,9 @@ impl Bvh {
     }
 }
 
-/// The sphere indices ordered by the Morton code of their centres (10 bits per axis over the
-/// finite centres' box; ties, and centres that are not finite, by index): a stable radix
-/// sort, in O(n).
+/// The sphere indices ordered by the Morton code of their centres (10 bits per axis over a
+/// cube around the finite centres; ties, and centres that are not finite, by index), and
+/// their codes in that order: a stable radix sort, in O(n).
 fn morton_order(spheres: &[(DVec3, f64)]) -> (Vec<u32>, Vec<u32>) {
     let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
     for (c, _) in spheres.iter().filter(|(c, _)| c.is_finite()) {
