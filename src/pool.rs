@@ -28,7 +28,9 @@ mod tests {
     use super::*;
 
     /// Work handed to the pool runs on one of its threads, under the caller's own memory
-    /// budget (a job's limit must hold for the frames it renders there).
+    /// budget (a job's limit must hold for the frames it renders there). (Work started on the
+    /// pool runs where it is: no test can tell that from `rayon::scope`, which runs it there
+    /// too, so none claims to.)
     #[test]
     fn work_on_the_pool_keeps_the_callers_budget() {
         assert!(rayon::current_thread_index().is_none(), "a test runs outside the pool");
@@ -36,11 +38,5 @@ mod tests {
             on_pool(|| (crate::memory::budget(), rayon::current_thread_index().is_some()))
         });
         assert_eq!((budget, on), (123_456, true));
-        // Already on the pool: run where it is.
-        let inner = rayon::scope(|_| {
-            let here = rayon::current_thread_index();
-            on_pool(|| rayon::current_thread_index() == here)
-        });
-        assert!(inner);
     }
 }

@@ -332,9 +332,9 @@ impl Bvh {
     /// differ turns to 1 — the planes of an octree over that cube — or at its middle when
     /// they are all equal; the boxes fitted after. Each split of the first kind uses up a bit,
     /// so no leaf lies deeper than 30 + log₂ n. Looser boxes than the median splits' (which
-    /// pick the widest axis at every level), built three times faster: for a tree made
-    /// afresh every frame (the hit buffer's moved spheres). Centres that are not finite sort
-    /// first.
+    /// pick the widest axis at every level), built in about 2/5 of the time (benchmarks.md,
+    /// step 76): for a tree made afresh every frame (the hit buffer's moved spheres). Centres
+    /// that are not finite sort first.
     pub fn build_sorted(spheres: &[(DVec3, f64)], wide: bool) -> Bvh {
         let mut bvh = Bvh::default();
         if spheres.is_empty() {
