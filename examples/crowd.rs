@@ -5,6 +5,8 @@
 //! refills the last one's memory). Prints the median of each over the timed frames. `voxray bench --scenarios
 //! instances` is the full comparison.
 //!
+//! The frame's stages run inside [`voxray::pool::run_awake`] on the CPU, as the harness runs them.
+//!
 //! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::SeenCars::pose`]), as the
 //! harness does, and also printed are the cars tested against the frame's rays (a car found
 //! clear of them is let go untested while its motion cannot bring it near one); a further
@@ -54,11 +56,17 @@ fn main() -> Result<(), voxray::Error> {
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
         let t0 = Instant::now();
-        let n = st.pose_seen(t, sight.as_ref(), u32::MAX)?;
-        let t1 = Instant::now();
-        st.scene.update()?;
-        let t2 = Instant::now();
-        session.frame(&st.scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
+        // The frame's stages run on rayon's pool with its other threads kept awake, as the
+        // harness runs a CPU frame (a GPU frame's host would only lose a core to them).
+        let mut frame = || -> Result<_, voxray::Error> {
+            let n = st.pose_seen(t, sight.as_ref(), u32::MAX)?;
+            let t1 = Instant::now();
+            st.scene.update()?;
+            let t2 = Instant::now();
+            session.frame(&st.scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
+            Ok((n, t1, t2))
+        };
+        let (n, t1, t2) = if gpu { frame()? } else { voxray::pool::run_awake(frame)? };
         let t3 = Instant::now();
         std::hint::black_box(session.last_frame());
         if f >= 2 {

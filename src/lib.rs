@@ -51,7 +51,7 @@ pub mod model;
 pub mod oracle;
 pub mod partial;
 pub mod pipeline;
-mod pool;
+pub mod pool;
 mod prefetch;
 pub mod ray;
 pub mod render;

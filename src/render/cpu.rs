@@ -476,10 +476,11 @@ pub fn render_lit(
     ambient: Option<&AmbientLight>,
     progress: &(dyn Fn(u32, u32) + Sync),
 ) -> Result<(Frame, f64), CameraError> {
-    // A crowd's frame runs its passes' parallel loops from one of the pool's threads
-    // (crate::pool); a few instances' frame has too few loops to repay the hand-over.
+    // A crowd's frame runs its passes' parallel loops from one of the pool's threads, the
+    // others kept awake (crate::pool); a few instances' frame has too few loops to repay the
+    // hand-over.
     if scene.instances().len() > super::beam::MAX_INSTANCES {
-        crate::pool::on_pool(|| render_lit_here(scene, camera, lights, plan, opts, hits, ambient, progress))
+        crate::pool::run_awake(|| render_lit_here(scene, camera, lights, plan, opts, hits, ambient, progress))
     } else {
         render_lit_here(scene, camera, lights, plan, opts, hits, ambient, progress)
     }

@@ -65,14 +65,22 @@ impl App {
             None
         };
         let scene_error = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
-        let posed =
-            self.seen.pose(&mut self.scene, &self.cars, self.time, sight.as_ref(), self.ui.lod).map_err(scene_error)?;
+        let (scene, seen, cars, lights) = (&mut self.scene, &mut self.seen, &self.cars, &self.lights);
+        let (time, lod, animated) = (self.time, self.ui.lod, &self.opts.animated);
+        let cpu = session.backend().gpu().is_none();
+        let mut stages = || -> Result<_, ViewerError> {
+            let posed = seen.pose(scene, cars, time, sight.as_ref(), lod).map_err(scene_error)?;
+            if let Some(a) = animated {
+                a.rig.pose(scene, a.clip, time).map_err(|e| ViewerError::Other(e.to_string()))?;
+            }
+            scene.update().map_err(scene_error)?;
+            Ok((posed, session.frame(scene, &camera, lights, &features, &opts, &|_, _| {})))
+        };
+        // A CPU frame's stages run on the pool with its threads kept awake (crate::pool); a
+        // GPU frame's host would only lose a core to them.
+        let (posed, rendered) = if cpu { crate::pool::run_awake(stages)? } else { stages()? };
         self.ui.posed = (posed, self.cars.len());
-        if let Some(a) = &self.opts.animated {
-            a.rig.pose(&mut self.scene, a.clip, self.time).map_err(|e| ViewerError::Other(e.to_string()))?;
-        }
-        self.scene.update().map_err(scene_error)?;
-        let report = match session.frame(&self.scene, &camera, &self.lights, &features, &opts, &|_, _| {}) {
+        let report = match rendered {
             Ok(r) => r,
             Err(e) if session.gi().is_some() => {
                 self.ui.gi_error = Some(e.to_string());

@@ -257,13 +257,19 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             let rays = voxray::scene::FrameRays::of(&st.scene, &features, session.gi().is_some(), &opts);
             voxray::scene::Sight::new(&cam, &lights, rays, box_).ok()
         });
-        st.pose_seen(t, sight.as_ref(), opts.max_level)?;
-        st.scene.update()?;
-        let report = session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {
-            if a.frames == 1 {
-                pb.set_position(d as u64)
-            }
-        })?;
+        let cpu = session.backend().gpu().is_none();
+        let mut stages = || -> Result<_, voxray::Error> {
+            st.pose_seen(t, sight.as_ref(), opts.max_level)?;
+            st.scene.update()?;
+            session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {
+                if a.frames == 1 {
+                    pb.set_position(d as u64)
+                }
+            })
+        };
+        // A CPU frame's stages run on the pool with its threads kept awake (voxray::pool); a
+        // GPU frame's host would only lose a core to them.
+        let report = if cpu { voxray::pool::run_awake(stages)? } else { stages()? };
         let plan = report.plan;
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
