@@ -6,7 +6,7 @@
 //! on one of the pool's own threads, the stage's serial parts run there and each loop only
 //! splits off work for the others (docs/benchmarks.md, step 75). Between the loops those
 //! others still fall asleep, and waking one took 67 µs on average on the 2-core host
-//! (`perf sched latency`, a 10 000-car crowd: five sleeps a frame); [`run_awake`] keeps them
+//! (`perf sched latency`, a 10 000-car crowd: about six sleeps a frame); [`run_awake`] keeps them
 //! taking work instead for as long as the frame runs (step 78).
 
 #[cfg(feature = "parallel")]

@@ -184,7 +184,8 @@ impl Scene {
 
     /// [`Scene::set_locals`] for the transforms `make(0..count)` yields, `N` at a time (a
     /// car's eight parts from one pose computation): they are computed and validated in
-    /// parallel and applied only if all are valid.
+    /// parallel and applied only if all are valid (in parallel too when the instances ascend
+    /// over the whole batch, as a crowd's cars do).
     pub fn set_locals_from<const N: usize>(
         &mut self,
         count: usize,
