@@ -32,7 +32,7 @@ thread_local! {
 /// wake-up. They spin (use a core each) until `work` returns, or after half a millisecond
 /// without work. Within `run_awake` (or without the `parallel` feature) it just runs `work`.
 ///
-/// A 10 000-car crowd's frame on two cores: 7 % faster than posing, updating and rendering
+/// A 10 000-car crowd's frame on two cores: 5–8 % faster than posing, updating and rendering
 /// from the calling thread (docs/benchmarks.md, step 78); one car's frame alike.
 #[cfg(feature = "parallel")]
 pub fn run_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
