@@ -102,6 +102,22 @@ struct Scratch {
 /// save).
 const PARALLEL_MIN: usize = 2048;
 
+/// Sets each validated local transform of `locals` on its instance's record in `instances`
+/// (which starts at instance `offset`, as `dirty` does), marking those that change.
+fn apply_locals(locals: &[(usize, Transform)], offset: usize, instances: &mut [Instance], dirty: &mut [bool]) {
+    for (j, &(i, t)) in locals.iter().enumerate() {
+        // A crowd's posed cars lie scattered over its instances.
+        if let Some(next) = locals.get(j + 4).and_then(|&(next, _)| instances.get(next - offset)) {
+            crate::prefetch::prefetch_bytes(next, std::mem::size_of::<Instance>());
+        }
+        let k = i - offset;
+        if instances[k].local != t {
+            instances[k].local = t;
+            dirty[k] = true;
+        }
+    }
+}
+
 /// The starts of the independent runs of `instances`: a run starts where no later instance
 /// has a parent before it.
 fn independent_runs(instances: &[Instance]) -> Vec<usize> {
@@ -242,17 +258,7 @@ impl Scene {
             return result;
         }
         if result.is_ok() {
-            for (j, &(i, t)) in locals.iter().enumerate() {
-                // A crowd's posed cars lie scattered over its instances.
-                if let Some(inst) = locals.get(j + 4).and_then(|&(next, _)| self.instances.get(next)) {
-                    crate::prefetch::prefetch_bytes(inst, std::mem::size_of::<Instance>());
-                }
-                let inst = &mut self.instances[i];
-                if inst.local != t {
-                    inst.local = t;
-                    self.dirty[i] = true;
-                }
-            }
+            apply_locals(&locals, 0, &mut self.instances, &mut self.dirty);
         }
         self.scratch.locals = locals;
         result
@@ -273,19 +279,7 @@ impl Scene {
             pieces.push((chunk, offset, a, c));
             (inst, dirty, offset) = (b, d, end);
         }
-        pieces.into_par_iter().for_each(|(chunk, offset, inst, dirty)| {
-            for (j, &(i, t)) in chunk.iter().enumerate() {
-                // A crowd's posed cars lie scattered over its instances.
-                if let Some(next) = chunk.get(j + 4).and_then(|&(next, _)| inst.get(next - offset)) {
-                    crate::prefetch::prefetch_bytes(next, std::mem::size_of::<Instance>());
-                }
-                let k = i - offset;
-                if inst[k].local != t {
-                    inst[k].local = t;
-                    dirty[k] = true;
-                }
-            }
-        });
+        pieces.into_par_iter().for_each(|(chunk, offset, inst, dirty)| apply_locals(chunk, offset, inst, dirty));
     }
 
     /// Replaces the part an instance places (a flip-book's frame); its transform stays.
