@@ -636,10 +636,11 @@ fn session_frames_written_only_where_pixels_changed_match_fresh_frames() {
 
 /// Over the sky: cars drive across an empty background, under a static and an orbiting
 /// camera, and the sky changes colour halfway. Pixels stored as misses without a search (a
-/// beam met nothing: two cars; a crowd's pixel lists hold no sphere: past the beams' limit,
-/// with and without the hit buffer) are not rewritten in a session's own frame when they
-/// showed the same sky before; every frame must equal a fresh one, where a car has just left
-/// a pixel too.
+/// beam met nothing: two cars with their pixels kept; pixel lists hold no sphere: two cars a
+/// few pixels wide traced afresh, and a crowd past the beams' limit, with and without the
+/// hit buffer) are not rewritten in a session's own frame when they showed the same sky
+/// before; every frame must equal a fresh one, where a car has just left a pixel too. The two
+/// cars go from lists to beams and back as the hit buffer's frames come and go.
 #[test]
 fn session_frames_over_the_sky_match_fresh_frames() {
     use voxray::backend::Backend;
@@ -651,6 +652,8 @@ fn session_frames_over_the_sky_match_fresh_frames() {
         let (lo, hi) = st.bounds;
         let base = Camera::framing(lo.as_vec3(), hi.as_vec3(), 96, 64);
         let features = Features { hit_buffer, ..Features::default() };
+        // Frames searched with lists and with beams.
+        let mut searched = [0, 0];
         for orbit in [0.0, 20.0] {
             let what = format!("{cars} cars, hit buffer {hit_buffer}, orbit {orbit}");
             let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
@@ -667,7 +670,14 @@ fn session_frames_over_the_sky_match_fresh_frames() {
                 let lights = Lights { ambient: Some(Ambient { radiance: sky }), ..Lights::default() };
                 let report =
                     session.frame(&st.scene, &cam, &lights, &features, &RenderOptions::default(), &|_, _| {}).unwrap();
-                assert_eq!(report.plan.sphere_lists, cars == crowd, "{what}: {}", report.plan.explain());
+                // Lists past the beams' limit, and for two cars a few pixels wide in a frame
+                // that traces every pixel.
+                let small = !report.plan.hit_buffer
+                    && voxray::render::pixel_spheres::mean_instance_area(&st.scene, &cam)
+                        .is_some_and(|a| a < voxray::render::beam::MIN_MEAN_AREA);
+                assert_eq!(report.plan.sphere_lists, cars == crowd || small, "{what}: {}", report.plan.explain());
+                assert_eq!(report.plan.beams, cars != crowd && !small, "{what}: {}", report.plan.explain());
+                searched[report.plan.beams as usize] += 1;
                 let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
                 let fresh =
                     render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
@@ -678,6 +688,9 @@ fn session_frames_over_the_sky_match_fresh_frames() {
                 before = Some(fresh);
             }
             assert!(uncovered > 50, "{what}: cars uncovered only {uncovered} pixels of sky");
+        }
+        if cars == 2 {
+            assert!(searched[0] > 1 && searched[1] > 1, "two cars: frames with lists and beams {searched:?}");
         }
     }
 }

@@ -40,12 +40,37 @@ fn scene() -> Scene {
     s
 }
 
-fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
+/// How a frame's primary rays find their instances.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Primary {
+    /// Beams and packets (forced where the plan takes sphere lists for instances a few pixels
+    /// wide).
+    Beams,
+    /// Per-pixel sphere lists (forced).
+    Lists,
+    /// Neither: each ray from the eye.
+    Plain,
+}
+
+fn frame_with(s: &Scene, cam: &Camera, primary: Primary, max_level: u32) -> Frame {
     let lights = Lights::default();
-    let features = Features { beams, hit_buffer: false, ..Features::default() };
-    let plan = FramePlan::new(s, cam, &lights, &features, None);
-    assert_eq!(plan.beams, beams, "{}", plan.explain());
+    let features = Features { beams: primary != Primary::Plain, hit_buffer: false, ..Features::default() };
+    let mut plan = FramePlan::new(s, cam, &lights, &features, None);
+    match primary {
+        Primary::Beams => (plan.beams, plan.bvh_beams, plan.sphere_lists) = (true, false, false),
+        Primary::Lists => (plan.beams, plan.sphere_lists) = (false, true),
+        Primary::Plain => assert!(!plan.beams && !plan.sphere_lists, "{}", plan.explain()),
+    }
     render(s, cam, &lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
+}
+
+/// A camera `from` a car placed at `car`, looking at the car's middle.
+fn close_to(car: DVec3, from: DVec3, vfov_deg: f64, width: u32, height: u32) -> Camera {
+    Camera { eye: car + from, target: car + DVec3::new(0.0, 0.6, 0.0), up: DVec3::Y, vfov_deg, width, height }
+}
+
+fn frame(s: &Scene, cam: &Camera, beams: bool, max_level: u32) -> Frame {
+    frame_with(s, cam, if beams { Primary::Beams } else { Primary::Plain }, max_level)
 }
 
 #[test]
@@ -107,9 +132,58 @@ fn beams_keep_the_specks_at_tile_corners() {
         let (with, without) = (frame(&s, &c, true, u32::MAX), frame(&s, &c, false, u32::MAX));
         assert_eq!(with.instance, without.instance, "camera {k}: instances");
         assert_eq!(with.t, without.t, "camera {k}: t");
+        // Specks this small take the sphere lists: the same hits.
+        let plan = FramePlan::new(&s, &c, &Lights::default(), &Features::default(), None);
+        assert!(plan.sphere_lists && !plan.beams, "camera {k}: {}", plan.explain());
+        let listed = frame_with(&s, &c, Primary::Lists, u32::MAX);
+        assert_same_frames(&listed, &without, &format!("camera {k}, sphere lists"));
         hits += with.instance.iter().filter(|&&i| i >= 0).count();
     }
     assert!(hits > 500, "the specks should show ({hits} pixels)");
+}
+
+/// Whether beams or sphere lists serve a few instances depends on how many pixels they cover
+/// ([`voxray::render::beam::MIN_MEAN_AREA`]): two cars a few pixels wide take the lists, the
+/// same close up or over a ground (whose sphere spans the image) take beams, and so does a
+/// frame whose hit buffer keeps pixels. With shadows, every choice gives the frame the plain
+/// search gives, bit for bit.
+#[test]
+fn few_instances_take_lists_when_small_on_screen() {
+    let parts = car_parts();
+    for (ground, far, hit_buffer, lists) in [
+        (false, true, false, true),
+        (false, false, false, false),
+        (true, true, false, false),
+        (false, true, true, false),
+    ] {
+        let what = format!("ground {ground}, far {far}, hit buffer {hit_buffer}");
+        let mut st = voxray::scene::stage_cars(&parts, 2, true, ground).unwrap();
+        voxray::scene::car::pose_all(&mut st.scene, &st.cars, 0.8).unwrap();
+        st.scene.update().unwrap();
+        let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
+        let cam = if far {
+            Camera::framing(lo, hi, 128, 80)
+        } else {
+            close_to(st.scene.world(0).translation, DVec3::new(2.5, 1.5, 4.0), 50.0, 128, 80)
+        };
+        let lights = Lights::default();
+        let features = Features { hit_buffer, ..Features::default() };
+        let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
+        let want = render(&st.scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+        let mut kept = voxray::render::HitBuffer::new();
+        for f in 0..2 {
+            let plan = FramePlan::new(&st.scene, &cam, &lights, &features, (f > 0).then_some(&kept));
+            // (A first frame keeps nothing.)
+            let lists = lists || (hit_buffer && f == 0);
+            assert_eq!((plan.sphere_lists, plan.beams), (lists, !lists), "{what}, frame {f}: {}", plan.explain());
+            assert!(plan.shadows, "{}", plan.explain());
+            let got = render(&st.scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut kept), &|_, _| {})
+                .unwrap();
+            assert_same_frames(&got, &want, &format!("{what}, frame {f}"));
+            let covered = got.instance.iter().filter(|&&i| i >= 0).count();
+            assert!(covered > 40, "{what}: the cars cover only {covered} pixels");
+        }
+    }
 }
 
 /// A crowd at the beams' instance limit (`beam::MAX_INSTANCES`: 16 driving cars, 128
@@ -126,15 +200,7 @@ fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
     // The whole crowd from afar, and one car from close by with others behind it (where a
     // late start shows: its surfaces lie just past the tiles' bounds).
     let (lo, hi) = (st.bounds.0.as_vec3(), st.bounds.1.as_vec3());
-    let near = st.scene.world(0).translation;
-    let close = Camera {
-        eye: near + DVec3::new(1.2, 1.0, 2.4),
-        target: near + DVec3::new(0.0, 0.6, 0.0),
-        up: DVec3::Y,
-        vfov_deg: 60.0,
-        width: 96,
-        height: 64,
-    };
+    let close = close_to(st.scene.world(0).translation, DVec3::new(1.2, 1.0, 2.4), 60.0, 96, 64);
     for (name, cam) in [("crowd", Camera::framing(lo, hi, 192, 128)), ("one car close", close)] {
         check_crowd_frame(&st.scene, &cam, name);
     }
@@ -221,6 +287,7 @@ fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
 fn check_crowd_frame(scene: &Scene, cam: &Camera, name: &str) {
     let with = frame(scene, cam, true, u32::MAX);
     let without = frame(scene, cam, false, u32::MAX);
+    assert_same_frames(&frame_with(scene, cam, Primary::Lists, u32::MAX), &without, &format!("{name}, sphere lists"));
     let covered = with.instance.iter().filter(|&&i| i >= 0).count();
     assert!(covered > 200, "{name}: the crowd covers only {covered} pixels");
     assert_same_frames(&with, &without, name);

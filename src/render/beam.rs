@@ -30,6 +30,14 @@ pub const BEAM_WIDTH: u32 = 4 * TILE;
 /// and cost three times over at 800.
 pub const MAX_INSTANCES: usize = 128;
 
+/// Below this many pixels per instance on average (the rectangles bounding their spheres'
+/// projections), a frame that traces every pixel does better with per-pixel sphere lists
+/// than with beams, however few the instances: each 8×8 tile's packet then meets several
+/// instances a few pixels wide. One car of the instance sweep covers ~480 (beams faster,
+/// 0.53 against 0.63 ms), two ~170 (lists faster, 0.34 against 0.46 ms), a ground plane or a
+/// few large parts thousands (docs/benchmarks.md, step 81).
+pub const MIN_MEAN_AREA: f64 = 400.0;
+
 /// Unit-cube distance by which node cubes are grown and start distances shrunk: far above the
 /// f32 rounding of traversal (~2⁻²³) and its touching tolerance (2⁻²⁰), so a voxel that the
 /// traversal could report for some ray of the tile always lies inside the grown cube the cone

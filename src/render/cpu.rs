@@ -724,7 +724,10 @@ fn render_lit_here(
     // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
     // answers as one by one); kept hits whose colour turns out not to be kept ask later.
     let sun_rays = match lights.sun {
-        Some(sun) if plan.shadows && plan.beams && prepared.len() <= super::beam::MAX_INSTANCES => {
+        // (Few instances: with beams, or with sphere lists where they are small on screen.)
+        Some(sun)
+            if plan.shadows && (plan.beams || plan.sphere_lists) && prepared.len() <= super::beam::MAX_INSTANCES =>
+        {
             // (A kept colour's record is not read: most of the frame's records stay untouched.)
             let needs = |x: usize, y: usize| {
                 !kept_colour(x, y) && {

@@ -16,6 +16,7 @@
 
 use super::instances::sphere_interval;
 use crate::scene::camera::{Camera, PixelGrid, PixelRect};
+use crate::scene::Scene;
 use glam::DVec3;
 
 /// Pixel tests per pixel, on average over the image, beyond which the lists are not built.
@@ -335,6 +336,40 @@ impl PixelSpheres {
     pub fn is_empty(&self) -> bool {
         self.entries.is_empty()
     }
+}
+
+/// The mean area in pixels of the rectangles that bound where the instances' spheres (about
+/// their occupied boxes at full depth, as [`super::instances::prepare`] bounds them) project
+/// in `camera`'s image: how many pixel tests per instance sphere lists would make. None
+/// without instances or with a camera that is not valid.
+pub fn mean_instance_area(scene: &Scene, camera: &Camera) -> Option<f64> {
+    camera.validate().ok()?;
+    let n = scene.instances().len();
+    if n == 0 {
+        return None;
+    }
+    let basis = camera.basis();
+    let grid = PixelGrid::new(camera, &basis);
+    let boxes: Vec<(DVec3, DVec3)> = scene
+        .parts
+        .iter()
+        .map(|svo| {
+            let (lo, hi) = svo.occupied_box(u32::MAX);
+            ((lo + hi) * 0.5, (hi - lo) * 0.5)
+        })
+        .collect();
+    let total: u64 = scene
+        .instances()
+        .iter()
+        .zip(scene.worlds())
+        .filter_map(|(inst, w)| {
+            let &(centre, half) = boxes.get(inst.part)?;
+            let c = w.transform_point3(centre) - camera.eye;
+            let r = super::instances::farthest_corner(&w.matrix3, half);
+            (c.is_finite() && r.is_finite()).then(|| grid.near(&[c], r).area(camera))
+        })
+        .sum();
+    Some(total as f64 / n as f64)
 }
 
 /// Whether two spheres are the same bits (NaN included).

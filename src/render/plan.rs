@@ -174,7 +174,12 @@ impl FramePlan {
             (true, false) => "shadows: off (no sun, no sampled emitter)".into(),
             _ => "shadows: on".into(),
         });
-        let beams = features.beams && n <= super::beam::MAX_INSTANCES;
+        let few = features.beams && n <= super::beam::MAX_INSTANCES;
+        // Few instances, each a few pixels wide, in a frame that traces every pixel: sphere
+        // lists. (With the hit buffer's pixels kept, building the lists does not pay.)
+        let area = (few && cull && !hit_buffer).then(|| super::pixel_spheres::mean_instance_area(scene, camera));
+        let small = area.flatten().is_some_and(|a| a < super::beam::MIN_MEAN_AREA);
+        let beams = few && !small;
         let bvh_beams = features.beams && bvh && !beams;
         reasons.push(if !features.beams {
             "beams: off (switched off)".into()
@@ -182,6 +187,12 @@ impl FramePlan {
             format!(
                 "beams: on (primary rays start where their {0}×{0} tile's cone meets each instance)",
                 super::beam::TILE
+            )
+        } else if small {
+            format!(
+                "beams: per-pixel sphere lists ({n} instances of {:.0} pixels each on average < {}: each sphere projected onto the pixels whose rays it meets, a ray searches only its own)",
+                area.flatten().unwrap_or(0.0),
+                super::beam::MIN_MEAN_AREA
             )
         } else if bvh_beams {
             format!(
@@ -204,7 +215,7 @@ impl FramePlan {
             shadows,
             beams,
             bvh_beams,
-            sphere_lists: bvh_beams,
+            sphere_lists: bvh_beams || small,
             gi: None,
             reasons,
         }
