@@ -56,9 +56,8 @@ fn main() -> Result<(), voxray::Error> {
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
         let t0 = Instant::now();
-        // The frame's stages run on rayon's pool with its other threads kept awake, as the
-        // harness runs a CPU frame (a GPU frame's host would only lose a core to them).
-        let mut frame = || -> Result<_, voxray::Error> {
+        // The frame's stages run as the harness runs them (voxray::pool::run_frame).
+        let frame = || -> Result<_, voxray::Error> {
             let n = st.pose_seen(t, sight.as_ref(), u32::MAX)?;
             let t1 = Instant::now();
             st.scene.update()?;
@@ -66,7 +65,7 @@ fn main() -> Result<(), voxray::Error> {
             session.frame(&st.scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
             Ok((n, t1, t2))
         };
-        let (n, t1, t2) = if gpu { frame()? } else { voxray::pool::run_awake(frame)? };
+        let (n, t1, t2) = voxray::pool::run_frame(!gpu, frame)?;
         let t3 = Instant::now();
         std::hint::black_box(session.last_frame());
         if f >= 2 {

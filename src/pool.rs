@@ -66,6 +66,18 @@ pub fn run_awake<R>(work: impl FnOnce() -> R) -> R {
     work()
 }
 
+/// Runs a frame's stages (posing, update, render) as a frame on the CPU backend (`cpu`) or
+/// on a GPU backend wants them: the CPU's with the pool's threads kept awake
+/// ([`run_awake`]); a GPU frame's here, since its host waits for the device and a spinning
+/// thread would only take a core from the driver.
+pub fn run_frame<R: Send>(cpu: bool, work: impl FnOnce() -> R + Send) -> R {
+    if cpu {
+        run_awake(work)
+    } else {
+        work()
+    }
+}
+
 /// On one of the pool's threads: runs the pool's pending work, one piece at a time, until
 /// `done` or until none has come for [`IDLE`]. A thread that picks this job up while it
 /// waits inside other work must soon return to that work: so it returns at once on the

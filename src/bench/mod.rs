@@ -203,7 +203,7 @@ pub fn run_clip_timed(
         // Warm-up frames replay the first timed frame's time, so the first timed frame is the
         // same picture whatever the warm-up (the depth sweep compares it with a reference).
         let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
-        let mut frame = || -> Result<_, crate::Error> {
+        let frame = || -> Result<_, crate::Error> {
             seen.pose(clip.scene, clip.cars, t, sight.as_ref(), clip.lod)?;
             if let Some(a) = clip.animated {
                 a.rig.pose(clip.scene, a.clip, t)?;
@@ -211,10 +211,7 @@ pub fn run_clip_timed(
             clip.scene.update()?;
             session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})
         };
-        // A CPU frame's stages run on the pool with its threads kept awake (crate::pool); a
-        // GPU frame's host waits for the device, where a spinning thread would only take a
-        // core from the driver.
-        let report = if gpu { frame()? } else { crate::pool::run_awake(frame)? };
+        let report = crate::pool::run_frame(!gpu, frame)?;
         let secs = start.elapsed().as_secs_f64();
         if f >= clip.warmup {
             if let Some((tr, sh)) = session.backend().pass_times() {

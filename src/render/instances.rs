@@ -235,7 +235,7 @@ fn refill(
         } else {
             (0..n).filter(|&i| scene.stamp(i) > since).map(|i| i as u32).collect()
         };
-        refill_listed(&changed, scene.worlds(), scene.instances(), out, spheres, &fill);
+        refill_listed(&changed, scene, out, spheres, &fill);
         return Some(changed);
     }
     // Every slot in order: the hardware's prefetcher follows. Thousands of instances (a crowd
@@ -264,19 +264,19 @@ fn refill(
 }
 
 /// Fills the slots (and spheres, when there are any) of the instances `ids` (ascending) with
-/// `fill` (which reads each one's world transform in `worlds` and its record in
-/// `instances`), each while the memory of one
-/// a few places on is asked for (a crowd's moved cars lie scattered over megabytes of slots);
-/// in parallel chunks of ids, each owning the stretch of slots up to its last one.
+/// `fill` (which reads each one's world transform and record in `scene`), each while the
+/// memory of one a few places on is asked for (a crowd's moved cars lie scattered over
+/// megabytes of slots); in parallel chunks of ids, each owning the stretch of slots up to its
+/// last one.
 fn refill_listed<F: Fn(usize, &mut Prepared, Option<&mut (DVec3, f64)>) + Sync>(
     ids: &[u32],
-    worlds: &[DAffine3],
-    instances: &[crate::scene::Instance],
+    scene: &Scene,
     out: &mut [Prepared],
     spheres: &mut [(DVec3, f64)],
     fill: &F,
 ) {
     const AHEAD: usize = 4;
+    let (worlds, instances) = (scene.worlds(), scene.instances());
     let run = |ids: &[u32], first: usize, slots: &mut [Prepared], spheres: &mut [(DVec3, f64)]| {
         for (j, &i) in ids.iter().enumerate() {
             if let Some(&next) = ids.get(j + AHEAD) {

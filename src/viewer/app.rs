@@ -68,7 +68,7 @@ impl App {
         let (scene, seen, cars, lights) = (&mut self.scene, &mut self.seen, &self.cars, &self.lights);
         let (time, lod, animated) = (self.time, self.ui.lod, &self.opts.animated);
         let cpu = session.backend().gpu().is_none();
-        let mut stages = || -> Result<_, ViewerError> {
+        let stages = || -> Result<_, ViewerError> {
             let posed = seen.pose(scene, cars, time, sight.as_ref(), lod).map_err(scene_error)?;
             if let Some(a) = animated {
                 a.rig.pose(scene, a.clip, time).map_err(|e| ViewerError::Other(e.to_string()))?;
@@ -76,9 +76,7 @@ impl App {
             scene.update().map_err(scene_error)?;
             Ok((posed, session.frame(scene, &camera, lights, &features, &opts, &|_, _| {})))
         };
-        // A CPU frame's stages run on the pool with its threads kept awake (crate::pool); a
-        // GPU frame's host would only lose a core to them.
-        let (posed, rendered) = if cpu { crate::pool::run_awake(stages)? } else { stages()? };
+        let (posed, rendered) = crate::pool::run_frame(cpu, stages)?;
         self.ui.posed = (posed, self.cars.len());
         let report = match rendered {
             Ok(r) => r,

@@ -258,7 +258,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             voxray::scene::Sight::new(&cam, &lights, rays, box_).ok()
         });
         let cpu = session.backend().gpu().is_none();
-        let mut stages = || -> Result<_, voxray::Error> {
+        let stages = || -> Result<_, voxray::Error> {
             st.pose_seen(t, sight.as_ref(), opts.max_level)?;
             st.scene.update()?;
             session.frame(&st.scene, &cam, &lights, &features, &opts, &|d, _| {
@@ -267,9 +267,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 }
             })
         };
-        // A CPU frame's stages run on the pool with its threads kept awake (voxray::pool); a
-        // GPU frame's host would only lose a core to them.
-        let report = if cpu { voxray::pool::run_awake(stages)? } else { stages()? };
+        let report = voxray::pool::run_frame(cpu, stages)?;
         let plan = report.plan;
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
