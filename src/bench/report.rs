@@ -91,8 +91,9 @@ pub fn merge(old: Vec<Record>, new: &[Record]) -> Vec<Record> {
     let mut out: Vec<Record> = old.into_iter().filter(|r| !measured(r)).collect();
     out.extend_from_slice(new);
     let order = |g: &str| ["paper", "instances", "resolution", "depth", "splat", "peers"].iter().position(|&x| x == g);
-    // Stable: keeps each run's own order within a group.
-    out.sort_by_key(|r| order(&r.group).unwrap_or(usize::MAX));
+    // Stable: keeps each run's own order within a group, the CPU's rows before the GPU's
+    // whichever backend ran last.
+    out.sort_by_key(|r| (order(&r.group).unwrap_or(usize::MAX), r.backend_kind == "gpu"));
     out
 }
 
@@ -577,6 +578,11 @@ mod tests {
         let merged = merge(old, &[rec("paper", "gpu", "new gpu")]);
         let names: Vec<_> = merged.iter().map(|r| r.name.as_str()).collect();
         assert_eq!(names, ["old cpu", "new gpu", "d"]);
+        // A CPU run after a GPU run: the CPU's rows still come first in their group.
+        let old = vec![rec("instances", "gpu", "old gpu"), rec("instances", "cpu", "old cpu")];
+        let merged = merge(old, &[rec("instances", "cpu", "new cpu")]);
+        let names: Vec<_> = merged.iter().map(|r| r.name.as_str()).collect();
+        assert_eq!(names, ["new cpu", "old gpu"]);
         // A peers run replaces every peers row, also peers it no longer runs.
         let old = vec![rec("peers", "Embree 3", "old embree"), rec("paper", "cpu", "p")];
         let merged = merge(old, &[rec("peers", "embree", "new embree")]);
