@@ -1004,7 +1004,7 @@ struct ClipFrame {
 }
 
 /// Temporal stability, the voxel-transformation paper's argument for split filtering: the
-/// default car drives over the ground under sun and sky for [`FLICKER_FRAMES`] frames at 60
+/// default car drives over the ground under sun and sky for `FLICKER_FRAMES` frames at 60
 /// frames a second, rendered with GI under nearest and split filtering and with the
 /// half-resolution gather; on the pixels whose geometry stayed the same (a still instance hit
 /// at the same t) the indirect light's first and second differences from frame to frame

@@ -1,9 +1,9 @@
 //! Voxel-transformation global illumination (see DESIGN.md): every part is voxelized once
 //! more, coarsely, into a linear [`VoxelCache`]; each frame the caches of the instances are
 //! transformed by their world matrices into a world [`Volume`] with nearest or 8-neighbour
-//! split filtering, lit per cell ([`inject`]) and averaged up a level chain ([`levels`]).
+//! split filtering, lit per cell ([`inject`](mod@inject)) and averaged up a level chain ([`levels`]).
 //! and sampled by voxel cone tracing ([`cone`]). This module is the CPU reference of those
-//! passes, and [`reference`] is the path tracer they are measured against.
+//! passes, and [`reference`](mod@reference) is the path tracer they are measured against.
 
 pub mod cache;
 pub mod cone;

@@ -192,7 +192,7 @@ impl TilePyramid {
 /// Whether some ray of the tile may cross some instance's sphere, found by walking the
 /// instance BVH with the tile's pyramid (its boxes) and cone (the spheres): false only when
 /// none can, so every ray of the tile misses every instance. Gives up (true) after
-/// [`PYRAMID_NODES`] nodes.
+/// `PYRAMID_NODES` nodes.
 pub fn meets_any(pyramid: &TilePyramid, bvh: &super::bvh::Bvh, prepared: &[Prepared]) -> bool {
     if bvh.nodes.is_empty() {
         return !prepared.is_empty();

@@ -409,8 +409,8 @@ impl HitBuffer {
         Some(Reuse::new(moved, moved_spheres, moved_instances).with_tiles(camera.width, camera.height))
     }
 
-    /// Keeps a frame's colours, its ambient occlusion (GI) and what they were lit by, for
-    /// [`Reuse::shading_valid`].
+    /// Keeps a frame's colours, its ambient occlusion (GI) and what they were lit by, so that
+    /// the next frame under the same lights can keep them ([`Reuse::shadow_valid`]).
     pub fn keep_shading(&mut self, lights: &Lights, shadows: bool, radiance: &[Vec3], ao: &[f32]) {
         self.lights = Some(lights.clone());
         self.shadows = shadows;

@@ -134,7 +134,7 @@ fn beam_misses(fi: &FrameInstances, i: usize) -> bool {
 /// The `t_max` for tracing an instance that must find any hit at or before `t`, the best so
 /// far: the trace compares in its ray's internal units, and the conversion rounds, so a hit
 /// at exactly `t` could fall an ulp outside. Four ulps more cannot miss it (the offset into
-/// internal units is never negative); [`keep`] then compares the t found with `t` exactly.
+/// internal units is never negative); `keep` then compares the t found with `t` exactly.
 #[inline]
 pub fn widen(t: f32) -> f32 {
     if t.is_finite() && t >= 0.0 {

@@ -1,5 +1,5 @@
 //! Emissive triangles kept with a part's octree: the surfaces that light the scene directly
-//! ([`crate::render::lights`] samples points on them). Their emitted radiance also sits in
+//! ([`crate::render::emitters`] samples points on them). Their emitted radiance also sits in
 //! the voxels' attributes ([`super::Attr::emission`]), which is what a ray that hits an
 //! emitter sees; the triangles give the exact area and orientation that sampling needs.
 

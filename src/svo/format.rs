@@ -267,7 +267,7 @@ impl Cube {
     pub fn voxel_size(&self, level: u32) -> f32 {
         self.size / (1u64 << level) as f32
     }
-    /// Maps a world/object-space point to the unit cube [0,1]³ in f64 (camera-relative
+    /// Maps a world/object-space point to the unit cube \[0,1\]³ in f64 (camera-relative
     /// precision: subtract before rounding to f32).
     pub fn to_unit(&self, p: DVec3) -> DVec3 {
         (p - self.min.as_dvec3()) / self.size as f64

@@ -101,7 +101,7 @@ impl<V: Lanes> Frame<V> {
 /// One [`Frame`] per level.
 type Frames<V> = [Frame<V>; MAX_DEPTH as usize + 1];
 
-/// Reusable memory for tracing packets (about 50 KB: one [`Frame`] per level); make one per
+/// Reusable memory for tracing packets (about 50 KB: one `Frame` per level); make one per
 /// thread and pass it to every [`trace_packet`]. It also fixes the vector width: eight lanes
 /// where the CPU has AVX, else four.
 pub struct PacketStack {
@@ -424,7 +424,7 @@ fn walk_alone(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_
 /// for every ray that leaves its packet.
 type AloneStack = crate::uninit_stack::UninitStack<(u32, u8, Cell), { MAX_DEPTH as usize }>;
 
-/// `trace_unit(svo, ray, opts).hit`, found as a packet of one ray ([`walk_alone`] from the
+/// `trace_unit(svo, ray, opts).hit`, found as a packet of one ray (`walk_alone` from the
 /// root): the same answer (module notes), at a lower cost per node than Revelles' chain.
 /// Rays with a parallel axis, whole-tree level limits and zero-length leaves take
 /// [`trace_unit`].

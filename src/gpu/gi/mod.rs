@@ -124,7 +124,7 @@ pub struct GpuGiStats {
     /// Bricks the sparse pool holds (0 for dense): at least the bricks allocated.
     pub brick_capacity: u32,
     /// Bricks allocated, when this frame read the count back (a sparse volume whose bound
-    /// was too loose to size the pool by); [`GpuGi::read_bricks`] reads it on request.
+    /// was too loose to size the pool by); `GpuGi::read_bricks` reads it on request.
     pub bricks_counted: Option<u32>,
     /// Sparse, volume rebuilt with the count read back: wall-clock milliseconds of that
     /// extra submit and read (outside the GI pass's timestamps; 0 otherwise).
