@@ -90,9 +90,10 @@ fn a_cars_box_holds_its_parts_in_every_pose() {
                 }
             }
         }
-        // Every side is reached to within a door's swing the clip does not open it to.
+        // Every side is reached: each part is swept only through the angles it turns through
+        // (a door swept all the way round its hinge left the box up to a metre too wide).
         let loose = (reach_lo - boxes[0].0).max(boxes[0].1 - reach_hi).max_element();
-        assert!(loose < 1.0, "level {max_level}: the box is {loose} larger than needed on a side");
+        assert!(loose < 0.01, "level {max_level}: the box is {loose} larger than needed on a side");
     }
 }
 

@@ -300,10 +300,17 @@ pub fn car_box(scene: &Scene, car: &Car, max_level: u32) -> Result<(DVec3, DVec3
         let (mut a, mut b) = part.occupied_box(max_level);
         if k > 0 {
             let (pivot, axis) = (r[k].0.as_dvec3(), r[k].1.as_dvec3().normalize());
-            (a, b) = swept(a, b, pivot, axis);
-            // The front wheels (wheels 0 and 1) also steer about the vertical.
+            // Each part over the angles it turns through ([`car_pose`]): a wheel spins all the
+            // way round its axle, the front wheels (wheels 0 and 1) also steer about the
+            // vertical within ±STEER_MAX, a door swings between shut and DOOR_OPEN, and the
+            // steering wheel turns more than once each way.
+            let (from, to) = match k {
+                5 | 6 => (0.0f64.min(DOOR_OPEN), 0.0f64.max(DOOR_OPEN)),
+                _ => (0.0, TAU),
+            };
+            (a, b) = swept_through(a, b, pivot, axis, from, to);
             if k == 1 || k == 2 {
-                (a, b) = swept(a, b, pivot, DVec3::Y);
+                (a, b) = swept_through(a, b, pivot, DVec3::Y, -STEER_MAX, STEER_MAX);
             }
         }
         (lo, hi) = (lo.min(a), hi.max(b));
@@ -311,23 +318,44 @@ pub fn car_box(scene: &Scene, car: &Car, max_level: u32) -> Result<(DVec3, DVec3
     Ok((lo, hi))
 }
 
-/// The box around every turn of the box `lo..hi` about the unit `axis` through `pivot`: its
-/// corners' range along the axis, and their largest distance from it, make a cylinder (which
-/// holds every turn of the box, the distance from an axis being convex); the box around that
-/// cylinder.
-fn swept(lo: DVec3, hi: DVec3, pivot: DVec3, axis: DVec3) -> (DVec3, DVec3) {
-    let (mut h0, mut h1, mut radial) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+/// The box around the box `lo..hi` turned about the unit `axis` through `pivot` by every
+/// angle from `from` to `to` (radians, right-handed, as a quaternion about the axis turns):
+/// the box of its corners' arcs, which holds every turned box (a turned box is the hull of
+/// its turned corners). Each coordinate of a corner's arc is h + A·cos θ + B·sin θ, whose
+/// extremes lie at the range's ends or where θ is the phase of (A, B), or half a turn from
+/// it, inside the range; over a whole turn or more they are h ± √(A² + B²).
+fn swept_through(lo: DVec3, hi: DVec3, pivot: DVec3, axis: DVec3, from: f64, to: f64) -> (DVec3, DVec3) {
+    let (mut out_lo, mut out_hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    let mut reach = 0.0f64;
     for c in box_corners(lo, hi) {
         let v = c - pivot;
-        let h = v.dot(axis);
-        (h0, h1) = (h0.min(h), h1.max(h));
-        radial = radial.max((v - axis * h).length());
+        let along = axis * v.dot(axis);
+        let (u, w) = (v - along, axis.cross(v - along));
+        reach = reach.max(v.length());
+        if !(to - from < TAU) {
+            let radius = (u * u + w * w).map(f64::sqrt);
+            (out_lo, out_hi) = (out_lo.min(pivot + along - radius), out_hi.max(pivot + along + radius));
+            continue;
+        }
+        let mut angles = vec![from, to];
+        for i in 0..3 {
+            let phase = w[i].atan2(u[i]);
+            for k in -3..=3 {
+                let theta = phase + k as f64 * PI;
+                if from < theta && theta < to {
+                    angles.push(theta);
+                }
+            }
+        }
+        for theta in angles {
+            let p = pivot + along + u * theta.cos() + w * theta.sin();
+            (out_lo, out_hi) = (out_lo.min(p), out_hi.max(p));
+        }
     }
-    // A cylinder of radius ρ about a unit axis a reaches ρ·√(1 − aᵢ²) beyond its axis
-    // segment along coordinate i.
-    let reach = (DVec3::ONE - axis * axis).max(DVec3::ZERO).map(f64::sqrt) * radial;
-    let (e0, e1) = (pivot + axis * h0, pivot + axis * h1);
-    (e0.min(e1) - reach, e0.max(e1) + reach)
+    // The rounding of the sines and of the sums, far below the renderer's padding, is
+    // covered here all the same.
+    let pad = DVec3::splat(1e-9 * (reach + pivot.abs().max_element()));
+    (out_lo - pad, out_hi + pad)
 }
 
 /// [`car_box`] of every car, computed once per distinct set of parts.
@@ -661,6 +689,35 @@ mod tests {
         assert!(fastest_yaw <= yaw_rate && fastest_yaw > 0.98 * yaw_rate, "yaw rate {fastest_yaw} against {yaw_rate}");
         assert!(fastest > 0.6 * speed, "fastest corner {fastest} against the bound {speed}");
         assert_eq!(box_speed(&Car { travel: false, ..car }, axis_reach(lo, hi), yaw_rate), 0.0);
+    }
+
+    /// A box turned through a range of angles stays inside `swept_through`'s box at every
+    /// angle, and the box is no larger than the turned corners reach (random boxes, axes,
+    /// pivots and ranges, a whole turn and more among them).
+    #[test]
+    fn a_box_turned_through_a_range_stays_in_its_swept_box() {
+        let mut rng = crate::rng::Rng::new(7);
+        let mut v = |s: f64| DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * s;
+        for case in 0..200 {
+            let (c, half, pivot) = (v(4.0), v(2.0).abs() + DVec3::splat(0.01), v(3.0));
+            let axis = if case % 3 == 0 { DVec3::Y } else { (v(1.0) + DVec3::splat(1e-3)).normalize() };
+            let (a, b) = (v(2.0 * TAU).x, v(2.0 * TAU).x);
+            let (from, to) = if case % 7 == 0 { (-4.0, 4.0) } else { (a.min(b), a.max(b)) };
+            let (lo, hi) = swept_through(c - half, c + half, pivot, axis, from, to);
+            // The rounding of the turned points (the users of the box pad it far more).
+            let (lo, hi) = (lo - DVec3::splat(1e-12), hi + DVec3::splat(1e-12));
+            let (mut reach_lo, mut reach_hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+            for k in 0..=4000 {
+                let angle = from + (to - from) * k as f64 / 4000.0;
+                let turn = Transform::about_pivot(pivot, axis, angle).to_affine();
+                for p in box_corners(c - half, c + half).map(|q| turn.transform_point3(q)) {
+                    assert!(p.cmpge(lo).all() && p.cmple(hi).all(), "case {case}: {p} outside {lo}..{hi}");
+                    (reach_lo, reach_hi) = (reach_lo.min(p), reach_hi.max(p));
+                }
+            }
+            let loose = (reach_lo - lo).max(hi - reach_hi).max_element();
+            assert!(loose < 1e-3 * (1.0 + pivot.length() + c.length()), "case {case}: {loose} too loose");
+        }
     }
 
     #[test]
