@@ -91,7 +91,7 @@ fn a_cars_box_holds_its_parts_in_every_pose() {
             }
         }
         // Every side is reached: each part is swept only through the angles it turns through
-        // (a door swept all the way round its hinge left the box up to a metre too wide).
+        // (the doors swept all the way round their hinges left it 0.09 m too wide on a side).
         let loose = (reach_lo - boxes[0].0).max(boxes[0].1 - reach_hi).max_element();
         assert!(loose < 0.01, "level {max_level}: the box is {loose} larger than needed on a side");
     }

@@ -340,7 +340,9 @@ fn swept_through(lo: DVec3, hi: DVec3, pivot: DVec3, axis: DVec3, from: f64, to:
         let mut angles = vec![from, to];
         for i in 0..3 {
             let phase = w[i].atan2(u[i]);
-            for k in -3..=3 {
+            // The phase's half turns inside the range, wherever the range lies.
+            let first = ((from - phase) / PI).floor() as i64;
+            for k in first..=first + 3 {
                 let theta = phase + k as f64 * PI;
                 if from < theta && theta < to {
                     angles.push(theta);
@@ -702,7 +704,9 @@ mod tests {
             let (c, half, pivot) = (v(4.0), v(2.0).abs() + DVec3::splat(0.01), v(3.0));
             let axis = if case % 3 == 0 { DVec3::Y } else { (v(1.0) + DVec3::splat(1e-3)).normalize() };
             let (a, b) = (v(2.0 * TAU).x, v(2.0 * TAU).x);
-            let (from, to) = if case % 7 == 0 { (-4.0, 4.0) } else { (a.min(b), a.max(b)) };
+            // Some ranges far from zero, some of more than a turn.
+            let far = (case % 5) as f64 * 7.0 * TAU - 14.0 * TAU;
+            let (from, to) = if case % 7 == 0 { (-4.0, 4.0) } else { (a.min(b) + far, a.max(b) + far) };
             let (lo, hi) = swept_through(c - half, c + half, pivot, axis, from, to);
             // The rounding of the turned points (the users of the box pad it far more).
             let (lo, hi) = (lo - DVec3::splat(1e-12), hi + DVec3::splat(1e-12));
