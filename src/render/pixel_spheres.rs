@@ -350,14 +350,7 @@ pub fn mean_instance_area(scene: &Scene, camera: &Camera) -> Option<f64> {
     }
     let basis = camera.basis();
     let grid = PixelGrid::new(camera, &basis);
-    let boxes: Vec<(DVec3, DVec3)> = scene
-        .parts
-        .iter()
-        .map(|svo| {
-            let (lo, hi) = svo.occupied_box(u32::MAX);
-            ((lo + hi) * 0.5, (hi - lo) * 0.5)
-        })
-        .collect();
+    let boxes = super::instances::part_boxes(scene, u32::MAX);
     let total: u64 = scene
         .instances()
         .iter()
