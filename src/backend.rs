@@ -221,7 +221,7 @@ impl Backend {
     }
 
     /// Whether the GPU reads each frame back to the host (the default; see
-    /// [`crate::gpu::GpuRenderer::set_read_back`]). The CPU's frames are always on the host.
+    /// `gpu::GpuRenderer::set_read_back`). The CPU's frames are always on the host.
     #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
     pub fn set_read_back(&mut self, on: bool) {
         match self {
@@ -232,7 +232,7 @@ impl Backend {
     }
 
     /// Whether the GPU adds up each frame's statistics itself, so that frames kept on the
-    /// GPU still come with their counters ([`crate::gpu::GpuRenderer::set_counting`]).
+    /// GPU still come with their counters (`gpu::GpuRenderer::set_counting`).
     #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
     pub fn set_counting(&mut self, on: bool) {
         match self {

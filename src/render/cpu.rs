@@ -93,7 +93,7 @@ pub struct Frame {
     pub primary_rays: u64,
     /// Points where GI's diffuse cones were gathered (fewer than the pixels shaded with
     /// [`super::Gather::Half`] or the radiance caches); the GPU counts them only when its
-    /// counting is on ([`crate::gpu::GpuRenderer::set_counting`]), else 0.
+    /// counting is on (`gpu::GpuRenderer::set_counting`), else 0.
     pub gathers: u64,
     /// Where the radiance caches' time went, when GI gathered with them (CPU).
     pub cache_stages: Option<super::radiance_cache::CacheStages>,
