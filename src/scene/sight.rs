@@ -320,21 +320,25 @@ fn growth_to_meet(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> f64 {
             need = need.max(lo[k] - o[k]).max(o[k] - hi[k]);
             continue;
         }
-        let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-        let (near, far, per) = (a.min(b), a.max(b), 1.0 / d[k].abs());
+        // One division per slab and one per pair of slabs (a crowd tests thousands of cars a
+        // frame, each against a few pixels): the products round within a few units in the
+        // last place of the quotients, far inside the hundredth the caller leaves.
+        let per = 1.0 / d[k];
+        let (a, b) = ((lo[k] - o[k]) * per, (hi[k] - o[k]) * per);
+        let (near, far, per) = (a.min(b), a.max(b), per.abs());
         if !(near.is_finite() && far.is_finite() && per.is_finite()) {
             return 0.0;
         }
         // The exit must not be behind the origin: far + g·per ≥ 0.
-        need = need.max(-far / per);
+        need = need.max(-far * d[k].abs());
         slabs[moving] = (near, far, per);
         moving += 1;
     }
-    for (i, &(near, _, pi)) in slabs[..moving].iter().enumerate() {
-        for (j, &(_, far, pj)) in slabs[..moving].iter().enumerate() {
-            if i != j {
-                need = need.max((near - far) / (pi + pj));
-            }
+    for i in 0..moving {
+        for j in i + 1..moving {
+            let ((ni, fi, pi), (nj, fj, pj)) = (slabs[i], slabs[j]);
+            let inv = 1.0 / (pi + pj);
+            need = need.max((ni - fj) * inv).max((nj - fi) * inv);
         }
     }
     if need.is_finite() {
