@@ -177,11 +177,16 @@ impl Sight {
         };
         let (inverse, o, lo, hi) = self.box_frame(world, lo, hi, pad)?;
         let im = inverse.matrix3;
+        // A pixel's ray in the box's frame, unnormalized (the growth a ray needs does not
+        // depend on its direction's length): the camera's axes taken there once.
+        let b = &self.basis;
+        let (right, up, forward) = (im * b.right, im * b.up, im * b.forward);
         let mut need = f64::INFINITY;
         for py in y0..=y1 {
             let sy = self.rows[py as usize];
+            let row = forward + up * sy;
             for px in x0..=x1 {
-                let d = inverse.transform_vector3(self.basis.dir(self.columns[px as usize], sy));
+                let d = row + right * self.columns[px as usize];
                 let g = growth_to_meet(o, d, lo, hi);
                 if !(g > 0.0) {
                     return None;
