@@ -194,33 +194,32 @@ fn sun_shadows(
 ) -> Vec<SunRay> {
     let t = TILE as usize;
     let mut out = vec![SunRay::Untraced; width * height];
-    let band = |y0: usize, rows: &mut [SunRay]| {
-        super::tile_search::TileScratch::with(|scratch| {
-            let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
-            let tile_h = rows.len() / width;
-            for x0 in (0..width).step_by(t) {
-                let mut lanes = 0u64;
-                for ty in 0..tile_h {
-                    for x in x0..(x0 + t).min(width) {
-                        if needs(x, y0 + ty) {
-                            let k = ty * t + x - x0;
-                            origins[k] = origin(x, y0 + ty);
-                            lanes |= 1 << k;
-                        }
+    let band_with = |y0: usize, rows: &mut [SunRay], scratch: &mut super::tile_search::TileScratch| {
+        let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
+        let tile_h = rows.len() / width;
+        for x0 in (0..width).step_by(t) {
+            let mut lanes = 0u64;
+            for ty in 0..tile_h {
+                for x in x0..(x0 + t).min(width) {
+                    if needs(x, y0 + ty) {
+                        let k = ty * t + x - x0;
+                        origins[k] = origin(x, y0 + ty);
+                        lanes |= 1 << k;
                     }
                 }
-                if lanes == 0 {
-                    continue;
-                }
-                let blocked =
-                    super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, scratch);
-                for k in super::tile_search::each(lanes) {
-                    let free = blocked & (1 << k) == 0;
-                    rows[(k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
-                }
             }
-        })
+            if lanes == 0 {
+                continue;
+            }
+            let blocked =
+                super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, scratch);
+            for k in super::tile_search::each(lanes) {
+                let free = blocked & (1 << k) == 0;
+                rows[(k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
+            }
+        }
     };
+    let band = |y0: usize, rows: &mut [SunRay]| super::tile_search::TileScratch::with(|s| band_with(y0, rows, s));
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;

@@ -106,218 +106,217 @@ pub fn trace_tiles<T: Send, S>(
     let moved_flags = (p.moved_flags.len() == p.instances.prepared.len()).then_some(p.moved_flags);
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let moved_only = AtomicU64::new(0);
-    let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| {
-        TileScratch::with(|scratch| {
-            let mut work = Work::default();
-            let mut band_rays = 0u64;
-            let mut band_moved = 0u64;
-            let mut starts = Vec::new();
-            // Where the beam in `starts` begins (none yet).
-            let mut beam_x0 = usize::MAX;
-            let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
-            let mut hits = [None; (TILE * TILE) as usize];
-            let tile_h = rows.len() / w;
-            for x0 in (0..w).step_by(TILE as usize) {
-                let x1 = (x0 + TILE as usize).min(w);
-                let Some(setup) = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]) else {
-                    continue;
-                };
-                // Pixels to search among all instances, and among the moved ones with their bounds.
-                let mut todo = 0u64;
-                let mut partial = 0u64;
-                let mut bounds = [(0.0f32, 0i32); (TILE * TILE) as usize];
-                for ty in 0..tile_h {
-                    for x in x0..x1 {
-                        let k = ty * TILE as usize + x - x0;
-                        match pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
-                            Todo::Keep => {}
-                            Todo::All => todo |= 1 << k,
-                            Todo::Moved { t, instance } => {
-                                partial |= 1 << k;
-                                bounds[k] = (t, instance);
-                            }
+    // One band of tiles, with the thread's scratch.
+    let band_with = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]], scratch: &mut TileScratch| {
+        let mut work = Work::default();
+        let mut band_rays = 0u64;
+        let mut band_moved = 0u64;
+        let mut starts = Vec::new();
+        // Where the beam in `starts` begins (none yet).
+        let mut beam_x0 = usize::MAX;
+        let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
+        let mut hits = [None; (TILE * TILE) as usize];
+        let tile_h = rows.len() / w;
+        for x0 in (0..w).step_by(TILE as usize) {
+            let x1 = (x0 + TILE as usize).min(w);
+            let Some(setup) = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]) else {
+                continue;
+            };
+            // Pixels to search among all instances, and among the moved ones with their bounds.
+            let mut todo = 0u64;
+            let mut partial = 0u64;
+            let mut bounds = [(0.0f32, 0i32); (TILE * TILE) as usize];
+            for ty in 0..tile_h {
+                for x in x0..x1 {
+                    let k = ty * TILE as usize + x - x0;
+                    match pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
+                        Todo::Keep => {}
+                        Todo::All => todo |= 1 << k,
+                        Todo::Moved { t, instance } => {
+                            partial |= 1 << k;
+                            bounds[k] = (t, instance);
                         }
-                    }
-                }
-                if todo | partial == 0 {
-                    continue;
-                }
-                // This tile's pixels whose item holds a miss already.
-                let missed_before =
-                    p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
-                masks[x0 / TILE as usize][0] = todo;
-                band_rays += (todo | partial).count_ones() as u64;
-                band_moved += partial.count_ones() as u64;
-                // With beams, a tile whose rays can meet no instance stores misses untraced.
-                let (fi, all_miss) = if p.beams {
-                    // One beam serves the tiles of a [`BEAM_WIDTH`]-pixel run of the band: its cone
-                    // holds all their rays, so its starts hold for each of them.
-                    let bx0 = x0 - x0 % BEAM_WIDTH as usize;
-                    if beam_x0 != bx0 {
-                        let bx1 = (bx0 + BEAM_WIDTH as usize).min(w);
-                        let tile =
-                            TileRays::new(p.camera, &basis, bx0 as u32, y0 as u32, bx1 as u32, (y0 + tile_h) as u32);
-                        beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
-                        beam_x0 = bx0;
-                    }
-                    // The tile's cone meets no instance's voxels.
-                    let all_miss = starts.iter().all(|&s| s == f32::INFINITY);
-                    if all_miss {
-                        work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
-                    }
-                    (FrameInstances { starts: Some(&starts), ..p.instances }, all_miss)
-                } else {
-                    let settled = match lists {
-                        // No ray of the tile meets any sphere: a crowd's sky, most of its tiles.
-                        Some(lists) => lists.all_empty(x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32),
-                        // Through the BVH: the tile's pyramid meets no instance's sphere.
-                        None => {
-                            p.bvh_beams
-                                && p.instances.bvh.is_some_and(|bvh| {
-                                    let tile = TileRays::new(
-                                        p.camera,
-                                        &basis,
-                                        x0 as u32,
-                                        y0 as u32,
-                                        x1 as u32,
-                                        (y0 + tile_h) as u32,
-                                    );
-                                    TilePyramid::new(&tile)
-                                        .is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared))
-                                })
-                        }
-                    };
-                    (p.instances, settled)
-                };
-                if all_miss {
-                    // Every pending ray misses (and no moved instance beats a bound); a miss stored
-                    // there by last frame's beams is already in place.
-                    masks[x0 / TILE as usize][1] = todo;
-                    todo &= !missed_before;
-                    while todo != 0 {
-                        let k = todo.trailing_zeros() as usize;
-                        todo &= todo - 1;
-                        store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
-                    }
-                    continue;
-                }
-                // Lane k of the tile: its index in `rows`.
-                let at = |k: usize| (k / TILE as usize) * w + x0 + k % TILE as usize;
-                // `ray_dir` of the tile's pixels, with each column's and row's share formed once.
-                let sx: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_x(&basis, (x0 + i) as u32));
-                let sy: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_y(&basis, (y0 + i) as u32));
-                let dir = |k: usize| basis.dir(sx[k % TILE as usize], sy[k / TILE as usize]);
-                if p.beams {
-                    // The tile's rays as packets through each instance: the same answers as one by
-                    // one (below).
-                    for k in each(todo | partial) {
-                        dirs[k] = dir(k);
-                    }
-                    if todo != 0 {
-                        nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, scratch, &mut hits);
-                        for k in each(todo) {
-                            store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
-                        }
-                    }
-                    if partial != 0 {
-                        nearest_moved_tile(
-                            &fi,
-                            DVec3::ZERO,
-                            &dirs,
-                            partial,
-                            p.moved,
-                            &bounds,
-                            &p.opts,
-                            &mut work,
-                            scratch,
-                            &mut hits,
-                        );
-                        for k in each(partial) {
-                            if let Some(hit) = hits[k] {
-                                store(&mut rows[at(k)], Some((hit, dirs[k])));
-                                masks[x0 / TILE as usize][0] |= 1 << k;
-                            }
-                        }
-                    }
-                    continue;
-                }
-                if let Some(lists) = lists {
-                    // The tile's rays read their nearest spheres' instances first: scattered over
-                    // a crowd's megabytes, asked for together they load while the first rays trace.
-                    for k in each(todo) {
-                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
-                        if let Some(&(_, i)) = listed.first() {
-                            fi.prefetch_ray_map(i as usize);
-                        }
-                    }
-                }
-                for k in each(todo) {
-                    let hit = match lists {
-                        Some(lists) => {
-                            let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
-                            if listed.is_empty() {
-                                // The ray meets no sphere: a miss, without forming its direction,
-                                // and not stored again where last frame stored one.
-                                work.culled += fi.prepared.len() as u64;
-                                masks[x0 / TILE as usize][1] |= 1 << k;
-                                if missed_before >> k & 1 == 0 {
-                                    store(&mut rows[at(k)], None);
-                                }
-                                continue;
-                            }
-                            let d = dir(k);
-                            nearest_listed(&fi, DVec3::ZERO, d, listed, &p.opts, &mut work).map(|h| (h, d))
-                        }
-                        None => {
-                            let d = dir(k);
-                            nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d))
-                        }
-                    };
-                    store(&mut rows[at(k)], hit);
-                }
-                for k in each(partial) {
-                    let (t, instance) = bounds[k];
-                    let found = match (lists, moved_flags) {
-                        (Some(lists), Some(flags)) => {
-                            let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
-                            if listed.is_empty() {
-                                // No moved sphere meets the ray: the stored hit stands.
-                                work.culled += p.moved.len() as u64;
-                                continue;
-                            }
-                            let d = dir(k);
-                            nearest_listed_moved(
-                                &fi,
-                                DVec3::ZERO,
-                                d,
-                                listed,
-                                flags,
-                                p.moved.len(),
-                                t,
-                                instance,
-                                &p.opts,
-                                &mut work,
-                            )
-                            .map(|h| (h, d))
-                        }
-                        _ => {
-                            let d = dir(k);
-                            nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work).map(|h| (h, d))
-                        }
-                    };
-                    if let Some((hit, d)) = found {
-                        store(&mut rows[at(k)], Some((hit, d)));
-                        masks[x0 / TILE as usize][0] |= 1 << k;
                     }
                 }
             }
-            traced.fetch_add(work.traced, Ordering::Relaxed);
-            culled.fetch_add(work.culled, Ordering::Relaxed);
-            rays.fetch_add(band_rays, Ordering::Relaxed);
-            moved_only.fetch_add(band_moved, Ordering::Relaxed);
-            rows_done(tile_h);
-        })
+            if todo | partial == 0 {
+                continue;
+            }
+            // This tile's pixels whose item holds a miss already.
+            let missed_before =
+                p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
+            masks[x0 / TILE as usize][0] = todo;
+            band_rays += (todo | partial).count_ones() as u64;
+            band_moved += partial.count_ones() as u64;
+            // With beams, a tile whose rays can meet no instance stores misses untraced.
+            let (fi, all_miss) = if p.beams {
+                // One beam serves the tiles of a [`BEAM_WIDTH`]-pixel run of the band: its cone
+                // holds all their rays, so its starts hold for each of them.
+                let bx0 = x0 - x0 % BEAM_WIDTH as usize;
+                if beam_x0 != bx0 {
+                    let bx1 = (bx0 + BEAM_WIDTH as usize).min(w);
+                    let tile = TileRays::new(p.camera, &basis, bx0 as u32, y0 as u32, bx1 as u32, (y0 + tile_h) as u32);
+                    beam::starts(p.instances.parts, p.instances.prepared, &tile, p.opts.max_level, &mut starts);
+                    beam_x0 = bx0;
+                }
+                // The tile's cone meets no instance's voxels.
+                let all_miss = starts.iter().all(|&s| s == f32::INFINITY);
+                if all_miss {
+                    work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
+                }
+                (FrameInstances { starts: Some(&starts), ..p.instances }, all_miss)
+            } else {
+                let settled = match lists {
+                    // No ray of the tile meets any sphere: a crowd's sky, most of its tiles.
+                    Some(lists) => lists.all_empty(x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32),
+                    // Through the BVH: the tile's pyramid meets no instance's sphere.
+                    None => {
+                        p.bvh_beams
+                            && p.instances.bvh.is_some_and(|bvh| {
+                                let tile = TileRays::new(
+                                    p.camera,
+                                    &basis,
+                                    x0 as u32,
+                                    y0 as u32,
+                                    x1 as u32,
+                                    (y0 + tile_h) as u32,
+                                );
+                                TilePyramid::new(&tile)
+                                    .is_some_and(|pyr| !beam::meets_any(&pyr, bvh, p.instances.prepared))
+                            })
+                    }
+                };
+                (p.instances, settled)
+            };
+            if all_miss {
+                // Every pending ray misses (and no moved instance beats a bound); a miss stored
+                // there by last frame's beams is already in place.
+                masks[x0 / TILE as usize][1] = todo;
+                todo &= !missed_before;
+                while todo != 0 {
+                    let k = todo.trailing_zeros() as usize;
+                    todo &= todo - 1;
+                    store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
+                }
+                continue;
+            }
+            // Lane k of the tile: its index in `rows`.
+            let at = |k: usize| (k / TILE as usize) * w + x0 + k % TILE as usize;
+            // `ray_dir` of the tile's pixels, with each column's and row's share formed once.
+            let sx: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_x(&basis, (x0 + i) as u32));
+            let sy: [f64; TILE as usize] = std::array::from_fn(|i| p.camera.screen_y(&basis, (y0 + i) as u32));
+            let dir = |k: usize| basis.dir(sx[k % TILE as usize], sy[k / TILE as usize]);
+            if p.beams {
+                // The tile's rays as packets through each instance: the same answers as one by
+                // one (below).
+                for k in each(todo | partial) {
+                    dirs[k] = dir(k);
+                }
+                if todo != 0 {
+                    nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, scratch, &mut hits);
+                    for k in each(todo) {
+                        store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
+                    }
+                }
+                if partial != 0 {
+                    nearest_moved_tile(
+                        &fi,
+                        DVec3::ZERO,
+                        &dirs,
+                        partial,
+                        p.moved,
+                        &bounds,
+                        &p.opts,
+                        &mut work,
+                        scratch,
+                        &mut hits,
+                    );
+                    for k in each(partial) {
+                        if let Some(hit) = hits[k] {
+                            store(&mut rows[at(k)], Some((hit, dirs[k])));
+                            masks[x0 / TILE as usize][0] |= 1 << k;
+                        }
+                    }
+                }
+                continue;
+            }
+            if let Some(lists) = lists {
+                // The tile's rays read their nearest spheres' instances first: scattered over
+                // a crowd's megabytes, asked for together they load while the first rays trace.
+                for k in each(todo) {
+                    let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                    if let Some(&(_, i)) = listed.first() {
+                        fi.prefetch_ray_map(i as usize);
+                    }
+                }
+            }
+            for k in each(todo) {
+                let hit = match lists {
+                    Some(lists) => {
+                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                        if listed.is_empty() {
+                            // The ray meets no sphere: a miss, without forming its direction,
+                            // and not stored again where last frame stored one.
+                            work.culled += fi.prepared.len() as u64;
+                            masks[x0 / TILE as usize][1] |= 1 << k;
+                            if missed_before >> k & 1 == 0 {
+                                store(&mut rows[at(k)], None);
+                            }
+                            continue;
+                        }
+                        let d = dir(k);
+                        nearest_listed(&fi, DVec3::ZERO, d, listed, &p.opts, &mut work).map(|h| (h, d))
+                    }
+                    None => {
+                        let d = dir(k);
+                        nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d))
+                    }
+                };
+                store(&mut rows[at(k)], hit);
+            }
+            for k in each(partial) {
+                let (t, instance) = bounds[k];
+                let found = match (lists, moved_flags) {
+                    (Some(lists), Some(flags)) => {
+                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                        if listed.is_empty() {
+                            // No moved sphere meets the ray: the stored hit stands.
+                            work.culled += p.moved.len() as u64;
+                            continue;
+                        }
+                        let d = dir(k);
+                        nearest_listed_moved(
+                            &fi,
+                            DVec3::ZERO,
+                            d,
+                            listed,
+                            flags,
+                            p.moved.len(),
+                            t,
+                            instance,
+                            &p.opts,
+                            &mut work,
+                        )
+                        .map(|h| (h, d))
+                    }
+                    _ => {
+                        let d = dir(k);
+                        nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work).map(|h| (h, d))
+                    }
+                };
+                if let Some((hit, d)) = found {
+                    store(&mut rows[at(k)], Some((hit, d)));
+                    masks[x0 / TILE as usize][0] |= 1 << k;
+                }
+            }
+        }
+        traced.fetch_add(work.traced, Ordering::Relaxed);
+        culled.fetch_add(work.culled, Ordering::Relaxed);
+        rays.fetch_add(band_rays, Ordering::Relaxed);
+        moved_only.fetch_add(band_moved, Ordering::Relaxed);
+        rows_done(tile_h);
     };
+    let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| TileScratch::with(|s| band_with(y0, rows, masks, s));
     let rows = w * TILE as usize;
     #[cfg(feature = "parallel")]
     {
