@@ -177,17 +177,12 @@ impl Sight {
         };
         let (inverse, o, lo, hi) = self.box_frame(world, lo, hi, pad)?;
         let im = inverse.matrix3;
-        // A pixel's ray in the box's frame, unnormalized (the growth a ray needs does not
-        // depend on its direction's length): the camera's axes taken there once.
-        let b = &self.basis;
-        let (right, up, forward) = (im * b.right, im * b.up, im * b.forward);
+        let ray = self.rays_in(&im);
         let mut need = f64::INFINITY;
         for py in y0..=y1 {
             let sy = self.rows[py as usize];
-            let row = forward + up * sy;
             for px in x0..=x1 {
-                let d = row + right * self.columns[px as usize];
-                let g = growth_to_meet(o, d, lo, hi);
+                let g = growth_to_meet(o, ray(self.columns[px as usize], sy), lo, hi);
                 if !(g > 0.0) {
                     return None;
                 }
@@ -228,13 +223,20 @@ impl Sight {
         }
         // Inverted only here: most of a crowd's boxes hold no pixel centre.
         let Some((inverse, o, lo, hi)) = self.box_frame(world, lo, hi, pad) else { return true };
+        let ray = self.rays_in(&inverse.matrix3);
         (y0..=y1).any(|py| {
             let sy = self.rows[py as usize];
-            (x0..=x1).any(|px| {
-                let d = inverse.transform_vector3(self.basis.dir(self.columns[px as usize], sy));
-                ray_meets_box(o, d, lo, hi)
-            })
+            (x0..=x1).any(|px| ray_meets_box(o, ray(self.columns[px as usize], sy), lo, hi))
         })
+    }
+
+    /// A pixel's primary ray, given its screen slopes (x, y), in a frame whose linear map is
+    /// `m` (a box's): unnormalized, as whether a ray meets a box and how far the box must
+    /// grow to meet it do not depend on its length; the camera's axes are mapped once.
+    fn rays_in(&self, m: &DMat3) -> impl Fn(f64, f64) -> DVec3 {
+        let b = &self.basis;
+        let (right, up, forward) = (*m * b.right, *m * b.up, *m * b.forward);
+        move |x, y| forward + up * y + right * x
     }
 
     /// The box's own bounding sphere, as the renderer bounds an instance's box (its
