@@ -52,10 +52,11 @@ fn a_cars_radius_holds_its_parts_in_every_pose() {
     }
 }
 
-/// The box in a car's body frame ([`voxray::scene::car::car_box`], what posing tests against
-/// the frame's rays) holds every corner of every instance's occupied box over 300 poses at two
-/// levels, taken into the body frame that `body_world` gives without posing; and it is not
-/// loose by more than a wheel's or a door's turn on any side.
+/// The boxes in a car's body frame that posing tests against the frame's rays (the car's,
+/// [`voxray::scene::car::car_box`], and each part's, [`voxray::scene::car::car_part_boxes`])
+/// hold every corner of every instance's occupied box over 300 poses at two levels, taken
+/// into the body frame that `body_world` gives without posing; and the car's is not loose by
+/// more than a wheel's or a door's turn on any side.
 #[test]
 fn a_cars_box_holds_its_parts_in_every_pose() {
     let parts = car_parts();
@@ -68,6 +69,7 @@ fn a_cars_box_holds_its_parts_in_every_pose() {
             voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
             st.scene.update().unwrap();
             for (car, &(lo, hi)) in st.cars.iter().zip(&boxes) {
+                let part_boxes = voxray::scene::car::car_part_boxes(&st.scene, car, max_level).unwrap();
                 let body = voxray::scene::car::body_world(car, t);
                 let posed = st.scene.world(car.body);
                 assert!(
@@ -76,7 +78,7 @@ fn a_cars_box_holds_its_parts_in_every_pose() {
                     "t {t}: body world"
                 );
                 let into_body = body.inverse();
-                for i in car.instances() {
+                for (i, (plo, phi)) in car.instances().into_iter().zip(part_boxes) {
                     let (a, b) = st.scene.parts[st.scene.instances()[i].part].occupied_box(max_level);
                     for corner in voxray::scene::instances::box_corners(a, b) {
                         let p = into_body.transform_point3(st.scene.world(i).transform_point3(corner));
@@ -84,6 +86,10 @@ fn a_cars_box_holds_its_parts_in_every_pose() {
                         assert!(
                             p.cmpge(lo - slack).all() && p.cmple(hi + slack).all(),
                             "level {max_level}, t {t}: instance {i}'s corner {p} outside {lo}..{hi}"
+                        );
+                        assert!(
+                            p.cmpge(plo - slack).all() && p.cmple(phi + slack).all(),
+                            "level {max_level}, t {t}: instance {i}'s corner {p} outside its part's {plo}..{phi}"
                         );
                         (reach_lo, reach_hi) = (reach_lo.min(p), reach_hi.max(p));
                     }

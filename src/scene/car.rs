@@ -286,14 +286,26 @@ pub fn car_radius(scene: &Scene, car: &Car, max_level: u32) -> Result<f64, Scene
 }
 
 /// A box in a car's body frame that holds its eight parts' occupied cells at `max_level` in
-/// every pose: the body's own box, and for each child the box around the cylinder its cells
-/// sweep turning about their axis through its pivot, as [`car_pose`] turns them (the front
-/// wheels' spinning cylinder swept again about the vertical, for the steering). A sphere
-/// about every pivot ([`car_radius`]) is far looser: a door's hinge stands on the ground.
-/// Refused when one of its instances or their parts is missing.
+/// every pose: the box around [`car_part_boxes`]. A sphere about every pivot ([`car_radius`])
+/// is far looser: a door's hinge stands on the ground. Refused when one of its instances or
+/// their parts is missing.
 pub fn car_box(scene: &Scene, car: &Car, max_level: u32) -> Result<(DVec3, DVec3), SceneError> {
-    let r = rig();
     let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for (a, b) in car_part_boxes(scene, car, max_level)? {
+        (lo, hi) = (lo.min(a), hi.max(b));
+    }
+    Ok((lo, hi))
+}
+
+/// Boxes in a car's body frame that hold each of its eight parts' occupied cells at
+/// `max_level` in every pose, in the order of [`Car::instances`]: the body's own box, and for
+/// each child the box around the cylinder its cells sweep turning about their axis through
+/// its pivot, as [`car_pose`] turns them (the front wheels' spinning cylinder swept again
+/// about the vertical, for the steering). Refused when one of its instances or their parts
+/// is missing.
+pub fn car_part_boxes(scene: &Scene, car: &Car, max_level: u32) -> Result<[(DVec3, DVec3); 8], SceneError> {
+    let r = rig();
+    let mut out = [(DVec3::ZERO, DVec3::ZERO); 8];
     for (k, &i) in car.instances().iter().enumerate() {
         let inst = scene.instances().get(i).ok_or(SceneError::Instance(i))?;
         let part = scene.parts.get(inst.part).ok_or(SceneError::Part(inst.part))?;
@@ -313,9 +325,21 @@ pub fn car_box(scene: &Scene, car: &Car, max_level: u32) -> Result<(DVec3, DVec3
                 (a, b) = swept_through(a, b, pivot, DVec3::Y, -STEER_MAX, STEER_MAX);
             }
         }
-        (lo, hi) = (lo.min(a), hi.max(b));
+        out[k] = (a, b);
     }
-    Ok((lo, hi))
+    Ok(out)
+}
+
+/// Of `boxes`, those not inside another (the first of equal ones kept): a set of boxes
+/// holding the same points, fewer to test.
+fn outermost(boxes: &[(DVec3, DVec3)]) -> Vec<(DVec3, DVec3)> {
+    let inside = |(a, b): (DVec3, DVec3), (lo, hi): (DVec3, DVec3)| lo.cmple(a).all() && b.cmple(hi).all();
+    boxes
+        .iter()
+        .enumerate()
+        .filter(|&(i, &x)| !boxes.iter().enumerate().any(|(j, &y)| j != i && inside(x, y) && (!inside(y, x) || j < i)))
+        .map(|(_, &x)| x)
+        .collect()
 }
 
 /// The box around the box `lo..hi` turned about the unit `axis` through `pivot` by every
@@ -372,21 +396,32 @@ fn per_parts<T: Copy>(
     cars: &[Car],
     of: impl Fn(&Car) -> Result<T, SceneError>,
 ) -> Result<Vec<T>, SceneError> {
-    let mut done: Vec<([usize; 8], T)> = Vec::new();
-    let mut out = Vec::with_capacity(cars.len());
+    let (values, index) = shared_per_parts(scene, cars, of)?;
+    Ok(index.into_iter().map(|k| values[k as usize]).collect())
+}
+
+/// `of(car)` once per set of parts the cars share, and for every car the index of its value.
+fn shared_per_parts<T>(
+    scene: &Scene,
+    cars: &[Car],
+    of: impl Fn(&Car) -> Result<T, SceneError>,
+) -> Result<(Vec<T>, Vec<u32>), SceneError> {
+    let (mut keys, mut values) = (Vec::<[usize; 8]>::new(), Vec::new());
+    let mut index = Vec::with_capacity(cars.len());
     for car in cars {
         let key = car_parts(scene, car).ok_or(SceneError::Instance(car.body))?;
-        let v = match done.iter().find(|(k, _)| *k == key) {
-            Some(&(_, v)) => v,
+        let k = match keys.iter().position(|k| *k == key) {
+            Some(k) => k,
             None => {
-                let v = of(car)?;
-                done.push((key, v));
-                v
+                values.push(of(car)?);
+                keys.push(key);
+                keys.len() - 1
             }
         };
-        out.push(v);
+        // (At most one set of parts per car: fewer than 2³² cars fit in memory's instances.)
+        index.push(k as u32);
     }
-    Ok(out)
+    Ok((values, index))
 }
 
 /// A bound on the speed of a driving car's body origin: |dp/dt|² = A²w²(cos² s + cos² 2s)
@@ -469,7 +504,8 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 }
 
 /// Posing only the cars a frame's rays can reach, with what it keeps between frames: the
-/// cars' boxes ([`car_box`]) and radii ([`car_radius`]) at a level of detail, and per car the
+/// cars' boxes ([`car_box`]), their parts' ([`car_part_boxes`]) and radii ([`car_radius`]) at
+/// a level of detail, and per car the
 /// last placement of its body tested under the last frame's [`Sight`] and the answer (so a
 /// car that stays where it was is not tested again while the sight stays the same), and
 /// the times over which the car cannot come near any ray (or, found in sight, over which it
@@ -478,8 +514,13 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 pub struct SeenCars {
     /// Part edits, level, car count and the parts' addresses the boxes are for.
     boxes_for: Option<(u64, u32, usize, Vec<usize>)>,
-    /// Per car, its [`car_box`], [`car_radius`] and the box's [`axis_reach`].
-    boxes: Vec<(DVec3, DVec3, f64, f64)>,
+    /// Per car, its [`car_box`], [`car_radius`], the box's [`axis_reach`] and which of
+    /// `shapes` its parts' boxes are.
+    boxes: Vec<(DVec3, DVec3, f64, f64, u32)>,
+    /// Per set of parts the cars share, the [`car_part_boxes`] a ray must meet for it to
+    /// reach the car (the [`outermost`] ones): a car whose [`car_box`] a ray meets may still
+    /// be clear of all of them (a third of a crowd's, seen from afar).
+    shapes: Vec<Vec<(DVec3, DVec3)>>,
     /// [`max_yaw_rate`], once.
     yaw_rate: f64,
     sight: Option<Sight>,
@@ -550,11 +591,15 @@ impl SeenCars {
         if self.boxes_for != key {
             let radii = car_radii(scene, cars, max_level)?;
             self.yaw_rate = max_yaw_rate();
+            let (shapes, shape) =
+                shared_per_parts(scene, cars, |car| Ok(outermost(&car_part_boxes(scene, car, max_level)?)))?;
             self.boxes = car_boxes(scene, cars, max_level)?
                 .into_iter()
                 .zip(radii)
-                .map(|((lo, hi), r)| (lo, hi, r, axis_reach(lo, hi)))
+                .zip(shape)
+                .map(|(((lo, hi), r), k)| (lo, hi, r, axis_reach(lo, hi), k))
                 .collect();
+            self.shapes = shapes;
             self.boxes_for = key;
             self.sight = None;
         }
@@ -564,11 +609,12 @@ impl SeenCars {
             self.known.resize(cars.len(), Known::NONE);
             self.sight = Some(sight.clone());
         }
-        let (scene_ref, boxes, yaw_rate) = (&*scene, &self.boxes, self.yaw_rate);
+        let (scene_ref, boxes, shapes, yaw_rate) = (&*scene, &self.boxes, &self.shapes, self.yaw_rate);
         // Whether car k is posed, and whether it was tested.
         let seen = |k: usize, known: &mut Known| -> (bool, bool) {
             let car = &cars[k];
-            let (lo, hi, r, reach) = boxes[k];
+            let (lo, hi, r, reach, shape) = boxes[k];
+            let parts = &shapes[shape as usize];
             // (Of the car as it drives now: whether it travels is not part of the boxes' key.)
             let speed = box_speed(car, reach, yaw_rate);
             // A missing body: posing reports it.
@@ -584,8 +630,12 @@ impl SeenCars {
             if within && known.seen {
                 return (true, false);
             }
+            let reaches = |w: &DAffine3| sight.reaches_boxes(w, &[(lo, hi)], r) && sight.reaches_boxes(w, parts, r);
             let new = body_world(car, t);
-            let Some(room) = sight.box_slack(&new, lo, hi, r, speed * CLEAR_FOR) else {
+            // The car's box first: most cars' rays pass far from it.
+            let cap = speed * CLEAR_FOR;
+            let slack = sight.boxes_slack(&new, &[(lo, hi)], r, cap).or_else(|| sight.boxes_slack(&new, parts, r, cap));
+            let Some(room) = slack else {
                 *known = Known { placed: new, seen: true, clear: (t - SEEN_FOR, t + SEEN_FOR), motion };
                 return (true, true);
             };
@@ -596,7 +646,7 @@ impl SeenCars {
                 _ => Known::NONE.clear,
             };
             // Where the car was last tested, under this sight: the same answer.
-            let old_seen = if known.placed == old { known.seen } else { sight.reaches_box(&old, lo, hi, r) };
+            let old_seen = if known.placed == old { known.seen } else { reaches(&old) };
             // Posed (its old place is seen) it stands where it was found clear; else it stays.
             *known = Known { placed: if old_seen { new } else { old }, seen: false, clear, motion };
             (old_seen, true)
@@ -691,6 +741,51 @@ mod tests {
         assert!(fastest_yaw <= yaw_rate && fastest_yaw > 0.98 * yaw_rate, "yaw rate {fastest_yaw} against {yaw_rate}");
         assert!(fastest > 0.6 * speed, "fastest corner {fastest} against the bound {speed}");
         assert_eq!(box_speed(&Car { travel: false, ..car }, axis_reach(lo, hi), yaw_rate), 0.0);
+    }
+
+    /// Of random boxes (some inside others, some equal), `outermost` keeps exactly those
+    /// inside no other box, and one of each set of equal ones: every box kept or inside a
+    /// kept one, no kept box inside another kept one.
+    #[test]
+    fn the_outermost_boxes_hold_all_and_none_holds_another() {
+        let mut rng = crate::rng::Rng::new(11);
+        let inside = |(a, b): (DVec3, DVec3), (lo, hi): (DVec3, DVec3)| lo.cmple(a).all() && b.cmple(hi).all();
+        let mut dropped = 0;
+        for case in 0..300 {
+            let mut boxes: Vec<(DVec3, DVec3)> = Vec::new();
+            for k in 0..1 + case % 8 {
+                let r = |rng: &mut crate::rng::Rng| DVec3::new(rng.f64(), rng.f64(), rng.f64());
+                let b = match (k, rng.f64()) {
+                    (0, _) | (_, ..0.4) => {
+                        let lo = r(&mut rng) * 4.0;
+                        (lo, lo + r(&mut rng) * 3.0)
+                    }
+                    // Inside an earlier box, or equal to one.
+                    (_, p) => {
+                        let (lo, hi) = boxes[rng.below(boxes.len() as u64) as usize];
+                        if p < 0.7 {
+                            (lo, hi)
+                        } else {
+                            let (u, v) = (r(&mut rng), r(&mut rng));
+                            (lo + (hi - lo) * u.min(v), lo + (hi - lo) * u.max(v))
+                        }
+                    }
+                };
+                boxes.push(b);
+            }
+            let kept = outermost(&boxes);
+            for &b in &boxes {
+                assert!(kept.iter().any(|&k| inside(b, k)), "case {case}: {b:?} is in no kept box");
+            }
+            for (i, &a) in kept.iter().enumerate() {
+                assert!(boxes.contains(&a), "case {case}");
+                for (j, &b) in kept.iter().enumerate() {
+                    assert!(i == j || !inside(a, b), "case {case}: kept {a:?} is inside kept {b:?}");
+                }
+            }
+            dropped += boxes.len() - kept.len();
+        }
+        assert!(dropped > 300, "only {dropped} boxes dropped");
     }
 
     /// A box turned through a range of angles stays inside `swept_through`'s box at every

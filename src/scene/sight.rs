@@ -1,6 +1,6 @@
 //! What a frame's rays can reach: whether any primary ray of a camera, or any sun's shadow
 //! ray from a point those rays can see, can meet a given sphere ([`Sight::reaches`]), or a
-//! placed box and sphere ([`Sight::reaches_box`]). A crowd poses only the cars whose bounds
+//! placed set of boxes and sphere ([`Sight::reaches_boxes`]). A crowd poses only the cars whose bounds
 //! some ray can reach ([`super::car::SeenCars::pose`]); a car no ray reaches in its old pose
 //! nor in its new one looks the same in the picture whether it is posed or not.
 //!
@@ -13,6 +13,7 @@ use super::camera::{PixelGrid, PixelRect};
 use super::{Camera, Lights};
 use crate::render::instances::farthest_corner;
 use glam::{DAffine3, DMat3, DVec3};
+use std::cell::OnceCell;
 
 /// Relative padding of a tested sphere's radius.
 const RADIUS_PAD: f64 = 1e-3;
@@ -139,32 +140,54 @@ impl Sight {
         self.primary_meets_capsule(c, c, r) || self.sun_reaches(c, r)
     }
 
-    /// Whether some ray of the frame may meet what lies both in the box `lo..hi` placed by
-    /// `world` (an invertible affine map; a car body's world transform) and within `radius`
-    /// of `world`'s origin: a primary ray, tested against the box itself (grown by the
-    /// padding [`Sight::reaches`] gives a radius), or a sun's shadow ray, tested against the
-    /// sphere (as [`Sight::reaches`]). The box is the tighter outline on screen; the sphere,
-    /// swept towards the sun, the simpler shadow.
-    pub fn reaches_box(&self, world: &DAffine3, lo: DVec3, hi: DVec3, radius: f64) -> bool {
-        let Some((c, corner, pad)) = self.box_sphere(world, lo, hi) else { return true };
-        if self.primary_meets_box(world, lo, hi, c, corner + pad, pad) {
-            return true;
+    /// Whether some ray of the frame may meet what lies both in one of the `boxes` (each
+    /// `(lo, hi)`) placed by `world` (an invertible affine map; a car body's world transform:
+    /// the boxes are its parts') and within `radius` of `world`'s origin: a primary ray, tested
+    /// against each box itself (grown by the padding [`Sight::reaches`] gives a radius), or a
+    /// sun's shadow ray, tested against the sphere (as [`Sight::reaches`]). The boxes are the
+    /// tighter outline on screen; the sphere, swept towards the sun, the simpler shadow.
+    pub fn reaches_boxes(&self, world: &DAffine3, boxes: &[(DVec3, DVec3)], radius: f64) -> bool {
+        // Inverted only for a box whose rectangle holds pixels: most of a crowd's hold none.
+        let frame = OnceCell::new();
+        for &(lo, hi) in boxes {
+            let Some((c, corner, pad)) = self.box_sphere(world, lo, hi) else { return true };
+            if self.primary_meets_box(&frame, world, lo, hi, c, corner + pad, pad) {
+                return true;
+            }
         }
         let o = world.translation - self.camera.eye;
         let r = radius + padding(radius, o);
         !(o.is_finite() && r.is_finite()) || self.sun_reaches(o, r)
     }
 
-    /// [`Sight::reaches_box`], with room: None when some ray of the frame may meet the box;
-    /// else a world distance s ≤ `cap` such that the box with each of its points moved by
-    /// less than s is still met by no pixel's primary ray (a crowd's car keeps clear of the
-    /// rays for as long as its motion takes to cover s). Suns' shadow rays give no room: an
-    /// unreached box then has s = 0.
-    pub fn box_slack(&self, world: &DAffine3, lo: DVec3, hi: DVec3, radius: f64, cap: f64) -> Option<f64> {
+    /// [`Sight::reaches_boxes`], with room: None when some ray of the frame may meet one of
+    /// the boxes; else a world distance s ≤ `cap` such that the boxes with each of their
+    /// points moved by less than s are still met by no pixel's primary ray (a crowd's car
+    /// keeps clear of the rays for as long as its motion takes to cover s). Suns' shadow
+    /// rays give no room: unreached boxes then have s = 0.
+    pub fn boxes_slack(&self, world: &DAffine3, boxes: &[(DVec3, DVec3)], radius: f64, cap: f64) -> Option<f64> {
         if !self.suns.is_empty() {
-            return (!self.reaches_box(world, lo, hi, radius)).then_some(0.0);
+            return (!self.reaches_boxes(world, boxes, radius)).then_some(0.0);
         }
         let cap = if cap.is_finite() { cap.max(0.0) } else { 0.0 };
+        let frame = OnceCell::new();
+        let mut room = cap;
+        for &(lo, hi) in boxes {
+            room = room.min(self.box_room(&frame, world, lo, hi, cap)?);
+        }
+        Some(room)
+    }
+
+    /// [`Sight::boxes_slack`] of the one box `lo..hi`, with `frame` the boxes' frame once
+    /// made ([`Sight::box_frame`]).
+    fn box_room(
+        &self,
+        frame: &OnceCell<Option<BoxFrame>>,
+        world: &DAffine3,
+        lo: DVec3,
+        hi: DVec3,
+        cap: f64,
+    ) -> Option<f64> {
         let (c, corner, pad) = self.box_sphere(world, lo, hi)?;
         // Pixels outside this rectangle: their rays pass farther than the padding and `cap`
         // from every point of the box.
@@ -173,16 +196,16 @@ impl Sight {
             PixelRect::Empty => return Some(cap),
             PixelRect::Pixels { x0, y0, x1, y1 } if rect.area(&self.camera) <= MAX_TESTED_PIXELS => (x0, y0, x1, y1),
             // Close to the eye: the box itself, without room.
-            _ => return (!self.primary_meets_box(world, lo, hi, c, corner + pad, pad)).then_some(0.0),
+            _ => return (!self.primary_meets_box(frame, world, lo, hi, c, corner + pad, pad)).then_some(0.0),
         };
-        let (inverse, o, lo, hi) = self.box_frame(world, lo, hi, pad)?;
-        let im = inverse.matrix3;
-        let ray = self.rays_in(&im);
+        let f = frame.get_or_init(|| self.box_frame(world)).as_ref()?;
+        let grow = DVec3::splat(pad * f.stretch);
+        let (lo, hi) = (lo - grow, hi + grow);
         let mut need = f64::INFINITY;
         for py in y0..=y1 {
             let sy = self.rows[py as usize];
             for px in x0..=x1 {
-                let g = growth_to_meet(o, ray(self.columns[px as usize], sy), lo, hi);
+                let g = growth_to_meet(f.eye, f.ray(self.columns[px as usize], sy), lo, hi);
                 if !(g > 0.0) {
                     return None;
                 }
@@ -191,7 +214,7 @@ impl Sight {
         }
         // A world distance s is at most s·‖inverse‖ in the box's frame; a hundredth and the
         // padding again are left for the rounding of it all and of the moved box's padding.
-        let room = need / spectral_bound(&im) * 0.99 - pad;
+        let room = need / f.spectral * 0.99 - pad;
         Some(if room.is_finite() { room.clamp(0.0, cap) } else { 0.0 })
     }
 
@@ -211,9 +234,19 @@ impl Sight {
 
     /// Whether a pixel's primary ray meets the box `lo..hi` placed by `world`, grown by the
     /// world length `pad`: the pixels inside the rectangle of its bounding sphere (about `c`,
-    /// camera-relative, radius `r`, padded), each ray taken into the box's frame and tested
-    /// against its slabs.
-    fn primary_meets_box(&self, world: &DAffine3, lo: DVec3, hi: DVec3, c: DVec3, r: f64, pad: f64) -> bool {
+    /// camera-relative, radius `r`, padded), each ray taken into the box's frame (`frame`,
+    /// made here if not yet) and tested against its slabs.
+    #[allow(clippy::too_many_arguments)]
+    fn primary_meets_box(
+        &self,
+        frame: &OnceCell<Option<BoxFrame>>,
+        world: &DAffine3,
+        lo: DVec3,
+        hi: DVec3,
+        c: DVec3,
+        r: f64,
+        pad: f64,
+    ) -> bool {
         let rect = self.grid.near(&[c], r);
         let PixelRect::Pixels { x0, y0, x1, y1 } = rect else {
             return rect == PixelRect::Unbounded;
@@ -221,22 +254,13 @@ impl Sight {
         if rect.area(&self.camera) > MAX_TESTED_PIXELS {
             return true;
         }
-        // Inverted only here: most of a crowd's boxes hold no pixel centre.
-        let Some((inverse, o, lo, hi)) = self.box_frame(world, lo, hi, pad) else { return true };
-        let ray = self.rays_in(&inverse.matrix3);
+        let Some(f) = frame.get_or_init(|| self.box_frame(world)) else { return true };
+        let grow = DVec3::splat(pad * f.stretch);
+        let (lo, hi) = (lo - grow, hi + grow);
         (y0..=y1).any(|py| {
             let sy = self.rows[py as usize];
-            (x0..=x1).any(|px| ray_meets_box(o, ray(self.columns[px as usize], sy), lo, hi))
+            (x0..=x1).any(|px| ray_meets_box(f.eye, f.ray(self.columns[px as usize], sy), lo, hi))
         })
-    }
-
-    /// A pixel's primary ray, given its screen slopes (x, y), in a frame whose linear map is
-    /// `m` (a box's): unnormalized, as whether a ray meets a box and how far the box must
-    /// grow to meet it do not depend on its length; the camera's axes are mapped once.
-    fn rays_in(&self, m: &DMat3) -> impl Fn(f64, f64) -> DVec3 {
-        let b = &self.basis;
-        let (right, up, forward) = (*m * b.right, *m * b.up, *m * b.forward);
-        move |x, y| forward + up * y + right * x
     }
 
     /// The box's own bounding sphere, as the renderer bounds an instance's box (its
@@ -249,18 +273,22 @@ impl Sight {
         (c.is_finite() && pad.is_finite()).then_some((c, corner, pad))
     }
 
-    /// The box's frame for pixel rays: `world`'s inverse, the eye in it, and the box grown
-    /// by the world length `pad` (the inverse stretches no length by more than its columns'
-    /// Frobenius norm). None when the inverse is not finite.
-    fn box_frame(&self, world: &DAffine3, lo: DVec3, hi: DVec3, pad: f64) -> Option<(DAffine3, DVec3, DVec3, DVec3)> {
+    /// The frame of boxes placed by `world`, for pixel rays ([`BoxFrame`]). None when
+    /// `world`'s inverse is not finite.
+    fn box_frame(&self, world: &DAffine3) -> Option<BoxFrame> {
         let inverse = world.inverse();
         if !inverse.is_finite() {
             return None;
         }
-        let im = inverse.matrix3;
-        let stretch = (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt();
-        let grow = DVec3::splat(pad * stretch);
-        Some((inverse, inverse.transform_point3(self.camera.eye), lo - grow, hi + grow))
+        let (im, b) = (inverse.matrix3, &self.basis);
+        Some(BoxFrame {
+            eye: inverse.transform_point3(self.camera.eye),
+            right: im * b.right,
+            up: im * b.up,
+            forward: im * b.forward,
+            stretch: (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt(),
+            spectral: spectral_bound(&im),
+        })
     }
 
     /// Whether a pixel's primary ray (from the eye, camera-relative) meets the capsule of
@@ -292,6 +320,31 @@ impl Sight {
                 }
             })
         })
+    }
+}
+
+/// The frame of boxes placed by an affine map (a car body's), where pixel rays are tested
+/// against them: the map's inverse applied to the eye and to the camera's axes once.
+#[derive(Clone, Copy, Debug)]
+struct BoxFrame {
+    /// The eye.
+    eye: DVec3,
+    /// The camera's right, up and forward axes.
+    right: DVec3,
+    up: DVec3,
+    forward: DVec3,
+    /// A bound on how much the inverse stretches a length (its columns' Frobenius norm): a
+    /// box grown by a world length l grows by at most l times this.
+    stretch: f64,
+    /// [`spectral_bound`] of the inverse (tighter than `stretch`).
+    spectral: f64,
+}
+
+impl BoxFrame {
+    /// A pixel's primary ray, given its screen slopes (x, y): unnormalized, as whether a ray
+    /// meets a box and how far the box must grow to meet it do not depend on its length.
+    fn ray(&self, x: f64, y: f64) -> DVec3 {
+        self.forward + self.up * y + self.right * x
     }
 }
 
@@ -483,7 +536,7 @@ mod tests {
             let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
             let meets = met_by_a_pixel_ray(&cam, &world, lo, hi);
             // Without a sun the sphere's radius plays no part.
-            let reached = sight.reaches_box(&world, lo, hi, 0.0);
+            let reached = sight.reaches_boxes(&world, &[(lo, hi)], 0.0);
             assert!(reached || !meets, "box {k} at {at}: a pixel ray meets it but it is not reached");
             met += meets as u32;
             spared += (!reached) as u32;
@@ -497,7 +550,7 @@ mod tests {
 
     /// A box's slack is room: the box turned about a point and moved so that none of its
     /// points travels as far as the slack is still met by no pixel's ray (brute force over
-    /// all pixels, and `reaches_box`). It is not much more: grown by a little more than the
+    /// all pixels, and `reaches_boxes`). It is not much more: grown by a little more than the
     /// slack, a turned box below the cap is reached. With a sun there is no room.
     #[test]
     fn a_box_moved_within_its_slack_stays_clear_of_the_rays() {
@@ -519,8 +572,8 @@ mod tests {
             let world = DAffine3::from_scale_rotation_translation(scale, q, at);
             let size = 0.1 + rng.f64() * 2.0;
             let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
-            let slack = sight.box_slack(&world, lo, hi, 0.0, cap);
-            assert_eq!(slack.is_none(), sight.reaches_box(&world, lo, hi, 0.0), "box {k}: slack {slack:?}");
+            let slack = sight.boxes_slack(&world, &[(lo, hi)], 0.0, cap);
+            assert_eq!(slack.is_none(), sight.reaches_boxes(&world, &[(lo, hi)], 0.0), "box {k}: slack {slack:?}");
             let Some(slack) = slack else { continue };
             assert!((0.0..=cap).contains(&slack), "box {k}: slack {slack}");
             if slack == 0.0 {
@@ -537,7 +590,7 @@ mod tests {
                 * DAffine3::from_translation(-at)
                 * world;
             assert!(!met_by_a_ray(&moved, lo, hi), "box {k}: moved within its slack {slack}, a ray meets it");
-            assert!(!sight.reaches_box(&moved, lo, hi, 0.0), "box {k}: moved within its slack {slack}, reached");
+            assert!(!sight.reaches_boxes(&moved, &[(lo, hi)], 0.0), "box {k}: moved within its slack {slack}, reached");
             // Every face pushed out by the slack (in the box's frame, where a world length
             // shrinks by the scale) holds every such move: still met by no ray.
             let g = DVec3::splat(slack / scale.max_element());
@@ -546,7 +599,7 @@ mod tests {
                 // Grown by a little more than the slack (and the paddings): reached.
                 let pad = padding(size * 1.2, world.translation - cam.eye);
                 let g = DVec3::splat(slack * 1.02 + 4.0 * pad);
-                assert!(sight.reaches_box(&world, lo - g, hi + g, 0.0), "box {k}: slack {slack} is too small");
+                assert!(sight.reaches_boxes(&world, &[(lo - g, hi + g)], 0.0), "box {k}: slack {slack} is too small");
                 tight += 1;
             }
         }
@@ -560,7 +613,50 @@ mod tests {
         )
         .unwrap();
         let far_away = DAffine3::from_translation(DVec3::new(0.0, 0.0, -100.0));
-        assert_eq!(sunny.box_slack(&far_away, -DVec3::ONE, DVec3::ONE, 1.8, cap), Some(0.0));
+        assert_eq!(sunny.boxes_slack(&far_away, &[(-DVec3::ONE, DVec3::ONE)], 1.8, cap), Some(0.0));
+    }
+
+    /// Several boxes placed by one map (a car's parts) are reached when one of them is, and
+    /// their slack is the least of theirs; moved within it, none is met by a pixel's ray
+    /// (brute force).
+    #[test]
+    fn a_set_of_boxes_is_reached_and_has_room_as_its_boxes() {
+        let mut rng = Rng::new(47);
+        let (cam, sight) = box_view();
+        let cap = 1.5;
+        let (mut reached, mut clear, mut by_one) = (0, 0, 0);
+        for k in 0..1500 {
+            let q = glam::DQuat::from_rotation_y(rng.f64() * 6.3);
+            let at = DVec3::new(rng.f64() * 50.0 - 25.0, rng.f64() * 30.0 - 15.0, rng.f64() * 70.0 - 40.0);
+            let world = DAffine3::from_rotation_translation(q, at);
+            // Two to four boxes about the origin, apart or overlapping, as a car's parts.
+            let boxes: Vec<(DVec3, DVec3)> = (0..2 + k % 3)
+                .map(|_| {
+                    let c = DVec3::new(rng.f64() * 4.0 - 2.0, rng.f64() - 0.5, rng.f64() * 2.0 - 1.0);
+                    let e = DVec3::new(0.1 + rng.f64(), 0.1 + rng.f64() * 0.5, 0.1 + rng.f64() * 0.5);
+                    (c - e, c + e)
+                })
+                .collect();
+            let each: Vec<Option<f64>> = boxes.iter().map(|&b| sight.boxes_slack(&world, &[b], 0.0, cap)).collect();
+            let any = boxes.iter().any(|&b| sight.reaches_boxes(&world, &[b], 0.0));
+            assert_eq!(sight.reaches_boxes(&world, &boxes, 0.0), any, "set {k}");
+            let least = each.iter().try_fold(cap, |m, s| s.map(|s| m.min(s)));
+            let slack = sight.boxes_slack(&world, &boxes, 0.0, cap);
+            assert_eq!(slack, least, "set {k}: {each:?}");
+            let Some(slack) = slack else {
+                reached += 1;
+                by_one += (each.iter().filter(|s| s.is_none()).count() == 1) as u32;
+                continue;
+            };
+            clear += 1;
+            // Moved by up to the slack (less the rounding room): no box is met by a ray.
+            let shift = rng.unit_vector().as_dvec3().normalize() * 0.98 * slack;
+            let moved = DAffine3::from_translation(shift) * world;
+            for &(lo, hi) in &boxes {
+                assert!(!met_by_a_pixel_ray(&cam, &moved, lo, hi), "set {k}: moved by its slack {slack}, met");
+            }
+        }
+        assert!(reached > 200 && clear > 500 && by_one > 100, "{reached} reached ({by_one} by one box), {clear} clear");
     }
 
     /// With a sun, every sphere that shadows some visible point of a pixel ray (a point on
