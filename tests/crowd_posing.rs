@@ -103,6 +103,59 @@ fn a_cars_box_holds_its_parts_in_every_pose() {
     }
 }
 
+/// The boxes posing tests a car's parts by ([`voxray::scene::car::car_outline`]) hold every
+/// voxel of every part over 40 poses at two levels (each voxel's cube taken into the body
+/// frame that `body_world` gives, a few voxels of each moving part per pose), and they lie
+/// within the car's box; the body's two boxes hold less than 90 % of the body box's volume.
+#[test]
+fn a_cars_outline_holds_every_voxel_in_every_pose() {
+    let parts = car_parts();
+    let mut st = voxray::scene::stage_cars(&parts, 1, true, false).unwrap();
+    let car = st.cars[0];
+    for max_level in [u32::MAX, 5] {
+        let outline = voxray::scene::car::car_outline(&st.scene, &car, max_level).unwrap();
+        let (lo, hi) = voxray::scene::car::car_box(&st.scene, &car, max_level).unwrap();
+        let inside = |p: DVec3, (a, b): (DVec3, DVec3)| p.cmpge(a - 1e-9).all() && p.cmple(b + 1e-9).all();
+        for &(a, b) in &outline {
+            assert!(inside(a, (lo, hi)) && inside(b, (lo, hi)), "level {max_level}: {a}..{b} outside the car's box");
+        }
+        for k in 0..40 {
+            let t = k as f64 * 0.61;
+            voxray::scene::car::pose_all(&mut st.scene, &st.cars, t).unwrap();
+            st.scene.update().unwrap();
+            let into_body = voxray::scene::car::body_world(&car, t).inverse();
+            for (n, i) in car.instances().into_iter().enumerate() {
+                // The body stands still in its frame: its voxels once.
+                if n == 0 && k > 0 {
+                    continue;
+                }
+                let svo = &st.scene.parts[st.scene.instances()[i].part];
+                let level = max_level.min(svo.depth);
+                let size = svo.bounds.size as f64 / (1u64 << level) as f64;
+                let cells = svo.at_level(level);
+                let step = if n == 0 { 1 } else { cells.len() / 50 + 1 };
+                for (c, _) in cells.iter().skip(k % step).step_by(step) {
+                    let cell_lo = svo.bounds.min.as_dvec3() + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * size;
+                    let to_body = into_body * st.scene.world(i);
+                    let corners = voxray::scene::instances::box_corners(cell_lo, cell_lo + DVec3::splat(size));
+                    let held = outline.iter().any(|&b| corners.iter().all(|&p| inside(to_body.transform_point3(p), b)));
+                    assert!(held, "level {max_level}, t {t}: part {n}'s cell {c:?} in no box of {outline:?}");
+                }
+            }
+        }
+        if max_level == u32::MAX {
+            // Two for the body and the other parts' own, the body's far smaller than its one box.
+            let others = voxray::scene::car::car_part_boxes(&st.scene, &car, max_level).unwrap();
+            let body: Vec<_> = outline.iter().filter(|b| !others[1..].contains(b)).collect();
+            assert_eq!((outline.len(), body.len()), (9, 2), "{outline:?}");
+            let volume = |(a, b): (DVec3, DVec3)| (b - a).element_product();
+            let covered: f64 = body.iter().map(|&&b| volume(b)).sum();
+            let whole = volume(parts[0].occupied_box(max_level));
+            assert!(covered < 0.9 * whole, "the body's boxes hold {covered} of {whole}");
+        }
+    }
+}
+
 struct World {
     st: Staged,
     kept: HitBuffer,

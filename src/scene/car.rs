@@ -12,6 +12,7 @@ use super::instances::{box_corners, Instance, Scene, SceneError};
 use super::sight::Sight;
 use super::transform::Transform;
 use crate::model::car::{rig, WHEELBASE, WHEEL_RADIUS};
+use crate::svo::cover::covering_boxes;
 use glam::{DAffine3, DQuat, DVec3};
 use std::f64::consts::{PI, TAU};
 
@@ -330,6 +331,30 @@ pub fn car_part_boxes(scene: &Scene, car: &Car, max_level: u32) -> Result<[(DVec
     Ok(out)
 }
 
+/// Boxes covering a car body's occupied cells ([`car_outline`]): two (the cabin and what
+/// lies below it) posed 6 % fewer cars of the 10 000-car crowd than one, and frames took 3–5 %
+/// less time; three and more posed fewer still but took longer to test (docs/benchmarks.md,
+/// step 85).
+const BODY_BOXES: usize = 2;
+
+/// The level whose occupied cells [`car_outline`] covers the body with (capped at the
+/// frame's level): cells of 3.5 cm on the default car, a fortieth of its length. Level 8
+/// posed the same cars, and took four times as long to cover (13 ms).
+const COVER_LEVEL: u32 = 7;
+
+/// The boxes in a car's body frame a ray must meet to reach the car at `max_level`: the
+/// body's occupied cells covered by two boxes ([`covering_boxes`]) and each other part's box
+/// ([`car_part_boxes`]), those not inside another. The other parts turn through wide angles
+/// (a wheel all the way round), so their own covering boxes, swept, would each fill most of
+/// the part's box.
+pub fn car_outline(scene: &Scene, car: &Car, max_level: u32) -> Result<Vec<(DVec3, DVec3)>, SceneError> {
+    let mut boxes = car_part_boxes(scene, car, max_level)?.to_vec();
+    let inst = scene.instances().get(car.body).ok_or(SceneError::Instance(car.body))?;
+    let body = scene.parts.get(inst.part).ok_or(SceneError::Part(inst.part))?;
+    boxes.splice(0..1, covering_boxes(body, max_level.min(COVER_LEVEL), BODY_BOXES));
+    Ok(outermost(&boxes))
+}
+
 /// Of `boxes`, those not inside another (the first of equal ones kept): a set of boxes
 /// holding the same points, fewer to test.
 fn outermost(boxes: &[(DVec3, DVec3)]) -> Vec<(DVec3, DVec3)> {
@@ -591,8 +616,7 @@ impl SeenCars {
         if self.boxes_for != key {
             let radii = car_radii(scene, cars, max_level)?;
             self.yaw_rate = max_yaw_rate();
-            let (shapes, shape) =
-                shared_per_parts(scene, cars, |car| Ok(outermost(&car_part_boxes(scene, car, max_level)?)))?;
+            let (shapes, shape) = shared_per_parts(scene, cars, |car| car_outline(scene, car, max_level))?;
             self.boxes = car_boxes(scene, cars, max_level)?
                 .into_iter()
                 .zip(radii)
@@ -630,11 +654,11 @@ impl SeenCars {
             if within && known.seen {
                 return (true, false);
             }
-            let reaches = |w: &DAffine3| sight.reaches_boxes(w, &[(lo, hi)], r) && sight.reaches_boxes(w, parts, r);
+
             let new = body_world(car, t);
             // The car's box first: most cars' rays pass far from it.
             let cap = speed * CLEAR_FOR;
-            let slack = sight.boxes_slack(&new, &[(lo, hi)], r, cap).or_else(|| sight.boxes_slack(&new, parts, r, cap));
+            let slack = sight.boxes_slack(&new, (lo, hi), parts, r, cap);
             let Some(room) = slack else {
                 *known = Known { placed: new, seen: true, clear: (t - SEEN_FOR, t + SEEN_FOR), motion };
                 return (true, true);
@@ -646,7 +670,7 @@ impl SeenCars {
                 _ => Known::NONE.clear,
             };
             // Where the car was last tested, under this sight: the same answer.
-            let old_seen = if known.placed == old { known.seen } else { reaches(&old) };
+            let old_seen = if known.placed == old { known.seen } else { sight.reaches_boxes(&old, (lo, hi), parts, r) };
             // Posed (its old place is seen) it stands where it was found clear; else it stays.
             *known = Known { placed: if old_seen { new } else { old }, seen: false, clear, motion };
             (old_seen, true)

@@ -13,7 +13,6 @@ use super::camera::{PixelGrid, PixelRect};
 use super::{Camera, Lights};
 use crate::render::instances::farthest_corner;
 use glam::{DAffine3, DMat3, DVec3};
-use std::cell::OnceCell;
 
 /// Relative padding of a tested sphere's radius.
 const RADIUS_PAD: f64 = 1e-3;
@@ -140,72 +139,75 @@ impl Sight {
         self.primary_meets_capsule(c, c, r) || self.sun_reaches(c, r)
     }
 
-    /// Whether some ray of the frame may meet what lies both in one of the `boxes` (each
-    /// `(lo, hi)`) placed by `world` (an invertible affine map; a car body's world transform:
-    /// the boxes are its parts') and within `radius` of `world`'s origin: a primary ray, tested
-    /// against each box itself (grown by the padding [`Sight::reaches`] gives a radius), or a
-    /// sun's shadow ray, tested against the sphere (as [`Sight::reaches`]). The boxes are the
-    /// tighter outline on screen; the sphere, swept towards the sun, the simpler shadow.
-    pub fn reaches_boxes(&self, world: &DAffine3, boxes: &[(DVec3, DVec3)], radius: f64) -> bool {
-        // Inverted only for a box whose rectangle holds pixels: most of a crowd's hold none.
-        let frame = OnceCell::new();
-        for &(lo, hi) in boxes {
-            let Some((c, corner, pad)) = self.box_sphere(world, lo, hi) else { return true };
-            if self.primary_meets_box(&frame, world, lo, hi, c, corner + pad, pad) {
-                return true;
-            }
+    /// Whether some ray of the frame may meet what lies in the box `outline` (`(lo, hi)`)
+    /// placed by `world` (an invertible affine map; a car body's world transform), in one of
+    /// the boxes `parts` too when there are any (the car's parts; each taken within the
+    /// outline), and within `radius` of `world`'s origin: a primary ray, tested against the
+    /// boxes themselves (grown by the padding [`Sight::reaches`] gives the outline's radius),
+    /// or a sun's shadow ray, tested against the sphere (as [`Sight::reaches`]). The boxes
+    /// are the tighter outline on screen; the sphere, swept towards the sun, the simpler
+    /// shadow.
+    pub fn reaches_boxes(
+        &self,
+        world: &DAffine3,
+        outline: (DVec3, DVec3),
+        parts: &[(DVec3, DVec3)],
+        radius: f64,
+    ) -> bool {
+        let Some((c, corner, pad)) = self.box_sphere(world, outline) else { return true };
+        if self.primary_meets_boxes(world, outline, parts, c, corner + pad, pad) {
+            return true;
         }
         let o = world.translation - self.camera.eye;
         let r = radius + padding(radius, o);
         !(o.is_finite() && r.is_finite()) || self.sun_reaches(o, r)
     }
 
-    /// [`Sight::reaches_boxes`], with room: None when some ray of the frame may meet one of
-    /// the boxes; else a world distance s ≤ `cap` such that the boxes with each of their
-    /// points moved by less than s are still met by no pixel's primary ray (a crowd's car
-    /// keeps clear of the rays for as long as its motion takes to cover s). Suns' shadow
-    /// rays give no room: unreached boxes then have s = 0.
-    pub fn boxes_slack(&self, world: &DAffine3, boxes: &[(DVec3, DVec3)], radius: f64, cap: f64) -> Option<f64> {
-        if !self.suns.is_empty() {
-            return (!self.reaches_boxes(world, boxes, radius)).then_some(0.0);
-        }
-        let cap = if cap.is_finite() { cap.max(0.0) } else { 0.0 };
-        let frame = OnceCell::new();
-        let mut room = cap;
-        for &(lo, hi) in boxes {
-            room = room.min(self.box_room(&frame, world, lo, hi, cap)?);
-        }
-        Some(room)
-    }
-
-    /// [`Sight::boxes_slack`] of the one box `lo..hi`, with `frame` the boxes' frame once
-    /// made ([`Sight::box_frame`]).
-    fn box_room(
+    /// [`Sight::reaches_boxes`], with room: None when some ray of the frame may meet what
+    /// lies in the outline and (with `parts`) in a part; else a world distance s ≤ `cap` such
+    /// that with each of its points moved by less than s it is still met by no pixel's
+    /// primary ray (a crowd's car keeps clear of the rays for as long as its motion takes to
+    /// cover s). Suns' shadow rays give no room: what no ray reaches then has s = 0.
+    pub fn boxes_slack(
         &self,
-        frame: &OnceCell<Option<BoxFrame>>,
         world: &DAffine3,
-        lo: DVec3,
-        hi: DVec3,
+        outline: (DVec3, DVec3),
+        parts: &[(DVec3, DVec3)],
+        radius: f64,
         cap: f64,
     ) -> Option<f64> {
-        let (c, corner, pad) = self.box_sphere(world, lo, hi)?;
+        if !self.suns.is_empty() {
+            return (!self.reaches_boxes(world, outline, parts, radius)).then_some(0.0);
+        }
+        let cap = if cap.is_finite() { cap.max(0.0) } else { 0.0 };
+        let (c, corner, pad) = self.box_sphere(world, outline)?;
         // Pixels outside this rectangle: their rays pass farther than the padding and `cap`
-        // from every point of the box.
+        // from every point of the outline.
         let rect = self.grid.near(&[c], corner + pad + cap);
         let (x0, y0, x1, y1) = match rect {
             PixelRect::Empty => return Some(cap),
             PixelRect::Pixels { x0, y0, x1, y1 } if rect.area(&self.camera) <= MAX_TESTED_PIXELS => (x0, y0, x1, y1),
-            // Close to the eye: the box itself, without room.
-            _ => return (!self.primary_meets_box(frame, world, lo, hi, c, corner + pad, pad)).then_some(0.0),
+            // Close to the eye: the boxes themselves, without room.
+            _ => return (!self.primary_meets_boxes(world, outline, parts, c, corner + pad, pad)).then_some(0.0),
         };
-        let f = frame.get_or_init(|| self.box_frame(world)).as_ref()?;
-        let grow = DVec3::splat(pad * f.stretch);
-        let (lo, hi) = (lo - grow, hi + grow);
-        let mut need = f64::INFINITY;
+        let f = self.box_frame(world)?;
+        let grown = f.grown(outline, outline, pad);
+        // Growth that gives the whole cap as room below (rounding aside): a ray that needs
+        // more than this gives none less, so its parts are not looked at.
+        let mut need = (cap + pad) * f.spectral / 0.99;
         for py in y0..=y1 {
             let sy = self.rows[py as usize];
             for px in x0..=x1 {
-                let g = growth_to_meet(f.eye, f.ray(self.columns[px as usize], sy), lo, hi);
+                let ray = f.ray(self.columns[px as usize], sy);
+                let mut g = growth_to_meet(f.eye, ray, grown.0, grown.1);
+                // A part inside the outline must grow at least as far as the outline: only a
+                // ray nearer the outline than the nearest so far can bring a part nearer.
+                if !parts.is_empty() && !(g >= need) {
+                    g = parts.iter().fold(f64::INFINITY, |m, &b| {
+                        let (lo, hi) = f.grown(b, outline, pad);
+                        m.min(growth_to_meet(f.eye, ray, lo, hi))
+                    });
+                }
                 if !(g > 0.0) {
                     return None;
                 }
@@ -232,17 +234,16 @@ impl Sight {
         })
     }
 
-    /// Whether a pixel's primary ray meets the box `lo..hi` placed by `world`, grown by the
-    /// world length `pad`: the pixels inside the rectangle of its bounding sphere (about `c`,
-    /// camera-relative, radius `r`, padded), each ray taken into the box's frame (`frame`,
-    /// made here if not yet) and tested against its slabs.
-    #[allow(clippy::too_many_arguments)]
-    fn primary_meets_box(
+    /// Whether a pixel's primary ray meets the box `outline` placed by `world` and (with
+    /// `parts`) one of `parts` within it, all grown by the world length `pad`: the pixels
+    /// inside the rectangle of the outline's bounding sphere (about `c`, camera-relative,
+    /// radius `r`, padded), each ray taken into the boxes' frame and tested against their
+    /// slabs.
+    fn primary_meets_boxes(
         &self,
-        frame: &OnceCell<Option<BoxFrame>>,
         world: &DAffine3,
-        lo: DVec3,
-        hi: DVec3,
+        outline: (DVec3, DVec3),
+        parts: &[(DVec3, DVec3)],
         c: DVec3,
         r: f64,
         pad: f64,
@@ -254,19 +255,27 @@ impl Sight {
         if rect.area(&self.camera) > MAX_TESTED_PIXELS {
             return true;
         }
-        let Some(f) = frame.get_or_init(|| self.box_frame(world)) else { return true };
-        let grow = DVec3::splat(pad * f.stretch);
-        let (lo, hi) = (lo - grow, hi + grow);
+        // Inverted only here: most of a crowd's outlines hold no pixel centre.
+        let Some(f) = self.box_frame(world) else { return true };
+        let (lo, hi) = f.grown(outline, outline, pad);
         (y0..=y1).any(|py| {
             let sy = self.rows[py as usize];
-            (x0..=x1).any(|px| ray_meets_box(f.eye, f.ray(self.columns[px as usize], sy), lo, hi))
+            (x0..=x1).any(|px| {
+                let ray = f.ray(self.columns[px as usize], sy);
+                ray_meets_box(f.eye, ray, lo, hi)
+                    && (parts.is_empty()
+                        || parts.iter().any(|&b| {
+                            let (lo, hi) = f.grown(b, outline, pad);
+                            ray_meets_box(f.eye, ray, lo, hi)
+                        }))
+            })
         })
     }
 
     /// The box's own bounding sphere, as the renderer bounds an instance's box (its
     /// rectangle holds the pixels whose rays may meet the box): the camera-relative centre,
     /// the radius to the farthest corner and the padding for it. None when not finite.
-    fn box_sphere(&self, world: &DAffine3, lo: DVec3, hi: DVec3) -> Option<(DVec3, f64, f64)> {
+    fn box_sphere(&self, world: &DAffine3, (lo, hi): (DVec3, DVec3)) -> Option<(DVec3, f64, f64)> {
         let corner = farthest_corner(&world.matrix3, (hi - lo).abs() * 0.5);
         let c = world.transform_point3((lo + hi) * 0.5) - self.camera.eye;
         let pad = padding(corner, c);
@@ -341,6 +350,12 @@ struct BoxFrame {
 }
 
 impl BoxFrame {
+    /// The box `b` taken within `outline` and grown by the world length `pad`.
+    fn grown(&self, b: (DVec3, DVec3), outline: (DVec3, DVec3), pad: f64) -> (DVec3, DVec3) {
+        let grow = DVec3::splat(pad * self.stretch);
+        (b.0.max(outline.0) - grow, b.1.min(outline.1) + grow)
+    }
+
     /// A pixel's primary ray, given its screen slopes (x, y): unnormalized, as whether a ray
     /// meets a box and how far the box must grow to meet it do not depend on its length.
     fn ray(&self, x: f64, y: f64) -> DVec3 {
@@ -536,7 +551,7 @@ mod tests {
             let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
             let meets = met_by_a_pixel_ray(&cam, &world, lo, hi);
             // Without a sun the sphere's radius plays no part.
-            let reached = sight.reaches_boxes(&world, &[(lo, hi)], 0.0);
+            let reached = sight.reaches_boxes(&world, (lo, hi), &[], 0.0);
             assert!(reached || !meets, "box {k} at {at}: a pixel ray meets it but it is not reached");
             met += meets as u32;
             spared += (!reached) as u32;
@@ -572,8 +587,8 @@ mod tests {
             let world = DAffine3::from_scale_rotation_translation(scale, q, at);
             let size = 0.1 + rng.f64() * 2.0;
             let (lo, hi) = (-DVec3::new(size, 0.2 * size, 0.5 * size), DVec3::new(size, 0.3 * size, 0.4 * size));
-            let slack = sight.boxes_slack(&world, &[(lo, hi)], 0.0, cap);
-            assert_eq!(slack.is_none(), sight.reaches_boxes(&world, &[(lo, hi)], 0.0), "box {k}: slack {slack:?}");
+            let slack = sight.boxes_slack(&world, (lo, hi), &[], 0.0, cap);
+            assert_eq!(slack.is_none(), sight.reaches_boxes(&world, (lo, hi), &[], 0.0), "box {k}: slack {slack:?}");
             let Some(slack) = slack else { continue };
             assert!((0.0..=cap).contains(&slack), "box {k}: slack {slack}");
             if slack == 0.0 {
@@ -590,7 +605,10 @@ mod tests {
                 * DAffine3::from_translation(-at)
                 * world;
             assert!(!met_by_a_ray(&moved, lo, hi), "box {k}: moved within its slack {slack}, a ray meets it");
-            assert!(!sight.reaches_boxes(&moved, &[(lo, hi)], 0.0), "box {k}: moved within its slack {slack}, reached");
+            assert!(
+                !sight.reaches_boxes(&moved, (lo, hi), &[], 0.0),
+                "box {k}: moved within its slack {slack}, reached"
+            );
             // Every face pushed out by the slack (in the box's frame, where a world length
             // shrinks by the scale) holds every such move: still met by no ray.
             let g = DVec3::splat(slack / scale.max_element());
@@ -599,7 +617,7 @@ mod tests {
                 // Grown by a little more than the slack (and the paddings): reached.
                 let pad = padding(size * 1.2, world.translation - cam.eye);
                 let g = DVec3::splat(slack * 1.02 + 4.0 * pad);
-                assert!(sight.reaches_boxes(&world, &[(lo - g, hi + g)], 0.0), "box {k}: slack {slack} is too small");
+                assert!(sight.reaches_boxes(&world, (lo - g, hi + g), &[], 0.0), "box {k}: slack {slack} is too small");
                 tight += 1;
             }
         }
@@ -613,50 +631,66 @@ mod tests {
         )
         .unwrap();
         let far_away = DAffine3::from_translation(DVec3::new(0.0, 0.0, -100.0));
-        assert_eq!(sunny.boxes_slack(&far_away, &[(-DVec3::ONE, DVec3::ONE)], 1.8, cap), Some(0.0));
+        assert_eq!(sunny.boxes_slack(&far_away, (-DVec3::ONE, DVec3::ONE), &[], 1.8, cap), Some(0.0));
     }
 
-    /// Several boxes placed by one map (a car's parts) are reached when one of them is, and
-    /// their slack is the least of theirs; moved within it, none is met by a pixel's ray
-    /// (brute force).
+    /// Parts (two to four boxes placed by one map, inside their outline, as a car's): every
+    /// set some pixel's ray meets in one of its parts is reached (brute force), and many sets
+    /// whose outline a ray meets are not; a set's room is about the least of its parts' own,
+    /// and moved by it no part is met by a pixel's ray (brute force).
     #[test]
-    fn a_set_of_boxes_is_reached_and_has_room_as_its_boxes() {
+    fn parts_are_reached_and_have_room_as_their_boxes() {
         let mut rng = Rng::new(47);
         let (cam, sight) = box_view();
         let cap = 1.5;
-        let (mut reached, mut clear, mut by_one) = (0, 0, 0);
+        let (mut reached, mut clear, mut by_parts, mut close) = (0, 0, 0, 0);
         for k in 0..1500 {
             let q = glam::DQuat::from_rotation_y(rng.f64() * 6.3);
             let at = DVec3::new(rng.f64() * 50.0 - 25.0, rng.f64() * 30.0 - 15.0, rng.f64() * 70.0 - 40.0);
             let world = DAffine3::from_rotation_translation(q, at);
-            // Two to four boxes about the origin, apart or overlapping, as a car's parts.
-            let boxes: Vec<(DVec3, DVec3)> = (0..2 + k % 3)
+            let parts: Vec<(DVec3, DVec3)> = (0..2 + k % 3)
                 .map(|_| {
-                    let c = DVec3::new(rng.f64() * 4.0 - 2.0, rng.f64() - 0.5, rng.f64() * 2.0 - 1.0);
-                    let e = DVec3::new(0.1 + rng.f64(), 0.1 + rng.f64() * 0.5, 0.1 + rng.f64() * 0.5);
+                    let c = DVec3::new(rng.f64() * 6.0 - 3.0, rng.f64() * 2.0 - 1.0, rng.f64() * 3.0 - 1.5);
+                    let e = DVec3::new(0.05 + rng.f64() * 0.6, 0.05 + rng.f64() * 0.4, 0.05 + rng.f64() * 0.4);
                     (c - e, c + e)
                 })
                 .collect();
-            let each: Vec<Option<f64>> = boxes.iter().map(|&b| sight.boxes_slack(&world, &[b], 0.0, cap)).collect();
-            let any = boxes.iter().any(|&b| sight.reaches_boxes(&world, &[b], 0.0));
-            assert_eq!(sight.reaches_boxes(&world, &boxes, 0.0), any, "set {k}");
-            let least = each.iter().try_fold(cap, |m, s| s.map(|s| m.min(s)));
-            let slack = sight.boxes_slack(&world, &boxes, 0.0, cap);
-            assert_eq!(slack, least, "set {k}: {each:?}");
+            let outline =
+                parts.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &(a, b)| (lo.min(a), hi.max(b)));
+            let met = parts.iter().any(|&(lo, hi)| met_by_a_pixel_ray(&cam, &world, lo, hi));
+            let is_reached = sight.reaches_boxes(&world, outline, &parts, 0.0);
+            assert!(is_reached || !met, "set {k}: a part is met by a pixel's ray, not reached");
+            by_parts += (!is_reached && sight.reaches_boxes(&world, outline, &[], 0.0)) as u32;
+            let slack = sight.boxes_slack(&world, outline, &parts, 0.0, cap);
+            assert_eq!(slack.is_none(), is_reached, "set {k}: slack {slack:?}");
             let Some(slack) = slack else {
                 reached += 1;
-                by_one += (each.iter().filter(|s| s.is_none()).count() == 1) as u32;
                 continue;
             };
             clear += 1;
-            // Moved by up to the slack (less the rounding room): no box is met by a ray.
+            // About the least of the parts' own (each padded as its outline is here).
+            let least =
+                parts.iter().map(|&b| sight.boxes_slack(&world, b, &[], 0.0, cap).unwrap_or(0.0)).fold(cap, f64::min);
+            // (Less only close to the eye, where the outline's rectangle holds too many pixels
+            // to give room.)
+            let (c, corner, pad) = sight.box_sphere(&world, outline).unwrap();
+            let near_eye = sight.grid.near(&[c], corner + pad + cap).area(&cam) > MAX_TESTED_PIXELS;
+            assert!(
+                slack <= least + 1e-9 && (slack >= least - 0.01 || near_eye),
+                "set {k}: room {slack}, the parts' least {least}"
+            );
+            close += near_eye as u32;
+            // Moved by up to the slack (less the rounding room): no part is met by a ray.
             let shift = rng.unit_vector().as_dvec3().normalize() * 0.98 * slack;
             let moved = DAffine3::from_translation(shift) * world;
-            for &(lo, hi) in &boxes {
-                assert!(!met_by_a_pixel_ray(&cam, &moved, lo, hi), "set {k}: moved by its slack {slack}, met");
+            for &(lo, hi) in &parts {
+                assert!(!met_by_a_pixel_ray(&cam, &moved, lo, hi), "set {k}: moved by its room {slack}, met");
             }
         }
-        assert!(reached > 200 && clear > 500 && by_one > 100, "{reached} reached ({by_one} by one box), {clear} clear");
+        assert!(
+            reached > 200 && clear > 500 && by_parts > 100 && close < clear / 4,
+            "{reached} reached, {clear} clear ({by_parts} by the parts, {close} close to the eye)"
+        );
     }
 
     /// With a sun, every sphere that shadows some visible point of a pixel ray (a point on

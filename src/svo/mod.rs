@@ -1,6 +1,7 @@
 //! Sparse voxel octrees: the node format, the builder and the `.svo` file format.
 
 pub mod build;
+pub mod cover;
 pub mod emitter;
 pub mod format;
 pub mod io;
