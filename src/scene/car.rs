@@ -332,9 +332,9 @@ pub fn car_part_boxes(scene: &Scene, car: &Car, max_level: u32) -> Result<[(DVec
 }
 
 /// Boxes covering a car body's occupied cells ([`car_outline`]): two (the cabin and what
-/// lies below it) posed 6 % fewer cars of the 10 000-car crowd than one, and frames took 3–5 %
-/// less time; three and more posed fewer still but took longer to test (docs/benchmarks.md,
-/// step 85).
+/// lies below it) posed 8 % fewer cars of the 10 000-car crowd than one, and frames took
+/// 3–5 % less time; three and more posed fewer still but took longer to test
+/// (docs/benchmarks.md, step 85).
 const BODY_BOXES: usize = 2;
 
 /// The level whose occupied cells [`car_outline`] covers the body with (capped at the
