@@ -529,8 +529,8 @@ pub fn reach_box(scene: &Scene, cars: &[Car], max_level: u32) -> Result<(DVec3, 
 }
 
 /// Posing only the cars a frame's rays can reach, with what it keeps between frames: the
-/// cars' boxes ([`car_box`]), their parts' ([`car_part_boxes`]) and radii ([`car_radius`]) at
-/// a level of detail, and per car the
+/// cars' boxes ([`car_box`]), outlines ([`car_outline`]) and radii ([`car_radius`]) at a
+/// level of detail, and per car the
 /// last placement of its body tested under the last frame's [`Sight`] and the answer (so a
 /// car that stays where it was is not tested again while the sight stays the same), and
 /// the times over which the car cannot come near any ray (or, found in sight, over which it
@@ -540,11 +540,10 @@ pub struct SeenCars {
     /// Part edits, level, car count and the parts' addresses the boxes are for.
     boxes_for: Option<(u64, u32, usize, Vec<usize>)>,
     /// Per car, its [`car_box`], [`car_radius`], the box's [`axis_reach`] and which of
-    /// `shapes` its parts' boxes are.
+    /// `shapes` is its outline.
     boxes: Vec<(DVec3, DVec3, f64, f64, u32)>,
-    /// Per set of parts the cars share, the [`car_part_boxes`] a ray must meet for it to
-    /// reach the car (the [`outermost`] ones): a car whose [`car_box`] a ray meets may still
-    /// be clear of all of them (a third of a crowd's, seen from afar).
+    /// Per set of parts the cars share, its [`car_outline`]: a car whose [`car_box`] a ray
+    /// meets may still be clear of every box of it (two cars in five of the far crowd's).
     shapes: Vec<Vec<(DVec3, DVec3)>>,
     /// [`max_yaw_rate`], once.
     yaw_rate: f64,
@@ -654,12 +653,9 @@ impl SeenCars {
             if within && known.seen {
                 return (true, false);
             }
-
             let new = body_world(car, t);
-            // The car's box first: most cars' rays pass far from it.
-            let cap = speed * CLEAR_FOR;
-            let slack = sight.boxes_slack(&new, (lo, hi), parts, r, cap);
-            let Some(room) = slack else {
+            // The car's box, then its outline for the rays that come near the box.
+            let Some(room) = sight.boxes_slack(&new, (lo, hi), parts, r, speed * CLEAR_FOR) else {
                 *known = Known { placed: new, seen: true, clear: (t - SEEN_FOR, t + SEEN_FOR), motion };
                 return (true, true);
             };

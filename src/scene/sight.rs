@@ -1,8 +1,9 @@
 //! What a frame's rays can reach: whether any primary ray of a camera, or any sun's shadow
 //! ray from a point those rays can see, can meet a given sphere ([`Sight::reaches`]), or a
-//! placed set of boxes and sphere ([`Sight::reaches_boxes`]). A crowd poses only the cars whose bounds
-//! some ray can reach ([`super::car::SeenCars::pose`]); a car no ray reaches in its old pose
-//! nor in its new one looks the same in the picture whether it is posed or not.
+//! placed box, the boxes of its parts and a sphere ([`Sight::reaches_boxes`]). A crowd poses
+//! only the cars whose bounds some ray can reach ([`super::car::SeenCars::pose`]); a car no
+//! ray reaches in its old pose nor in its new one looks the same in the picture whether it is
+//! posed or not.
 //!
 //! The test is conservative: it may say a bound is reached when no ray meets it (the car is
 //! then posed for nothing), never the other way round. Spheres and boxes are padded by a
