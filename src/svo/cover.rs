@@ -15,10 +15,14 @@ use glam::DVec3;
 /// octree gives its [`Svo::occupied_box`].
 pub fn covering_boxes(svo: &Svo, level: u32, count: usize) -> Vec<(DVec3, DVec3)> {
     let level = level.min(svo.depth);
+    // (`at_level` reads the root's mask and attributes, which an empty octree lacks.)
+    if svo.voxel_count == 0 || svo.masks.is_empty() || svo.attrs.is_empty() {
+        return vec![svo.occupied_box(level)];
+    }
     let cell = svo.bounds.size as f64 / (1u64 << level) as f64;
     let min = svo.bounds.min.as_dvec3();
     let cells: Vec<[u32; 3]> = svo.at_level(level).into_iter().map(|(c, _)| c).collect();
-    if cells.is_empty() || svo.voxel_count == 0 {
+    if cells.is_empty() {
         return vec![svo.occupied_box(level)];
     }
     let mut groups = vec![cells];
@@ -146,6 +150,10 @@ mod tests {
                 }
             }
             if name == "L" {
+                // An octree without voxels (as a file could hold): its one occupied box.
+                let empty =
+                    Svo { masks: Vec::new(), links: Vec::new(), attrs: Vec::new(), voxel_count: 0, ..svo.clone() };
+                assert_eq!(covering_boxes(&empty, depth, 3), vec![empty.occupied_box(depth)]);
                 let boxes = covering_boxes(&svo, depth, 2);
                 let sum: f64 = boxes.iter().map(|(a, b)| (*b - *a).element_product()).sum();
                 let (a, b) = svo.occupied_box(depth);
