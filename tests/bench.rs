@@ -125,6 +125,25 @@ fn a_tiny_bench_writes_json_csv_charts_and_the_docs_section() {
     assert!(md.contains("read back per frame"), "{md}");
 }
 
+/// With `--no-docs` and no `--charts-dir`, the charts go beside the records: the charts the
+/// docs show stay the ones drawn with them.
+#[test]
+fn without_the_docs_the_charts_go_beside_the_records() {
+    let d = tmp("no-docs");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxray"))
+        .current_dir(&d)
+        .args(["bench", "--depth", "4", "--frames", "1", "--warmup", "0", "--scenarios", "resolution"])
+        .args(["--resolutions", "24x16", "--backends", "cpu", "--out-dir", "data", "--no-docs", "--cache-dir"])
+        .arg(d.join("cache"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let png = std::fs::read(d.join("data/bench-resolution.png")).expect("the chart beside the records");
+    assert!(png.starts_with(b"\x89PNG"), "not a PNG");
+    assert!(!d.join("docs").exists(), "--no-docs wrote under docs/");
+}
+
 #[test]
 fn bad_bench_options_fail_clearly() {
     let d = tmp("bad");

@@ -364,13 +364,14 @@ pub(crate) struct BenchArgs {
     /// Folder for bench.json and bench.csv (records of earlier runs for other backends or scenarios are kept).
     #[arg(long, default_value = "docs/data")]
     pub(crate) out_dir: PathBuf,
-    /// Folder for the PNG charts.
-    #[arg(long, default_value = "docs/images")]
-    pub(crate) charts_dir: PathBuf,
+    /// Folder for the PNG charts [default: docs/images; with --no-docs, --out-dir, so that
+    /// the charts the docs show are not redrawn from records they do not show].
+    #[arg(long)]
+    pub(crate) charts_dir: Option<PathBuf>,
     /// Markdown file whose generated section is rewritten from the records.
     #[arg(long, default_value = "docs/benchmarks.md")]
     pub(crate) docs: PathBuf,
-    /// Do not touch the Markdown file.
+    /// Do not touch the Markdown files, nor the charts they show (see --charts-dir).
     #[arg(long)]
     pub(crate) no_docs: bool,
     /// Measure nothing: redraw the tables and charts from the records in --out-dir.

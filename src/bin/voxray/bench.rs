@@ -422,10 +422,15 @@ pub(crate) fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) 
     write(&json_path, &json)?;
     let csv_path = a.out_dir.join("bench.csv");
     write(&csv_path, &report::to_csv(&all))?;
-    let charts = voxray::bench::chart::draw_all(&all, &a.charts_dir).map_err(|e| usage(&e.to_string()))?;
+    let charts_dir = match &a.charts_dir {
+        Some(dir) => dir.clone(),
+        None if a.no_docs => a.out_dir.clone(),
+        None => PathBuf::from("docs/images"),
+    };
+    let charts = voxray::bench::chart::draw_all(&all, &charts_dir).map_err(|e| usage(&e.to_string()))?;
     // Chart links relative to the Markdown file's folder.
     let doc_dir = a.docs.parent().map(Path::to_path_buf).unwrap_or_default();
-    let rel = relative(&doc_dir, &a.charts_dir);
+    let rel = relative(&doc_dir, &charts_dir);
     let links: Vec<(String, String)> =
         charts.iter().map(|(g, f)| (g.clone(), rel.join(f).to_string_lossy().replace('\\', "/"))).collect();
     let md = report::markdown(&all, &links);
@@ -450,7 +455,7 @@ pub(crate) fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) 
     }
     println!("wrote {} and {} ({} records)", json_path.display(), csv_path.display(), all.len());
     for (_, f) in &charts {
-        println!("wrote {}", a.charts_dir.join(f).display());
+        println!("wrote {}", charts_dir.join(f).display());
     }
     // A scene file's records change no section of the docs.
     if !a.no_docs && a.source.scene.is_empty() {
@@ -463,7 +468,7 @@ pub(crate) fn write_records(a: &BenchArgs, records: Vec<voxray::bench::Record>) 
         println!("regenerated {}", a.docs.display());
         if all.iter().any(|r| r.group == "gi-accuracy") {
             let acc_dir = a.accuracy_docs.parent().map(Path::to_path_buf).unwrap_or_default();
-            let rel = relative(&acc_dir, &a.charts_dir);
+            let rel = relative(&acc_dir, &charts_dir);
             let links: Vec<(String, String)> =
                 charts.iter().map(|(g, f)| (g.clone(), rel.join(f).to_string_lossy().replace('\\', "/"))).collect();
             let doc = match std::fs::read_to_string(&a.accuracy_docs) {
