@@ -803,6 +803,8 @@ fn radiance_caches_render_and_refuse_bad_knobs() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{knob} {value} was accepted");
         assert!(err.contains(says), "{knob} {value}: {err}");
+        // Refused before the parts are voxelized (their table), not after.
+        assert!(!err.contains("triangles"), "{knob} {value} was refused after voxelizing: {err}");
     }
     std::fs::remove_file(&out).unwrap();
     let o = voxray(&[&["render", "--backend", "gpu"][..], &box_args[..]].concat());

@@ -96,6 +96,47 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             a.orbit
         )));
     }
+    let features = a.switches.features();
+    if !(a.splat_factor.is_finite() && (0.1..=8.0).contains(&a.splat_factor)) {
+        return Err(usage(&format!("--splat-factor {}: must be 0.1…8", a.splat_factor)));
+    }
+    let renderer =
+        if a.renderer == "splat" { voxray::render::Renderer::Splat } else { voxray::render::Renderer::Trace };
+    use voxray::render::SplatDraw;
+    let splat_draw = if a.splat_draw == "quads" { SplatDraw::Quads } else { SplatDraw::Compute };
+    let opts =
+        RenderOptions { max_level: a.lod.unwrap_or(u32::MAX), renderer, splat_factor: a.splat_factor, splat_draw };
+    let gi = a.gi.then(|| voxray::gi::GiSettings {
+        res: a.gi_res,
+        filter: a.gi_filter,
+        cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
+        extent: a.gi_extent,
+        bounces: a.gi_bounces,
+        bounce_tail: a.gi_bounce_tail == "on",
+        volume: a.gi_volume,
+        levels: a.gi_levels,
+        anisotropic: a.gi_anisotropic,
+        cone_shadows: a.gi_shadows == "cones",
+        cell_light_samples: a.gi_cell_samples,
+        gather: match a.gi_gather {
+            voxray::render::Gather::Caches(_) => {
+                voxray::render::Gather::Caches(voxray::render::radiance_cache::CacheSettings {
+                    tile: a.gi_cache_tile,
+                    per_tile: a.gi_cache_count,
+                    res: a.gi_cache_res,
+                    radius: a.gi_cache_radius,
+                    placement: a.gi_cache_placement,
+                    cone_percent: a.gi_cache_cone,
+                })
+            }
+            g => g,
+        },
+    });
+    if let Some(g) = &gi {
+        // Check the knobs before the scene is loaded and voxelized (minutes at depth 11), not
+        // after.
+        g.validated().map_err(|e| usage(&e.to_string()))?;
+    }
     let lights = match &a.lights_json {
         Some(p) => Lights::from_json(&read_text(p)?).map_err(|e| with_path(p, e))?,
         None => Lights::default(),
@@ -176,46 +217,6 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
     }
     if a.reference {
         return reference_cmd(&a, &st, &camera, &lights, t_setup);
-    }
-    let features = a.switches.features();
-    if !(a.splat_factor.is_finite() && (0.1..=8.0).contains(&a.splat_factor)) {
-        return Err(usage(&format!("--splat-factor {}: must be 0.1…8", a.splat_factor)));
-    }
-    let renderer =
-        if a.renderer == "splat" { voxray::render::Renderer::Splat } else { voxray::render::Renderer::Trace };
-    use voxray::render::SplatDraw;
-    let splat_draw = if a.splat_draw == "quads" { SplatDraw::Quads } else { SplatDraw::Compute };
-    let opts =
-        RenderOptions { max_level: a.lod.unwrap_or(u32::MAX), renderer, splat_factor: a.splat_factor, splat_draw };
-    let gi = a.gi.then(|| voxray::gi::GiSettings {
-        res: a.gi_res,
-        filter: a.gi_filter,
-        cones: voxray::gi::ConeSettings { diffuse_cones: a.gi_cones, ..Default::default() },
-        extent: a.gi_extent,
-        bounces: a.gi_bounces,
-        bounce_tail: a.gi_bounce_tail == "on",
-        volume: a.gi_volume,
-        levels: a.gi_levels,
-        anisotropic: a.gi_anisotropic,
-        cone_shadows: a.gi_shadows == "cones",
-        cell_light_samples: a.gi_cell_samples,
-        gather: match a.gi_gather {
-            voxray::render::Gather::Caches(_) => {
-                voxray::render::Gather::Caches(voxray::render::radiance_cache::CacheSettings {
-                    tile: a.gi_cache_tile,
-                    per_tile: a.gi_cache_count,
-                    res: a.gi_cache_res,
-                    radius: a.gi_cache_radius,
-                    placement: a.gi_cache_placement,
-                    cone_percent: a.gi_cache_cone,
-                })
-            }
-            g => g,
-        },
-    });
-    if let Some(g) = &gi {
-        // Check the knobs before any frame is rendered.
-        g.validated().map_err(|e| usage(&e.to_string()))?;
     }
     let mut session = voxray::session::Session::open(a.backend)?;
     eprintln!("backend: {}", session.description());
