@@ -183,23 +183,28 @@ pub struct GpuRenderer {
     fail_after_submit: bool,
     /// The last frame's statistics as the GPU added them up (when counting).
     pub stats: Option<super::layout::GpuStats>,
-    /// The last frame's eye lies inside a voxel ([`crate::render::instances::eye_inside`]),
-    /// for frames kept on the GPU, whose t values say so only on the GPU.
-    pub eye_inside: bool,
+    /// The last frame's parts, for [`GpuRenderer::eye_inside`].
+    parts_kept: Vec<Arc<crate::svo::Svo>>,
     /// The splat renderer's passes and buffers (made on its first frame).
     splat: Option<super::splat::GpuSplat>,
-    /// Last frame's instances as uploaded, and which were flagged as moved: a frame that
-    /// refills only the instances that changed rewrites only theirs (a crowd's 80 000 took
-    /// 1.5 ms a frame to convert afresh).
-    insts: Vec<GpuInstance>,
+    /// Which of last frame's instances, as uploaded, were flagged as moved (empty when the
+    /// instance buffer does not hold last frame's instances): a frame that refills only the
+    /// instances that changed converts and rewrites only theirs (a crowd's 80 000 took 1.5 ms
+    /// a frame to convert afresh), straight into the upload's memory: no copy of every
+    /// instance is kept up to date on the host.
     inst_moved: Vec<bool>,
+    /// Memory the instances are converted into when all of them are written (every frame
+    /// of a moving camera: kept, not allocated afresh each time).
+    inst_scratch: Vec<GpuInstance>,
     /// The passes that put the rewritten instances and BVH nodes in place (made on first
     /// use; each has its own upload buffers, as both are written before the frame runs).
     scatter_insts: Option<super::scatter::ScatterRows>,
     scatter_bvh: Option<super::scatter::ScatterRows>,
-    /// Last frame's instance BVH as uploaded (the tree in `state`), and scratch for the
-    /// nodes a refit recomputed.
-    bvh_nodes: Vec<GpuBvhNode>,
+    /// How many nodes of last frame's instance BVH (the tree in `state`) the GPU's buffer
+    /// holds (0: none, or not known after a failed frame), and scratch for the nodes a refit
+    /// recomputed. Those are converted as they are packed for upload: no copy of every
+    /// node is kept up to date on the host.
+    bvh_uploaded: usize,
     bvh_dirty: Vec<u32>,
 }
 
@@ -351,13 +356,13 @@ impl GpuRenderer {
             #[cfg(test)]
             fail_after_submit: false,
             stats: None,
-            eye_inside: false,
+            parts_kept: Vec::new(),
             splat: None,
-            insts: Vec::new(),
             inst_moved: Vec::new(),
+            inst_scratch: Vec::new(),
             scatter_insts: None,
             scatter_bvh: None,
-            bvh_nodes: Vec::new(),
+            bvh_uploaded: 0,
             bvh_dirty: Vec::new(),
         }
         .with_device_limit()
@@ -697,32 +702,28 @@ impl GpuRenderer {
             None
         };
         let moved_of = |i: usize| reuse.as_ref().is_some_and(|r| r.moved[i]);
-        let mut insts = std::mem::take(&mut self.insts);
+        // (Taken: a frame that fails leaves it empty, so the next one writes every instance.)
         let mut inst_moved = std::mem::take(&mut self.inst_moved);
         // The instances rewritten this frame (ascending; None: all of them).
         let rewritten = match &refilled {
-            Some(ids) if insts.len() == prepared.len() && inst_moved.len() == prepared.len() => {
+            Some(ids) if inst_moved.len() == prepared.len() => {
                 let mut rewritten = ids.clone();
-                for &i in ids {
-                    let i = i as usize;
-                    insts[i] = gpu_instance(scene, &prepared[i], moved_of(i));
-                }
                 // An instance that did not change may still enter or leave the moved set (its
                 // flag is against the hit buffer's frame, not the last one).
                 for (i, was) in inst_moved.iter_mut().enumerate() {
                     let now = moved_of(i);
                     if *was != now {
-                        insts[i].moved = now as u32;
                         *was = now;
                         rewritten.push(i as u32);
                     }
                 }
-                rewritten.sort_unstable();
-                rewritten.dedup();
+                if rewritten.len() > ids.len() {
+                    rewritten.sort_unstable();
+                    rewritten.dedup();
+                }
                 Some(rewritten)
             }
             _ => {
-                fresh_instances(scene, &prepared, &moved_of, &mut insts);
                 inst_moved.clear();
                 inst_moved.extend((0..prepared.len()).map(moved_of));
                 None
@@ -746,28 +747,14 @@ impl GpuRenderer {
             reuse.as_ref().and_then(|r| r.tile_bins()).map_or((0, &[][..]), |(tx, bins)| (tx as u32, bins));
         // The instance BVH refitted above the instances refilled (when only they changed
         // since it was last fitted: it is last frame's or none), and only its recomputed
-        // nodes converted; a new or wholly refitted tree is converted whole. It has no wide
-        // tree: the GPU walks its own copy.
+        // nodes converted (below); a new or wholly refitted tree is converted whole. It has
+        // no wide tree: the GPU walks its own copy.
         let mut bvh_dirty = std::mem::take(&mut self.bvh_dirty);
-        let mut bvh_nodes = std::mem::take(&mut self.bvh_nodes);
+        let uploaded = std::mem::take(&mut self.bvh_uploaded);
         let bvh = plan.bvh.then(|| self.state.take_bvh_changed(&spheres, refilled.as_deref(), &mut bvh_dirty, false));
-        let bvh_whole = match &bvh {
-            Some((b, false)) if bvh_nodes.len() == b.nodes.len() => {
-                for &n in &bvh_dirty {
-                    bvh_nodes[n as usize] = gpu_bvh_node(&b.nodes[n as usize]);
-                }
-                false
-            }
-            Some((b, _)) => {
-                bvh_nodes = gpu_bvh_nodes(b);
-                true
-            }
-            None => {
-                bvh_nodes.clear();
-                true
-            }
-        };
+        let bvh_whole = !matches!(&bvh, Some((b, false)) if uploaded == b.nodes.len());
         let bvh = bvh.map(|(b, _)| b);
+        let tree_nodes = bvh.as_ref().map_or(0, |b| b.nodes.len());
         let items: &[u32] = bvh.as_ref().map_or(&[], |b| &b.items);
         let emitter_samples = lights.emitter_sampling();
         let emitters = if emitter_samples > 0 { gpu_emitters(scene, camera.eye) } else { Vec::new() };
@@ -786,10 +773,10 @@ impl GpuRenderer {
             },
             width: w,
             height: h,
-            instances: insts.len() as u32,
+            instances: prepared.len() as u32,
             max_level: opts.max_level.min(64),
             moved: moved.len() as u32,
-            bvh_nodes: bvh_nodes.len() as u32,
+            bvh_nodes: tree_nodes as u32,
             count: counting as u32,
             moved_tiles_x,
             emitters: emitters.len() as u32,
@@ -902,26 +889,31 @@ impl GpuRenderer {
         let kept = &mut self.kept;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         // The instance buffer holds last frame's instances (a frame that failed dropped its
-        // own, so the next converts and writes them all): only the rewritten ones are sent.
-        let inst_bytes = nonempty(&insts);
-        let mut replaced = ensure(&ctx, &mut kept.insts, "instances", inst_bytes.len() as u64, false, storage);
+        // flags, so the next converts and writes them all): only the rewritten ones are sent.
+        let inst_size = (prepared.len().max(1) * std::mem::size_of::<GpuInstance>()) as u64;
+        // (COPY_SRC: the tests read the instances back.)
+        let inst_usage = storage | wgpu::BufferUsages::COPY_SRC;
+        let mut replaced = ensure(&ctx, &mut kept.insts, "instances", inst_size, false, inst_usage);
         // Up to half of them rewritten, the rewritten ones are scattered into place by a pass
-        // (below, once there is an encoder); otherwise all are written.
+        // (below, once there is an encoder); otherwise all are written, converted straight
+        // into memory kept for them (in parallel where the build has threads).
         let scattered =
-            rewritten.as_deref().filter(|ids| !replaced && !insts.is_empty() && ids.len() * 2 <= insts.len());
+            rewritten.as_deref().filter(|ids| !replaced && !prepared.is_empty() && ids.len() * 2 <= prepared.len());
         if let (Some(buf), None) = (kept.insts.as_ref(), scattered) {
-            ctx.queue.write_buffer(buf, 0, &inst_bytes);
+            fresh_instances(scene, &prepared, &moved_of, &mut self.inst_scratch);
+            ctx.queue.write_buffer(buf, 0, &nonempty(&self.inst_scratch));
         }
         // Likewise the BVH: its recomputed nodes scattered into place, its items written
         // only with a new tree.
-        let nodes_bytes = nonempty(&bvh_nodes);
-        let bvh_replaced = ensure(&ctx, &mut kept.bvh, "bvh", nodes_bytes.len() as u64, false, storage);
+        let nodes_size = (tree_nodes.max(1) * std::mem::size_of::<GpuBvhNode>()) as u64;
+        let bvh_replaced = ensure(&ctx, &mut kept.bvh, "bvh", nodes_size, false, storage);
         let rewrite = bvh_whole || bvh_replaced;
-        let bvh_scattered =
-            Some(&bvh_dirty[..]).filter(|d| !rewrite && !d.is_empty() && d.len() * 2 <= bvh_nodes.len());
-        // Unless nothing changed, or the changes are scattered, all of it is written.
+        let bvh_scattered = Some(&bvh_dirty[..]).filter(|d| !rewrite && !d.is_empty() && d.len() * 2 <= tree_nodes);
+        // Unless nothing changed, or the changes are scattered, all of it is converted and
+        // written.
         if let (Some(buf), true) = (kept.bvh.as_ref(), rewrite || (bvh_scattered.is_none() && !bvh_dirty.is_empty())) {
-            ctx.queue.write_buffer(buf, 0, &nodes_bytes);
+            let nodes = bvh.as_ref().map_or_else(Vec::new, gpu_bvh_nodes);
+            ctx.queue.write_buffer(buf, 0, &nonempty(&nodes));
         }
         let items_bytes = nonempty(items);
         let items_replaced = ensure(&ctx, &mut kept.items, "bvh items", items_bytes.len() as u64, false, storage);
@@ -1067,11 +1059,14 @@ impl GpuRenderer {
         let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
         if let Some(ids) = scattered {
             let scatter = self.scatter_insts.get_or_insert_with(|| super::scatter::ScatterRows::new(&ctx));
-            scatter.encode(&ctx, &mut enc, inst_buf, &insts, ids);
+            scatter.encode(&ctx, &mut enc, inst_buf, ids, |i| {
+                gpu_instance(scene, &prepared[i as usize], moved_of(i as usize))
+            });
         }
         if let Some(ids) = bvh_scattered {
             let scatter = self.scatter_bvh.get_or_insert_with(|| super::scatter::ScatterRows::new(&ctx));
-            scatter.encode(&ctx, &mut enc, bvh_buf, &bvh_nodes, ids);
+            let nodes = bvh.as_ref().map_or(&[][..], |b| &b.nodes[..]);
+            scatter.encode(&ctx, &mut enc, bvh_buf, ids, |n| gpu_bvh_node(&nodes[n as usize]));
         }
         if counting {
             enc.clear_buffer(stats_buf, 0, None);
@@ -1214,9 +1209,8 @@ impl GpuRenderer {
                 buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes) + splat_work.as_ref().map_or(0, |s| s.bytes);
             let now = self.ctx.traffic();
             self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
-            self.eye_inside = crate::render::instances::eye_inside_listed(&scene.parts, &prepared, &spheres);
-            self.keep_instances(prepared, spheres, insts, inst_moved);
-            (self.bvh_nodes, self.bvh_dirty) = (bvh_nodes, bvh_dirty);
+            self.keep_instances(&scene.parts, prepared, spheres, inst_moved);
+            (self.bvh_uploaded, self.bvh_dirty) = (tree_nodes, bvh_dirty);
             let st = self.stats.unwrap_or_default();
             return Ok(Frame {
                 width: w,
@@ -1307,8 +1301,8 @@ impl GpuRenderer {
             buffer_bytes + self.gi_stats.map_or(0, |g| g.bytes) + splat_work.as_ref().map_or(0, |s| s.bytes);
         let now = self.ctx.traffic();
         self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
-        self.keep_instances(prepared, spheres, insts, inst_moved);
-        (self.bvh_nodes, self.bvh_dirty) = (bvh_nodes, bvh_dirty);
+        self.keep_instances(&scene.parts, prepared, spheres, inst_moved);
+        (self.bvh_uploaded, self.bvh_dirty) = (tree_nodes, bvh_dirty);
         Ok(f)
     }
 
@@ -1316,15 +1310,28 @@ impl GpuRenderer {
     /// dropped, and the next frame prepares every instance afresh).
     fn keep_instances(
         &mut self,
+        parts: &[Arc<crate::svo::Svo>],
         prepared: Vec<Prepared>,
         spheres: Vec<(glam::DVec3, f64)>,
-        insts: Vec<GpuInstance>,
         inst_moved: Vec<bool>,
     ) {
         self.state.prepared = prepared;
         self.state.prepared_spheres = spheres;
-        self.insts = insts;
         self.inst_moved = inst_moved;
+        self.parts_kept.clear();
+        self.parts_kept.extend_from_slice(parts);
+    }
+
+    /// Whether the last frame's eye lies inside a voxel
+    /// ([`crate::render::instances::eye_inside`]): what frames kept on the GPU say only
+    /// there, in their t values. Found when asked, not every frame (a crowd's 80 000
+    /// spheres took 0.2 ms a frame to read).
+    pub fn eye_inside(&self) -> bool {
+        crate::render::instances::eye_inside_listed(
+            &self.parts_kept,
+            &self.state.prepared,
+            &self.state.prepared_spheres,
+        )
     }
 }
 
@@ -1446,6 +1453,23 @@ mod tests {
     use glam::DVec3;
 
     /// The device, or None (with a note) where there is none outside CI.
+    /// The first `n` instances of the GPU's instance buffer, as the last frame left it.
+    fn uploaded_instances(gpu: &GpuRenderer, n: usize) -> Vec<GpuInstance> {
+        let ctx = &gpu.ctx;
+        let src = gpu.kept.insts.as_ref().expect("an instance buffer");
+        let bytes = (n * std::mem::size_of::<GpuInstance>()) as u64;
+        let rb = ctx.buffer(&wgpu::BufferDescriptor {
+            label: Some("instances read back"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        enc.copy_buffer_to_buffer(src, 0, &rb, 0, bytes);
+        ctx.queue.submit([enc.finish()]);
+        read(ctx, &rb).expect("instances read back")
+    }
+
     fn context() -> Option<Arc<GpuContext>> {
         match GpuContext::headless() {
             Ok(c) => Some(Arc::new(c)),
@@ -1480,6 +1504,28 @@ mod tests {
         }
         scene.update().expect("update");
         scene
+    }
+
+    /// A frame kept on the GPU says whether its eye is inside a voxel when asked: a block's
+    /// eye inside it, then outside, then inside again (frames read back too).
+    #[test]
+    fn the_eye_inside_a_block_is_found_after_a_frame_on_the_gpu() {
+        let Some(ctx) = context() else { return };
+        let scene = two_blocks();
+        let lights = Lights::default();
+        let opts = RenderOptions::default();
+        let mut gpu = GpuRenderer::new(ctx);
+        assert!(!gpu.eye_inside(), "no frame yet");
+        // The second block spans x 0.5…1.5 (and y, z 0…1).
+        for (f, (x, inside, read_back)) in
+            [(1.0, true, false), (3.0, false, false), (0.9, true, false), (1.1, true, true)].into_iter().enumerate()
+        {
+            gpu.set_read_back(read_back);
+            let camera = Camera { eye: DVec3::new(x, 0.5, 0.5), target: DVec3::new(x, 0.5, -5.0), ..blocks_camera() };
+            let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), Some(&gpu.state));
+            gpu.render(&scene, &camera, &lights, &plan, &opts).expect("frame");
+            assert_eq!(gpu.eye_inside(), inside, "frame {f}");
+        }
     }
 
     /// A frame that fails after its submit (as a failed read-back would) leaves its records in
@@ -1540,7 +1586,7 @@ mod tests {
             gpu.render(&scene, &camera, &lights, &plan, &opts).expect("frame");
             let fresh: Vec<GpuInstance> =
                 prepared.iter().zip(&moved).map(|(p, &m)| gpu_instance(&scene, p, m)).collect();
-            assert_eq!(gpu.insts, fresh, "frame {f}");
+            assert_eq!(uploaded_instances(&gpu, fresh.len()), fresh, "frame {f}");
             assert_eq!(gpu.inst_moved, moved, "frame {f}");
         }
     }

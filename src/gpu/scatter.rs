@@ -70,17 +70,18 @@ impl ScatterRows {
         ScatterRows { pipeline, layout, params: None, src: None, ids: None, bind: None }
     }
 
-    /// Uploads the rows `ids` of `all` and encodes the pass that writes each into the same
-    /// row of `dst`, which must hold `all`'s other rows already. Rows are 16-byte multiples
-    /// (the pass copies `vec4<u32>` words); ids must be in range and distinct. Nothing is
-    /// encoded for no ids.
+    /// Uploads the rows `ids`, each `make(i)` packed straight into the upload's memory (no
+    /// copy of every row is kept on the host), and encodes the pass that writes each into row
+    /// `i` of `dst`, which must hold the other rows already. Rows are 16-byte multiples (the
+    /// pass copies `vec4<u32>` words); ids must be in range and distinct. Nothing is encoded
+    /// for no ids.
     pub(crate) fn encode<T: bytemuck::Pod>(
         &mut self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         dst: &wgpu::Buffer,
-        all: &[T],
         ids: &[u32],
+        make: impl Fn(u32) -> T,
     ) {
         const { assert!(std::mem::size_of::<T>() % 16 == 0 && std::mem::size_of::<T>() > 0) };
         let row = std::mem::size_of::<T>();
@@ -99,7 +100,7 @@ impl ScatterRows {
         // Packed straight into the upload's staging memory: no copy of the rows on the host.
         if let Some(mut view) = ctx.queue.write_buffer_with(src, 0, bytes) {
             for (k, &i) in ids.iter().enumerate() {
-                view.slice(k * row..(k + 1) * row).copy_from_slice(bytemuck::bytes_of(&all[i as usize]));
+                view.slice(k * row..(k + 1) * row).copy_from_slice(bytemuck::bytes_of(&make(i)));
             }
         }
         ctx.queue.write_buffer(id_buf, 0, bytemuck::cast_slice(ids));

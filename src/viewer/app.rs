@@ -105,7 +105,7 @@ impl App {
         let frame = session.take_frame().ok_or_else(|| ViewerError::Other("the renderer kept no frame".into()))?;
         self.ui.on_device = frame.on_device && !self.ui.gpu_stats;
         self.ui.eye_inside = if frame.on_device {
-            session.backend().gpu().is_some_and(|g| g.eye_inside)
+            session.backend().gpu().is_some_and(|g| g.eye_inside())
         } else {
             frame.eye_inside_fraction() > 0.5
         };
