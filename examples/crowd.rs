@@ -11,7 +11,8 @@
 //! harness does, and also printed are the cars tested against the frame's rays (a car found
 //! clear of them is let go untested while its motion cannot bring it near one); a further
 //! argument `all` poses every car, and `gpu` renders on the GPU backend (read back only its
-//! statistics, as the harness does; its pass times are printed too).
+//! statistics, as the harness does; its pass times are printed too, and the render's host
+//! time up to its submit, `GpuRenderer::submit_host_ms`).
 //!
 //! `cargo run --release --example crowd [-- CARS [FRAMES [all] [gpu]]]` (default 10 000 cars,
 //! 20 frames).
@@ -51,7 +52,7 @@ fn main() -> Result<(), voxray::Error> {
     session.set_read_back(!gpu);
     let rays = voxray::scene::FrameRays::of(&st.scene, &features, false, &RenderOptions::default());
     let sight = voxray::scene::Sight::new(&camera, &lights, rays, st.surfaces(u32::MAX)?).ok().filter(|_| !all);
-    let (mut posed, mut tested, mut passes) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut posed, mut tested, mut passes, mut host) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut times: [Vec<f64>; 4] = Default::default();
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
@@ -73,6 +74,9 @@ fn main() -> Result<(), voxray::Error> {
             tested.push(st.cars_tested() as f64);
             if let Some((trace, shade)) = session.backend().pass_times() {
                 passes.push(trace + shade);
+            }
+            if let Some(g) = session.backend().gpu() {
+                host.push(g.submit_host_ms);
             }
             for (v, d) in times.iter_mut().zip([t1 - t0, t2 - t1, t3 - t2, t3 - t0]) {
                 v.push(d.as_secs_f64() * 1e3);
@@ -97,6 +101,9 @@ fn main() -> Result<(), voxray::Error> {
     );
     if !passes.is_empty() {
         println!("{name}: GPU passes {:.2} ms (trace and shade, timestamps)", median(&mut passes));
+    }
+    if !host.is_empty() {
+        println!("render's host time up to the submit {:.2} ms", median(&mut host));
     }
     Ok(())
 }

@@ -183,6 +183,10 @@ pub struct GpuRenderer {
     fail_after_submit: bool,
     /// The last frame's statistics as the GPU added them up (when counting).
     pub stats: Option<super::layout::GpuStats>,
+    /// The host's time on the last frame from its start to its submit (preparing,
+    /// converting, refitting and writing what the passes read), milliseconds: with a fast
+    /// GPU, most of a crowd's frame.
+    pub submit_host_ms: f64,
     /// The last frame's parts, for [`GpuRenderer::eye_inside`].
     parts_kept: Vec<Arc<crate::svo::Svo>>,
     /// The splat renderer's passes and buffers (made on its first frame).
@@ -356,6 +360,7 @@ impl GpuRenderer {
             #[cfg(test)]
             fail_after_submit: false,
             stats: None,
+            submit_host_ms: 0.0,
             parts_kept: Vec::new(),
             splat: None,
             inst_moved: Vec::new(),
@@ -677,6 +682,7 @@ impl GpuRenderer {
     ) -> Result<Frame, GpuError> {
         // Before anything is sized by it (width · height is a u32 product below).
         camera.validate()?;
+        let started = std::time::Instant::now();
         let traffic = self.ctx.traffic();
         self.upload_parts(&scene.parts)?;
         let (w, h) = (camera.width, camera.height);
@@ -1162,6 +1168,7 @@ impl GpuRenderer {
             read_back
         });
         self.ctx.queue.submit([enc.finish()]);
+        self.submit_host_ms = started.elapsed().as_secs_f64() * 1e3;
         #[cfg(test)]
         if std::mem::take(&mut self.fail_after_submit) {
             return Err(GpuError::Readback("failed on purpose after the submit (test)".into()));
@@ -1507,7 +1514,8 @@ mod tests {
     }
 
     /// A frame kept on the GPU says whether its eye is inside a voxel when asked: a block's
-    /// eye inside it, then outside, then inside again (frames read back too).
+    /// eye inside it, then outside, then inside again (frames read back too). Each frame
+    /// gives its host time up to the submit.
     #[test]
     fn the_eye_inside_a_block_is_found_after_a_frame_on_the_gpu() {
         let Some(ctx) = context() else { return };
@@ -1523,8 +1531,10 @@ mod tests {
             gpu.set_read_back(read_back);
             let camera = Camera { eye: DVec3::new(x, 0.5, 0.5), target: DVec3::new(x, 0.5, -5.0), ..blocks_camera() };
             let plan = FramePlan::new(&scene, &camera, &lights, &Features::default(), Some(&gpu.state));
+            gpu.submit_host_ms = -1.0;
             gpu.render(&scene, &camera, &lights, &plan, &opts).expect("frame");
             assert_eq!(gpu.eye_inside(), inside, "frame {f}");
+            assert!(gpu.submit_host_ms >= 0.0 && gpu.submit_host_ms.is_finite(), "frame {f}: no host time");
         }
     }
 
