@@ -5,7 +5,8 @@
 //! refills the last one's memory). Prints the median of each over the timed frames. `voxray bench --scenarios
 //! instances` is the full comparison.
 //!
-//! The frame's stages run inside [`voxray::pool::run_awake`] on the CPU, as the harness runs them.
+//! The frame's stages run inside [`voxray::pool::run_awake`], as the harness runs them (a GPU
+//! frame lets the pool's threads rest once it is submitted).
 //!
 //! Only the cars some pixel ray can reach are posed ([`voxray::scene::car::SeenCars::pose`]), as the
 //! harness does, and also printed are the cars tested against the frame's rays (a car found
@@ -57,7 +58,7 @@ fn main() -> Result<(), voxray::Error> {
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
         let t0 = Instant::now();
-        // The frame's stages run as the harness runs them (voxray::pool::run_frame).
+        // The frame's stages run as the harness runs them (voxray::pool::run_awake).
         let frame = || -> Result<_, voxray::Error> {
             let n = st.pose_seen(t, sight.as_ref(), u32::MAX)?;
             let t1 = Instant::now();
@@ -66,7 +67,7 @@ fn main() -> Result<(), voxray::Error> {
             session.frame(&st.scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
             Ok((n, t1, t2))
         };
-        let (n, t1, t2) = voxray::pool::run_frame(!gpu, frame)?;
+        let (n, t1, t2) = voxray::pool::run_awake(frame)?;
         let t3 = Instant::now();
         std::hint::black_box(session.last_frame());
         if f >= 2 {

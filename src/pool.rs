@@ -23,26 +23,35 @@ const IDLE: std::time::Duration = std::time::Duration::from_micros(500);
 thread_local! {
     /// Whether this thread is inside [`run_awake`]'s work or one of its waiting loops.
     static AWAKE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    /// The flag that stops the threads kept awake for the [`run_awake`] whose work runs on
+    /// this thread (see [`rest`]).
+    static STOP: std::cell::RefCell<Option<std::sync::Arc<AtomicBool>>> = const { std::cell::RefCell::new(None) };
 }
 
 /// Runs `work` — a frame's posing, transform update and render, say — on a thread of rayon's
 /// pool (where it is already, directly; with the calling thread's memory budget,
 /// [`crate::memory::with_budget`]) while the pool's other threads keep looking for work instead of
 /// sleeping between its parallel loops: each loop's pieces are taken at once, not after a
-/// wake-up. They spin (use a core each) until `work` returns, or after half a millisecond
+/// wake-up. They spin (use a core each) until `work` returns, until it calls [`rest`] (a GPU
+/// frame does after its submit, before it waits for the device), or after half a millisecond
 /// without work. Within `run_awake` (or without the `parallel` feature) it just runs `work`.
 ///
 /// A 10 000-car crowd's frame on two cores: 5–8 % faster than posing, updating and rendering
-/// from the calling thread (docs/benchmarks.md, step 78); one car's frame alike.
+/// from the calling thread (docs/benchmarks.md, step 78); one car's frame alike. On the GPU
+/// backend the host's part of such a frame (up to its submit) fell by a third (step 87).
 #[cfg(feature = "parallel")]
 pub fn run_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     if AWAKE.get() {
         return work();
     }
     let budget = crate::memory::thread_budget();
-    let done = AtomicBool::new(false);
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let done = &*stop;
     rayon::scope(|s| {
-        let (driver, done) = (rayon::current_thread_index(), &done);
+        let driver = rayon::current_thread_index();
+        // One job on each thread of the pool (it returns at once on the driving one): spawned
+        // jobs, one for each other thread, could all be taken by the driving thread while it
+        // waits for a loop's pieces, leaving none kept awake.
         for _ in 1..rayon::current_num_threads() {
             s.spawn(move |_| keep_taking_work(done, driver));
         }
@@ -52,10 +61,12 @@ pub fn run_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
             fn drop(&mut self) {
                 self.0.store(true, Ordering::Release);
                 AWAKE.set(false);
+                STOP.set(None);
             }
         }
         let _done = Done(done);
         AWAKE.set(true);
+        STOP.set(Some(std::sync::Arc::clone(&stop)));
         crate::memory::with_budget(budget, work)
     })
 }
@@ -66,17 +77,22 @@ pub fn run_awake<R>(work: impl FnOnce() -> R) -> R {
     work()
 }
 
-/// Runs a frame's stages (posing, update, render) as a frame on the CPU backend (`cpu`) or
-/// on a GPU backend wants them: the CPU's with the pool's threads kept awake
-/// ([`run_awake`]); a GPU frame's here, since its host waits for the device and a spinning
-/// thread would only take a core from the driver.
-pub fn run_frame<R: Send>(cpu: bool, work: impl FnOnce() -> R + Send) -> R {
-    if cpu {
-        run_awake(work)
-    } else {
-        work()
-    }
+/// Lets the threads kept awake for the enclosing [`run_awake`] sleep for the rest of its
+/// work: for work about to wait on something else that needs the cores (a GPU frame after
+/// its submit, whose driver may run on the CPU), where a spinning thread would only take a
+/// core from it. Outside `run_awake` (or without the `parallel` feature) it does nothing.
+#[cfg(feature = "parallel")]
+pub fn rest() {
+    STOP.with_borrow(|stop| {
+        if let Some(stop) = stop {
+            stop.store(true, Ordering::Release);
+        }
+    });
 }
+
+/// Does nothing: without the `parallel` feature no thread is kept awake.
+#[cfg(not(feature = "parallel"))]
+pub fn rest() {}
 
 /// On one of the pool's threads: runs the pool's pending work, one piece at a time, until
 /// `done` or until none has come for [`IDLE`]. A thread that picks this job up while it
@@ -163,5 +179,28 @@ mod tests {
         assert_eq!(sums, expected);
         assert!(panicked && !still_marked);
         assert_eq!(after, 499_500);
+    }
+
+    /// [`rest`] raises the flag the kept-awake threads of the `run_awake` it is called in
+    /// poll (the one that stops them when the work ends), and only that one: outside it
+    /// there is none to raise. Whether the threads then leave is not timed here: on a loaded
+    /// host they also leave whenever they are kept off a core for longer than [`IDLE`].
+    #[test]
+    fn resting_raises_the_kept_awake_threads_flag() {
+        let flag = || STOP.with_borrow(|s| s.as_ref().map(|f| f.load(Ordering::Acquire)));
+        // On a pool's thread, where `run_awake` runs its work and keeps its flag.
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().expect("a pool of two");
+        let (during, ended, again) = pool.install(|| {
+            let during = run_awake(|| {
+                let before = flag();
+                rest();
+                (before, flag())
+            });
+            rest();
+            (during, flag(), run_awake(flag))
+        });
+        assert_eq!(during, (Some(false), Some(true)));
+        assert_eq!(ended, None, "a flag kept after the work ended");
+        assert_eq!(again, Some(false), "the next work starts with its own flag down");
     }
 }

@@ -211,7 +211,7 @@ pub fn run_clip_timed(
             clip.scene.update()?;
             session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})
         };
-        let report = crate::pool::run_frame(!gpu, frame)?;
+        let report = crate::pool::run_awake(frame)?;
         let secs = start.elapsed().as_secs_f64();
         if f >= clip.warmup {
             if let Some((tr, sh)) = session.backend().pass_times() {

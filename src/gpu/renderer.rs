@@ -1169,6 +1169,9 @@ impl GpuRenderer {
         });
         self.ctx.queue.submit([enc.finish()]);
         self.submit_host_ms = started.elapsed().as_secs_f64() * 1e3;
+        // From here the host waits for the device: a pool thread kept spinning for the
+        // frame's host work would only take a core from the driver.
+        crate::pool::rest();
         #[cfg(test)]
         if std::mem::take(&mut self.fail_after_submit) {
             return Err(GpuError::Readback("failed on purpose after the submit (test)".into()));

@@ -67,7 +67,6 @@ impl App {
         let scene_error = |e: crate::scene::SceneError| ViewerError::Other(e.to_string());
         let (scene, seen, cars, lights) = (&mut self.scene, &mut self.seen, &self.cars, &self.lights);
         let (time, lod, animated) = (self.time, self.ui.lod, &self.opts.animated);
-        let cpu = session.backend().gpu().is_none();
         let stages = || -> Result<_, ViewerError> {
             let posed = seen.pose(scene, cars, time, sight.as_ref(), lod).map_err(scene_error)?;
             if let Some(a) = animated {
@@ -76,7 +75,7 @@ impl App {
             scene.update().map_err(scene_error)?;
             Ok((posed, session.frame(scene, &camera, lights, &features, &opts, &|_, _| {})))
         };
-        let (posed, rendered) = crate::pool::run_frame(cpu, stages)?;
+        let (posed, rendered) = crate::pool::run_awake(stages)?;
         self.ui.posed = (posed, self.cars.len());
         let report = match rendered {
             Ok(r) => r,

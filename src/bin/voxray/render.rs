@@ -258,7 +258,6 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
             let rays = voxray::scene::FrameRays::of(&st.scene, &features, session.gi().is_some(), &opts);
             voxray::scene::Sight::new(&cam, &lights, rays, box_).ok()
         });
-        let cpu = session.backend().gpu().is_none();
         let stages = || -> Result<_, voxray::Error> {
             st.pose_seen(t, sight.as_ref(), opts.max_level)?;
             st.scene.update()?;
@@ -268,7 +267,7 @@ pub(crate) fn render_cmd(a: RenderArgs) -> Result<(), Error> {
                 }
             })
         };
-        let report = voxray::pool::run_frame(cpu, stages)?;
+        let report = voxray::pool::run_awake(stages)?;
         let plan = report.plan;
         if a.explain && last_plan.as_ref().is_none_or(|p| p.reasons != plan.reasons) {
             pb.suspend(|| eprintln!("frame {f}: {}", plan.explain()));
