@@ -211,6 +211,16 @@ impl Backend {
         }
     }
 
+    /// The host's time on the last frame up to its submit, in milliseconds (None on the CPU;
+    /// see `gpu::GpuRenderer::submit_host_ms`).
+    pub fn submit_host_ms(&self) -> Option<f64> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Some(g.submit_host_ms),
+        }
+    }
+
     /// Buffers created and bytes read back by the last frame (None on the CPU).
     pub fn gpu_traffic(&self) -> Option<(u64, u64)> {
         match self {

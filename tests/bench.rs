@@ -67,6 +67,9 @@ fn a_tiny_bench_writes_json_csv_charts_and_the_docs_section() {
         assert_eq!(r["backend_kind"], "cpu");
         assert!(r["command"].as_str().unwrap().starts_with("voxray bench"), "{r}");
         assert!(r["plan"].is_object(), "{r}");
+        // Every frame's posing and update is part of it.
+        assert!(r["pose_ms"].as_f64().is_some_and(|p| p > 0.0 && p <= median), "{r}");
+        assert!(r["gpu_submit_ms"].is_null(), "{r}");
     }
     // Depth records carry the error against full depth: zero for full, positive when coarser.
     let depth: Vec<_> = records.iter().filter(|r| r["group"] == "depth").collect();
@@ -119,6 +122,12 @@ fn a_tiny_bench_writes_json_csv_charts_and_the_docs_section() {
     let small = |b: f64| b > 0.0 && b < 1024.0;
     assert!(gpu.iter().all(|r| r["gpu_read_back_per_frame"].as_f64().is_some_and(small)), "{gpu:?}");
     assert!(gpu.iter().all(|r| r["gpu_buffers_per_frame"].as_f64().is_some()), "{gpu:?}");
+    // The host's part up to the submit is kept, and is less than the whole frame.
+    let within = |r: &&serde_json::Value| {
+        let median = r["median_ms"].as_f64().unwrap_or(0.0);
+        r["gpu_submit_ms"].as_f64().is_some_and(|s| s > 0.0 && s < median)
+    };
+    assert!(gpu.iter().all(within), "{gpu:?}");
     let md = std::fs::read_to_string(d.join("docs/benchmarks.md")).unwrap();
     assert_eq!(md.matches("<!-- BEGIN GENERATED").count(), 1);
     assert!(md.contains("| gpu |"), "{md}");

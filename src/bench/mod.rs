@@ -81,6 +81,13 @@ pub struct Record {
     /// Median host time per frame outside the GPU passes (ms): wall time minus the
     /// timestamped trace, GI and shade passes (GPU backend with timestamps only).
     pub gpu_host_ms: Option<f64>,
+    /// Median host time of a GPU frame's render up to its submit (ms): preparing the changed
+    /// instances, refitting the BVH, converting and uploading them, encoding the passes
+    /// (`GpuRenderer::submit_host_ms`; GPU backend only).
+    pub gpu_submit_ms: Option<f64>,
+    /// Median time per frame spent posing the clip and updating the scene's transforms (ms),
+    /// the host's scene work before the render (each backend).
+    pub pose_ms: Option<f64>,
     /// Buffers created per timed frame, on average (GPU backend only).
     pub gpu_buffers_per_frame: Option<f64>,
     /// Bytes read back to the host per timed frame, on average (GPU backend only).
@@ -173,6 +180,7 @@ pub fn run_clip_timed(
     let (mut traced, mut culled) = (0u64, 0u64);
     let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
     let (mut host_ms, mut traffic) = (Vec::new(), Vec::new());
+    let (mut submit_ms, mut pose_ms) = (Vec::new(), Vec::new());
     let mut plan = None;
     let mut first: Option<Frame> = None;
     let frames = clip.frames.max(1);
@@ -209,11 +217,16 @@ pub fn run_clip_timed(
                 a.rig.pose(clip.scene, a.clip, t)?;
             }
             clip.scene.update()?;
-            session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})
+            let posed = start.elapsed().as_secs_f64() * 1e3;
+            Ok((posed, session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})?))
         };
-        let report = crate::pool::run_awake(frame)?;
+        let (posed_ms, report) = crate::pool::run_awake(frame)?;
         let secs = start.elapsed().as_secs_f64();
         if f >= clip.warmup {
+            pose_ms.push(posed_ms);
+            if let Some(ms) = session.backend().submit_host_ms() {
+                submit_ms.push(ms);
+            }
             if let Some((tr, sh)) = session.backend().pass_times() {
                 trace_ms.push(tr);
                 shade_ms.push(sh);
@@ -269,6 +282,8 @@ pub fn run_clip_timed(
         voxels: stats.iter().map(|s| s.voxels).sum(),
         gpu_bytes: session.backend().gpu_bytes(),
         gpu_host_ms: (!host_ms.is_empty()).then(|| summarize(&host_ms).0),
+        gpu_submit_ms: (!submit_ms.is_empty()).then(|| summarize(&submit_ms).0),
+        pose_ms: (!pose_ms.is_empty()).then(|| summarize(&pose_ms).0),
         gpu_buffers_per_frame: (!traffic.is_empty())
             .then(|| traffic.iter().map(|t| t.0).sum::<u64>() as f64 / traffic.len() as f64),
         gpu_read_back_per_frame: (!traffic.is_empty())
@@ -286,7 +301,7 @@ pub fn run_clip_timed(
 /// One record of the same clip timed in several rounds (each with its own warm-up, in turn
 /// with other clips): the median, 95th percentile and minimum of all their frames together,
 /// the per-frame averages (rays per second, reuse, instances per ray) averaged over the
-/// rounds by their frames, the GPU's pass times the median of the rounds' medians, the rest
+/// rounds by their frames, the GPU's pass and host times and the posing time the median of the rounds' medians, the rest
 /// from the first round. None without rounds.
 pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
     let frames: usize = rounds.iter().map(|(r, _)| r.frames).sum();
@@ -303,6 +318,7 @@ pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
     };
     let (gpu_trace_ms, gpu_shade_ms) = (median_of(|r| r.gpu_trace_ms), median_of(|r| r.gpu_shade_ms));
     let gpu_host_ms = median_of(|r| r.gpu_host_ms);
+    let (gpu_submit_ms, pose_ms) = (median_of(|r| r.gpu_submit_ms), median_of(|r| r.pose_ms));
     let (first, _) = rounds.into_iter().next()?;
     let (median_ms, p95_ms, min_ms) = summarize(&times);
     Some(Record {
@@ -317,6 +333,8 @@ pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
         gpu_trace_ms,
         gpu_shade_ms,
         gpu_host_ms,
+        gpu_submit_ms,
+        pose_ms,
         ..first
     })
 }
@@ -343,7 +361,15 @@ mod tests {
     fn rounds_pool_their_frames() {
         use super::{pool_rounds, Record};
         let round = |frames: usize, mrays: f64, gpu: Option<f64>, times: &[f64]| {
-            let r = Record { frames, mrays_per_s: mrays, gpu_trace_ms: gpu, name: "crowd".into(), ..Record::default() };
+            let r = Record {
+                frames,
+                mrays_per_s: mrays,
+                gpu_trace_ms: gpu,
+                gpu_submit_ms: gpu.map(|g| g * 10.0),
+                pose_ms: gpu.map(|g| g + 0.5),
+                name: "crowd".into(),
+                ..Record::default()
+            };
             (r, times.to_vec())
         };
         let pooled = pool_rounds(vec![
@@ -357,6 +383,7 @@ mod tests {
         assert_eq!(pooled.frames, 7);
         assert!((pooled.mrays_per_s - 90.0 / 7.0).abs() < 1e-12);
         assert_eq!(pooled.gpu_trace_ms, Some(3.0));
+        assert_eq!((pooled.gpu_submit_ms, pooled.pose_ms), (Some(30.0), Some(3.5)));
         assert_eq!(pooled.name, "crowd");
         assert!(pool_rounds(Vec::new()).is_none());
     }
