@@ -158,13 +158,18 @@ pub struct Clip<'a> {
 }
 
 /// Renders a clip's warm-up and timed frames, timing each whole frame; returns the record
-/// (group, name and setting left for the caller) and the frame of the first timed pose.
+/// (group, name and setting left for the caller) and the frame of the clip's time 0.
+///
+/// The frames are the clip's, one `1 / fps` apart, with its time 0 at the last warm-up
+/// frame (the warm-up leads up to it from negative times, which the clips loop or extend):
+/// every timed frame then moves from the frame before it, as an animation's frames do,
+/// and the picture of time 0 is the same whatever the warm-up (the depth sweep compares it
+/// with a reference). Without a warm-up the first timed frame is time 0.
 ///
 /// GPU frames stay on the GPU, as the demo's do: the GPU adds up each frame's statistics and
 /// only those and the pass times are read back (which also waits for the frame, so the wall
-/// time is the whole frame's). The picture returned is read back from the last warm-up frame,
-/// which renders the first timed frame's pose (from the first timed frame itself when there
-/// is no warm-up).
+/// time is the whole frame's). The picture is read back from the frame of time 0 and copied
+/// outside the timed frames, so that the session still recycles that frame's memory.
 pub fn run_clip(session: &mut Session, backend_name: &str, clip: Clip<'_>) -> Result<(Record, Frame), crate::Error> {
     run_clip_timed(session, backend_name, clip).map(|(r, f, _)| (r, f))
 }
@@ -187,7 +192,8 @@ pub fn run_clip_timed(
     // A clip starts afresh: nothing is reused from the session's frames before it.
     session.restart();
     let gpu = session.backend().kind_name() == "gpu";
-    let picture_at = if gpu { clip.warmup.saturating_sub(1) } else { clip.warmup };
+    // The frame of the clip's time 0: the last warm-up frame, or the first timed one.
+    let picture_at = clip.warmup.saturating_sub(1);
     session.set_counting(gpu);
     // Only the cars some ray of the frame can reach are posed (as the demo and `render` do),
     // unless the switches say otherwise or a scene file's clip moves too.
@@ -208,9 +214,9 @@ pub fn run_clip_timed(
     for f in 0..clip.warmup + frames {
         session.set_read_back(!gpu || f == picture_at);
         let start = Instant::now();
-        // Warm-up frames replay the first timed frame's time, so the first timed frame is the
-        // same picture whatever the warm-up (the depth sweep compares it with a reference).
-        let t = f.saturating_sub(clip.warmup) as f64 / clip.fps;
+        // (Timed frames that replayed the warm-up's pose were frames where nothing moved:
+        // the first of each instance-sweep round, half of its frames at --frames 10.)
+        let t = (f as f64 - picture_at as f64) / clip.fps;
         let frame = || -> Result<_, crate::Error> {
             seen.pose(clip.scene, clip.cars, t, sight.as_ref(), clip.lod)?;
             if let Some(a) = clip.animated {
@@ -248,7 +254,7 @@ pub fn run_clip_timed(
             busy += secs;
         }
         if f == picture_at {
-            first = session.take_frame();
+            first = session.last_frame().cloned();
         }
         plan = Some(report.plan);
     }
@@ -355,6 +361,8 @@ pub fn machine() -> String {
 
 #[cfg(test)]
 mod tests {
+    use super::{run_clip, Clip, Features, Frame, Session};
+    use crate::scene::{Camera, Lights};
     /// Rounds pool their frames: the median of all of them (not of the rounds' medians), the
     /// averages weighted by frames, the GPU times the median of the rounds'.
     #[test]
@@ -386,6 +394,47 @@ mod tests {
         assert_eq!((pooled.gpu_submit_ms, pooled.pose_ms), (Some(30.0), Some(3.5)));
         assert_eq!(pooled.name, "crowd");
         assert!(pool_rounds(Vec::new()).is_none());
+    }
+
+    /// Every timed frame of a clip moves from the frame before it: with the hit buffer on,
+    /// a frame that replayed the warm-up's pose reused every pixel (the first of each
+    /// instance-sweep round did). And the picture is of the clip's time 0 whatever the
+    /// warm-up: the same image with three warm-up frames, one, or none.
+    #[test]
+    fn timed_frames_move_and_the_picture_is_time_zero() {
+        use crate::backend::Backend;
+        let mesh = crate::model::car::mesh();
+        let parts = crate::pipeline::build_parts(&mesh, crate::voxelize::Resolution::Depth(5)).expect("parts");
+        let mut st = crate::scene::stage_cars(&parts, 1, true, false).expect("a car");
+        let (lo, hi) = st.cars_bounds();
+        let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), 48, 32);
+        let lights = Lights::default();
+        let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
+        let mut run = |warmup: usize, frames: usize| {
+            let clip = Clip {
+                scene: &mut st.scene,
+                cars: &st.cars,
+                animated: None,
+                renderer: crate::render::Renderer::Trace,
+                splat_draw: crate::render::SplatDraw::Compute,
+                camera: &camera,
+                lights: &lights,
+                features: Features { shadows: false, ..Features::default() },
+                lod: u32::MAX,
+                warmup,
+                frames,
+                fps: 30.0,
+            };
+            run_clip(&mut session, "CPU", clip).expect("the clip renders")
+        };
+        let (record, picture) = run(3, 1);
+        assert!(record.reused_fraction < 0.99, "the timed frame reused {} of the pixels", record.reused_fraction);
+        // The image and the hits (the counters say how it was rendered: reused or traced).
+        let seen = |f: &Frame| (f.radiance.clone(), f.t.clone(), f.instance.clone());
+        assert!(picture.instance.iter().any(|&i| i >= 0), "the car is in the picture");
+        for warmup in [1, 0] {
+            assert!(seen(&run(warmup, 2).1) == seen(&picture), "the picture after {warmup} warm-up frames differs");
+        }
     }
 
     #[test]

@@ -263,8 +263,8 @@ sorted spheres time `--sweep-frames` after them.\n\n";
     let rs = of("depth");
     if !rs.is_empty() {
         md += "### Level of detail: error against run time\n\n";
-        md += "Traversal stops at the given level and shades the node there. Error of the first timed \
-frame against the full-depth frame of the same pose: RMSE of the displayed 8-bit images (0–1 \
+        md += "Traversal stops at the given level and shades the node there. Error of the frame of the \
+clip's time 0 (the last warm-up frame) against the full-depth frame of the same pose: RMSE of the displayed 8-bit images (0–1 \
 units), the fraction of pixels whose coverage (hit/miss or instance) differs, and the mean relative \
 hit-distance error where both hit the same instance. No hit buffer, shadows on.\n\n";
         md += &provenance(&rs);
