@@ -33,7 +33,7 @@ passes() {
                printf "%s %s %s %s\n", s, p + 0, t + 0, c + 0 }'
 }
 
-echo "GPU: $("${vox[@]}" render --width 8 --height 8 --backend gpu --out "$out/probe.png" 2>&1 | grep -m1 '^backend:' || true)"
+echo "$("${vox[@]}" render --width 8 --height 8 --backend gpu --out "$out/probe.png" 2>&1 | grep -m1 '^backend:' || true)"
 echo
 echo "| image | shade, no GI, every pixel | per-pixel cones: gather | half: gather | caches 16²: placement + tracing + convolution + blend = gather | caches 8²: likewise | cones ÷ caches 8² |"
 echo "|---|---|---|---|---|---|---|"
