@@ -38,7 +38,8 @@ thread_local! {
 ///
 /// A 10 000-car crowd's frame on two cores: 5–8 % faster than posing, updating and rendering
 /// from the calling thread (docs/benchmarks.md, step 78); one car's frame alike. On the GPU
-/// backend the host's part of such a frame (up to its submit) fell by a third (step 87).
+/// backend the host's part of such a frame (posing, update and the render up to its submit)
+/// fell by about a quarter (step 87).
 #[cfg(feature = "parallel")]
 pub fn run_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     if AWAKE.get() {
@@ -49,9 +50,6 @@ pub fn run_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     let done = &*stop;
     rayon::scope(|s| {
         let driver = rayon::current_thread_index();
-        // One job on each thread of the pool (it returns at once on the driving one): spawned
-        // jobs, one for each other thread, could all be taken by the driving thread while it
-        // waits for a loop's pieces, leaving none kept awake.
         for _ in 1..rayon::current_num_threads() {
             s.spawn(move |_| keep_taking_work(done, driver));
         }

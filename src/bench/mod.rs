@@ -307,8 +307,8 @@ pub fn run_clip_timed(
 /// One record of the same clip timed in several rounds (each with its own warm-up, in turn
 /// with other clips): the median, 95th percentile and minimum of all their frames together,
 /// the per-frame averages (rays per second, reuse, instances per ray) averaged over the
-/// rounds by their frames, the GPU's pass and host times and the posing time the median of the rounds' medians, the rest
-/// from the first round. None without rounds.
+/// rounds by their frames, the GPU's pass and host times and the posing time the median of
+/// the rounds' medians, the rest from the first round. None without rounds.
 pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
     let frames: usize = rounds.iter().map(|(r, _)| r.frames).sum();
     let times: Vec<f64> = rounds.iter().flat_map(|(_, t)| t.iter().copied()).collect();
