@@ -329,7 +329,8 @@ pub(crate) struct BenchArgs {
     /// Backends to run every scenario on: cpu, gpu, auto (gpu is skipped with a note when there is no adapter).
     #[arg(long, value_delimiter = ',', env = "VOXRAY_BACKEND", default_value = "auto")]
     pub(crate) backends: Vec<voxray::backend::BackendKind>,
-    /// Untimed warm-up frames before each measurement.
+    /// Untimed warm-up frames before each measurement: the clip's lead-in up to its time 0,
+    /// so that every timed frame moves.
     #[arg(long, default_value_t = 3)]
     pub(crate) warmup: usize,
     /// Timed frames per measurement (paper, resolution, depth, peers, and the instance
