@@ -1462,7 +1462,6 @@ mod tests {
     use crate::svo::Cube;
     use glam::DVec3;
 
-    /// The device, or None (with a note) where there is none outside CI.
     /// The first `n` instances of the GPU's instance buffer, as the last frame left it.
     fn uploaded_instances(gpu: &GpuRenderer, n: usize) -> Vec<GpuInstance> {
         let ctx = &gpu.ctx;
@@ -1480,6 +1479,7 @@ mod tests {
         read(ctx, &rb).expect("instances read back")
     }
 
+    /// The device, or None (with a note) where there is none outside CI.
     fn context() -> Option<Arc<GpuContext>> {
         match GpuContext::headless() {
             Ok(c) => Some(Arc::new(c)),
