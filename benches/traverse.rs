@@ -11,11 +11,15 @@
 //!   thread, every fourth pixel per axis: `traverse::trace_unit` (Revelles' loop) against
 //!   `traverse::packet::trace_single` (the packet-of-one walk that shadow rays and the per-ray
 //!   search take; the same answers).
+//! - `car_scene_caster`: a library caller's rays through `cast::SceneCaster` (the car's 8
+//!   parts as instances, one ray at a time): the camera's rays at every second pixel per axis,
+//!   and one ambient-occlusion ray from each of their hits (short, incoherent rays).
 //!
 //! `cargo bench --bench traverse`
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::sync::Arc;
+use voxray::cast::{CastRay, SceneCaster};
 use voxray::pipeline::{build_part, shared_resolution};
 use voxray::ray::{Ray, UnitRay};
 use voxray::render::instances::prepare;
@@ -146,6 +150,39 @@ fn car_primary_rays(c: &mut Criterion) {
     g.bench_function("trace_single", |b| {
         b.iter(|| rays.iter().filter(|r| trace_single(svo, r, &opts).is_some()).count())
     });
+    g.finish();
+
+    // A library caller's own rays through `cast::SceneCaster` (the car's 8 parts as
+    // instances): the camera's rays at every second pixel per axis, then from each of their
+    // hits one ray into the hemisphere around its normal (ambient-occlusion rays: short,
+    // incoherent, starting on the surface).
+    let caster = SceneCaster::new(&scene).expect("caster");
+    let camera_rays: Vec<CastRay> = (0..768 / 2)
+        .flat_map(|y| (0..1280 / 2).map(move |x| (2 * x, 2 * y)))
+        .map(|(x, y)| CastRay::new(camera.eye, camera.ray_dir(&basis, x, y)))
+        .collect();
+    let mut rng = voxray::rng::Rng::new(1);
+    let ao_rays: Vec<CastRay> = caster
+        .nearest_all(&camera_rays)
+        .into_iter()
+        .flatten()
+        .map(|h| {
+            let d = rng.unit_vector().as_dvec3();
+            let d = if d.dot(h.normal) < 0.0 { -d } else { d };
+            CastRay::new(h.position + h.normal * 1e-3, d)
+        })
+        .collect();
+    let mut g = c.benchmark_group("car_scene_caster");
+    g.sample_size(10);
+    for (name, rays) in [("camera", &camera_rays), ("ambient_occlusion", &ao_rays)] {
+        g.throughput(Throughput::Elements(rays.len() as u64));
+        for threads in [1, all_threads] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+            g.bench_function(format!("{name}_{threads}_threads"), |b| {
+                b.iter(|| pool.install(|| caster.nearest_all(rays).iter().filter(|h| h.is_some()).count()))
+            });
+        }
+    }
     g.finish();
 }
 

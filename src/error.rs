@@ -27,6 +27,9 @@ pub enum Error {
     /// Global illumination settings or inputs.
     #[error(transparent)]
     Gi(#[from] crate::gi::GiError),
+    /// Casting rays at a scene.
+    #[error(transparent)]
+    Cast(#[from] crate::cast::CastError),
     /// The camera.
     #[error(transparent)]
     Camera(#[from] crate::scene::CameraError),

@@ -39,6 +39,7 @@
 pub mod backend;
 pub mod bench;
 pub mod cache;
+pub mod cast;
 mod error;
 pub mod gi;
 #[cfg(feature = "gpu")]

@@ -1,0 +1,194 @@
+//! `cast::SceneCaster` against the brute-force DDA oracle of every instance, and against the
+//! plain "trace every instance" search bit for bit; batches against single rays; bad rays
+//! and scenes.
+
+use glam::{DQuat, DVec3, Vec3};
+use std::sync::Arc;
+use voxray::cast::{CastError, CastRay, SceneCaster};
+use voxray::oracle::{dda, Contact, VoxelSet};
+use voxray::render::instances::prepare_into;
+use voxray::render::visibility::{nearest, FrameInstances, Search};
+use voxray::rng::Rng;
+use voxray::scene::{Instance, Scene, Transform};
+use voxray::stability::{check, scene_blobs, Ray64, TOUCH_TOLERANCE};
+use voxray::svo::{self, Cube};
+use voxray::voxelize::VoxelGrid;
+
+const DEPTH: u32 = 6;
+
+/// `n` instances of one blobby part on a grid 4 units apart, each turned, scaled by 0.5–1.5
+/// per axis and one in three mirrored (their spheres, at most 1.3 across, never overlap);
+/// with the part's voxels.
+fn scene(n: usize, seed: u64) -> (Scene, Vec<[u32; 3]>) {
+    let coords = scene_blobs(DEPTH, 5);
+    let grid = VoxelGrid::from_coords(DEPTH, Cube { min: Vec3::ZERO, size: 1.0 }, coords.iter().copied(), Vec3::ONE);
+    let mut scene = Scene::new(vec![Arc::new(svo::build(&grid).unwrap())]);
+    let mut rng = Rng::new(seed);
+    for i in 0..n {
+        let mut scale = DVec3::new(0.5 + rng.f64(), 0.5 + rng.f64(), 0.5 + rng.f64());
+        if i % 3 == 1 {
+            scale.y = -scale.y;
+        }
+        let rotation = DQuat::from_axis_angle(rng.unit_vector().as_dvec3(), rng.f64() * std::f64::consts::TAU);
+        let at = DVec3::new((i % 4) as f64, (i / 4 % 4) as f64, (i / 16) as f64) * 4.0;
+        // The part's centre (0.5, 0.5, 0.5) placed at `at`.
+        let translation = at - rotation * (scale * 0.5);
+        let local = Transform::new(translation, rotation, scale).unwrap();
+        scene.add(Instance { part: 0, parent: None, local }).unwrap();
+    }
+    scene.update().unwrap();
+    (scene, coords)
+}
+
+/// Rays from around the grid: half aimed at an occupied voxel's centre of a random instance,
+/// half in random directions (mostly misses).
+fn rays(scene: &Scene, coords: &[[u32; 3]], count: usize, seed: u64) -> Vec<CastRay> {
+    let mut rng = Rng::new(seed);
+    let n = scene.instances().len();
+    let reach = DVec3::new(16.0, 16.0, 4.0 * n.div_ceil(16) as f64);
+    (0..count)
+        .map(|k| {
+            let origin = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * (reach + 12.0) - 6.0;
+            if k % 2 == 0 {
+                let i = rng.below(n as u64) as usize;
+                let c = coords[rng.below(coords.len() as u64) as usize];
+                let centre = (glam::UVec3::from(c).as_dvec3() + 0.5) / (1u64 << DEPTH) as f64;
+                CastRay::new(origin, scene.world(i).transform_point3(centre) - origin)
+            } else {
+                CastRay::new(origin, rng.unit_vector().as_dvec3() * (0.1 + 3.0 * rng.f64()))
+            }
+        })
+        .collect()
+}
+
+/// Instance `i`'s view of a world ray (unit direction): the ray in its unit cube, the same t.
+fn in_instance(scene: &Scene, i: usize, origin: DVec3, d: DVec3) -> Ray64 {
+    let to_unit = scene.world(i).inverse();
+    Ray64 {
+        origin: to_unit.transform_point3(origin),
+        dir: to_unit.transform_vector3(d),
+        t_min: 0.0,
+        t_max: f64::INFINITY,
+    }
+}
+
+/// Every ray's answer against the oracle: a hit is the voxel the DDA finds in its instance
+/// (within the stability suite's tolerance), and no instance holds a voxel the ray meets
+/// clearly nearer; a miss meets no voxel of any instance.
+fn check_against_the_oracle(n: usize, seed: u64) {
+    let (scene, coords) = scene(n, seed);
+    let set = VoxelSet::new(DEPTH, coords.iter().copied());
+    let caster = SceneCaster::new(&scene).unwrap();
+    let rays = rays(&scene, &coords, 3000, seed + 1);
+    let (mut hits, mut mismatches) = (0, Vec::new());
+    for (k, r) in rays.iter().enumerate() {
+        let d = r.dir.normalize();
+        let got = caster.nearest(r.origin, r.dir);
+        for i in 0..n {
+            let ray = in_instance(&scene, i, r.origin, d);
+            let report = match got {
+                Some(h) if h.instance == i => check(&set, &ray, Some(h.voxel), 0, false),
+                // Another instance's voxel must not come clearly before the hit (or at all,
+                // for a miss): a touch shorter than the suite's tolerance does not count.
+                _ => {
+                    let limit = got.map_or(f64::INFINITY, |h| h.t * (1.0 - 1e-5) - 1e-6);
+                    let overlap = TOUCH_TOLERANCE * (1.0 / ray.dir.abs().max_element());
+                    let nearer = dda(&set, ray.origin, ray.dir, 0.0, limit, Contact::MinOverlap(overlap));
+                    if let Some(o) = nearer {
+                        mismatches.push(format!("ray {k}: instance {i} at t {} before {got:?}", o.t));
+                    }
+                    continue;
+                }
+            };
+            if report.mismatches > 0 {
+                mismatches.push(format!("ray {k}: {:?}", report.first_mismatch));
+            }
+        }
+        if let Some(h) = got {
+            hits += 1;
+            assert!((h.position - (r.origin + d * h.t)).length() < 1e-9 * (1.0 + h.t), "ray {k}: position");
+            assert!((h.normal.length() - 1.0).abs() < 1e-9, "ray {k}: normal {:?}", h.normal);
+            assert_eq!(h.part, 0);
+        }
+    }
+    assert!(
+        mismatches.is_empty(),
+        "{} of {} rays: {:?}",
+        mismatches.len(),
+        rays.len(),
+        &mismatches[..3.min(mismatches.len())]
+    );
+    // Aimed rays mostly hit, random ones mostly miss: both kinds were tested.
+    assert!(hits > rays.len() / 4 && hits < rays.len() * 3 / 4, "{hits} hits of {}", rays.len());
+}
+
+#[test]
+fn hits_through_the_instance_bvh_are_the_oracles() {
+    check_against_the_oracle(48, 7);
+}
+
+#[test]
+fn hits_among_few_instances_are_the_oracles() {
+    check_against_the_oracle(6, 11);
+}
+
+/// The batches give each ray's single answer, and every answer is bit for bit the plain
+/// search's (every instance traced over the whole ray), as the renderer's searches are.
+#[test]
+fn batches_and_the_plain_search_give_the_same_hits() {
+    let (scene, coords) = scene(48, 3);
+    let reference = DVec3::new(1.0, 2.0, 3.0);
+    let caster = SceneCaster::with(&scene, reference, u32::MAX).unwrap();
+    assert_eq!(caster.instances(), 48);
+    let rays = rays(&scene, &coords, 2000, 4);
+    let all = caster.nearest_all(&rays);
+    let mut prepared = Vec::new();
+    prepare_into(&scene, reference, true, u32::MAX, &mut prepared);
+    let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
+    let opts = voxray::traverse::TraceOptions::default();
+    for (k, (r, batch)) in rays.iter().zip(&all).enumerate() {
+        assert_eq!(*batch, caster.nearest(r.origin, r.dir), "ray {k}");
+        let plain = nearest(&fi, r.origin - reference, r.dir.normalize(), Search::Plain, &opts);
+        assert_eq!(batch.map(|h| (h.instance, h.voxel)), plain.map(|p| (p.instance, p.hit)), "ray {k}");
+    }
+    // Occlusion: a hit blocks past its distance, not short of it; a miss blocks nothing.
+    let far = caster.occluded_all(&rays, f64::INFINITY);
+    for (k, (h, blocked)) in all.iter().zip(&far).enumerate() {
+        assert_eq!(*blocked, h.is_some(), "ray {k}");
+    }
+    let hit_rays: Vec<(CastRay, f64)> =
+        rays.iter().zip(&all).filter_map(|(r, h)| h.filter(|h| h.t > 1e-3).map(|h| (*r, h.t))).collect();
+    assert!(hit_rays.len() > 100);
+    for (r, t) in &hit_rays {
+        assert!(caster.occluded(r.origin, r.dir, t * 1.001 + 1e-6), "{r:?} within {t}");
+        assert!(!caster.occluded(r.origin, r.dir, t * 0.999), "{r:?} short of {t}");
+    }
+}
+
+#[test]
+fn rays_without_a_direction_hit_nothing_and_bad_scenes_are_refused() {
+    let (mut scene, _) = scene(4, 9);
+    let caster = SceneCaster::new(&scene).unwrap();
+    let centre = scene.world(0).transform_point3(DVec3::splat(0.5));
+    let bad = [
+        CastRay::new(DVec3::NAN, DVec3::X),
+        CastRay::new(DVec3::ZERO, DVec3::ZERO),
+        CastRay::new(DVec3::ZERO, DVec3::new(f64::INFINITY, 0.0, 0.0)),
+        CastRay::new(DVec3::new(f64::INFINITY, 0.0, 0.0), -DVec3::X),
+    ];
+    assert!(caster.nearest_all(&bad).iter().all(Option::is_none));
+    assert!(caster.occluded_all(&bad, f64::INFINITY).iter().all(|&b| !b));
+    // A good ray, with a distance limit that is not a number or not above 0.
+    let origin = centre + DVec3::new(0.0, 30.0, 0.0);
+    assert!(caster.occluded(origin, -DVec3::Y, f64::INFINITY));
+    for t_max in [f64::NAN, 0.0, -1.0] {
+        assert!(!caster.occluded(origin, -DVec3::Y, t_max), "{t_max}");
+    }
+    // Casting at a scene posed but not updated would use the last pose's transforms.
+    scene.set_local(0, Transform::from_translation(DVec3::splat(100.0))).unwrap();
+    assert_eq!(SceneCaster::new(&scene).err(), Some(CastError::NotUpdated));
+    scene.update().unwrap();
+    assert!(SceneCaster::new(&scene).is_ok());
+    let e = SceneCaster::with(&scene, DVec3::new(0.0, f64::NAN, 0.0), u32::MAX).err().unwrap();
+    assert!(e.to_string().contains("reference point"), "{e}");
+}
