@@ -77,15 +77,21 @@ fn in_instance(scene: &Scene, i: usize, origin: DVec3, d: DVec3) -> Ray64 {
 /// clearly nearer; a miss meets no voxel of any instance.
 fn check_against_the_oracle(n: usize, seed: u64) {
     let (scene, coords) = scene(n, seed);
-    let set = VoxelSet::new(DEPTH, coords.iter().copied());
-    let caster = SceneCaster::new(&scene).unwrap();
     let rays = rays(&scene, &coords, 3000, seed + 1);
+    check_rays(&scene, &coords, &rays);
+}
+
+/// [`check_against_the_oracle`] of given rays.
+fn check_rays(scene: &Scene, coords: &[[u32; 3]], rays: &[CastRay]) {
+    let n = scene.instances().len();
+    let set = VoxelSet::new(DEPTH, coords.iter().copied());
+    let caster = SceneCaster::new(scene).unwrap();
     let (mut hits, mut mismatches) = (0, Vec::new());
     for (k, r) in rays.iter().enumerate() {
         let d = r.dir.normalize();
         let got = caster.nearest(r.origin, r.dir);
         for i in 0..n {
-            let ray = in_instance(&scene, i, r.origin, d);
+            let ray = in_instance(scene, i, r.origin, d);
             let report = match got {
                 Some(h) if h.instance == i => check(&set, &ray, Some(h.voxel), 0, false),
                 // Another instance's voxel must not come clearly before the hit (or at all,
@@ -130,6 +136,29 @@ fn hits_through_the_instance_bvh_are_the_oracles() {
 #[test]
 fn hits_among_few_instances_are_the_oracles() {
     check_against_the_oracle(6, 11);
+}
+
+/// Instances far from each other and from the reference point (the scene's centre, half a
+/// million units from either): rays from a few units away still hit what the oracle hits.
+#[test]
+fn far_apart_instances_are_hit_as_the_oracle_says() {
+    let (mut scene, coords) = scene(2, 13);
+    let far = [DVec3::ZERO, DVec3::new(1.0e6, -3.0e4, 2.5e5)];
+    for (i, at) in far.iter().enumerate() {
+        let mut local = scene.instances()[i].local;
+        local.translation += *at;
+        scene.set_local(i, local).unwrap();
+    }
+    scene.update().unwrap();
+    let mut rng = Rng::new(17);
+    let rays: Vec<CastRay> = (0..2000)
+        .map(|k| {
+            let target = scene.world(k % 2).transform_point3(DVec3::new(rng.f64(), rng.f64(), rng.f64()));
+            let origin = target + rng.unit_vector().as_dvec3() * (2.0 + 5.0 * rng.f64());
+            CastRay::new(origin, target - origin)
+        })
+        .collect();
+    check_rays(&scene, &coords, &rays);
 }
 
 /// The batches give each ray's single answer, and every answer is bit for bit the plain
