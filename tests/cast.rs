@@ -221,3 +221,98 @@ fn rays_without_a_direction_hit_nothing_and_bad_scenes_are_refused() {
     let e = SceneCaster::with(&scene, DVec3::new(0.0, f64::NAN, 0.0), u32::MAX).err().unwrap();
     assert!(e.to_string().contains("reference point"), "{e}");
 }
+
+/// `gpu::cast::GpuSceneCaster` against the CPU's caster: the same hits up to f32 rounding.
+#[cfg(feature = "gpu")]
+mod on_the_gpu {
+    use super::*;
+    use std::sync::OnceLock;
+    use voxray::gpu::cast::GpuSceneCaster;
+    use voxray::gpu::GpuContext;
+    use voxray::stability::check_with;
+
+    /// GPU t is computed in f32 from an f32 ray (the CPU maps it in f64): 10⁻⁴ relative, as
+    /// `tests/gpu.rs` allows the renderer's rays.
+    const GPU_T_TOLERANCE: f64 = 1e-4;
+
+    fn context() -> Option<Arc<GpuContext>> {
+        static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
+        match CTX.get_or_init(|| GpuContext::headless().map(Arc::new).map_err(|e| e.to_string())) {
+            Ok(c) => Some(c.clone()),
+            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => {
+                panic!("CI needs a GPU adapter (software Vulkan): {e}")
+            }
+            Err(e) => {
+                eprintln!("skipping GPU test: {e}");
+                None
+            }
+        }
+    }
+
+    /// Through the BVH (48 instances) and the sorted spheres (6): at least 99.9 % of the
+    /// answers are the CPU's (instance, voxel, t within the tolerance), and every other one
+    /// is valid against the oracle; occlusion agrees with the nearest hits; rays without a
+    /// direction hit nothing.
+    #[test]
+    fn the_gpu_caster_gives_the_cpus_hits() {
+        let Some(ctx) = context() else { return };
+        for (n, seed) in [(48, 21), (6, 22)] {
+            let (scene, coords) = scene(n, seed);
+            let set = VoxelSet::new(DEPTH, coords.iter().copied());
+            let mut rays = rays(&scene, &coords, 3000, seed + 1);
+            rays.push(CastRay::new(DVec3::NAN, DVec3::X));
+            rays.push(CastRay::new(DVec3::ZERO, DVec3::ZERO));
+            let cpu = SceneCaster::new(&scene).unwrap().nearest_all(&rays);
+            let caster = GpuSceneCaster::new(ctx.clone(), &scene).unwrap();
+            assert_eq!(caster.instances(), n);
+            let gpu = caster.nearest_all(&rays).unwrap();
+            let (mut same, mut invalid, mut hits) = (0, Vec::new(), 0);
+            for (k, ((r, c), g)) in rays.iter().zip(&cpu).zip(&gpu).enumerate() {
+                hits += g.is_some() as usize;
+                let agree = match (c, g) {
+                    (None, None) => true,
+                    (Some(c), Some(g)) => {
+                        c.instance == g.instance
+                            && c.voxel.coord == g.voxel.coord
+                            && (c.t - g.t).abs() <= GPU_T_TOLERANCE * c.t.max(1.0)
+                    }
+                    _ => false,
+                };
+                if agree {
+                    same += 1;
+                    continue;
+                }
+                // Where they differ, the GPU's answer must itself be valid.
+                let d = r.dir.normalize();
+                for i in 0..n {
+                    let ray = in_instance(&scene, i, r.origin, d);
+                    let got = g.filter(|h| h.instance == i).map(|h| h.voxel);
+                    if g.is_some() && got.is_none() {
+                        continue;
+                    }
+                    let report = check_with(&set, &ray, got, 0, false, GPU_T_TOLERANCE);
+                    if report.mismatches > 0 {
+                        invalid.push(format!("ray {k}, instance {i}: {:?}", report.first_mismatch));
+                    }
+                }
+            }
+            assert!(invalid.is_empty(), "{n} instances: {invalid:?}");
+            assert!(same * 1000 >= rays.len() * 999, "{n} instances: only {same} of {} the CPU's", rays.len());
+            assert!(hits > rays.len() / 4, "{hits} hits");
+            assert!(gpu[rays.len() - 2..].iter().all(Option::is_none));
+            // Occlusion on the GPU: blocked exactly where the nearest search found a hit.
+            let blocked = caster.occluded_all(&rays, f64::INFINITY).unwrap();
+            for (k, (b, g)) in blocked.iter().zip(&gpu).enumerate() {
+                assert_eq!(*b, g.is_some(), "{n} instances, ray {k}");
+            }
+            eprintln!("{n} instances: {same} of {} rays the CPU's, {hits} hits", rays.len());
+            // Short of the hit, not blocked (by more than the f32 rounding); a sample.
+            for (r, g) in rays.iter().zip(&gpu).step_by(20) {
+                if let Some(h) = g.filter(|h| h.t > 1e-2) {
+                    let short = caster.occluded_all(&[*r], h.t * 0.99).unwrap();
+                    assert!(!short[0], "{r:?} short of {}", h.t);
+                }
+            }
+        }
+    }
+}

@@ -199,6 +199,19 @@ fn wgsl_structs_match_rust() {
             ],
         ),
         (
+            "CastOut",
+            size_of::<GpuCastHit>(),
+            vec![
+                ("instance", offset_of!(GpuCastHit, instance)),
+                ("t", offset_of!(GpuCastHit, t)),
+                ("level", offset_of!(GpuCastHit, level)),
+                ("pad", offset_of!(GpuCastHit, pad)),
+                ("coord", offset_of!(GpuCastHit, coord)),
+                ("attr", offset_of!(GpuCastHit, attr)),
+                ("face_normal", offset_of!(GpuCastHit, face_normal)),
+            ],
+        ),
+        (
             "CacheVoxel",
             size_of::<CacheVoxel>(),
             vec![

@@ -259,6 +259,26 @@ pub struct GpuRayHit {
     pub coord: [u32; 4],
 }
 
+/// What a caller's ray found on the GPU ([`crate::gpu::cast`]). WGSL: `CastOut`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuCastHit {
+    /// The instance hit (`u32::MAX`: none); for occlusion, 0 when blocked.
+    pub instance: u32,
+    /// Distance to the hit along the unit direction.
+    pub t: f32,
+    /// Level of the voxel.
+    pub level: u32,
+    /// Padding.
+    pub pad: u32,
+    /// Voxel coordinates (w unused).
+    pub coord: [u32; 4],
+    /// The voxel's attribute words: albedo, normal, emission (w unused).
+    pub attr: [u32; 4],
+    /// Object-space normal of the face entered (w unused; zero when the ray starts inside).
+    pub face_normal: [f32; 4],
+}
+
 /// One instance's voxel cache moved into the GI volume this frame. WGSL: `GiJob`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]

@@ -1,7 +1,9 @@
-//! The GPU path (feature `gpu`): a wgpu device, the shared buffer layouts, the frame renderer
-//! and the ray-list tracer, all running the WGSL twins of the CPU code in `wgsl/`.
+//! The GPU path (feature `gpu`): a wgpu device, the shared buffer layouts, the frame renderer,
+//! the ray-list tracer and the scene caster, all running the WGSL twins of the CPU code in
+//! `wgsl/`.
 
 pub mod baseline;
+pub mod cast;
 pub mod context;
 pub mod gi;
 pub mod layout;

@@ -23,6 +23,7 @@ pub fn trace_source() -> String {
         include_str!("../../wgsl/shared/layout.wgsl"),
         include_str!("../../wgsl/shared/attr.wgsl"),
         include_str!("../../wgsl/shared/traverse.wgsl"),
+        include_str!("../../wgsl/shared/search.wgsl"),
         include_str!("../../wgsl/trace.wgsl"),
         include_str!("../../wgsl/shared/gi_fixed.wgsl"),
         include_str!("../../wgsl/gi_trace.wgsl"),
@@ -56,17 +57,59 @@ pub struct GpuTimes {
     pub cache_ms: Option<[f64; 3]>,
 }
 
-struct Pools {
+/// The parts' octrees as the shaders read them: one node pool and one attribute pool, each
+/// in at most two bindings, and a table of where each part starts.
+pub(crate) struct Pools {
     /// The parts uploaded, by identity (not address: see [`PartId`]).
     parts: Vec<PartId>,
-    nodes: wgpu::Buffer,
-    nodes_hi: wgpu::Buffer,
-    attrs: wgpu::Buffer,
-    attrs_hi: wgpu::Buffer,
-    infos: wgpu::Buffer,
+    pub(crate) nodes: wgpu::Buffer,
+    pub(crate) nodes_hi: wgpu::Buffer,
+    pub(crate) attrs: wgpu::Buffer,
+    pub(crate) attrs_hi: wgpu::Buffer,
+    pub(crate) infos: wgpu::Buffer,
     /// First element of each pool in its `_hi` binding (u32::MAX when not split).
-    node_split: u32,
-    attr_split: u32,
+    pub(crate) node_split: u32,
+    pub(crate) attr_split: u32,
+}
+
+impl Pools {
+    /// Uploads `parts` into pools whose bindings hold at most `max_binding` bytes each.
+    pub(crate) fn upload(ctx: &GpuContext, parts: &[Arc<Svo>], max_binding: u64) -> Result<Pools, GpuError> {
+        let ids: Vec<PartId> = parts.iter().map(PartId::of).collect();
+        let (mut nodes, mut attrs, mut infos): (Vec<u32>, Vec<Attr>, Vec<GpuPart>) =
+            (Vec::new(), Vec::new(), Vec::new());
+        for p in parts {
+            let (words, masks) = super::layout::part_words(p);
+            let base = nodes.len() as u32;
+            infos.push(GpuPart {
+                node_base: base,
+                mask_base: base + masks,
+                attr_base: attrs.len() as u32,
+                depth: p.depth,
+            });
+            nodes.extend_from_slice(&words);
+            attrs.extend_from_slice(&p.attrs);
+        }
+        let (n0, n1, node_split) = split_pool("the node pool", &nodes, max_binding)?;
+        let (a0, a1, attr_split) = split_pool("the attribute pool", &attrs, max_binding)?;
+        let buf = |label, contents: &[u8]| {
+            ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        Ok(Pools {
+            parts: ids,
+            nodes: buf("nodes", bytemuck::cast_slice(&n0)),
+            nodes_hi: buf("nodes (second binding)", bytemuck::cast_slice(&n1)),
+            attrs: buf("attrs", bytemuck::cast_slice(&a0)),
+            attrs_hi: buf("attrs (second binding)", bytemuck::cast_slice(&a1)),
+            infos: buf("parts", bytemuck::cast_slice(&infos)),
+            node_split,
+            attr_split,
+        })
+    }
 }
 
 /// Splits a pool into at most two bindings of at most `limit` bytes each; returns the two
@@ -245,7 +288,7 @@ pub(crate) fn plan_pipeline(
 
 /// A BVH's nodes as the shaders walk them: each box grown by more than the f32 slab test
 /// can lose, as the spheres are.
-fn gpu_bvh_nodes(b: &crate::render::bvh::Bvh) -> Vec<GpuBvhNode> {
+pub(crate) fn gpu_bvh_nodes(b: &crate::render::bvh::Bvh) -> Vec<GpuBvhNode> {
     // A crowd's tree has 160 000 nodes.
     #[cfg(feature = "parallel")]
     {
@@ -606,41 +649,7 @@ impl GpuRenderer {
         {
             return Ok(());
         }
-        let ids: Vec<PartId> = parts.iter().map(PartId::of).collect();
-        let (mut nodes, mut attrs, mut infos): (Vec<u32>, Vec<Attr>, Vec<GpuPart>) =
-            (Vec::new(), Vec::new(), Vec::new());
-        for p in parts {
-            let (words, masks) = super::layout::part_words(p);
-            let base = nodes.len() as u32;
-            infos.push(GpuPart {
-                node_base: base,
-                mask_base: base + masks,
-                attr_base: attrs.len() as u32,
-                depth: p.depth,
-            });
-            nodes.extend_from_slice(&words);
-            attrs.extend_from_slice(&p.attrs);
-        }
-        let (n0, n1, node_split) = split_pool("the node pool", &nodes, self.max_binding)?;
-        let (a0, a1, attr_split) = split_pool("the attribute pool", &attrs, self.max_binding)?;
-        let ctx = self.ctx.clone();
-        let buf = |label, contents: &[u8]| {
-            ctx.buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
-        self.pools = Some(Pools {
-            parts: ids,
-            nodes: buf("nodes", bytemuck::cast_slice(&n0)),
-            nodes_hi: buf("nodes (second binding)", bytemuck::cast_slice(&n1)),
-            attrs: buf("attrs", bytemuck::cast_slice(&a0)),
-            attrs_hi: buf("attrs (second binding)", bytemuck::cast_slice(&a1)),
-            infos: buf("parts", bytemuck::cast_slice(&infos)),
-            node_split,
-            attr_split,
-        });
+        self.pools = Some(Pools::upload(&self.ctx, parts, self.max_binding)?);
         // The split points are compiled into the pipelines; the bind group names the pools.
         self.kept.bind = None;
         self.pipelines.clear();
@@ -1403,7 +1412,7 @@ fn gpu_emitters(scene: &Scene, eye: glam::DVec3) -> Vec<GpuEmitter> {
         .collect()
 }
 
-fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
+pub(crate) fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInstance {
     let (m, t) = match p.to_unit {
         ToUnit::Affine(a) => (a.matrix3, a.translation),
         ToUnit::Scale { offset, inv_size } => (DMat3::from_diagonal(glam::DVec3::splat(inv_size)), offset),

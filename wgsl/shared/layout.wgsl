@@ -157,6 +157,19 @@ struct RayOut {
     coord: vec4<u32>,
 }
 
+// Mirrors voxray::gpu::layout::GpuCastHit: what a caller's ray found (gpu::cast).
+struct CastOut {
+    // The instance hit (0xFFFFFFFF: none); for occlusion, 0 when blocked.
+    instance: u32,
+    t: f32,
+    level: u32,
+    pad: u32,
+    coord: vec4<u32>,
+    // The voxel's Attr words: albedo, normal, emission (w unused).
+    attr: vec4<u32>,
+    face_normal: vec4<f32>,
+}
+
 // Mirrors voxray::gi::CacheVoxel: one voxel of a part's GI cache.
 struct CacheVoxel {
     // x | y << 10 | z << 20, relative to the cache's corner.
