@@ -39,8 +39,9 @@
 //! assert_eq!(hits[0].map(|h| h.instance), Some(1));
 //! // The second ray starts inside the first block: it hits where it starts.
 //! assert_eq!(hits[1].map(|h| (h.instance, h.t)), Some((0, 0.0)));
-//! // Occlusion up to a distance.
-//! assert!(!caster.occluded(DVec3::new(2.0, 0.5, 0.5), DVec3::Y, 100.0));
+//! // Occlusion up to a distance: from between the blocks, towards the second, 1 unit away.
+//! let towards = CastRay::new(DVec3::new(2.0, 0.5, 0.5), DVec3::X);
+//! assert_eq!(caster.occluded_all(&[towards.up_to(0.5), towards.up_to(1.5)]), [false, true]);
 //! # Ok::<(), voxray::Error>(())
 //! ```
 
@@ -66,20 +67,29 @@ pub enum CastError {
     Reference([f64; 3]),
 }
 
-/// One ray: origin and direction in world space. The direction need not have unit length;
-/// hits are reported as distances along it normalized.
+/// One ray: origin and direction in world space, and how far it reaches. The direction need
+/// not have unit length; distances are along it normalized.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CastRay {
     /// Where the ray starts (world space).
     pub origin: DVec3,
     /// Where it goes (world space, any length but zero).
     pub dir: DVec3,
+    /// How far it reaches: a hit farther away is none, and occlusion is tested up to here
+    /// (∞: the whole ray; not above 0, or not a number: nothing).
+    pub t_max: f64,
 }
 
 impl CastRay {
-    /// A ray from `origin` along `dir`.
+    /// A ray from `origin` along `dir`, as far as it goes.
     pub fn new(origin: DVec3, dir: DVec3) -> CastRay {
-        CastRay { origin, dir }
+        CastRay { origin, dir, t_max: f64::INFINITY }
+    }
+
+    /// This ray reaching only up to distance `t_max` (a shadow ray towards a light at that
+    /// distance, an ambient-occlusion radius).
+    pub fn up_to(self, t_max: f64) -> CastRay {
+        CastRay { t_max, ..self }
     }
 }
 
@@ -174,10 +184,20 @@ impl SceneCaster {
     /// The nearest hit along the ray from `origin` in direction `dir` (world space); None
     /// when it hits nothing (or has no direction: see [`CastRay`]).
     pub fn nearest(&self, origin: DVec3, dir: DVec3) -> Option<SceneHit> {
+        self.nearest_ray(&CastRay::new(origin, dir))
+    }
+
+    /// [`SceneCaster::nearest`] of one [`CastRay`], within its `t_max`.
+    pub fn nearest_ray(&self, r: &CastRay) -> Option<SceneHit> {
+        let (origin, dir) = (r.origin, r.dir);
         let (o, d) = self.relative(origin, dir)?;
         let found = nearest(&self.frame(), o, d, self.search(), &self.opts)?;
         let p = &self.prepared[found.instance];
         let t = found.hit.t as f64;
+        // (The nearest hit beyond the reach: none within it. Compared in f64 as the GPU's.)
+        if !(t <= r.t_max) {
+            return None;
+        }
         let n = p.normal_to_world(found.hit.normal().as_dvec3()).normalize_or_zero();
         Some(SceneHit {
             instance: found.instance,
@@ -200,15 +220,15 @@ impl SceneCaster {
         }
     }
 
-    /// [`SceneCaster::nearest`] of every ray, in parallel (with the `parallel` feature).
+    /// [`SceneCaster::nearest_ray`] of every ray, in parallel (with the `parallel` feature).
     pub fn nearest_all(&self, rays: &[CastRay]) -> Vec<Option<SceneHit>> {
-        map_rays(rays, |r| self.nearest(r.origin, r.dir))
+        map_rays(rays, |r| self.nearest_ray(r))
     }
 
-    /// [`SceneCaster::occluded`] of every ray within `t_max`, in parallel (with the
+    /// [`SceneCaster::occluded`] of every ray within its `t_max`, in parallel (with the
     /// `parallel` feature).
-    pub fn occluded_all(&self, rays: &[CastRay], t_max: f64) -> Vec<bool> {
-        map_rays(rays, |r| self.occluded(r.origin, r.dir, t_max))
+    pub fn occluded_all(&self, rays: &[CastRay]) -> Vec<bool> {
+        map_rays(rays, |r| self.occluded(r.origin, r.dir, r.t_max))
     }
 }
 

@@ -181,7 +181,7 @@ fn batches_and_the_plain_search_give_the_same_hits() {
         assert_eq!(batch.map(|h| (h.instance, h.voxel)), plain.map(|p| (p.instance, p.hit)), "ray {k}");
     }
     // Occlusion: a hit blocks past its distance, not short of it; a miss blocks nothing.
-    let far = caster.occluded_all(&rays, f64::INFINITY);
+    let far = caster.occluded_all(&rays);
     for (k, (h, blocked)) in all.iter().zip(&far).enumerate() {
         assert_eq!(*blocked, h.is_some(), "ray {k}");
     }
@@ -191,6 +191,15 @@ fn batches_and_the_plain_search_give_the_same_hits() {
     for (r, t) in &hit_rays {
         assert!(caster.occluded(r.origin, r.dir, t * 1.001 + 1e-6), "{r:?} within {t}");
         assert!(!caster.occluded(r.origin, r.dir, t * 0.999), "{r:?} short of {t}");
+    }
+    // Each ray's own reach, in batches: short of its hit, nothing; past it, the same hit.
+    let short: Vec<CastRay> = hit_rays.iter().map(|(r, t)| r.up_to(t * 0.999)).collect();
+    let long: Vec<CastRay> = hit_rays.iter().map(|(r, t)| r.up_to(t * 1.001 + 1e-6)).collect();
+    assert!(caster.occluded_all(&short).iter().all(|&b| !b));
+    assert!(caster.occluded_all(&long).iter().all(|&b| b));
+    assert!(caster.nearest_all(&short).iter().all(Option::is_none));
+    for ((r, t), h) in hit_rays.iter().zip(caster.nearest_all(&long)) {
+        assert_eq!(h.map(|h| h.t), Some(*t), "{r:?}");
     }
 }
 
@@ -206,7 +215,7 @@ fn rays_without_a_direction_hit_nothing_and_bad_scenes_are_refused() {
         CastRay::new(DVec3::new(f64::INFINITY, 0.0, 0.0), -DVec3::X),
     ];
     assert!(caster.nearest_all(&bad).iter().all(Option::is_none));
-    assert!(caster.occluded_all(&bad, f64::INFINITY).iter().all(|&b| !b));
+    assert!(caster.occluded_all(&bad).iter().all(|&b| !b));
     // A good ray, with a distance limit that is not a number or not above 0.
     let origin = centre + DVec3::new(0.0, 30.0, 0.0);
     assert!(caster.occluded(origin, -DVec3::Y, f64::INFINITY));
@@ -301,17 +310,22 @@ mod on_the_gpu {
             assert!(hits > rays.len() / 4, "{hits} hits");
             assert!(gpu[rays.len() - 2..].iter().all(Option::is_none));
             // Occlusion on the GPU: blocked exactly where the nearest search found a hit.
-            let blocked = caster.occluded_all(&rays, f64::INFINITY).unwrap();
+            let blocked = caster.occluded_all(&rays).unwrap();
             for (k, (b, g)) in blocked.iter().zip(&gpu).enumerate() {
                 assert_eq!(*b, g.is_some(), "{n} instances, ray {k}");
             }
             eprintln!("{n} instances: {same} of {} rays the CPU's, {hits} hits", rays.len());
-            // Short of the hit, not blocked (by more than the f32 rounding); a sample.
-            for (r, g) in rays.iter().zip(&gpu).step_by(20) {
-                if let Some(h) = g.filter(|h| h.t > 1e-2) {
-                    let short = caster.occluded_all(&[*r], h.t * 0.99).unwrap();
-                    assert!(!short[0], "{r:?} short of {}", h.t);
-                }
+            // Each ray's own reach: short of its hit (by more than the f32 rounding) nothing
+            // blocks it nor is hit; past it, the same hit.
+            let hit: Vec<(CastRay, f64)> =
+                rays.iter().zip(&gpu).filter_map(|(r, g)| g.filter(|h| h.t > 1e-2).map(|h| (*r, h.t))).collect();
+            let short: Vec<CastRay> = hit.iter().map(|(r, t)| r.up_to(t * 0.99)).collect();
+            let long: Vec<CastRay> = hit.iter().map(|(r, t)| r.up_to(t * 1.01)).collect();
+            assert!(caster.occluded_all(&short).unwrap().iter().all(|&b| !b));
+            assert!(caster.occluded_all(&long).unwrap().iter().all(|&b| b));
+            assert!(caster.nearest_all(&short).unwrap().iter().all(Option::is_none));
+            for ((r, t), h) in hit.iter().zip(caster.nearest_all(&long).unwrap()) {
+                assert_eq!(h.map(|h| h.t), Some(*t), "{r:?}");
             }
         }
     }

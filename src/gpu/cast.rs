@@ -150,9 +150,9 @@ impl GpuSceneCaster {
         self.prepared.len()
     }
 
-    /// [`crate::cast::SceneCaster::nearest`] of every ray, on the GPU.
+    /// [`crate::cast::SceneCaster::nearest_all`] on the GPU.
     pub fn nearest_all(&self, rays: &[CastRay]) -> Result<Vec<Option<SceneHit>>, GpuError> {
-        let (gpu_rays, dirs) = self.gpu_rays(rays, f64::INFINITY);
+        let (gpu_rays, dirs) = self.gpu_rays(rays);
         let found = self.ctx.scoped(|| self.run(&self.nearest, &gpu_rays))?;
         Ok(rays
             .iter()
@@ -170,6 +170,10 @@ impl GpuSceneCaster {
                     face_normal: glam::Vec3::new(g.face_normal[0], g.face_normal[1], g.face_normal[2]),
                 };
                 let t = g.t as f64;
+                // (The nearest hit beyond the reach: none within it; compared as the CPU's.)
+                if !(t <= r.t_max) {
+                    return None;
+                }
                 Some(SceneHit {
                     instance: g.instance as usize,
                     part: p.part,
@@ -183,19 +187,24 @@ impl GpuSceneCaster {
             .collect())
     }
 
-    /// [`crate::cast::SceneCaster::occluded`] of every ray within `t_max`, on the GPU.
-    pub fn occluded_all(&self, rays: &[CastRay], t_max: f64) -> Result<Vec<bool>, GpuError> {
-        let (gpu_rays, dirs) = self.gpu_rays(rays, t_max);
+    /// [`crate::cast::SceneCaster::occluded_all`] on the GPU.
+    pub fn occluded_all(&self, rays: &[CastRay]) -> Result<Vec<bool>, GpuError> {
+        let (gpu_rays, dirs) = self.gpu_rays(rays);
         let found = self.ctx.scoped(|| self.run(&self.occluded, &gpu_rays))?;
-        Ok(found.iter().zip(dirs).map(|(g, d)| d.is_some() && t_max > 0.0 && g.instance == 0).collect())
+        Ok(found
+            .iter()
+            .zip(dirs)
+            .zip(rays)
+            .map(|((g, d), r)| d.is_some() && r.t_max > 0.0 && g.instance == 0)
+            .collect())
     }
 
     /// The rays relative to the reference point with unit directions, in f32, and each
     /// one's direction (None: a ray without one, sent as a ray that cannot hit).
-    fn gpu_rays(&self, rays: &[CastRay], t_max: f64) -> (Vec<GpuRay>, Vec<Option<DVec3>>) {
-        let t_max = if t_max > 0.0 { t_max.min(f32::MAX as f64) as f32 } else { 0.0 };
+    fn gpu_rays(&self, rays: &[CastRay]) -> (Vec<GpuRay>, Vec<Option<DVec3>>) {
         rays.iter()
             .map(|r| {
+                let t_max = if r.t_max > 0.0 { r.t_max.min(f32::MAX as f64) as f32 } else { 0.0 };
                 let d = r.dir.normalize_or_zero();
                 let ok = r.origin.is_finite() && d != DVec3::ZERO;
                 let o = if ok { r.origin - self.reference } else { DVec3::ZERO };
