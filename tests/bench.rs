@@ -237,3 +237,35 @@ fn the_splat_scenario_compares_squares_with_rays() {
     assert!(md.contains("### Square splats against ray tracing") && md.contains("| 3 cars | cpu |"), "{md}");
     assert!(d.join("docs/images/bench-splat.png").exists());
 }
+
+/// The caster's rays on both backends (lavapipe in CI): per backend a batch of every pixel's
+/// camera ray and one of ambient-occlusion rays from their hits, timed, with its table.
+#[test]
+fn the_cast_scenario_times_a_callers_rays_on_each_backend() {
+    let d = tmp("cast");
+    let o = bench(&d, &["--backends", "cpu,gpu", "--scenarios", "cast"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json = std::fs::read_to_string(d.join("data/bench.json")).unwrap();
+    let records: Vec<serde_json::Value> = serde_json::from_str(&json).unwrap();
+    let skipped = String::from_utf8_lossy(&o.stderr).contains("skipping backend");
+    assert!(!(skipped && std::env::var("CI").is_ok_and(|v| v == "true")), "CI has the software Vulkan driver");
+    let kinds: &[&str] = if skipped { &["cpu"] } else { &["cpu", "gpu"] };
+    for kind in kinds {
+        let of: Vec<&serde_json::Value> =
+            records.iter().filter(|r| r["group"] == "cast" && r["backend_kind"] == *kind).collect();
+        assert_eq!(of.len(), 2, "{kind}: {json}");
+        // Every pixel of the 48 × 32 view; the car fills some of them, each hit one AO ray.
+        assert_eq!(of[0]["x"].as_f64(), Some(48.0 * 32.0));
+        let ao = of[1]["x"].as_f64().unwrap();
+        assert!(ao > 0.0 && ao < 48.0 * 32.0, "{ao}");
+        for r in &of {
+            assert!(r["median_ms"].as_f64().unwrap() > 0.0 && r["mrays_per_s"].as_f64().unwrap() > 0.0, "{r}");
+            assert_eq!(r["frames"].as_u64(), Some(2));
+        }
+    }
+    let md = std::fs::read_to_string(d.join("docs/benchmarks.md")).unwrap();
+    assert!(
+        md.contains("### Rays of your own: the scene caster") && md.contains("| camera rays | cpu | 1536 |"),
+        "{md}"
+    );
+}

@@ -296,7 +296,7 @@ fn bad_input_gives_clear_errors() {
         (
             &["bench", "--scenarios", "bogus"][..],
             1,
-            "paper, instances, resolution, depth, splat, peers, gi-scaling, gi-volume, gi-accuracy",
+            "paper, instances, resolution, depth, splat, cast, peers, gi-scaling, gi-volume, gi-accuracy",
         ),
     ] {
         let (code, err) = run(args);

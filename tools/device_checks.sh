@@ -5,7 +5,8 @@
 #                  GPU's passes and the host's parts (tools/crowd_gpu.sh)
 #   gi_gather.md   issue 19: the GPU's GI gathers timed against each other on the box
 #                  (tools/gi_gather_gpu.sh)
-#   data/          issue 14: the harness's paper, resolution and instance records on the GPU,
+#   data/          issue 14: the harness's paper, resolution and instance records on the GPU
+#                  (and the scene caster's rays, the cast scenario),
 #                  merged into the copy of docs/data/bench.json (and .csv) that the device has;
 #                  copy both over docs/data here, then `voxray bench --report-only` redraws
 #                  docs/benchmarks.md's tables and charts from them
@@ -28,9 +29,9 @@ cat "$out/crowd.md"
 step "GI gathers"
 FRAMES=${FRAMES:-20} bash "$root/tools/gi_gather_gpu.sh" "${vox[@]}" > "$out/gi_gather.md"
 cat "$out/gi_gather.md"
-step "harness: paper, resolution, instances"
+step "harness: paper, resolution, instances, cast"
 # shellcheck disable=SC2086 # BENCH_ARGS is a list of arguments
-"${vox[@]}" bench --scenarios paper,resolution,instances --backends gpu --out-dir "$root/docs/data" \
+"${vox[@]}" bench --scenarios paper,resolution,instances,cast --backends gpu --out-dir "$root/docs/data" \
   --charts-dir "$(mktemp -d)" --no-docs --memory-budget 48G ${BENCH_ARGS:-} >&2
 cp "$root/docs/data/bench.json" "$root/docs/data/bench.csv" "$out/data/"
 step "done"

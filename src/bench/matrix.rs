@@ -4,6 +4,7 @@
 //! against the full-depth reference, so error can be read against run time).
 
 use super::{metrics, run_clip, Clip, Record};
+use crate::cast::{CastRay, SceneCaster};
 use crate::render::{Features, Frame, Renderer, SplatDraw};
 use crate::scene::{stage_cars, Camera, Instance, Lights, Scene, Transform};
 use crate::session::Session;
@@ -26,6 +27,10 @@ pub enum Scenario {
     /// Square splats against ray tracing: a car count sweep and a level (voxel count) sweep,
     /// frame time and the splat image's error against the traced one.
     Splat,
+    /// A library caller's own rays through the scene caster ([`crate::cast::SceneCaster`], on
+    /// the GPU [`crate::gpu::cast::GpuSceneCaster`]): the car on its ground, every pixel's
+    /// camera ray and one ambient-occlusion ray from each of their hits, one batch per call.
+    Cast,
 }
 
 impl std::str::FromStr for Scenario {
@@ -37,8 +42,9 @@ impl std::str::FromStr for Scenario {
             "resolution" => Ok(Scenario::Resolution),
             "depth" | "lod" => Ok(Scenario::Depth),
             "splat" => Ok(Scenario::Splat),
+            "cast" => Ok(Scenario::Cast),
             other => Err(format!(
-                "unknown scenario '{other}' (the scenarios: paper, instances, resolution, depth, splat, peers, gi-scaling, gi-volume, gi-accuracy)"
+                "unknown scenario '{other}' (the scenarios: paper, instances, resolution, depth, splat, cast, peers, gi-scaling, gi-volume, gi-accuracy)"
             )),
         }
     }
@@ -53,6 +59,7 @@ impl Scenario {
             Scenario::Resolution => "resolution",
             Scenario::Depth => "depth",
             Scenario::Splat => "splat",
+            Scenario::Cast => "cast",
         }
     }
 }
@@ -106,6 +113,7 @@ impl MatrixConfig {
                 Scenario::Resolution => self.resolutions.len(),
                 Scenario::Depth => 1 + self.lod_levels.len().max(3),
                 Scenario::Splat => 2 * (self.cars.len() + 1 + self.lod_levels.len().max(3)),
+                Scenario::Cast => 2,
             })
             .sum()
     }
@@ -197,6 +205,71 @@ fn framed(st: &crate::scene::Staged) -> (glam::DVec3, glam::DVec3) {
     }
 }
 
+/// The cast scenario's two batches: every pixel's camera ray, and from each of their hits
+/// (found by the CPU's caster, so that both backends cast the same rays) one ray into the
+/// hemisphere around its normal, from just off the surface.
+fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[(&'static str, Vec<CastRay>); 2], crate::Error> {
+    let basis = camera.basis();
+    let camera_rays: Vec<CastRay> = (0..camera.height)
+        .flat_map(|y| (0..camera.width).map(move |x| (x, y)))
+        .map(|(x, y)| CastRay::new(camera.eye, camera.ray_dir(&basis, x, y)))
+        .collect();
+    let mut rng = crate::rng::Rng::new(1);
+    let ao_rays = SceneCaster::new(scene)?
+        .nearest_all(&camera_rays)
+        .into_iter()
+        .flatten()
+        .map(|h| {
+            let d = rng.unit_vector().as_dvec3();
+            let d = if d.dot(h.normal) < 0.0 { -d } else { d };
+            CastRay::new(h.position + h.normal * 1e-3, d)
+        })
+        .collect();
+    Ok([("camera rays", camera_rays), ("ambient-occlusion rays", ao_rays)])
+}
+
+/// Wall times (ms) of `cfg.frames` casts of `rays` after `cfg.warmup` untimed ones, through
+/// the session's backend's caster (made once, outside the timing): the CPU's on the thread
+/// pool, the GPU's with the rays' upload and the hits' read-back.
+fn time_casts(
+    session: &Session,
+    scene: &Scene,
+    rays: &[CastRay],
+    cfg: &MatrixConfig,
+) -> Result<Vec<f64>, crate::Error> {
+    let frames = cfg.frames.max(1);
+    type Cast<'r> = Box<dyn FnMut() -> Result<usize, crate::Error> + 'r>;
+    #[cfg(feature = "gpu")]
+    let on_gpu: Option<Cast> = match session.backend().gpu() {
+        Some(g) => {
+            let caster = crate::gpu::cast::GpuSceneCaster::new(g.ctx.clone(), scene)?;
+            Some(Box::new(move || Ok(caster.nearest_all(rays)?.iter().flatten().count())))
+        }
+        None => None,
+    };
+    #[cfg(not(feature = "gpu"))]
+    let on_gpu: Option<Cast> = {
+        let _ = session;
+        None
+    };
+    let mut cast: Cast = match on_gpu {
+        Some(c) => c,
+        None => {
+            let caster = SceneCaster::new(scene)?;
+            Box::new(move || Ok(crate::pool::run_awake(|| caster.nearest_all(rays)).iter().flatten().count()))
+        }
+    };
+    let mut times = Vec::with_capacity(frames);
+    for f in 0..cfg.warmup + frames {
+        let start = std::time::Instant::now();
+        std::hint::black_box(cast()?);
+        if f >= cfg.warmup {
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    Ok(times)
+}
+
 /// One static instance of `svo` at the identity.
 pub fn static_scene(svo: Arc<Svo>) -> Result<Scene, crate::Error> {
     let mut scene = Scene::new(vec![svo]);
@@ -241,7 +314,34 @@ pub fn run(
         };
         let group = group.as_str();
         match scenario {
-            Scenario::Instances | Scenario::Splat if car.is_none() => {}
+            Scenario::Instances | Scenario::Splat | Scenario::Cast if car.is_none() => {}
+            Scenario::Cast => {
+                let mut slot = None;
+                let (st, _) = sweep_scene(None, car, &mut slot)?;
+                let (lo, hi) = framed(st);
+                let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
+                for (setting, rays) in cast_rays(&st.scene, &camera)? {
+                    let name = format!("{setting}, {} rays", rays.len());
+                    progress(&name);
+                    let times = time_casts(session, &st.scene, &rays, cfg)?;
+                    let (median_ms, p95_ms, min_ms) = super::summarize(&times);
+                    let r = Record {
+                        width: camera.width,
+                        height: camera.height,
+                        warmup: cfg.warmup,
+                        frames: times.len(),
+                        instances: st.scene.instances().len(),
+                        median_ms,
+                        p95_ms,
+                        min_ms,
+                        mrays_per_s: rays.len() as f64 / median_ms.max(1e-9) / 1e3,
+                        backend: backend_name.to_string(),
+                        backend_kind: session.backend().kind_name().to_string(),
+                        ..Record::default()
+                    };
+                    out.push(label(r, cfg, group, name, setting.into(), rays.len() as f64));
+                }
+            }
             Scenario::Splat => {
                 let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
                 let features = Features { hit_buffer: false, ..Features::default() };

@@ -92,7 +92,8 @@ pub fn merge(old: Vec<Record>, new: &[Record]) -> Vec<Record> {
         |r: &Record| new.iter().any(|n| n.group == r.group && (n.backend_kind == r.backend_kind || r.group == "peers"));
     let mut out: Vec<Record> = old.into_iter().filter(|r| !measured(r)).collect();
     out.extend_from_slice(new);
-    let order = |g: &str| ["paper", "instances", "resolution", "depth", "splat", "peers"].iter().position(|&x| x == g);
+    let order =
+        |g: &str| ["paper", "instances", "resolution", "depth", "splat", "cast", "peers"].iter().position(|&x| x == g);
     // Stable: keeps each run's own order within a group, the CPU's rows before the GPU's
     // whichever backend ran last.
     out.sort_by_key(|r| (order(&r.group).unwrap_or(usize::MAX), r.backend_kind == "gpu"));
@@ -334,6 +335,29 @@ same image).\n\n";
             }
         }
         chart(&mut md, "splat");
+        md += "\n";
+    }
+    let rs = of("cast");
+    if !rs.is_empty() {
+        md += "### Rays of your own: the scene caster\n\n";
+        md += "A library caller's batch of rays through `cast::SceneCaster` (CPU, on the thread pool) and \
+`gpu::cast::GpuSceneCaster` (GPU: the rays' upload and the hits' read-back included), nearest hits, \
+one ray at a time (no beams or packets), against the car's 8 parts on its ground: every pixel's \
+camera ray of the paper scenario's view, then one ambient-occlusion ray from each of their hits \
+(short, incoherent, from just off the surface). Median wall time of one call over the timed calls.\n\n";
+        md += &provenance(&rs);
+        md += "\n| rays | backend | rays per call | median ms | p95 ms | Mrays/s |\n|---|---|---|---|---|---|\n";
+        for r in &rs {
+            md += &format!(
+                "| {} | {} | {} | {} | {} | {:.2} |\n",
+                r.setting,
+                r.backend_kind,
+                r.x as u64,
+                frame_ms(r.median_ms),
+                frame_ms(r.p95_ms),
+                r.mrays_per_s
+            );
+        }
         md += "\n";
     }
     let rs = of("peers");

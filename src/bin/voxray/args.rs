@@ -321,7 +321,8 @@ pub(crate) struct BenchArgs {
     pub(crate) source: SourceArgs,
     /// Scenario families: paper (static vs animated vs optimized), instances, resolution,
     /// depth (LOD error vs time), splat (square splats vs ray tracing over cars and voxel
-    /// counts, CPU), peers (Embree / parry3d; needs `--features peers`), gi-scaling
+    /// counts, CPU), cast (a library caller's camera and ambient-occlusion rays through the
+    /// scene caster), peers (Embree / parry3d; needs `--features peers`), gi-scaling
     /// (voxel transformation vs re-voxelization), gi-volume (dense vs sparse GI volume: time and
     /// memory), gi-accuracy (GI knobs vs the path-traced box; writes docs/accuracy.md).
     #[arg(long, value_delimiter = ',', default_value = "paper,instances,resolution,depth")]

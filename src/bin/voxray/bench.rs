@@ -67,6 +67,8 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         skip("instances", &mut instances);
         let mut splat = scenarios.contains(&Scenario::Splat);
         skip("splat", &mut splat);
+        let mut cast = scenarios.contains(&Scenario::Cast);
+        skip("cast", &mut cast);
         let mut paper = scenarios.contains(&Scenario::Paper);
         if !file_triangles {
             skip("paper", &mut paper);
@@ -78,7 +80,7 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         scenarios.retain(|s| matches!(s, Scenario::Resolution | Scenario::Depth) || (*s == Scenario::Paper && paper));
         if !skipped.is_empty() {
             eprintln!(
-                "note: skipping {} on a scene file (the instance and splat sweeps and the GI scenarios are built around the default car; the paper comparison and the peers need triangles)",
+                "note: skipping {} on a scene file (the instance and splat sweeps, the caster's rays and the GI scenarios are built around the default car; the paper comparison and the peers need triangles)",
                 skipped.join(", ")
             );
         }
