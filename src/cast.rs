@@ -215,7 +215,7 @@ impl SceneCaster {
     /// is not above 0.
     pub fn occluded(&self, origin: DVec3, dir: DVec3, t_max: f64) -> bool {
         match self.relative(origin, dir) {
-            Some((o, d)) if t_max > 0.0 => occluded(&self.frame(), o, d, t_max, self.search()),
+            Some((o, d)) if t_max > 0.0 => occluded(&self.frame(), o, d, t_max, self.search(), self.opts.max_level),
             _ => false,
         }
     }

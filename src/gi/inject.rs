@@ -90,6 +90,8 @@ pub fn inject(vol: &Volume, scene: &Scene, lights: &Lights, cell_samples: u32) -
 pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights, cell_samples: u32) -> (Vec<Vec4>, u64) {
     let spec = cells.spec();
     let eye = spec.min + DVec3::splat(spec.cell * spec.res as f64 * 0.5);
+    // The volume is lit at full detail, whatever level a frame is traced at (its shadow rays
+    // go down to the voxels: `u32::MAX` below).
     let prepared = prepare(scene, eye, true);
     let (bvh, search) = Bvh::when_worthwhile(&prepared);
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: bvh.as_ref(), starts: None };
@@ -113,7 +115,7 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights, cell_sam
                 shadow_rays += 1;
                 // Start one cell off the surface so the cell's own voxels do not shadow it.
                 let start = cell.centre + n.as_dvec3() * spec.cell - eye;
-                if !occluded(&fi, start, sun.to_sun.as_dvec3(), f64::INFINITY, search) {
+                if !occluded(&fi, start, sun.to_sun.as_dvec3(), f64::INFINITY, search, u32::MAX) {
                     radiance += albedo * sun.irradiance * (cos / std::f32::consts::PI);
                 }
             }
@@ -126,7 +128,7 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights, cell_sam
                 let cos = n.dot(inc.to_light.as_vec3());
                 if cos > 0.0 {
                     shadow_rays += 1;
-                    if !occluded(&fi, start, inc.to_light, inc.distance, search) {
+                    if !occluded(&fi, start, inc.to_light, inc.distance, search, u32::MAX) {
                         radiance += albedo * inc.irradiance * (cos / std::f32::consts::PI);
                     }
                 }
@@ -152,7 +154,7 @@ pub fn inject_cells(cells: &impl Cells, scene: &Scene, lights: &Lights, cell_sam
                 1.0,
                 EmitterShadows::Rays(&mut |o, d, len| {
                     shadow_rays += 1;
-                    !occluded(&fi, o, d, len, search)
+                    !occluded(&fi, o, d, len, search, u32::MAX)
                 }),
             );
         } else if lights.use_mtl_emitters && lights.emitter_sampling() == 0 {

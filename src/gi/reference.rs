@@ -207,7 +207,7 @@ impl<'a> PathTracer<'a> {
     fn blocked(&self, fi: &FrameInstances, o: DVec3, d: DVec3, t_max: f64) -> bool {
         match &self.triangles {
             Some(t) => t.occluded(o, d, t_max),
-            None => occluded(fi, o, d, t_max, self.search),
+            None => occluded(fi, o, d, t_max, self.search, u32::MAX),
         }
     }
 

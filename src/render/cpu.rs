@@ -180,15 +180,17 @@ enum SunRay {
     Blocked,
 }
 
-/// The sun's shadow rays (towards `to_sun`, unbounded) of the pixels `needs(x, y)` says,
-/// starting at `origin(x, y)`, traced tile by tile as packets
+/// The sun's shadow rays (towards `to_sun`, unbounded, down to the frame's `max_level`) of
+/// the pixels `needs(x, y)` says, starting at `origin(x, y)`, traced tile by tile as packets
 /// ([`super::tile_search::occluded_tile`]): per pixel of a `width` × `height` frame.
+#[allow(clippy::too_many_arguments)]
 fn sun_shadows(
     fi: &FrameInstances,
     width: usize,
     height: usize,
     to_sun: DVec3,
     search: super::visibility::Search,
+    max_level: u32,
     needs: impl Fn(usize, usize) -> bool + Sync + Send,
     origin: impl Fn(usize, usize) -> DVec3 + Sync + Send,
 ) -> Vec<SunRay> {
@@ -211,8 +213,16 @@ fn sun_shadows(
             if lanes == 0 {
                 continue;
             }
-            let blocked =
-                super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, scratch);
+            let blocked = super::tile_search::occluded_tile(
+                fi,
+                &origins,
+                to_sun,
+                lanes,
+                f64::INFINITY,
+                search,
+                max_level,
+                scratch,
+            );
             for k in super::tile_search::each(lanes) {
                 let free = blocked & (1 << k) == 0;
                 rows[(k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
@@ -739,7 +749,7 @@ fn render_lit_here(
                 let r = &records[y * w + x];
                 leave(r, camera.ray_dir(&basis, x as u32, y as u32) * r.t as f64)
             };
-            sun_shadows(&fi, w, camera.height as usize, sun.to_sun.as_dvec3(), search, needs, origin)
+            sun_shadows(&fi, w, camera.height as usize, sun.to_sun.as_dvec3(), search, opts.max_level, needs, origin)
         }
         _ => Vec::new(),
     };
@@ -885,7 +895,7 @@ fn render_lit_here(
                                     _ => {}
                                 }
                             }
-                            !occluded(&fi, start, dir, t_max, search)
+                            !occluded(&fi, start, dir, t_max, search, opts.max_level)
                         },
                         shadow_cone,
                     );

@@ -159,8 +159,8 @@ pub fn nearest_tile(
 
 /// Whether each ray `origins[k] + t·dir`, `0 ≤ t ≤ t_max`, for the lanes `k` of `lanes` (up to
 /// [`LANES`]), hits an instance: bit `k` of the result set when it does. What
-/// [`super::visibility::occluded`] answers for each ray, the octrees traversed by the rays
-/// together (shadow rays towards one sun, from a tile's surface points).
+/// [`super::visibility::occluded`] answers for each ray (down to `max_level`), the octrees
+/// traversed by the rays together (shadow rays towards one sun, from a tile's surface points).
 #[allow(clippy::too_many_arguments)]
 pub fn occluded_tile(
     fi: &FrameInstances,
@@ -169,9 +169,10 @@ pub fn occluded_tile(
     lanes: u64,
     t_max: f64,
     search: Search,
+    max_level: u32,
     scratch: &mut TileScratch,
 ) -> u64 {
-    let opts = TraceOptions { t_max: t_max as f32, ..TraceOptions::default() };
+    let opts = TraceOptions { t_max: t_max as f32, max_level, ..TraceOptions::default() };
     // The rays are parallel: they lie in a cylinder around the line through the centre of
     // their origins' bounding box, as wide as the box's half-diagonal. An instance whose
     // sphere that cylinder misses is missed by every ray (and its octree lies inside it).
@@ -321,13 +322,21 @@ mod tests {
                 nearest_tile(&fi, DVec3::ZERO, &dirs, lanes, Search::CullSort, &opts, &mut Work::default(), s, &mut out)
             });
             let origins: Vec<DVec3> = dirs.iter().map(|d| *d * 0.5).collect();
-            let blocked =
-                TileScratch::with(|s| occluded_tile(&fi, &origins, DVec3::Z, lanes, f64::INFINITY, Search::Cull, s));
+            let blocked = TileScratch::with(|s| {
+                occluded_tile(&fi, &origins, DVec3::Z, lanes, f64::INFINITY, Search::Cull, u32::MAX, s)
+            });
             for l in each(lanes) {
                 let one = nearest_work(&fi, DVec3::ZERO, dirs[l], Search::Plain, &opts, &mut Work::default());
                 assert_eq!(out[l], one, "round {round}, lane {l}");
                 hits += one.is_some() as usize;
-                let up = crate::render::visibility::occluded(&fi, origins[l], DVec3::Z, f64::INFINITY, Search::Plain);
+                let up = crate::render::visibility::occluded(
+                    &fi,
+                    origins[l],
+                    DVec3::Z,
+                    f64::INFINITY,
+                    Search::Plain,
+                    u32::MAX,
+                );
                 assert_eq!(blocked & (1 << l) != 0, up, "round {round}, lane {l}: shadow ray");
                 checked += 1;
             }

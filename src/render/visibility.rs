@@ -510,9 +510,11 @@ pub fn nearest_moved(
 }
 
 /// Whether anything blocks `o + t·d` for t in (0, `t_max`] (shadow rays; `d` unit length, so
-/// `t_max` is a distance; ∞ for the sun): any hit ends the search.
-pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, t_max: f64, search: Search) -> bool {
-    let opts = TraceOptions { t_max: t_max as f32, ..TraceOptions::default() };
+/// `t_max` is a distance; ∞ for the sun), traced down to octree level `max_level` (the
+/// frame's level of detail, as its primary rays and the GPU's shadow rays; `u32::MAX`: the
+/// voxels): any hit ends the search.
+pub fn occluded(fi: &FrameInstances, o: DVec3, d: DVec3, t_max: f64, search: Search, max_level: u32) -> bool {
+    let opts = TraceOptions { t_max: t_max as f32, max_level, ..TraceOptions::default() };
     match (search, fi.bvh) {
         (Search::Plain, _) => (0..fi.prepared.len()).any(|i| trace_one(fi, i, o, d, &opts).is_some()),
         (Search::Bvh, Some(bvh)) if !bvh.nodes.is_empty() => {
