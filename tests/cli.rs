@@ -294,6 +294,28 @@ fn bad_input_gives_clear_errors() {
             "--gi-res 3: the GI scenarios' volume needs a power of two",
         ),
         (
+            // Frames of this size fit 11 GiB; the caster's rays and hits do not.
+            &[
+                "bench",
+                "--scenarios",
+                "cast",
+                "--backends",
+                "cpu",
+                "--depth",
+                "5",
+                "--no-cache",
+                "--width",
+                "16384",
+                "--height",
+                "4096",
+                "--memory-budget",
+                "11G",
+                "--no-docs",
+            ][..],
+            1,
+            "the cast scenario's rays and hits needs about",
+        ),
+        (
             &["bench", "--scenarios", "bogus"][..],
             1,
             "paper, instances, resolution, depth, splat, cast, peers, gi-scaling, gi-volume, gi-accuracy",

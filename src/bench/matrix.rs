@@ -209,6 +209,13 @@ fn framed(st: &crate::scene::Staged) -> (glam::DVec3, glam::DVec3) {
 /// (found by the CPU's caster, so that both backends cast the same rays) one ray into the
 /// hemisphere around its normal, from just off the surface.
 fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[(&'static str, Vec<CastRay>); 2], crate::Error> {
+    // Per pixel: its camera ray, its hit and at most one ambient-occlusion ray.
+    let per_ray = 2 * std::mem::size_of::<CastRay>() + std::mem::size_of::<Option<crate::cast::SceneHit>>();
+    crate::memory::check(
+        "the cast scenario's rays and hits",
+        camera.width as u64 * camera.height as u64 * per_ray as u64,
+        "lower --width/--height or raise --memory-budget",
+    )?;
     let basis = camera.basis();
     let camera_rays: Vec<CastRay> = (0..camera.height)
         .flat_map(|y| (0..camera.width).map(move |x| (x, y)))
