@@ -28,7 +28,7 @@ pub enum Scenario {
     /// frame time and the splat image's error against the traced one.
     Splat,
     /// A library caller's own rays through the scene caster ([`crate::cast::SceneCaster`], on
-    /// the GPU [`crate::gpu::cast::GpuSceneCaster`]): the car on its ground, every pixel's
+    /// the GPU `gpu::cast::GpuSceneCaster`): the car on its ground, every pixel's
     /// camera ray and one ambient-occlusion ray from each of their hits, one batch per call.
     Cast,
 }
