@@ -161,17 +161,7 @@ fn car_primary_rays(c: &mut Criterion) {
         .flat_map(|y| (0..1280 / 2).map(move |x| (2 * x, 2 * y)))
         .map(|(x, y)| CastRay::new(camera.eye, camera.ray_dir(&basis, x, y)))
         .collect();
-    let mut rng = voxray::rng::Rng::new(1);
-    let ao_rays: Vec<CastRay> = caster
-        .nearest_all(&camera_rays)
-        .into_iter()
-        .flatten()
-        .map(|h| {
-            let d = rng.unit_vector().as_dvec3();
-            let d = if d.dot(h.normal) < 0.0 { -d } else { d };
-            CastRay::new(h.position + h.normal * 1e-3, d)
-        })
-        .collect();
+    let ao_rays = voxray::bench::matrix::ambient_occlusion_rays(&caster, &camera_rays);
     let mut g = c.benchmark_group("car_scene_caster");
     g.sample_size(10);
     for (name, rays) in [("camera", &camera_rays), ("ambient_occlusion", &ao_rays)] {

@@ -2,6 +2,8 @@
 //! plain "trace every instance" search bit for bit; batches against single rays; bad rays
 //! and scenes.
 
+mod common;
+
 use glam::{DQuat, DVec3, Vec3};
 use std::sync::Arc;
 use voxray::cast::{CastError, CastRay, SceneCaster};
@@ -234,29 +236,14 @@ fn rays_without_a_direction_hit_nothing_and_bad_scenes_are_refused() {
 /// `gpu::cast::GpuSceneCaster` against the CPU's caster: the same hits up to f32 rounding.
 #[cfg(feature = "gpu")]
 mod on_the_gpu {
+    use super::common::gpu_context as context;
     use super::*;
-    use std::sync::OnceLock;
     use voxray::gpu::cast::GpuSceneCaster;
-    use voxray::gpu::GpuContext;
     use voxray::stability::check_with;
 
     /// GPU t is computed in f32 from an f32 ray (the CPU maps it in f64): 10⁻⁴ relative, as
     /// `tests/gpu.rs` allows the renderer's rays.
     const GPU_T_TOLERANCE: f64 = 1e-4;
-
-    fn context() -> Option<Arc<GpuContext>> {
-        static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
-        match CTX.get_or_init(|| GpuContext::headless().map(Arc::new).map_err(|e| e.to_string())) {
-            Ok(c) => Some(c.clone()),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => {
-                panic!("CI needs a GPU adapter (software Vulkan): {e}")
-            }
-            Err(e) => {
-                eprintln!("skipping GPU test: {e}");
-                None
-            }
-        }
-    }
 
     /// Through the BVH (48 instances) and the sorted spheres (6): at least 99.9 % of the
     /// answers are the CPU's (instance, voxel, t within the tolerance), and every other one

@@ -4,7 +4,7 @@
 #![cfg(feature = "gpu")]
 
 use glam::{DQuat, DVec3, Vec3};
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 use voxray::gpu::layout::GpuRay;
 use voxray::gpu::rays::trace_rays;
 use voxray::gpu::{GpuContext, GpuError, GpuRenderer};
@@ -18,19 +18,9 @@ use voxray::svo::Svo;
 use voxray::traverse::{trace_unit, Hit, TraceOptions};
 use voxray::voxelize::Resolution;
 
-fn context() -> Option<Arc<GpuContext>> {
-    static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
-    match CTX.get_or_init(|| GpuContext::headless().map(Arc::new).map_err(|e| e.to_string())) {
-        Ok(c) => Some(c.clone()),
-        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => {
-            panic!("CI needs a GPU adapter (software Vulkan): {e}")
-        }
-        Err(e) => {
-            eprintln!("skipping GPU test: {e}");
-            None
-        }
-    }
-}
+mod common;
+
+use common::gpu_context as context;
 
 /// GPU t is computed in f32 from an f32 ray (the CPU uses f64): allow 10⁻⁴ relative.
 const GPU_T_TOLERANCE: f64 = 1e-4;

@@ -405,9 +405,13 @@ fn shared_constants_come_from_rust_once() {
 #[test]
 fn tracer_bindings_are_named_from_rust() {
     use voxray::gpu::prelude::binding::ALL;
-    let src =
-        [include_str!("../wgsl/trace.wgsl"), include_str!("../wgsl/gi_trace.wgsl"), include_str!("../wgsl/splat.wgsl")]
-            .concat();
+    let src = [
+        include_str!("../wgsl/shared/search.wgsl"),
+        include_str!("../wgsl/trace.wgsl"),
+        include_str!("../wgsl/gi_trace.wgsl"),
+        include_str!("../wgsl/splat.wgsl"),
+    ]
+    .concat();
     let bindings: Vec<&str> = src.lines().filter(|l| l.trim_start().starts_with("@group(")).collect();
     assert_eq!(bindings.len(), ALL.len(), "{bindings:#?}");
     // (group, number) of each binding, read from the line that names its constant.

@@ -2,20 +2,11 @@
 // nearest hits (cast_nearest_main) or occlusion within each ray's t_max (cast_occluded_main),
 // through the instance searches of search.wgsl. Rays come relative to the point the
 // instances were prepared for, with unit directions. Needs layout.wgsl, traverse.wgsl and
-// search.wgsl.
+// search.wgsl (which declares the scene's bindings).
 
 // Which instance search (render::visibility::Search): 2 cull + sort, 3 BVH.
 override SEARCH: u32 = 2u;
 
-@group(0) @binding(B_NODES) var<storage, read> nodes: array<u32>;
-@group(0) @binding(B_ATTRS) var<storage, read> attrs: array<Attr>;
-@group(0) @binding(B_PARTS) var<storage, read> parts: array<Part>;
-@group(0) @binding(B_INSTS) var<storage, read> insts: array<Inst>;
-@group(0) @binding(B_FRAME) var<uniform> frame: Frame;
-@group(0) @binding(B_BVH) var<storage, read> bvh: array<BvhNode>;
-@group(0) @binding(B_BVH_ITEMS) var<storage, read> bvh_items: array<u32>;
-@group(0) @binding(B_NODES_HI) var<storage, read> nodes_hi: array<u32>;
-@group(0) @binding(B_ATTRS_HI) var<storage, read> attrs_hi: array<Attr>;
 // The rays and one result each (bindings of this module alone).
 @group(0) @binding(20) var<storage, read> cast_rays: array<RayIn>;
 @group(0) @binding(21) var<storage, read_write> cast_hits: array<CastOut>;

@@ -10,18 +10,9 @@ override REUSE: bool = false;
 // Shadow rays (plan.shadows).
 override SHADOWS: bool = true;
 
-@group(0) @binding(B_NODES) var<storage, read> nodes: array<u32>;
-@group(0) @binding(B_ATTRS) var<storage, read> attrs: array<Attr>;
-@group(0) @binding(B_PARTS) var<storage, read> parts: array<Part>;
-@group(0) @binding(B_INSTS) var<storage, read> insts: array<Inst>;
-@group(0) @binding(B_FRAME) var<uniform> frame: Frame;
-@group(0) @binding(B_BVH) var<storage, read> bvh: array<BvhNode>;
-@group(0) @binding(B_BVH_ITEMS) var<storage, read> bvh_items: array<u32>;
 @group(0) @binding(B_HITS) var<storage, read_write> hits: array<Hit>;
 @group(0) @binding(B_MOVED) var<storage, read> moved: array<MovedSphere>;
 @group(0) @binding(B_RADIANCE) var<storage, read_write> radiance: array<vec4<f32>>;
-@group(0) @binding(B_NODES_HI) var<storage, read> nodes_hi: array<u32>;
-@group(0) @binding(B_ATTRS_HI) var<storage, read> attrs_hi: array<Attr>;
 // The frame's statistics (GpuStats), added up when frame.count is 1.
 @group(0) @binding(B_STATS) var<storage, read_write> stats: array<atomic<u32>>;
 // The frame's emissive triangles (render::emitters), frame.emitters rows.

@@ -221,9 +221,17 @@ fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[(&'static str, Vec<CastR
         .flat_map(|y| (0..camera.width).map(move |x| (x, y)))
         .map(|(x, y)| CastRay::new(camera.eye, camera.ray_dir(&basis, x, y)))
         .collect();
+    let ao_rays = ambient_occlusion_rays(&SceneCaster::new(scene)?, &camera_rays);
+    Ok([("camera rays", camera_rays), ("ambient-occlusion rays", ao_rays)])
+}
+
+/// From each hit of `rays` (through `caster`), one ray into the hemisphere around the hit's
+/// normal, from just off the surface, in a fixed random sequence: the cast scenario's and
+/// the criterion bench's ambient-occlusion rays (short, incoherent).
+pub fn ambient_occlusion_rays(caster: &SceneCaster, rays: &[CastRay]) -> Vec<CastRay> {
     let mut rng = crate::rng::Rng::new(1);
-    let ao_rays = SceneCaster::new(scene)?
-        .nearest_all(&camera_rays)
+    caster
+        .nearest_all(rays)
         .into_iter()
         .flatten()
         .map(|h| {
@@ -231,8 +239,7 @@ fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[(&'static str, Vec<CastR
             let d = if d.dot(h.normal) < 0.0 { -d } else { d };
             CastRay::new(h.position + h.normal * 1e-3, d)
         })
-        .collect();
-    Ok([("camera rays", camera_rays), ("ambient-occlusion rays", ao_rays)])
+        .collect()
 }
 
 /// Wall times (ms) of `cfg.frames` casts of `rays` after `cfg.warmup` untimed ones, through

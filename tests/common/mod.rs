@@ -51,3 +51,23 @@ pub fn assert_same_frames(a: &voxray::render::Frame, b: &voxray::render::Frame, 
     }
     assert_eq!(a.radiance, b.radiance, "{what}: image");
 }
+
+/// The GPU device the tests of one binary share (made once); None, with a message, where
+/// there is no adapter, except in CI (CI=true), which has the software Vulkan driver and
+/// fails without it.
+#[cfg(feature = "gpu")]
+pub fn gpu_context() -> Option<std::sync::Arc<voxray::gpu::GpuContext>> {
+    use std::sync::{Arc, OnceLock};
+    use voxray::gpu::GpuContext;
+    static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
+    match CTX.get_or_init(|| GpuContext::headless().map(Arc::new).map_err(|e| e.to_string())) {
+        Ok(c) => Some(c.clone()),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => {
+            panic!("CI needs a GPU adapter (software Vulkan): {e}")
+        }
+        Err(e) => {
+            eprintln!("skipping GPU test: {e}");
+            None
+        }
+    }
+}

@@ -1,8 +1,17 @@
 // The instance searches (render::visibility): which instance a ray hits first, and whether
 // anything blocks it. Shared by trace.wgsl (a frame's rays) and cast.wgsl (a caller's rays).
-// Needs layout.wgsl and traverse.wgsl, an override SEARCH (0 plain, 1 cull, 2 cull + sort,
-// 3 BVH) and, in group 0: nodes, attrs, parts, insts, frame, bvh, bvh_items, nodes_hi and
-// attrs_hi.
+// Needs layout.wgsl and traverse.wgsl and an override SEARCH (0 plain, 1 cull, 2 cull +
+// sort, 3 BVH). The scene's bindings, which both modules bind alike, are declared here.
+
+@group(0) @binding(B_NODES) var<storage, read> nodes: array<u32>;
+@group(0) @binding(B_ATTRS) var<storage, read> attrs: array<Attr>;
+@group(0) @binding(B_PARTS) var<storage, read> parts: array<Part>;
+@group(0) @binding(B_INSTS) var<storage, read> insts: array<Inst>;
+@group(0) @binding(B_FRAME) var<uniform> frame: Frame;
+@group(0) @binding(B_BVH) var<storage, read> bvh: array<BvhNode>;
+@group(0) @binding(B_BVH_ITEMS) var<storage, read> bvh_items: array<u32>;
+@group(0) @binding(B_NODES_HI) var<storage, read> nodes_hi: array<u32>;
+@group(0) @binding(B_ATTRS_HI) var<storage, read> attrs_hi: array<Attr>;
 
 // Candidates kept per ray for the depth sort; more falls back to culling without sorting.
 const MAX_CANDIDATES: u32 = 16u;
