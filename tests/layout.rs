@@ -347,6 +347,43 @@ fn wgsl_structs_match_rust() {
                 ("emission", offset_of!(GpuGiTri, emission)),
             ],
         ),
+        (
+            "CrowdCar",
+            size_of::<GpuCrowdCar>(),
+            vec![
+                ("origin_hi", offset_of!(GpuCrowdCar, origin_hi)),
+                ("origin_lo", offset_of!(GpuCrowdCar, origin_lo)),
+                ("spin", offset_of!(GpuCrowdCar, spin)),
+                ("travel", offset_of!(GpuCrowdCar, travel)),
+                ("pad0", offset_of!(GpuCrowdCar, pad0)),
+                ("pad1", offset_of!(GpuCrowdCar, pad1)),
+                ("inst_a", offset_of!(GpuCrowdCar, inst_a)),
+                ("inst_b", offset_of!(GpuCrowdCar, inst_b)),
+                ("part_a", offset_of!(GpuCrowdCar, part_a)),
+                ("part_b", offset_of!(GpuCrowdCar, part_b)),
+            ],
+        ),
+        (
+            "CrowdPart",
+            size_of::<GpuCrowdPart>(),
+            vec![
+                ("box_centre", offset_of!(GpuCrowdPart, box_centre)),
+                ("box_half", offset_of!(GpuCrowdPart, box_half)),
+                ("cube_min", offset_of!(GpuCrowdPart, cube_min)),
+            ],
+        ),
+        (
+            "CrowdFrame",
+            size_of::<GpuCrowdFrame>(),
+            vec![
+                ("eye_hi", offset_of!(GpuCrowdFrame, eye_hi)),
+                ("eye_lo", offset_of!(GpuCrowdFrame, eye_lo)),
+                ("spin", offset_of!(GpuCrowdFrame, spin)),
+                ("lap_spin", offset_of!(GpuCrowdFrame, lap_spin)),
+                ("cars", offset_of!(GpuCrowdFrame, cars)),
+                ("pad", offset_of!(GpuCrowdFrame, pad)),
+            ],
+        ),
     ];
     let parsed = wgsl_structs(include_str!("../wgsl/shared/layout.wgsl"));
     assert_eq!(parsed.len(), rust.len(), "every WGSL struct needs a Rust twin in this test");

@@ -45,6 +45,10 @@ pub enum GpuError {
     /// Buffers the memory budget refused (before they were created).
     #[error(transparent)]
     Memory(#[from] crate::memory::MemoryError),
+    /// Cars the GPU cannot pose as [`crate::scene::car::car_pose`] does (their instances are
+    /// missing or not a car's), or a scene changed since the crowd was made for it.
+    #[error("crowd posed on the GPU: {0}")]
+    Crowd(String),
 }
 
 /// A wgpu error as the library's.

@@ -494,3 +494,60 @@ pub struct GpuSplatFrame {
     /// Width over height (the frame's `right.w`).
     pub aspect: f32,
 }
+
+/// One car of a crowd posed on the GPU ([`crate::gpu::crowd`]). WGSL: `CrowdCar`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuCrowdCar {
+    /// The figure-eight's centre, the larger f32 of each coordinate; w: the car's time
+    /// offset within one lap (s).
+    pub origin_hi: [f32; 4],
+    /// What the first f32 left of each coordinate; w: the time offset within one door cycle.
+    pub origin_lo: [f32; 4],
+    /// The distance of the time offset's whole laps, wrapped to one wheel turn (m).
+    pub spin: f32,
+    /// 1: the body drives the figure-eight; 0: it stays at the centre.
+    pub travel: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Instances of the body, the four wheels (front left, front right, rear left, rear right)...
+    pub inst_a: [u32; 4],
+    /// ...the two doors and the steering wheel.
+    pub inst_b: [u32; 4],
+    /// The parts of `inst_a`'s instances.
+    pub part_a: [u32; 4],
+    /// The parts of `inst_b`'s instances.
+    pub part_b: [u32; 4],
+}
+
+/// One part as the crowd's posing reads it. WGSL: `CrowdPart`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuCrowdPart {
+    /// Centre of the occupied box at the frame's level (object space); w: the cube's size.
+    pub box_centre: [f32; 4],
+    /// Half extents of that box; w: unused.
+    pub box_half: [f32; 4],
+    /// The cube's minimum corner; w: unused.
+    pub cube_min: [f32; 4],
+}
+
+/// The crowd's posing uniforms. WGSL: `CrowdFrame`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuCrowdFrame {
+    /// The eye, the larger f32 of each coordinate; w: the time within one lap (s).
+    pub eye_hi: [f32; 4],
+    /// What the first f32 left of each coordinate; w: the time within one door cycle.
+    pub eye_lo: [f32; 4],
+    /// The distance of the time's whole laps, wrapped to one wheel turn (m).
+    pub spin: f32,
+    /// One lap's distance wrapped to one wheel turn (m).
+    pub lap_spin: f32,
+    /// Cars to pose.
+    pub cars: u32,
+    /// Padding.
+    pub pad: u32,
+}

@@ -5,6 +5,7 @@
 pub mod baseline;
 pub mod cast;
 pub mod context;
+pub mod crowd;
 pub mod gi;
 pub mod layout;
 pub mod prelude;

@@ -143,6 +143,16 @@ pub fn shared() -> Vec<(&'static str, &'static str, String)> {
         ("GI_CLEARANCE", "f32", f(crate::gi::cone::CLEARANCE as f32)),
         ("GI_MAX_TAIL_RATIO", "f32", f(crate::gi::shade::MAX_TAIL_RATIO as f32)),
         ("GI_SAME_NORMAL", "f32", f(crate::render::gather::SAME_NORMAL)),
+        ("CAR_PATH_A", "f32", f(crate::scene::car::PATH_A as f32)),
+        ("CAR_PATH_PERIOD", "f32", f(crate::scene::car::PATH_PERIOD as f32)),
+        ("CAR_DOOR_PERIOD", "f32", f(crate::scene::car::DOOR_PERIOD as f32)),
+        ("CAR_DOOR_OPEN", "f32", f(crate::scene::car::DOOR_OPEN as f32)),
+        ("CAR_STEER_MAX", "f32", f(crate::scene::car::STEER_MAX as f32)),
+        ("CAR_STEERING_RATIO", "f32", f(crate::scene::car::STEERING_RATIO as f32)),
+        ("CAR_WHEELBASE", "f32", f(crate::model::car::WHEELBASE)),
+        ("CAR_WHEEL_RADIUS", "f32", f(crate::model::car::WHEEL_RADIUS)),
+        ("CAR_ARC_STEPS", "u32", u(crate::scene::car::ARC_STEPS as u64)),
+        ("SPHERE_PAD", "f32", f(crate::render::instances::SPHERE_PAD as f32)),
     ];
     v.extend(binding::ALL.iter().map(|&(name, b)| (name, "u32", u(b as u64))));
     // Word index of each statistic in the `stats` buffer (GpuStats).

@@ -103,7 +103,7 @@ fn path(s: f64) -> (DVec3, DVec3, DVec3) {
 
 /// `x` wrapped into [0, period): `rem_euclid` without its software `fmod`, which was a tenth
 /// of posing a crowd. Exact for the clip's magnitudes (t below 10⁹ s loses under 10⁻⁶ s).
-fn wrap(x: f64, period: f64) -> f64 {
+pub(crate) fn wrap(x: f64, period: f64) -> f64 {
     let r = x - (x / period).floor() * period;
     if r >= period || r < 0.0 {
         0.0
@@ -148,12 +148,12 @@ fn speed(s: f64) -> f64 {
 }
 
 /// Intervals of the arc-length table over one lap.
-const ARC_STEPS: usize = 1024;
+pub(crate) const ARC_STEPS: usize = 1024;
 
 /// Arc length and speed at `ARC_STEPS + 1` parameters evenly spread over [0, 2π]: Simpson's
 /// rule on 16 steps per interval, summed once per process, so posing a car costs a table
 /// lookup instead of an integral (it was most of a 10 000-car frame).
-fn arc_table() -> &'static [(f64, f64)] {
+pub(crate) fn arc_table() -> &'static [(f64, f64)] {
     static TABLE: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {
         let h = TAU / ARC_STEPS as f64;

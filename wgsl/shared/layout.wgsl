@@ -327,3 +327,42 @@ struct SplatFrame {
     tan_half: f32,
     aspect: f32,
 }
+
+// Mirrors voxray::gpu::layout::GpuCrowdCar: one car of a crowd posed on the GPU.
+struct CrowdCar {
+    // The figure-eight's centre as two f32 (hi + lo); hi.w: the time offset within a lap,
+    // lo.w: within a door cycle.
+    origin_hi: vec4<f32>,
+    origin_lo: vec4<f32>,
+    // The offset's whole laps of distance, wrapped to a wheel turn.
+    spin: f32,
+    // 1: the body drives the figure-eight.
+    travel: u32,
+    pad0: u32,
+    pad1: u32,
+    // Instances: body, four wheels | two doors, steering wheel; then their parts.
+    inst_a: vec4<u32>,
+    inst_b: vec4<u32>,
+    part_a: vec4<u32>,
+    part_b: vec4<u32>,
+}
+
+// Mirrors voxray::gpu::layout::GpuCrowdPart: a part's occupied box and cube.
+struct CrowdPart {
+    // Occupied box centre at the frame's level; w: cube size.
+    box_centre: vec4<f32>,
+    box_half: vec4<f32>,
+    cube_min: vec4<f32>,
+}
+
+// Mirrors voxray::gpu::layout::GpuCrowdFrame: the crowd's posing uniforms.
+struct CrowdFrame {
+    // The eye as two f32 (hi + lo); hi.w: the time within a lap, lo.w: within a door cycle.
+    eye_hi: vec4<f32>,
+    eye_lo: vec4<f32>,
+    // The time's whole laps of distance and one lap's, wrapped to a wheel turn.
+    spin: f32,
+    lap_spin: f32,
+    cars: u32,
+    pad: u32,
+}
