@@ -384,6 +384,16 @@ fn wgsl_structs_match_rust() {
                 ("pad", offset_of!(GpuCrowdFrame, pad)),
             ],
         ),
+        (
+            "RefitLevel",
+            size_of::<GpuRefitLevel>(),
+            vec![
+                ("first", offset_of!(GpuRefitLevel, first)),
+                ("count", offset_of!(GpuRefitLevel, count)),
+                ("pad0", offset_of!(GpuRefitLevel, pad0)),
+                ("pad1", offset_of!(GpuRefitLevel, pad1)),
+            ],
+        ),
     ];
     let parsed = wgsl_structs(include_str!("../wgsl/shared/layout.wgsl"));
     assert_eq!(parsed.len(), rust.len(), "every WGSL struct needs a Rust twin in this test");

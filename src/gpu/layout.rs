@@ -551,3 +551,18 @@ pub struct GpuCrowdFrame {
     /// Padding.
     pub pad: u32,
 }
+
+/// One level of the instance BVH refitted on the GPU ([`crate::gpu::refit`]): its stretch of
+/// the node order. WGSL: `RefitLevel`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuRefitLevel {
+    /// First entry of the level in the node order.
+    pub first: u32,
+    /// Nodes in the level.
+    pub count: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+}

@@ -10,6 +10,7 @@ pub mod gi;
 pub mod layout;
 pub mod prelude;
 pub mod rays;
+pub mod refit;
 pub mod renderer;
 mod scatter;
 mod splat;

@@ -366,3 +366,12 @@ struct CrowdFrame {
     cars: u32,
     pad: u32,
 }
+
+// Mirrors voxray::gpu::layout::GpuRefitLevel: one level of the BVH refitted on the GPU, a
+// stretch of `refit_order` (wgsl/refit.wgsl).
+struct RefitLevel {
+    first: u32,
+    count: u32,
+    pad0: u32,
+    pad1: u32,
+}
