@@ -806,3 +806,130 @@ fn shadows_at_a_level_of_detail_match_the_cpu() {
         );
     }
 }
+
+/// Pixels of two GPU frames of the same crowd, one posed on the host and one on the GPU:
+/// the same instance nearly everywhere, the same distance and colour where it is.
+fn assert_same_crowd(host: &Frame, posed: &Frame, what: &str) {
+    let n = host.t.len();
+    // (The ground is the last instance.)
+    let ground = host.instance.iter().copied().max().unwrap_or(0);
+    let cars: Vec<usize> = (0..n).filter(|&k| (0..ground).contains(&host.instance[k])).collect();
+    assert!(cars.len() > n / 40, "{what}: the cars cover {} of {n} pixels", cars.len());
+    let same = host.instance.iter().zip(&posed.instance).filter(|(a, b)| a == b).count();
+    assert!(same as f64 >= 0.999 * n as f64, "{what}: instance ids agree on {same} of {n} pixels");
+    let same_cars = cars.iter().filter(|&&k| posed.instance[k] == host.instance[k]).count();
+    assert!(
+        same_cars as f64 >= 0.995 * cars.len() as f64,
+        "{what}: the same car instance on {same_cars} of the {} car pixels",
+        cars.len()
+    );
+    for k in 0..n {
+        assert!(!posed.t[k].is_nan() && posed.radiance[k].is_finite(), "{what}: NaN at pixel {k}");
+        if host.instance[k] >= 0 && host.instance[k] == posed.instance[k] {
+            let rel = ((host.t[k] - posed.t[k]) / host.t[k]).abs();
+            assert!(rel <= 1e-4, "{what}: pixel {k}: t {} vs {} (rel {rel:e})", host.t[k], posed.t[k]);
+        }
+    }
+    let far = host.radiance.iter().zip(&posed.radiance).filter(|(a, b)| (**a - **b).abs().max_element() > 0.05).count();
+    assert!(far as f64 <= 0.002 * n as f64, "{what}: {far} of {n} pixels differ by more than 0.05");
+}
+
+/// A crowd posed on the GPU (`GpuRenderer::set_crowd`) renders as the same crowd posed on
+/// the host, though its scene is never posed after staging: early and late in the clip
+/// (10⁶ s), with shadows, with the ground prepared on the host, at full detail and at a
+/// level of detail, far from the origin.
+#[test]
+fn a_crowd_posed_on_the_gpu_renders_as_one_posed_on_the_host() {
+    use voxray::gpu::crowd::GpuCrowd;
+    use voxray::scene::car::pose_all;
+    let Some(ctx) = context() else { return };
+    let parts = car_parts();
+    // Everything a long way from the origin, so that boxes left in world space (not
+    // refitted about the eye) would miss.
+    let away = DVec3::new(1000.5, 0.0, -700.25);
+    let staged = || {
+        let mut st = voxray::scene::stage_cars(&parts, 40, true, true).unwrap();
+        for car in &mut st.cars {
+            car.origin += away;
+        }
+        let ground = st.scene.instances().len() - 1;
+        st.scene.set_local(ground, voxray::scene::Transform::from_translation(away)).unwrap();
+        st.scene.update().unwrap();
+        st
+    };
+    let mut host_st = staged();
+    let still = staged();
+    let lights = Lights::default();
+    let features = Features { beams: false, hit_buffer: false, ..Features::default() };
+    // Low over the first rows of cars, looking across the crowd.
+    let cam = Camera {
+        eye: away + DVec3::new(-7.0, 2.5, -5.0),
+        target: away + DVec3::new(20.0, 0.0, 14.0),
+        up: DVec3::Y,
+        vfov_deg: 40.0,
+        width: 200,
+        height: 120,
+    };
+    let mut host = GpuRenderer::new(ctx.clone());
+    let mut posed = GpuRenderer::new(ctx.clone());
+    for level in [u32::MAX, 5] {
+        let opts = RenderOptions { max_level: level, ..RenderOptions::default() };
+        posed.set_crowd(Some(GpuCrowd::new(ctx.clone(), &still.scene, &still.cars, level).unwrap()));
+        for t in [0.0, 2.5, 1e6 + 0.7] {
+            pose_all(&mut host_st.scene, &host_st.cars, t).unwrap();
+            host_st.scene.update().unwrap();
+            let plan = FramePlan::new(&host_st.scene, &cam, &lights, &features, None);
+            assert!(plan.bvh && plan.shadows, "{plan:?}");
+            let h = host.render(&host_st.scene, &cam, &lights, &plan, &opts).unwrap();
+            posed.set_crowd_time(t);
+            let plan = FramePlan::new(&still.scene, &cam, &lights, &features, None);
+            let p = posed.render(&still.scene, &cam, &lights, &plan, &opts).unwrap();
+            assert_same_crowd(&h, &p, &format!("level {level}, t = {t}"));
+        }
+    }
+}
+
+/// What a crowd posed on the GPU cannot do is refused with a clear error, and the renderer
+/// renders the scene's own transforms again once the crowd is gone.
+#[test]
+fn a_crowd_posed_on_the_gpu_refuses_what_it_cannot_do() {
+    use voxray::gpu::crowd::GpuCrowd;
+    let Some(ctx) = context() else { return };
+    let parts = car_parts();
+    let mut st = voxray::scene::stage_cars(&parts, 4, true, false).unwrap();
+    let lights = Lights::default();
+    let features = Features { beams: false, hit_buffer: false, ..Features::default() };
+    let cam = Camera::framing(st.bounds.0.as_vec3(), st.bounds.1.as_vec3(), 64, 40);
+    let mut gpu = GpuRenderer::new(ctx.clone());
+    let plan = FramePlan::new(&st.scene, &cam, &lights, &features, None);
+    let alone = gpu.render(&st.scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    gpu.set_crowd(Some(GpuCrowd::new(ctx.clone(), &st.scene, &st.cars, 6).unwrap()));
+    let err = |r: Result<Frame, GpuError>| match r {
+        Err(GpuError::Crowd(m)) => m,
+        other => panic!("expected a crowd error, got {other:?}"),
+    };
+    // Another level of detail than the crowd's spheres hold.
+    let m = err(gpu.render(&st.scene, &cam, &lights, &plan, &RenderOptions::default()));
+    assert!(m.contains("level of detail 6"), "{m}");
+    // Another scene, or this one with an instance more.
+    let opts = RenderOptions { max_level: 6, ..RenderOptions::default() };
+    let other = voxray::scene::stage_cars(&parts, 4, true, false).unwrap();
+    assert!(err(gpu.render(&other.scene, &cam, &lights, &plan, &opts)).contains("scene changed"));
+    // GI reads the host's transforms.
+    gpu.set_gi(Some(voxray::gi::GiSettings::default())).unwrap();
+    assert!(err(gpu.render(&st.scene, &cam, &lights, &plan, &opts)).contains("GI"));
+    gpu.set_gi(None).unwrap();
+    // Cars not placed as add_car places them.
+    st.scene.add(voxray::scene::Instance { part: 0, parent: Some(0), local: Default::default() }).unwrap();
+    let mut bad = st.cars.clone();
+    bad[1].doors[0] = st.scene.instances().len() - 1;
+    assert!(matches!(GpuCrowd::new(ctx.clone(), &st.scene, &bad, 6), Err(GpuError::Crowd(_))));
+    bad[1].doors[0] = 10_000;
+    assert!(matches!(GpuCrowd::new(ctx.clone(), &st.scene, &bad, 6), Err(GpuError::Crowd(_))));
+    // Without the crowd, the scene's own transforms again.
+    gpu.set_crowd(None);
+    let mut st2 = voxray::scene::stage_cars(&parts, 4, true, false).unwrap();
+    st2.scene.update().unwrap();
+    let again = gpu.render(&st2.scene, &cam, &lights, &plan, &RenderOptions::default()).unwrap();
+    assert_eq!(again.instance, alone.instance);
+}

@@ -47,6 +47,16 @@ pub struct GpuCrowd {
     made_for: (u64, u64, usize),
     /// The bind group and the instance buffer it names.
     bind: Option<(wgpu::BindGroup, wgpu::Buffer)>,
+    /// The level of detail the spheres are for.
+    level: u32,
+    /// The scene's instances no car places (a ground): the host prepares them.
+    statics: Vec<u32>,
+    /// The instance tree: built once over the spheres each car's instances stay within at
+    /// any time (its figure-eight's), so that refitting keeps it good; refitted on the GPU.
+    bvh: crate::render::bvh::Bvh,
+    refit: super::refit::GpuRefit,
+    /// Tells crowds apart (a renderer uploads a crowd's tree once).
+    id: u64,
 }
 
 /// `v` as two f32 whose sum is `v` to about 2⁻⁴⁸ of it: the larger, then what it left.
@@ -102,6 +112,34 @@ fn car_record(scene: &Scene, k: usize, car: &Car) -> Result<GpuCrowdCar, GpuErro
     })
 }
 
+/// Per instance, a world sphere it stays within at any time: a car's instances that of its
+/// figure-eight (its centre, the path's reach plus the car's radius at `max_level`), the
+/// others where they are now.
+fn reach_spheres(scene: &Scene, cars: &[Car], placed: &[bool], max_level: u32) -> Result<Vec<(DVec3, f64)>, GpuError> {
+    let boxes = crate::render::instances::part_boxes(scene, max_level);
+    let mut out = vec![(DVec3::ZERO, 0.0); scene.instances().len()];
+    let mut slot = crate::render::instances::Prepared {
+        part: 0,
+        to_unit: crate::render::instances::ToUnit::Scale { offset: DVec3::ZERO, inv_size: 1.0 },
+        centre: DVec3::ZERO,
+        radius: 0.0,
+        max_stretch: 0.0,
+    };
+    for (i, o) in out.iter_mut().enumerate().filter(|(i, _)| !placed[*i]) {
+        crate::render::instances::fill_slot(scene, DVec3::ZERO, true, &boxes, i, &mut slot);
+        *o = (slot.centre, slot.radius);
+    }
+    let radii = crate::scene::car::car_radii(scene, cars, max_level).map_err(|e| GpuError::Crowd(e.to_string()))?;
+    for (car, r) in cars.iter().zip(radii) {
+        // The path keeps within PATH_A of its centre (|(A sin s, 0, A/2 sin 2s)| ≤ A).
+        let reach = if car.travel { crate::scene::car::PATH_A } else { 0.0 } + r;
+        for i in car.instances() {
+            out[i] = (car.origin, reach);
+        }
+    }
+    Ok(out)
+}
+
 impl GpuCrowd {
     /// The crowd of `cars` in `scene`, for rays traced down to `max_level`. Refused when a
     /// car's instances are not a car's ([`crate::scene::car::add_car`] places them so), or a
@@ -135,6 +173,14 @@ impl GpuCrowd {
             })
             .collect();
         ctx.check_binding("the crowd's cars", std::mem::size_of_val(&records[..]) as u64)?;
+        let n = scene.instances().len();
+        let mut placed = vec![false; n];
+        for i in cars.iter().flat_map(|c| c.instances()) {
+            placed[i] = true;
+        }
+        let statics: Vec<u32> = (0..n).filter(|&i| !placed[i]).map(|i| i as u32).collect();
+        let bvh = crate::render::bvh::Bvh::build_with(&reach_spheres(scene, cars, &placed, max_level)?, false);
+        let refit = super::refit::GpuRefit::new(&ctx, &bvh)?;
         ctx.check_binding("the crowd's instances", (rows * std::mem::size_of::<super::layout::GpuInstance>()) as u64)?;
         let device = &ctx.device;
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
@@ -203,6 +249,14 @@ impl GpuCrowd {
             rows,
             made_for: (scene.id(), scene.part_edits(), scene.instances().len()),
             bind: None,
+            level: max_level,
+            statics,
+            bvh,
+            refit,
+            id: {
+                static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+                NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+            },
             ctx,
         })
     }
@@ -215,6 +269,37 @@ impl GpuCrowd {
     /// Cars posed.
     pub fn cars(&self) -> usize {
         self.count as usize
+    }
+
+    /// The level of detail its spheres hold (frames must be traced to it).
+    pub fn level(&self) -> u32 {
+        self.level
+    }
+
+    /// The scene's instances no car places, ascending: the host prepares them.
+    pub fn statics(&self) -> &[u32] {
+        &self.statics
+    }
+
+    /// The instance tree (its topology: the boxes are refitted on the GPU each frame).
+    pub fn bvh(&self) -> &crate::render::bvh::Bvh {
+        &self.bvh
+    }
+
+    /// Tells crowds apart.
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+
+    /// Encodes the refit of the tree's boxes in `nodes` (its links in place) from the
+    /// spheres in `insts`, once the cars are posed there.
+    pub fn encode_refit(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        insts: &wgpu::Buffer,
+        nodes: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        self.refit.encode(&self.ctx, enc, insts, nodes)
     }
 
     /// The frame's uniforms for time `t` and the eye.

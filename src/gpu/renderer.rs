@@ -253,6 +253,11 @@ pub struct GpuRenderer {
     /// node is kept up to date on the host.
     bvh_uploaded: usize,
     bvh_dirty: Vec<u32>,
+    /// Cars posed on the GPU ([`GpuRenderer::set_crowd`]), the time they are posed at, and
+    /// which crowd's tree links the BVH buffer holds.
+    crowd: Option<super::crowd::GpuCrowd>,
+    crowd_time: f64,
+    crowd_links: Option<u64>,
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -412,6 +417,9 @@ impl GpuRenderer {
             scatter_bvh: None,
             bvh_uploaded: 0,
             bvh_dirty: Vec::new(),
+            crowd: None,
+            crowd_time: 0.0,
+            crowd_links: None,
         }
         .with_device_limit()
     }
@@ -433,6 +441,28 @@ impl GpuRenderer {
     /// [`GpuRenderer::stats`].
     pub fn set_counting(&mut self, on: bool) {
         self.counting = on;
+    }
+
+    /// Poses `crowd`'s cars on the GPU in the frames that follow, at the time
+    /// [`GpuRenderer::set_crowd_time`] gives: the host then neither poses them, nor updates
+    /// their transforms, nor prepares, converts or uploads their instances, nor refits their
+    /// tree; the scene's transforms of those instances are not read (only its other
+    /// instances are, prepared on the host each frame). Frames walk the crowd's tree, traced
+    /// to its level of detail, without the hit buffer's reuse; GI, splats and sampled
+    /// emitters are refused (they read the host's transforms). None: the scene's own
+    /// transforms again.
+    pub fn set_crowd(&mut self, crowd: Option<super::crowd::GpuCrowd>) {
+        self.crowd = crowd;
+    }
+
+    /// The time the crowd's cars are posed at in the next frames (s).
+    pub fn set_crowd_time(&mut self, t: f64) {
+        self.crowd_time = t;
+    }
+
+    /// The crowd posed on the GPU, if any.
+    pub fn crowd(&self) -> Option<&super::crowd::GpuCrowd> {
+        self.crowd.as_ref()
     }
 
     /// Whether frames are read back ([`GpuRenderer::set_read_back`]).
@@ -669,7 +699,9 @@ impl GpuRenderer {
         opts: &RenderOptions,
     ) -> Result<Frame, GpuError> {
         let ctx = self.ctx.clone();
-        let frame = ctx.scoped(|| self.render_frame(scene, camera, lights, plan, opts));
+        let mut crowd = self.crowd.take();
+        let frame = ctx.scoped(|| self.render_frame(scene, camera, lights, plan, opts, crowd.as_mut()));
+        self.crowd = crowd;
         if frame.is_err() {
             // A frame that failed after it was submitted (a read-back, or an error its scope
             // caught) may have left its records in the GPU's hit buffer and its colours in the
@@ -688,6 +720,7 @@ impl GpuRenderer {
         lights: &Lights,
         plan: &FramePlan,
         opts: &RenderOptions,
+        crowd: Option<&mut super::crowd::GpuCrowd>,
     ) -> Result<Frame, GpuError> {
         // Before anything is sized by it (width · height is a u32 product below).
         camera.validate()?;
@@ -700,22 +733,44 @@ impl GpuRenderer {
         // are the same (the CPU renderer's rule); put back when the frame is done.
         let mut prepared = std::mem::take(&mut self.state.prepared);
         let mut spheres = std::mem::take(&mut self.state.prepared_spheres);
-        let refilled = prepare_changed(
-            scene,
-            camera.eye,
-            plan.transform,
-            opts.max_level,
-            &mut prepared,
-            &mut spheres,
-            &mut self.state.prepared_for,
-        );
         let splatting = opts.renderer == crate::render::Renderer::Splat;
-        // Splatted records are not the ray tracer's: nothing is reused from them, or into them.
-        let reuse = if plan.hit_buffer && !splatting && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
-            self.state.reuse(camera, scene, &prepared, opts.max_level)
-        } else {
+        let posing = crowd.is_some();
+        // A crowd posed on the GPU: only the other instances are prepared here (below).
+        let refilled = if posing {
+            if splatting || self.gi_settings.is_some() || lights.emitter_sampling() > 0 {
+                return Err(GpuError::Crowd(
+                    "GI, splats and sampled emitters read the host's transforms: not with cars posed on the GPU".into(),
+                ));
+            }
+            if let Some(c) = crowd.as_deref().filter(|c| c.level() != opts.max_level) {
+                return Err(GpuError::Crowd(format!(
+                    "the crowd was made for level of detail {}, the frame is traced to {}",
+                    c.level(),
+                    opts.max_level
+                )));
+            }
+            prepared.clear();
+            spheres.clear();
+            self.state.prepared_for = Default::default();
             None
+        } else {
+            prepare_changed(
+                scene,
+                camera.eye,
+                plan.transform,
+                opts.max_level,
+                &mut prepared,
+                &mut spheres,
+                &mut self.state.prepared_for,
+            )
         };
+        // Splatted records are not the ray tracer's: nothing is reused from them, or into them.
+        let reuse =
+            if plan.hit_buffer && !splatting && !posing && self.hits.as_ref().is_some_and(|b| b.1 == w && b.2 == h) {
+                self.state.reuse(camera, scene, &prepared, opts.max_level)
+            } else {
+                None
+            };
         let moved_of = |i: usize| reuse.as_ref().is_some_and(|r| r.moved[i]);
         // (Taken: a frame that fails leaves it empty, so the next one writes every instance.)
         let mut inst_moved = std::mem::take(&mut self.inst_moved);
@@ -766,11 +821,15 @@ impl GpuRenderer {
         // no wide tree: the GPU walks its own copy.
         let mut bvh_dirty = std::mem::take(&mut self.bvh_dirty);
         let uploaded = std::mem::take(&mut self.bvh_uploaded);
-        let bvh = plan.bvh.then(|| self.state.take_bvh_changed(&spheres, refilled.as_deref(), &mut bvh_dirty, false));
+        let bvh = (plan.bvh && !posing)
+            .then(|| self.state.take_bvh_changed(&spheres, refilled.as_deref(), &mut bvh_dirty, false));
         let bvh_whole = !matches!(&bvh, Some((b, false)) if uploaded == b.nodes.len());
         let bvh = bvh.map(|(b, _)| b);
-        let tree_nodes = bvh.as_ref().map_or(0, |b| b.nodes.len());
-        let items: &[u32] = bvh.as_ref().map_or(&[], |b| &b.items);
+        // A crowd posed on the GPU walks its own tree, whose boxes the GPU refits.
+        let crowd_tree = crowd.as_deref().map(|c| c.bvh());
+        let tree_nodes = crowd_tree.or(bvh.as_ref()).map_or(0, |b| b.nodes.len());
+        let items: &[u32] = crowd_tree.or(bvh.as_ref()).map_or(&[], |b| &b.items);
+        let instance_count = if posing { scene.instances().len() } else { prepared.len() };
         let emitter_samples = lights.emitter_sampling();
         let emitters = if emitter_samples > 0 { gpu_emitters(scene, camera.eye) } else { Vec::new() };
         let extra_lights = gpu_lights(lights, camera.eye);
@@ -788,7 +847,7 @@ impl GpuRenderer {
             },
             width: w,
             height: h,
-            instances: prepared.len() as u32,
+            instances: instance_count as u32,
             max_level: opts.max_level.min(64),
             moved: moved.len() as u32,
             bvh_nodes: tree_nodes as u32,
@@ -822,6 +881,7 @@ impl GpuRenderer {
             self.kept.bind = None;
         }
         let search = match plan.search() {
+            _ if posing => 3,
             Search::Plain => 0,
             Search::Cull => 1,
             Search::CullSort => 2,
@@ -905,7 +965,7 @@ impl GpuRenderer {
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         // The instance buffer holds last frame's instances (a frame that failed dropped its
         // flags, so the next converts and writes them all): only the rewritten ones are sent.
-        let inst_size = (prepared.len().max(1) * std::mem::size_of::<GpuInstance>()) as u64;
+        let inst_size = (instance_count.max(1) * std::mem::size_of::<GpuInstance>()) as u64;
         // (COPY_SRC: the tests read the instances back.)
         let inst_usage = storage | wgpu::BufferUsages::COPY_SRC;
         let mut replaced = ensure(&ctx, &mut kept.insts, "instances", inst_size, false, inst_usage);
@@ -914,27 +974,41 @@ impl GpuRenderer {
         // into memory kept for them (in parallel where the build has threads).
         let scattered =
             rewritten.as_deref().filter(|ids| !replaced && !prepared.is_empty() && ids.len() * 2 <= prepared.len());
-        if let (Some(buf), None) = (kept.insts.as_ref(), scattered) {
-            fresh_instances(scene, &prepared, &moved_of, &mut self.inst_scratch);
-            ctx.queue.write_buffer(buf, 0, &nonempty(&self.inst_scratch));
+        match (kept.insts.as_ref(), crowd.as_deref()) {
+            // The crowd's rows are the pose pass's; the others are prepared and written here.
+            (Some(buf), Some(crowd)) => write_statics(&ctx, scene, crowd.statics(), camera.eye, opts.max_level, buf),
+            (Some(buf), None) if scattered.is_none() => {
+                fresh_instances(scene, &prepared, &moved_of, &mut self.inst_scratch);
+                ctx.queue.write_buffer(buf, 0, &nonempty(&self.inst_scratch));
+            }
+            _ => {}
         }
         // Likewise the BVH: its recomputed nodes scattered into place, its items written
         // only with a new tree.
         let nodes_size = (tree_nodes.max(1) * std::mem::size_of::<GpuBvhNode>()) as u64;
         let bvh_replaced = ensure(&ctx, &mut kept.bvh, "bvh", nodes_size, false, storage);
-        let rewrite = bvh_whole || bvh_replaced;
+        // The crowd's tree links go up once (its boxes are refitted on the GPU each frame).
+        let crowd_links = crowd.as_deref().map(|c| c.id());
+        let links_fresh = crowd_links.is_some() && (bvh_replaced || self.crowd_links != crowd_links);
+        if let (Some(buf), Some(tree), true) = (kept.bvh.as_ref(), crowd_tree, links_fresh) {
+            ctx.queue.write_buffer(buf, 0, &nonempty(&gpu_bvh_nodes(tree)));
+        }
+        let rewrite = (bvh_whole || bvh_replaced) && !posing;
         let bvh_scattered = Some(&bvh_dirty[..]).filter(|d| !rewrite && !d.is_empty() && d.len() * 2 <= tree_nodes);
         // Unless nothing changed, or the changes are scattered, all of it is converted and
         // written.
-        if let (Some(buf), true) = (kept.bvh.as_ref(), rewrite || (bvh_scattered.is_none() && !bvh_dirty.is_empty())) {
+        if let (Some(buf), true) =
+            (kept.bvh.as_ref(), !posing && (rewrite || (bvh_scattered.is_none() && !bvh_dirty.is_empty())))
+        {
             let nodes = bvh.as_ref().map_or_else(Vec::new, gpu_bvh_nodes);
             ctx.queue.write_buffer(buf, 0, &nonempty(&nodes));
         }
         let items_bytes = nonempty(items);
         let items_replaced = ensure(&ctx, &mut kept.items, "bvh items", items_bytes.len() as u64, false, storage);
-        if let (Some(buf), true) = (kept.items.as_ref(), bvh_whole || items_replaced) {
+        if let (Some(buf), true) = (kept.items.as_ref(), (bvh_whole && !posing) || items_replaced || links_fresh) {
             ctx.queue.write_buffer(buf, 0, &items_bytes);
         }
+        self.crowd_links = crowd_links;
         replaced |= bvh_replaced | items_replaced;
         let inputs: [Input<'_>; 7] = [
             (
@@ -1083,6 +1157,11 @@ impl GpuRenderer {
             let nodes = bvh.as_ref().map_or(&[][..], |b| &b.nodes[..]);
             scatter.encode(&ctx, &mut enc, bvh_buf, ids, |n| gpu_bvh_node(&nodes[n as usize]));
         }
+        if let Some(crowd) = crowd {
+            // The cars posed into their rows, then the tree refitted around them.
+            crowd.encode(scene, &mut enc, self.crowd_time, camera.eye, inst_buf)?;
+            crowd.encode_refit(&mut enc, inst_buf, bvh_buf)?;
+        }
         if counting {
             enc.clear_buffer(stats_buf, 0, None);
         }
@@ -1215,7 +1294,7 @@ impl GpuRenderer {
                 _ => None,
             };
             self.state.reused = 0;
-            if plan.keep_hits && !splatting {
+            if plan.keep_hits && !splatting && !posing {
                 self.state.store_kept_elsewhere(camera, scene, &prepared, opts.max_level);
             } else {
                 // Nothing to keep (splatted records are not the ray tracer's, or the hit
@@ -1229,7 +1308,7 @@ impl GpuRenderer {
             let now = self.ctx.traffic();
             self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
             self.keep_instances(&scene.parts, prepared, spheres, inst_moved);
-            (self.bvh_uploaded, self.bvh_dirty) = (tree_nodes, bvh_dirty);
+            (self.bvh_uploaded, self.bvh_dirty) = (if posing { 0 } else { tree_nodes }, bvh_dirty);
             let st = self.stats.unwrap_or_default();
             return Ok(Frame {
                 width: w,
@@ -1309,7 +1388,7 @@ impl GpuRenderer {
             cache_stages: None,
         };
         self.state.reused = f.reused;
-        if plan.keep_hits && !splatting {
+        if plan.keep_hits && !splatting && !posing {
             self.state.store(camera, scene, &prepared, records, opts.max_level);
         } else {
             // Nothing to keep: a later frame with reuse starts afresh.
@@ -1321,7 +1400,7 @@ impl GpuRenderer {
         let now = self.ctx.traffic();
         self.frame_traffic = (now.0 - traffic.0, now.1 - traffic.1);
         self.keep_instances(&scene.parts, prepared, spheres, inst_moved);
-        (self.bvh_uploaded, self.bvh_dirty) = (tree_nodes, bvh_dirty);
+        (self.bvh_uploaded, self.bvh_dirty) = (if posing { 0 } else { tree_nodes }, bvh_dirty);
         Ok(f)
     }
 
@@ -1356,6 +1435,36 @@ impl GpuRenderer {
 
 /// A buffer the frame writes: its slot, label, bytes and usage.
 type Input<'a> = (&'a mut Option<wgpu::Buffer>, &'static str, std::borrow::Cow<'a, [u8]>, wgpu::BufferUsages);
+
+/// Prepares the instances `ids` (ascending) for a camera at `eye` and writes their rows of
+/// `buf`, a queue write per run of consecutive ones (the instances a crowd posed on the GPU
+/// does not place: a ground, a few props).
+fn write_statics(ctx: &GpuContext, scene: &Scene, ids: &[u32], eye: glam::DVec3, max_level: u32, buf: &wgpu::Buffer) {
+    if ids.is_empty() {
+        return;
+    }
+    let boxes = crate::render::instances::part_boxes(scene, max_level);
+    let mut slot = Prepared {
+        part: 0,
+        to_unit: ToUnit::Scale { offset: glam::DVec3::ZERO, inv_size: 1.0 },
+        centre: glam::DVec3::ZERO,
+        radius: 0.0,
+        max_stretch: 0.0,
+    };
+    let row = std::mem::size_of::<GpuInstance>() as u64;
+    let mut run: Vec<GpuInstance> = Vec::new();
+    let mut start = ids[0];
+    for (k, &i) in ids.iter().enumerate() {
+        // Each instance's own map, as prepare_into makes it (with transforms).
+        crate::render::instances::fill_slot(scene, eye, true, &boxes, i as usize, &mut slot);
+        run.push(gpu_instance(scene, &slot, false));
+        if ids.get(k + 1) != Some(&(i + 1)) {
+            ctx.queue.write_buffer(buf, start as u64 * row, bytemuck::cast_slice(&run));
+            run.clear();
+            start = ids.get(k + 1).copied().unwrap_or(0);
+        }
+    }
+}
 
 /// Every instance converted for upload, in parallel where the build has threads.
 fn fresh_instances(

@@ -163,38 +163,8 @@ fn refill(
     since: Option<u64>,
 ) -> Option<Vec<u32>> {
     let boxes = part_boxes(scene, max_level);
-    // Fills a slot field by field: built whole and assigned, each 152-byte instance went
-    // through a memcpy (3.5 % of a 10 000-car frame).
     let fill = |i: usize, slot: &mut Prepared, sphere: Option<&mut (DVec3, f64)>| {
-        let inst = &scene.instances()[i];
-        let cube = scene.parts[inst.part].bounds;
-        let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
-        let w = scene.world(i);
-        // One inverse serves the ray map and the normals (the inverse transpose of the
-        // linear part is the transpose of the inverse's).
-        let inverse = w.inverse();
-        let to_unit = if transform {
-            // (scale 1/size) · (translate −min) · inverse · (translate eye), multiplied out.
-            let k = 1.0 / size;
-            let m = inverse.matrix3;
-            ToUnit::Affine(DAffine3 { matrix3: m * k, translation: (m * eye + inverse.translation - min) * k })
-        } else {
-            ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
-        };
-        // The sphere holds the occupied cells at the traced level, not the whole cube (a
-        // car's body fills a third of its cube's height): about the transformed centre of
-        // their box, through its farthest corner.
-        let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
-        let (centre_obj, e) = boxes[inst.part];
-        let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
-        // Rounding in f32 traversal scales with the cube, not with the box: the padding is
-        // also a fraction of a bound on the cube's sphere (|M·(±h, ±h, h)| ≤ 3h·max stretch).
-        let radius = farthest_corner(&w.matrix3, e) * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
-        slot.part = inst.part;
-        slot.to_unit = to_unit;
-        slot.centre = w.transform_point3(centre_obj) - eye;
-        slot.radius = radius + f64::MIN_POSITIVE;
-        slot.max_stretch = max_stretch;
+        fill_slot(scene, eye, transform, &boxes, i, slot);
         if let Some(sphere) = sphere {
             *sphere = (slot.centre, slot.radius);
         }
@@ -252,6 +222,49 @@ fn refill(
     }
     fill_run(0, out, spheres);
     None
+}
+
+/// Fills instance `i`'s slot for a camera at `eye` ([`prepare_into`]'s work for one
+/// instance), field by field: built whole and assigned, each 152-byte instance went through a
+/// memcpy (3.5 % of a 10 000-car frame). `boxes`: [`part_boxes`] at the frame's level.
+#[inline]
+pub(crate) fn fill_slot(
+    scene: &Scene,
+    eye: DVec3,
+    transform: bool,
+    boxes: &[(DVec3, DVec3)],
+    i: usize,
+    slot: &mut Prepared,
+) {
+    let inst = &scene.instances()[i];
+    let cube = scene.parts[inst.part].bounds;
+    let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
+    let w = scene.world(i);
+    // One inverse serves the ray map and the normals (the inverse transpose of the
+    // linear part is the transpose of the inverse's).
+    let inverse = w.inverse();
+    let to_unit = if transform {
+        // (scale 1/size) · (translate −min) · inverse · (translate eye), multiplied out.
+        let k = 1.0 / size;
+        let m = inverse.matrix3;
+        ToUnit::Affine(DAffine3 { matrix3: m * k, translation: (m * eye + inverse.translation - min) * k })
+    } else {
+        ToUnit::Scale { offset: (eye - min) / size, inv_size: 1.0 / size }
+    };
+    // The sphere holds the occupied cells at the traced level, not the whole cube (a
+    // car's body fills a third of its cube's height): about the transformed centre of
+    // their box, through its farthest corner.
+    let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
+    let (centre_obj, e) = boxes[inst.part];
+    let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
+    // Rounding in f32 traversal scales with the cube, not with the box: the padding is
+    // also a fraction of a bound on the cube's sphere (|M·(±h, ±h, h)| ≤ 3h·max stretch).
+    let radius = farthest_corner(&w.matrix3, e) * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
+    slot.part = inst.part;
+    slot.to_unit = to_unit;
+    slot.centre = w.transform_point3(centre_obj) - eye;
+    slot.radius = radius + f64::MIN_POSITIVE;
+    slot.max_stretch = max_stretch;
 }
 
 /// Fills the slots (and spheres, when there are any) of the instances `ids` (ascending) with
