@@ -13,10 +13,12 @@
 //! clear of them is let go untested while its motion cannot bring it near one); a further
 //! argument `all` poses every car, and `gpu` renders on the GPU backend (read back only its
 //! statistics, as the harness does; its pass times are printed too, and the render's host
-//! time up to its submit, `GpuRenderer::submit_host_ms`).
+//! time up to its submit, `GpuRenderer::submit_host_ms`); `posed` with `gpu` poses the cars
+//! and refits their tree on the GPU ([`voxray::gpu::crowd`], as the harness's instance sweep
+//! does on the GPU): the host then only sets each frame's time.
 //!
-//! `cargo run --release --example crowd [-- CARS [FRAMES [all] [gpu]]]` (default 10 000 cars,
-//! 20 frames).
+//! `cargo run --release --example crowd [-- CARS [FRAMES [all] [gpu [posed]]]]` (default
+//! 10 000 cars, 20 frames).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -42,27 +44,44 @@ fn main() -> Result<(), voxray::Error> {
     // the last one's, refilled.
     let flag = |name: &str| std::env::args().skip(3).any(|a| a == name);
     let (all, gpu) = (flag("all"), flag("gpu"));
+    let on_gpu = gpu && flag("posed");
     let (backend, name) = voxray::backend::Backend::open(if gpu {
         voxray::backend::BackendKind::Gpu
     } else {
         voxray::backend::BackendKind::Cpu
     })?;
     let mut session = Session::new(backend, name.clone());
+    #[cfg(feature = "gpu")]
+    if let (true, Some(g)) = (on_gpu, session.backend_mut().gpu_mut()) {
+        let crowd = voxray::gpu::crowd::GpuCrowd::new(g.ctx.clone(), &st.scene, &st.cars, u32::MAX)?;
+        g.set_crowd(Some(crowd));
+    }
     // The harness's GPU frames stay on the GPU: only the statistics come back.
     session.set_counting(gpu);
     session.set_read_back(!gpu);
     let rays = voxray::scene::FrameRays::of(&st.scene, &features, false, &RenderOptions::default());
     let sight = voxray::scene::Sight::new(&camera, &lights, rays, st.surfaces(u32::MAX)?).ok().filter(|_| !all);
     let (mut posed, mut tested, mut passes, mut host) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut per_ray = Vec::new();
     let mut times: [Vec<f64>; 4] = Default::default();
     for f in 0..frames + 2 {
         let t = f as f64 / 30.0;
         let t0 = Instant::now();
         // The frame's stages run as the harness runs them (voxray::pool::run_awake).
         let frame = || -> Result<_, voxray::Error> {
-            let n = st.pose_seen(t, sight.as_ref(), u32::MAX)?;
+            let n = if on_gpu {
+                #[cfg(feature = "gpu")]
+                if let Some(g) = session.backend_mut().gpu_mut() {
+                    g.set_crowd_time(t);
+                }
+                cars
+            } else {
+                st.pose_seen(t, sight.as_ref(), u32::MAX)?
+            };
             let t1 = Instant::now();
-            st.scene.update()?;
+            if !on_gpu {
+                st.scene.update()?;
+            }
             let t2 = Instant::now();
             session.frame(&st.scene, &camera, &lights, &features, &RenderOptions::default(), &|_, _| {})?;
             Ok((n, t1, t2))
@@ -72,7 +91,10 @@ fn main() -> Result<(), voxray::Error> {
         std::hint::black_box(session.last_frame());
         if f >= 2 {
             posed.push(n as f64);
-            tested.push(st.cars_tested() as f64);
+            tested.push(if on_gpu { 0.0 } else { st.cars_tested() as f64 });
+            if let Some(fr) = session.last_frame() {
+                per_ray.push(fr.instances_traced as f64 / fr.primary_rays.max(1) as f64);
+            }
             if let Some((trace, shade)) = session.backend().pass_times() {
                 passes.push(trace + shade);
             }
@@ -91,14 +113,15 @@ fn main() -> Result<(), voxray::Error> {
     let [pose, update, draw, total] = &mut times;
     println!(
         "{cars} cars ({} instances), 320×192, median of {frames} frames: pose {:.2} ms, update {:.2} ms, \
-         render {:.2} ms, frame {:.2} ms; cars posed {}, tested {}",
+         render {:.2} ms, frame {:.2} ms; cars posed {}, tested {}; octrees entered per ray {:.2}",
         st.scene.instances().len(),
         median(pose),
         median(update),
         median(draw),
         median(total),
         median(&mut posed),
-        median(&mut tested)
+        median(&mut tested),
+        median(&mut per_ray)
     );
     if !passes.is_empty() {
         println!("{name}: GPU passes {:.2} ms (trace and shade, timestamps)", median(&mut passes));

@@ -261,6 +261,15 @@ impl Backend {
         }
     }
 
+    /// The GPU renderer, to change (None on the CPU).
+    #[cfg(feature = "gpu")]
+    pub fn gpu_mut(&mut self) -> Option<&mut crate::gpu::GpuRenderer> {
+        match self {
+            Backend::Cpu(_) => None,
+            Backend::Gpu(g) => Some(g),
+        }
+    }
+
     /// The radiance caches' GPU pass times of the last frame (placement, tracing, convolution)
     /// in milliseconds, when measured.
     pub fn cache_pass_times(&self) -> Option<[f64; 3]> {

@@ -72,6 +72,11 @@ impl Session {
         &self.backend
     }
 
+    /// The backend, to change (a GPU renderer's crowd posed on the GPU, say).
+    pub fn backend_mut(&mut self) -> &mut Backend {
+        &mut self.backend
+    }
+
     /// Bricks the last frame's sparse GPU GI volume allocated, read back on request (None on
     /// the CPU, without GI or for a dense volume).
     pub fn gi_bricks(&mut self) -> Result<Option<u32>, crate::Error> {

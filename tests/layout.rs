@@ -94,7 +94,7 @@ fn wgsl_structs_match_rust() {
                 ("part", offset_of!(GpuInstance, part)),
                 ("stretch_size", offset_of!(GpuInstance, stretch_size)),
                 ("moved", offset_of!(GpuInstance, moved)),
-                ("pad", offset_of!(GpuInstance, pad)),
+                ("radius", offset_of!(GpuInstance, radius)),
             ],
         ),
         (

@@ -132,11 +132,14 @@ fn write_instance(inst: u32, part: u32, r: mat3x3<f32>, t: vec3<f32>) {
     let unit = select(1.0, 1.0 / big, big > 0.0);
     let stretch = sqrt(max(max(dot(r[0], r[0]), dot(r[1], r[1])), dot(r[2], r[2])));
     let centre = r * pt.box_centre.xyz + t;
-    let radius = farthest_corner(r, pt.box_half.xyz) * (1.0 + SPHERE_PAD) + 1.5 * size * stretch * SPHERE_PAD;
-    // As the host grows a sphere for the f32 test (gpu_sphere), and further by what forming
-    // the transform in f32 here can add: a few units in the last place of the distance.
+    let r0 = farthest_corner(r, pt.box_half.xyz) * (1.0 + SPHERE_PAD) + 1.5 * size * stretch * SPHERE_PAD;
+    // Both radii grown by what forming the transform in f32 here can add over the host's
+    // f64: a few units in the last place of the distance. The one the boxes fit...
     let far = length(centre);
-    let grown = (radius + 4e-7 * far * far / max(radius, 1e-30) + 1e-6 * far) * (1.0 + 1e-6) + 4e-6 * (far + size);
+    let extra = 4e-6 * (far + size);
+    let radius = r0 + extra;
+    // ...and the one the sphere test uses, grown first as the host grows it (gpu_sphere).
+    let grown = (r0 + 4e-7 * far * far / max(r0, 1e-30) + 1e-6 * far) * (1.0 + 1e-6) + extra;
     var out: Inst;
     out.to_unit_x = vec4<f32>(m[0].x, m[1].x, m[2].x, shift.x);
     out.to_unit_y = vec4<f32>(m[0].y, m[1].y, m[2].y, shift.y);
@@ -148,7 +151,7 @@ fn write_instance(inst: u32, part: u32, r: mat3x3<f32>, t: vec3<f32>) {
     out.part = part;
     out.stretch_size = stretch * size;
     out.moved = 0u;
-    out.pad = 0u;
+    out.radius = radius;
     crowd_insts[inst] = out;
 }
 

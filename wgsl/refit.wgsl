@@ -1,5 +1,5 @@
-// Refits the instance BVH's boxes on the GPU from the instances' spheres as the frame's
-// tracer tests them (`Inst.sphere`), a level of the tree per dispatch, deepest first: each
+// Refits the instance BVH's boxes on the GPU from the instances' spheres (`Inst.sphere`'s
+// centre, `Inst.radius`: before the growth for the f32 sphere test), a level of the tree per dispatch, deepest first: each
 // node's box from its leaf's spheres or its two children's boxes, its links kept. The twin
 // of voxray::render::bvh::Bvh::refit followed by voxray::gpu::renderer::gpu_bvh_nodes (the
 // same slack), for a crowd posed on the GPU (wgsl/pose.wgsl). Rust side: src/gpu/refit.rs.
@@ -27,9 +27,10 @@ fn bvh_refit_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var hi = vec3<f32>(-REFIT_FAR);
     if (count > 0u) {
         for (var j = first; j < first + count; j++) {
-            let s = refit_insts[refit_items[j]].sphere;
-            lo = min(lo, s.xyz - vec3<f32>(s.w));
-            hi = max(hi, s.xyz + vec3<f32>(s.w));
+            // The sphere before it was grown for the f32 sphere test, as the host fits boxes.
+            let inst = refit_insts[refit_items[j]];
+            lo = min(lo, inst.sphere.xyz - vec3<f32>(inst.radius));
+            hi = max(hi, inst.sphere.xyz + vec3<f32>(inst.radius));
         }
         // As gpu_bvh_nodes widens each box: 10⁻⁶ of its largest coordinate, more than the
         // rounding of the sums above.

@@ -183,6 +183,8 @@ fn crowd_clip<'a>(
         warmup,
         frames,
         fps: 30.0,
+        // The GPU poses the crowd and refits its tree itself (the walk it needs).
+        pose_on_gpu: bvh,
     }
 }
 
@@ -388,6 +390,7 @@ pub fn run(
                             warmup: cfg.warmup.min(2),
                             frames: cfg.sweep_frames,
                             fps: 30.0,
+                            pose_on_gpu: false,
                         };
                         let name = format!("{what}: {setting}");
                         let (mut r, frame) = measure(session, group, name, setting.into(), x, clip, progress)?;
@@ -466,6 +469,7 @@ pub fn run(
                         warmup: cfg.warmup,
                         frames: cfg.frames,
                         fps: 30.0,
+                        pose_on_gpu: false,
                     };
                     let name = format!("{label}{tag}: {what}");
                     out.push(measure(session, group, name, tag.into(), i as f64, clip, progress)?.0);
@@ -526,6 +530,7 @@ pub fn run(
                         warmup: cfg.warmup,
                         frames: cfg.frames,
                         fps: 30.0,
+                        pose_on_gpu: false,
                     };
                     let name = format!("{w}×{h}");
                     out.push(
@@ -560,6 +565,7 @@ pub fn run(
                         warmup: cfg.warmup,
                         frames: cfg.frames,
                         fps: 30.0,
+                        pose_on_gpu: false,
                     };
                     let setting =
                         if level == full { format!("level {level} (full)") } else { format!("level {level}") };

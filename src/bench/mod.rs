@@ -155,6 +155,10 @@ pub struct Clip<'a> {
     pub frames: usize,
     /// Clip frames per second (the animation step).
     pub fps: f64,
+    /// On the GPU backend, pose the cars and refit their tree on the GPU
+    /// ([`crate::gpu::crowd`]): the host then only sets each frame's time. Ignored on the
+    /// CPU, and with a scene file's clip.
+    pub pose_on_gpu: bool,
 }
 
 /// Renders a clip's warm-up and timed frames, timing each whole frame; returns the record
@@ -211,53 +215,84 @@ pub fn run_clip_timed(
         None
     };
     let mut seen = SeenCars::default();
-    for f in 0..clip.warmup + frames {
-        session.set_read_back(!gpu || f == picture_at);
-        let start = Instant::now();
-        // (Timed frames that replayed the warm-up's pose were frames where nothing moved:
-        // the first of each instance-sweep round, half of its frames at --frames 10.)
-        let t = (f as f64 - picture_at as f64) / clip.fps;
-        let frame = || -> Result<_, crate::Error> {
-            seen.pose(clip.scene, clip.cars, t, sight.as_ref(), clip.lod)?;
-            if let Some(a) = clip.animated {
-                a.rig.pose(clip.scene, a.clip, t)?;
-            }
-            clip.scene.update()?;
-            let posed = start.elapsed().as_secs_f64() * 1e3;
-            Ok((posed, session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})?))
-        };
-        let (posed_ms, report) = crate::pool::run_awake(frame)?;
-        let secs = start.elapsed().as_secs_f64();
-        if f >= clip.warmup {
-            pose_ms.push(posed_ms);
-            if let Some(ms) = session.backend().submit_host_ms() {
-                submit_ms.push(ms);
-            }
-            if let Some((tr, sh)) = session.backend().pass_times() {
-                trace_ms.push(tr);
-                shade_ms.push(sh);
-                let gi = session.backend().gi_pass_ms().unwrap_or(0.0);
-                host_ms.push(secs * 1e3 - tr - sh - gi);
-            }
-            if let Some(t) = session.backend().gpu_traffic() {
-                traffic.push(t);
-            }
-            times.push(secs * 1e3);
-            let frame = session.last_frame().ok_or_else(|| crate::Error::Io {
-                path: "bench".into(),
-                source: std::io::Error::other("the session kept no frame"),
-            })?;
-            rays += frame.primary_rays - frame.reused + frame.shadow_rays;
-            reused += frame.reused;
-            traced += frame.instances_traced;
-            culled += frame.spheres_culled;
-            busy += secs;
+    // The cars posed on the GPU: made once for the clip, the renderer's until it ends.
+    #[cfg(feature = "gpu")]
+    let on_gpu = match session.backend_mut().gpu_mut() {
+        Some(g) if clip.pose_on_gpu && clip.animated.is_none() && !clip.cars.is_empty() => {
+            let crowd = crate::gpu::crowd::GpuCrowd::new(g.ctx.clone(), clip.scene, clip.cars, clip.lod)?;
+            g.set_crowd(Some(crowd));
+            true
         }
-        if f == picture_at {
-            first = session.last_frame().cloned();
+        _ => false,
+    };
+    #[cfg(not(feature = "gpu"))]
+    let on_gpu = false;
+    let mut frames_of_clip = || -> Result<(), crate::Error> {
+        for f in 0..clip.warmup + frames {
+            session.set_read_back(!gpu || f == picture_at);
+            let start = Instant::now();
+            // (Timed frames that replayed the warm-up's pose were frames where nothing moved:
+            // the first of each instance-sweep round, half of its frames at --frames 10.)
+            let t = (f as f64 - picture_at as f64) / clip.fps;
+            let frame = || -> Result<_, crate::Error> {
+                if on_gpu {
+                    // The frame's pass poses the cars at t.
+                    #[cfg(feature = "gpu")]
+                    if let Some(g) = session.backend_mut().gpu_mut() {
+                        g.set_crowd_time(t);
+                    }
+                } else {
+                    seen.pose(clip.scene, clip.cars, t, sight.as_ref(), clip.lod)?;
+                    if let Some(a) = clip.animated {
+                        a.rig.pose(clip.scene, a.clip, t)?;
+                    }
+                    clip.scene.update()?;
+                }
+                let posed = start.elapsed().as_secs_f64() * 1e3;
+                Ok((posed, session.frame(clip.scene, clip.camera, clip.lights, &clip.features, &opts, &|_, _| {})?))
+            };
+            let (posed_ms, report) = crate::pool::run_awake(frame)?;
+            let secs = start.elapsed().as_secs_f64();
+            if f >= clip.warmup {
+                pose_ms.push(posed_ms);
+                if let Some(ms) = session.backend().submit_host_ms() {
+                    submit_ms.push(ms);
+                }
+                if let Some((tr, sh)) = session.backend().pass_times() {
+                    trace_ms.push(tr);
+                    shade_ms.push(sh);
+                    let gi = session.backend().gi_pass_ms().unwrap_or(0.0);
+                    host_ms.push(secs * 1e3 - tr - sh - gi);
+                }
+                if let Some(t) = session.backend().gpu_traffic() {
+                    traffic.push(t);
+                }
+                times.push(secs * 1e3);
+                let frame = session.last_frame().ok_or_else(|| crate::Error::Io {
+                    path: "bench".into(),
+                    source: std::io::Error::other("the session kept no frame"),
+                })?;
+                rays += frame.primary_rays - frame.reused + frame.shadow_rays;
+                reused += frame.reused;
+                traced += frame.instances_traced;
+                culled += frame.spheres_culled;
+                busy += secs;
+            }
+            if f == picture_at {
+                first = session.last_frame().cloned();
+            }
+            plan = Some(report.plan);
         }
-        plan = Some(report.plan);
+        Ok(())
+    };
+    let result = frames_of_clip();
+    #[cfg(feature = "gpu")]
+    if on_gpu {
+        if let Some(g) = session.backend_mut().gpu_mut() {
+            g.set_crowd(None);
+        }
     }
+    result?;
     session.set_read_back(true);
     session.set_counting(false);
     let (median_ms, p95_ms, min_ms) = summarize(&times);
@@ -424,6 +459,7 @@ mod tests {
                 warmup,
                 frames,
                 fps: 30.0,
+                pose_on_gpu: false,
             };
             run_clip(&mut session, "CPU", clip).expect("the clip renders")
         };

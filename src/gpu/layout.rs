@@ -51,8 +51,10 @@ pub struct GpuInstance {
     pub stretch_size: f32,
     /// 1 if the instance moved since the hit buffer's frame.
     pub moved: u32,
-    /// Padding.
-    pub pad: u32,
+    /// The bounding sphere's radius before it was grown for the f32 sphere test: what the
+    /// instance BVH's boxes are fitted to (a far crowd's grown spheres are tens of times
+    /// wider than its wheels).
+    pub radius: f32,
 }
 
 /// Per-frame uniforms. WGSL: `Frame`.

@@ -207,8 +207,8 @@ mod tests {
         }
     }
 
-    /// Every box the GPU refits holds the host's refit of the same (f32) spheres and is no
-    /// wider than its slack; links are kept. The tree is built on other spheres (the
+    /// Every box the GPU refits holds the host's refit of the same (f32) spheres, their radii
+    /// before the f32 test's growth, and is no wider than its slack; links are kept. The tree is built on other spheres (the
     /// topology of a crowd built once), then refitted on moved ones.
     #[test]
     fn the_gpu_refits_the_bvh_as_the_host_does() {
@@ -230,12 +230,17 @@ mod tests {
             .collect();
         let insts: Vec<GpuInstance> = moved
             .iter()
-            .map(|&(c, r)| GpuInstance { sphere: [c.x as f32, c.y as f32, c.z as f32, r as f32], ..Default::default() })
+            // (The sphere as grown for the f32 test is wider: boxes fit the radius before.)
+            .map(|&(c, r)| GpuInstance {
+                sphere: [c.x as f32, c.y as f32, c.z as f32, 4.0 * r as f32],
+                radius: r as f32,
+                ..Default::default()
+            })
             .collect();
         // The host's refit of the spheres as the GPU reads them.
         let as_read: Vec<(DVec3, f64)> = insts
             .iter()
-            .map(|g| (DVec3::new(g.sphere[0] as f64, g.sphere[1] as f64, g.sphere[2] as f64), g.sphere[3] as f64))
+            .map(|g| (DVec3::new(g.sphere[0] as f64, g.sphere[1] as f64, g.sphere[2] as f64), g.radius as f64))
             .collect();
         let mut host = bvh.clone();
         host.refit(&as_read);

@@ -1546,7 +1546,7 @@ pub(crate) fn gpu_instance(scene: &Scene, p: &Prepared, moved: bool) -> GpuInsta
         part: p.part as u32,
         stretch_size: (p.max_stretch * scene.parts[p.part].bounds.size as f64) as f32,
         moved: moved as u32,
-        pad: 0,
+        radius: p.radius as f32,
     }
 }
 

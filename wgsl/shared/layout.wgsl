@@ -39,7 +39,8 @@ struct Inst {
     stretch_size: f32,
     // 1 when the instance moved since the frame in the hit buffer.
     moved: u32,
-    pad: u32,
+    // The sphere's radius before it was grown for the f32 test (the BVH's boxes fit it).
+    radius: f32,
 }
 
 // Mirrors voxray::gpu::layout::GpuFrame: per-frame uniforms.
