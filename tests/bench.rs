@@ -269,3 +269,28 @@ fn the_cast_scenario_times_a_callers_rays_on_each_backend() {
         "{md}"
     );
 }
+
+/// The GPU's instance sweep poses the crowd on the GPU: its BVH records' plans say so, the
+/// host's posing time is next to nothing, and the sorted-sphere points (the host's posing)
+/// do not say so.
+#[test]
+fn the_gpu_instance_sweep_poses_the_cars_on_the_gpu() {
+    let d = tmp("gpu-instances");
+    let o = bench(&d, &["--backends", "gpu", "--scenarios", "instances", "--no-docs"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    if err.contains("skipping backend") {
+        assert!(!std::env::var("CI").is_ok_and(|v| v == "true"), "CI has the software Vulkan driver: {err}");
+        return;
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("data/bench.json")).unwrap()).unwrap();
+    let records = json.as_array().unwrap();
+    assert_eq!(records.len(), 4, "{records:?}");
+    for r in records {
+        let reasons = r["plan"]["reasons"].as_array().expect("the plan's reasons");
+        let on_gpu = reasons.iter().any(|x| x.as_str().is_some_and(|s| s.starts_with("pose: on the GPU")));
+        assert_eq!(on_gpu, r["setting"] == "BVH", "{r}");
+        assert!(r["median_ms"].as_f64().is_some_and(|m| m > 0.0), "{r}");
+    }
+}

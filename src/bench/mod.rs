@@ -293,6 +293,9 @@ pub fn run_clip_timed(
         }
     }
     result?;
+    if let (true, Some(p)) = (on_gpu, plan.as_mut()) {
+        p.reasons.push("pose: on the GPU (the frame's passes pose the cars and refit their instance BVH, which the frame walks whatever the search above)".into());
+    }
     session.set_read_back(true);
     session.set_counting(false);
     let (median_ms, p95_ms, min_ms) = summarize(&times);

@@ -216,7 +216,9 @@ waits for the frame, so the frame time is the whole frame's):\n\n";
 primary rays only, no hit buffer, only the cars some ray can reach posed (records before step 48 \
 below posed every car). The CPU's primary rays search per-pixel sphere lists past 128 instances (since step 51) and, \
 since step 81, from two cars on (instances a few pixels wide); the BVH (from 32 instances) is left \
-unrefitted (no shadow rays); the GPU walks the BVH. \
+unrefitted (no shadow rays). The GPU walks the BVH; since step 89 its frames pose the cars and \
+refit the BVH themselves (`gpu::crowd`: the host only sets the time), before that the host posed \
+the cars seen and refitted the tree. \
 The BVH points time `--frames` frames in five rounds, the counts in turn within each round (every \
 round warmed up afresh), so that the host's load over the run weighs on every count alike; the \
 sorted spheres time `--sweep-frames` after them.\n\n";
