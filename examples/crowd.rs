@@ -62,6 +62,7 @@ fn main() -> Result<(), voxray::Error> {
     let rays = voxray::scene::FrameRays::of(&st.scene, &features, false, &RenderOptions::default());
     let sight = voxray::scene::Sight::new(&camera, &lights, rays, st.surfaces(u32::MAX)?).ok().filter(|_| !all);
     let (mut posed, mut tested, mut passes, mut host) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut crowd_passes = Vec::new();
     let mut per_ray = Vec::new();
     let mut times: [Vec<f64>; 4] = Default::default();
     for f in 0..frames + 2 {
@@ -98,6 +99,9 @@ fn main() -> Result<(), voxray::Error> {
             if let Some((trace, shade)) = session.backend().pass_times() {
                 passes.push(trace + shade);
             }
+            if let Some(ms) = session.backend().crowd_pass_ms() {
+                crowd_passes.push(ms);
+            }
             if let Some(g) = session.backend().gpu() {
                 host.push(g.submit_host_ms);
             }
@@ -125,6 +129,9 @@ fn main() -> Result<(), voxray::Error> {
     );
     if !passes.is_empty() {
         println!("{name}: GPU passes {:.2} ms (trace and shade, timestamps)", median(&mut passes));
+    }
+    if !crowd_passes.is_empty() {
+        println!("the crowd's passes (posing the cars, refitting their tree) {:.2} ms", median(&mut crowd_passes));
     }
     if !host.is_empty() {
         println!("render's host time up to the submit {:.2} ms", median(&mut host));

@@ -164,6 +164,16 @@ impl Backend {
         }
     }
 
+    /// GPU time of the last frame's crowd passes (posing the cars, refitting their tree), when
+    /// the GPU posed a crowd and measured it.
+    pub fn crowd_pass_ms(&self) -> Option<f64> {
+        match self {
+            Backend::Cpu(_) => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => g.times.and_then(|t| t.crowd_ms),
+        }
+    }
+
     /// The layout, brick pool (sparse; 0 dense) and bytes of the backend's own GI volume in
     /// the last frame (None on the CPU or without GI).
     pub fn gi_volume(&self) -> Option<(crate::gi::Layout, u32, u64)> {

@@ -79,7 +79,8 @@ pub struct Record {
     /// Bytes of GPU buffers the renderer used (GPU backend only).
     pub gpu_bytes: Option<u64>,
     /// Median host time per frame outside the GPU passes (ms): wall time minus the
-    /// timestamped trace, GI and shade passes (GPU backend with timestamps only).
+    /// timestamped trace, GI and shade passes and a crowd's pose and refit passes (GPU
+    /// backend with timestamps only).
     pub gpu_host_ms: Option<f64>,
     /// Median host time of a GPU frame's render up to its submit (ms): preparing the changed
     /// instances, refitting the BVH, converting and uploading them, encoding the passes
@@ -262,7 +263,9 @@ pub fn run_clip_timed(
                     trace_ms.push(tr);
                     shade_ms.push(sh);
                     let gi = session.backend().gi_pass_ms().unwrap_or(0.0);
-                    host_ms.push(secs * 1e3 - tr - sh - gi);
+                    // (A crowd posed on the GPU: its passes are the GPU's time, not the host's.)
+                    let crowd = session.backend().crowd_pass_ms().unwrap_or(0.0);
+                    host_ms.push(secs * 1e3 - tr - sh - gi - crowd);
                 }
                 if let Some(t) = session.backend().gpu_traffic() {
                     traffic.push(t);

@@ -288,14 +288,15 @@ impl GpuCrowd {
     }
 
     /// Encodes the refit of the tree's boxes in `nodes` (its links in place) from the
-    /// spheres in `insts`, once the cars are posed there.
+    /// spheres in `insts`, once the cars are posed there (`timestamps`: written by its pass).
     pub fn encode_refit(
         &mut self,
         enc: &mut wgpu::CommandEncoder,
         insts: &wgpu::Buffer,
         nodes: &wgpu::Buffer,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
-        self.refit.encode(&self.ctx, enc, insts, nodes)
+        self.refit.encode(&self.ctx, enc, insts, nodes, timestamps)
     }
 
     /// The frame's uniforms for time `t` and the eye.
@@ -316,6 +317,7 @@ impl GpuCrowd {
     /// at least [`GpuCrowd::rows`] rows; the others are left as they are). Refused when
     /// `scene` is not the one the crowd was made for as it was then (another scene, parts
     /// edited, instances added), when t or the eye is not finite, or `insts` is too small.
+    /// `timestamps`: written by its pass (which runs even without cars, so that they are).
     pub fn encode(
         &mut self,
         scene: &Scene,
@@ -323,6 +325,7 @@ impl GpuCrowd {
         t: f64,
         eye: DVec3,
         insts: &wgpu::Buffer,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
         if (scene.id(), scene.part_edits(), scene.instances().len()) != self.made_for {
             return Err(GpuError::Crowd("the scene changed since the crowd was made for it".into()));
@@ -350,16 +353,17 @@ impl GpuCrowd {
             });
             self.bind = Some((group, insts.clone()));
         }
-        if self.count == 0 {
-            return Ok(());
-        }
         if let Some((group, _)) = &self.bind {
-            let mut pass = enc
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("crowd pose"), timestamp_writes: None });
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("crowd pose"),
+                timestamp_writes: timestamps,
+            });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, group, &[]);
             let groups = self.count.div_ceil(GROUP);
-            pass.dispatch_workgroups(groups.min(65_535), groups.div_ceil(65_535), 1);
+            if groups > 0 {
+                pass.dispatch_workgroups(groups.min(65_535), groups.div_ceil(65_535), 1);
+            }
         }
         Ok(())
     }
@@ -411,7 +415,7 @@ mod tests {
             mapped_at_creation: false,
         });
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        crowd.encode(scene, &mut enc, t, eye, &insts).expect("encode");
+        crowd.encode(scene, &mut enc, t, eye, &insts, None).expect("encode");
         enc.copy_buffer_to_buffer(&insts, 0, &read, 0, insts.size());
         ctx.queue.submit([enc.finish()]);
         crate::gpu::renderer::read(ctx, &read).expect("read back")

@@ -140,20 +140,19 @@ impl GpuRefit {
 
     /// Encodes the refit of `nodes` (the tree's nodes as [`super::layout::GpuBvhNode`]s,
     /// their links already in place) from the spheres of `insts`, one compute pass with a
-    /// dispatch per level. Refused when the buffers are too small for the tree.
+    /// dispatch per level (`timestamps`: written by that pass, which runs even for an empty
+    /// tree). Refused when the buffers are too small for the tree.
     pub fn encode(
         &mut self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         insts: &wgpu::Buffer,
         nodes: &wgpu::Buffer,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<(), GpuError> {
         let node_bytes = (self.shape.0 * std::mem::size_of::<super::layout::GpuBvhNode>()) as u64;
         if nodes.size() < node_bytes {
             return Err(GpuError::Device(format!("the BVH buffer holds {} bytes, {node_bytes} needed", nodes.size())));
-        }
-        if self.shape.0 == 0 {
-            return Ok(());
         }
         if self.bind.as_ref().is_none_or(|(_, i, n)| i != insts || n != nodes) {
             let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -177,8 +176,11 @@ impl GpuRefit {
             self.bind = Some((group, insts.clone(), nodes.clone()));
         }
         let Some((group, _, _)) = &self.bind else { return Ok(()) };
-        let mut pass =
-            enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("bvh refit"), timestamp_writes: None });
+        // (A tree without nodes still runs the pass: its timestamps are written.)
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("bvh refit"),
+            timestamp_writes: timestamps,
+        });
         pass.set_pipeline(&self.pipeline);
         for (k, &count) in self.counts.iter().enumerate() {
             pass.set_bind_group(0, group, &[(k as u64 * self.stride) as u32]);
@@ -269,7 +271,7 @@ mod tests {
         let mut refit = GpuRefit::new(&ctx, &bvh).expect("refit");
         assert!(refit.levels() > 10, "{} levels", refit.levels());
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        refit.encode(&ctx, &mut enc, &inst_buf, &node_buf).expect("encode");
+        refit.encode(&ctx, &mut enc, &inst_buf, &node_buf, None).expect("encode");
         enc.copy_buffer_to_buffer(&node_buf, 0, &read, 0, node_buf.size());
         ctx.queue.submit([enc.finish()]);
         let nodes: Vec<GpuBvhNode> = crate::gpu::renderer::read(&ctx, &read).expect("read back");

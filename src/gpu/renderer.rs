@@ -52,6 +52,9 @@ pub struct GpuTimes {
     pub shade_ms: f64,
     /// GI passes (transform, inject, levels), milliseconds; zero without GI.
     pub gi_ms: f64,
+    /// A crowd posed on the GPU: its pose and BVH refit passes, milliseconds (None
+    /// otherwise).
+    pub crowd_ms: Option<f64>,
     /// With radiance caches: their placement, tracing and convolution passes, milliseconds
     /// (their blending is in the shade pass).
     pub cache_ms: Option<[f64; 3]>,
@@ -1159,8 +1162,25 @@ impl GpuRenderer {
         }
         if let Some(crowd) = crowd {
             // The cars posed into their rows, then the tree refitted around them.
-            crowd.encode(scene, &mut enc, self.crowd_time, camera.eye, inst_buf)?;
-            crowd.encode_refit(&mut enc, inst_buf, bvh_buf)?;
+            // Timed in the GI passes' query slots (a crowd's frames have no GI), from the
+            // pose pass's start to the refit's end.
+            let (start, end) = match queries {
+                Some((set, _, _)) => (
+                    Some(wgpu::ComputePassTimestampWrites {
+                        query_set: set,
+                        beginning_of_pass_write_index: Some(4),
+                        end_of_pass_write_index: None,
+                    }),
+                    Some(wgpu::ComputePassTimestampWrites {
+                        query_set: set,
+                        beginning_of_pass_write_index: None,
+                        end_of_pass_write_index: Some(5),
+                    }),
+                ),
+                None => (None, None),
+            };
+            crowd.encode(scene, &mut enc, self.crowd_time, camera.eye, inst_buf, start)?;
+            crowd.encode_refit(&mut enc, inst_buf, bvh_buf, end)?;
         }
         if counting {
             enc.clear_buffer(stats_buf, 0, None);
@@ -1231,6 +1251,7 @@ impl GpuRenderer {
         let n_ts = match &gi_work {
             Some(w) if w.caches.is_some() => 12,
             Some(_) => 6,
+            None if posing => 6,
             None => 4,
         };
         let readbacks = if read_back {
@@ -1279,6 +1300,7 @@ impl GpuRenderer {
                     trace_ms: ts[1].saturating_sub(ts[0]) as f64 * period,
                     shade_ms: ts[3].saturating_sub(ts[2]) as f64 * period,
                     gi_ms: if gi_work.is_some() { ts[5].saturating_sub(ts[4]) as f64 * period } else { 0.0 },
+                    crowd_ms: posing.then(|| ts[5].saturating_sub(ts[4]) as f64 * period),
                     cache_ms: (n_ts == 12).then(|| [6, 8, 10].map(|k| ts[k + 1].saturating_sub(ts[k]) as f64 * period)),
                 })
             }
