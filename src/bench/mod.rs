@@ -157,7 +157,7 @@ pub struct Clip<'a> {
     /// Clip frames per second (the animation step).
     pub fps: f64,
     /// On the GPU backend, pose the cars and refit their tree on the GPU
-    /// ([`crate::gpu::crowd`]): the host then only sets each frame's time. Ignored on the
+    /// (`gpu::crowd`): the host then only sets each frame's time. Ignored on the
     /// CPU, and with a scene file's clip.
     pub pose_on_gpu: bool,
 }
