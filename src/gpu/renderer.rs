@@ -452,8 +452,9 @@ impl GpuRenderer {
     /// tree; the scene's transforms of those instances are not read (only its other
     /// instances are, prepared on the host each frame). Frames walk the crowd's tree, traced
     /// to its level of detail, without the hit buffer's reuse; GI, splats and sampled
-    /// emitters are refused (they read the host's transforms). None: the scene's own
-    /// transforms again.
+    /// emitters are refused (they read the host's transforms), and
+    /// [`GpuRenderer::eye_inside`] knows of no instance (the cars' places are the GPU's).
+    /// None: the scene's own transforms again.
     pub fn set_crowd(&mut self, crowd: Option<super::crowd::GpuCrowd>) {
         self.crowd = crowd;
     }
