@@ -270,9 +270,9 @@ fn the_cast_scenario_times_a_callers_rays_on_each_backend() {
     );
 }
 
-/// The GPU's instance sweep poses the crowd on the GPU: its BVH records' plans say so, the
-/// host's posing time is next to nothing, and the sorted-sphere points (the host's posing)
-/// do not say so.
+/// The GPU's instance sweep poses the crowd on the GPU: its BVH records' plans say so and
+/// carry the crowd passes' time, and the sorted-sphere points (the host's posing) do not;
+/// with `--crowd-posing host` none does.
 #[test]
 fn the_gpu_instance_sweep_poses_the_cars_on_the_gpu() {
     let d = tmp("gpu-instances");
@@ -287,10 +287,21 @@ fn the_gpu_instance_sweep_poses_the_cars_on_the_gpu() {
         serde_json::from_str(&std::fs::read_to_string(d.join("data/bench.json")).unwrap()).unwrap();
     let records = json.as_array().unwrap();
     assert_eq!(records.len(), 4, "{records:?}");
-    for r in records {
+    let on_gpu = |r: &serde_json::Value| {
         let reasons = r["plan"]["reasons"].as_array().expect("the plan's reasons");
-        let on_gpu = reasons.iter().any(|x| x.as_str().is_some_and(|s| s.starts_with("pose: on the GPU")));
-        assert_eq!(on_gpu, r["setting"] == "BVH", "{r}");
+        reasons.iter().any(|x| x.as_str().is_some_and(|s| s.starts_with("pose: on the GPU")))
+    };
+    for r in records {
+        assert_eq!(on_gpu(r), r["setting"] == "BVH", "{r}");
+        assert_eq!(r["gpu_crowd_ms"].as_f64().is_some(), r["setting"] == "BVH", "{r}");
         assert!(r["median_ms"].as_f64().is_some_and(|m| m > 0.0), "{r}");
     }
+    let d = tmp("gpu-instances-host");
+    let o = bench(&d, &["--backends", "gpu", "--scenarios", "instances", "--no-docs", "--crowd-posing", "host"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("data/bench.json")).unwrap()).unwrap();
+    let records = json.as_array().unwrap();
+    assert_eq!(records.len(), 4, "{records:?}");
+    assert!(records.iter().all(|r| !on_gpu(r) && r["gpu_crowd_ms"].is_null()), "{records:?}");
 }

@@ -2,7 +2,8 @@
 # What the open issues ask a lent GPU to measure, in one call of the device tool (its time is
 # short: this runs in a few minutes on an H100 or H200):
 #   crowd.md       issue 14, goal 4: a 10 000-car frame against one car's, split into the
-#                  GPU's passes and the host's parts (tools/crowd_gpu.sh)
+#                  GPU's passes and the host's parts, the cars posed on the GPU and on the
+#                  host (tools/crowd_gpu.sh)
 #   gi_gather.md   issue 19: the GPU's GI gathers timed against each other on the box
 #                  (tools/gi_gather_gpu.sh)
 #   data/          issue 14: the harness's paper, resolution and instance records on the GPU

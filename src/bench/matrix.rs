@@ -83,6 +83,9 @@ pub struct MatrixConfig {
     pub sweep_frames: usize,
     /// Image size of the instance sweep.
     pub sweep_size: (u32, u32),
+    /// On the GPU backend, the instance sweep's BVH points pose their cars on the GPU
+    /// ([`Clip::pose_on_gpu`]); else on the host, as on the CPU.
+    pub crowd_on_gpu: bool,
     /// Image sizes of the resolution sweep.
     pub resolutions: Vec<(u32, u32)>,
     /// LOD levels of the depth sweep (empty: every level from 3 below full depth); full
@@ -167,6 +170,7 @@ fn crowd_clip<'a>(
     camera: &'a Camera,
     lights: &'a Lights,
     bvh: bool,
+    on_gpu: bool,
     warmup: usize,
     frames: usize,
 ) -> Clip<'a> {
@@ -184,7 +188,7 @@ fn crowd_clip<'a>(
         frames,
         fps: 30.0,
         // The GPU poses the crowd and refits its tree itself (the walk it needs).
-        pose_on_gpu: bvh,
+        pose_on_gpu: bvh && on_gpu,
     }
 }
 
@@ -493,7 +497,7 @@ pub fn run(
                         let (r, _, times) = super::run_clip_timed(
                             session,
                             backend_name,
-                            crowd_clip(st, camera, &lights, true, cfg.warmup, per_round),
+                            crowd_clip(st, camera, &lights, true, cfg.crowd_on_gpu, cfg.warmup, per_round),
                         )?;
                         timed.push((r, times));
                     }
@@ -506,7 +510,7 @@ pub fn run(
                     let name = format!("{n} cars, {setting}");
                     progress(&name);
                     // (Sorting 80 000 spheres per ray takes seconds a frame.)
-                    let c = crowd_clip(st, camera, &lights, false, cfg.warmup.min(2), cfg.sweep_frames);
+                    let c = crowd_clip(st, camera, &lights, false, false, cfg.warmup.min(2), cfg.sweep_frames);
                     let (r, _) = run_clip(session, backend_name, c)?;
                     out.push(label(r, cfg, group, name, setting.into(), *n as f64));
                 }

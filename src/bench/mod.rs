@@ -86,6 +86,9 @@ pub struct Record {
     /// instances, refitting the BVH, converting and uploading them, encoding the passes
     /// (`GpuRenderer::submit_host_ms`; GPU backend only).
     pub gpu_submit_ms: Option<f64>,
+    /// Median GPU time of a crowd's pose and refit passes per frame (ms; a crowd posed on the
+    /// GPU, with timestamps).
+    pub gpu_crowd_ms: Option<f64>,
     /// Median time per frame spent posing the clip and updating the scene's transforms (ms),
     /// the host's scene work before the render (each backend).
     pub pose_ms: Option<f64>,
@@ -191,6 +194,7 @@ pub fn run_clip_timed(
     let (mut trace_ms, mut shade_ms) = (Vec::new(), Vec::new());
     let (mut host_ms, mut traffic) = (Vec::new(), Vec::new());
     let (mut submit_ms, mut pose_ms) = (Vec::new(), Vec::new());
+    let mut crowd_ms = Vec::new();
     let mut plan = None;
     let mut first: Option<Frame> = None;
     let frames = clip.frames.max(1);
@@ -266,6 +270,9 @@ pub fn run_clip_timed(
                     // (A crowd posed on the GPU: its passes are the GPU's time, not the host's.)
                     let crowd = session.backend().crowd_pass_ms().unwrap_or(0.0);
                     host_ms.push(secs * 1e3 - tr - sh - gi - crowd);
+                    if let Some(ms) = session.backend().crowd_pass_ms() {
+                        crowd_ms.push(ms);
+                    }
                 }
                 if let Some(t) = session.backend().gpu_traffic() {
                     traffic.push(t);
@@ -331,6 +338,7 @@ pub fn run_clip_timed(
         gpu_host_ms: (!host_ms.is_empty()).then(|| summarize(&host_ms).0),
         gpu_submit_ms: (!submit_ms.is_empty()).then(|| summarize(&submit_ms).0),
         pose_ms: (!pose_ms.is_empty()).then(|| summarize(&pose_ms).0),
+        gpu_crowd_ms: (!crowd_ms.is_empty()).then(|| summarize(&crowd_ms).0),
         gpu_buffers_per_frame: (!traffic.is_empty())
             .then(|| traffic.iter().map(|t| t.0).sum::<u64>() as f64 / traffic.len() as f64),
         gpu_read_back_per_frame: (!traffic.is_empty())
@@ -366,6 +374,7 @@ pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
     let (gpu_trace_ms, gpu_shade_ms) = (median_of(|r| r.gpu_trace_ms), median_of(|r| r.gpu_shade_ms));
     let gpu_host_ms = median_of(|r| r.gpu_host_ms);
     let (gpu_submit_ms, pose_ms) = (median_of(|r| r.gpu_submit_ms), median_of(|r| r.pose_ms));
+    let gpu_crowd_ms = median_of(|r| r.gpu_crowd_ms);
     let (first, _) = rounds.into_iter().next()?;
     let (median_ms, p95_ms, min_ms) = summarize(&times);
     Some(Record {
@@ -382,6 +391,7 @@ pub fn pool_rounds(rounds: Vec<(Record, Vec<f64>)>) -> Option<Record> {
         gpu_host_ms,
         gpu_submit_ms,
         pose_ms,
+        gpu_crowd_ms,
         ..first
     })
 }

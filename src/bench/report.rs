@@ -33,7 +33,7 @@ fn quote(s: &str) -> String {
 /// The CSV header of [`to_csv`].
 pub const CSV_HEADER: &str = "group,name,setting,x,backend_kind,backend,width,height,warmup,frames,instances,\
 median_ms,p95_ms,min_ms,mrays_per_s,reused_fraction,instances_per_ray,culled_per_ray,gpu_trace_ms,gpu_shade_ms,svo_bytes,geometry_bytes,attribute_bytes,voxels,gpu_bytes,\
-gpu_host_ms,gpu_submit_ms,pose_ms,gpu_buffers_per_frame,gpu_read_back_per_frame,rmse,coverage_mismatch,depth_rel,machine,command";
+gpu_host_ms,gpu_submit_ms,pose_ms,gpu_crowd_ms,gpu_buffers_per_frame,gpu_read_back_per_frame,rmse,coverage_mismatch,depth_rel,machine,command";
 
 /// One line per record, with a header.
 pub fn to_csv(records: &[Record]) -> String {
@@ -70,6 +70,7 @@ pub fn to_csv(records: &[Record]) -> String {
             opt(r.gpu_host_ms),
             opt(r.gpu_submit_ms),
             opt(r.pose_ms),
+            opt(r.gpu_crowd_ms),
             opt(r.gpu_buffers_per_frame),
             opt(r.gpu_read_back_per_frame),
             opt(e.map(|e| e.rmse)),
@@ -661,7 +662,7 @@ mod tests {
         let csv = to_csv(&[r]);
         let line = csv.lines().nth(1).unwrap();
         assert!(line.contains("\"a, b\"") && line.contains("\"x \"\"y\"\"\""), "{line}");
-        assert_eq!(csv.lines().next().unwrap().split(',').count(), 35);
-        assert_eq!(line.split(',').count(), 36, "one field per column (the quoted one holds a comma)");
+        assert_eq!(csv.lines().next().unwrap().split(',').count(), 36);
+        assert_eq!(line.split(',').count(), 37, "one field per column (the quoted one holds a comma)");
     }
 }

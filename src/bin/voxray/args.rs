@@ -351,6 +351,11 @@ pub(crate) struct BenchArgs {
     /// --frames)
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub(crate) sweep_frames: u64,
+    /// Who poses the instance sweep's cars on the GPU backend (its BVH points): `gpu`, the
+    /// frame's own passes (the host only sets the time), or `host`, as the CPU does (the
+    /// cars seen posed, their instances prepared and uploaded, the tree refitted)
+    #[arg(long, value_enum, default_value = "gpu")]
+    pub(crate) crowd_posing: CrowdPosing,
     /// Image width of the instance sweep.
     #[arg(long, default_value_t = 320)]
     pub(crate) sweep_width: u32,
@@ -469,4 +474,13 @@ pub(crate) struct VoxelizeArgs {
     /// Where to write <part>.svo files.
     #[arg(long, default_value = "svo")]
     pub(crate) out_dir: PathBuf,
+}
+
+/// Who poses the instance sweep's cars on the GPU backend (`voxray bench --crowd-posing`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum CrowdPosing {
+    /// The frame's own passes (`gpu::crowd`).
+    Gpu,
+    /// The host, as for the CPU backend.
+    Host,
 }

@@ -146,6 +146,7 @@ pub(crate) fn bench_cmd(a: BenchArgs) -> Result<(), Error> {
         cars: a.sweep_cars.clone(),
         sweep_frames: a.sweep_frames as usize,
         sweep_size: (a.sweep_width, a.sweep_height),
+        crowd_on_gpu: a.crowd_posing == super::args::CrowdPosing::Gpu,
         resolutions,
         lod_levels: a.lod_levels.clone(),
         command: command.clone(),
