@@ -926,6 +926,13 @@ fn a_crowd_posed_on_the_gpu_refuses_what_it_cannot_do() {
     assert!(matches!(GpuCrowd::new(ctx.clone(), &st.scene, &bad, 6), Err(GpuError::Crowd(_))));
     bad[1].doors[0] = 10_000;
     assert!(matches!(GpuCrowd::new(ctx.clone(), &st.scene, &bad, 6), Err(GpuError::Crowd(_))));
+    // Two cars that are one (their rows would race).
+    let twice = [st.cars[2], st.cars[2]];
+    let m = match GpuCrowd::new(ctx.clone(), &st.scene, &twice, 6) {
+        Err(GpuError::Crowd(m)) => m,
+        other => panic!("expected a crowd error, got {:?}", other.err()),
+    };
+    assert!(m.contains("another car"), "{m}");
     // Without the crowd, the scene's own transforms again.
     gpu.set_crowd(None);
     let mut st2 = voxray::scene::stage_cars(&parts, 4, true, false).unwrap();

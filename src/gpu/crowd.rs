@@ -9,9 +9,10 @@
 //! The host reduces what f32 cannot hold, once per crowd and once per frame, in f64: the
 //! time within a lap and a door cycle, whole laps as distance wrapped to a wheel turn, and
 //! the eye and every car's centre split into two f32 each whose difference the shader takes
-//! half by half. The shader's transforms then agree with the host's to a few units in the
-//! last place, and its spheres are grown to hold what the host's hold (tested in this
-//! module against the host's instances).
+//! half by half. The shader's transforms then agree with the host's to 10⁻⁵ of an entry or
+//! better (f32 sines, cosines and arctangents; 2-3·10⁻⁵ for the steering wheel, which turns
+//! fifteen times the steering angle), and its spheres are grown to hold what the host's hold
+//! (tested in this module against the host's instances).
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{GpuCrowdCar, GpuCrowdFrame, GpuCrowdPart};
@@ -138,8 +139,8 @@ impl GpuCrowd {
     /// The crowd of `cars` in `scene`, for rays traced down to `max_level`; its instance
     /// tree is built over the scene's transforms as they are now (after
     /// [`Scene::update`]: [`crate::scene::stage_cars`] leaves them so). Refused when a car's
-    /// instances are not a car's ([`crate::scene::car::add_car`] places them so), or a
-    /// buffer would pass the device's limits.
+    /// instances are not a car's ([`crate::scene::car::add_car`] places them so), when two
+    /// cars name the same instance, or when a buffer would pass the device's limits.
     pub fn new(ctx: Arc<GpuContext>, scene: &Scene, cars: &[Car], max_level: u32) -> Result<GpuCrowd, GpuError> {
         let records = cars.iter().enumerate().map(|(k, c)| car_record(scene, k, c)).collect::<Result<Vec<_>, _>>()?;
         let rows = cars.iter().flat_map(|c| c.instances()).max().map_or(0, |m| m + 1);
@@ -171,8 +172,13 @@ impl GpuCrowd {
         ctx.check_binding("the crowd's cars", std::mem::size_of_val(&records[..]) as u64)?;
         let n = scene.instances().len();
         let mut placed = vec![false; n];
-        for i in cars.iter().flat_map(|c| c.instances()) {
-            placed[i] = true;
+        for (k, car) in cars.iter().enumerate() {
+            for i in car.instances() {
+                // Two cars writing one row would race on the GPU.
+                if std::mem::replace(&mut placed[i], true) {
+                    return Err(GpuError::Crowd(format!("car {k}: instance {i} is placed by another car too")));
+                }
+            }
         }
         let statics: Vec<u32> = (0..n).filter(|&i| !placed[i]).map(|i| i as u32).collect();
         let bvh = crate::render::bvh::Bvh::build_with(&build_spheres(scene, max_level), false);
@@ -387,9 +393,9 @@ mod tests {
         }
     }
 
-    /// The default car's parts at depth 6 (each a few thousand voxels).
+    /// The built-in car's parts at depth 6 (each a few thousand voxels).
     fn car_parts() -> Vec<Arc<crate::svo::Svo>> {
-        let mesh = crate::model::embedded::load_default_car().expect("embedded car");
+        let mesh = crate::model::car::mesh();
         crate::pipeline::build_parts(&mesh, crate::voxelize::Resolution::Depth(6)).expect("parts")
     }
 
