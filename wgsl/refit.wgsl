@@ -1,8 +1,10 @@
 // Refits the instance BVH's boxes on the GPU from the instances' spheres (`Inst.sphere`'s
-// centre, `Inst.radius`: before the growth for the f32 sphere test), a level of the tree per dispatch, deepest first: each
-// node's box from its leaf's spheres or its two children's boxes, its links kept. The twin
-// of voxray::render::bvh::Bvh::refit followed by voxray::gpu::renderer::gpu_bvh_nodes (the
-// same slack), for a crowd posed on the GPU (wgsl/pose.wgsl). Rust side: src/gpu/refit.rs.
+// centre, `Inst.radius`: before the growth for the f32 sphere test), a level of the tree per
+// dispatch, deepest first: each node's box from its leaf's spheres or its two children's
+// boxes, its links kept. The twin of voxray::render::bvh::Bvh::refit followed by
+// voxray::gpu::renderer::gpu_bvh_nodes: a leaf widened by the same slack, an inner box the
+// union of its children's (which holds the host's, slack and all), for a crowd posed on the
+// GPU (wgsl/pose.wgsl). Rust side: src/gpu/refit.rs.
 
 @group(0) @binding(0) var<uniform> refit_level: RefitLevel;
 // Node indices, deepest level first.

@@ -237,4 +237,80 @@ impl GpuContext {
         }
         Ok(())
     }
+    /// A compute pass with one bind group of buffers (`entries`, made by [`buffer_entry`]):
+    /// its pipeline for `entry_point` of the WGSL `source`, and the group's layout. The
+    /// small passes (scattering rows, posing a crowd, refitting a tree) are made this way.
+    pub(crate) fn compute_pass(
+        &self,
+        label: &str,
+        source: String,
+        entry_point: &str,
+        entries: &[wgpu::BindGroupLayoutEntry],
+    ) -> (wgpu::ComputePipeline, wgpu::BindGroupLayout) {
+        let device = &self.device;
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(label),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry_point),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some(entry_point),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        (pipeline, layout)
+    }
+}
+
+/// A compute stage's buffer binding: a uniform, read-only or read-write storage buffer
+/// ([`BufferKind`]); `dynamic`: read at a dynamic offset, `Some(bytes)` at a time.
+pub(crate) fn buffer_entry(binding: u32, kind: BufferKind, dynamic: Option<u64>) -> wgpu::BindGroupLayoutEntry {
+    let ty = match kind {
+        BufferKind::Uniform => wgpu::BufferBindingType::Uniform,
+        BufferKind::Read => wgpu::BufferBindingType::Storage { read_only: true },
+        BufferKind::Write => wgpu::BufferBindingType::Storage { read_only: false },
+    };
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: dynamic.is_some(),
+            min_binding_size: dynamic.and_then(wgpu::BufferSize::new),
+        },
+        count: None,
+    }
+}
+
+/// What a [`buffer_entry`] binds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum BufferKind {
+    /// A uniform buffer.
+    Uniform,
+    /// A read-only storage buffer.
+    Read,
+    /// A read-write storage buffer.
+    Write,
+}
+
+/// Tests' device: None (with a note) where there is none, except in CI, where a missing
+/// adapter fails the test.
+#[cfg(test)]
+pub(crate) fn test_context() -> Option<std::sync::Arc<GpuContext>> {
+    match GpuContext::headless() {
+        Ok(c) => Some(std::sync::Arc::new(c)),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
+        Err(e) => {
+            eprintln!("skipping GPU test: {e}");
+            None
+        }
+    }
 }

@@ -113,26 +113,16 @@ fn car_record(scene: &Scene, k: usize, car: &Car) -> Result<GpuCrowdCar, GpuErro
     })
 }
 
-/// Per instance, its world sphere as the scene holds it now: the crowd's tree is built over
-/// them. Its splits then part the cars by where they stand and each car's parts by where
-/// they sit in it; as the cars drive, refitted boxes grow apart little (a 10 000-car frame's
-/// octrees entered per ray: 0.33 at the pose it was built for, 0.35-0.36 half a lap later,
-/// against 0.51-0.53 for a tree built over the spheres each car's figure-eight holds).
+/// Per instance, its world sphere as the scene holds it now (prepared for an eye at the
+/// origin): the crowd's tree is built over them. Its splits then part the cars by where they
+/// stand and each car's parts by where they sit in it; as the cars drive, refitted boxes
+/// grow apart little (docs/benchmarks.md, step 89: 0.33 octrees entered per ray at the pose
+/// it was built for, 0.35-0.36 half a lap later, against 0.51-0.53 for a tree built over
+/// the spheres each car's figure-eight holds).
 fn build_spheres(scene: &Scene, max_level: u32) -> Vec<(DVec3, f64)> {
-    let boxes = crate::render::instances::part_boxes(scene, max_level);
-    let mut slot = crate::render::instances::Prepared {
-        part: 0,
-        to_unit: crate::render::instances::ToUnit::Scale { offset: DVec3::ZERO, inv_size: 1.0 },
-        centre: DVec3::ZERO,
-        radius: 0.0,
-        max_stretch: 0.0,
-    };
-    (0..scene.instances().len())
-        .map(|i| {
-            crate::render::instances::fill_slot(scene, DVec3::ZERO, true, &boxes, i, &mut slot);
-            (slot.centre, slot.radius)
-        })
-        .collect()
+    let mut prepared = Vec::new();
+    crate::render::instances::prepare_into(scene, DVec3::ZERO, true, max_level, &mut prepared);
+    prepared.iter().map(|p| (p.centre, p.radius)).collect()
 }
 
 impl GpuCrowd {
@@ -184,42 +174,20 @@ impl GpuCrowd {
         let bvh = crate::render::bvh::Bvh::build_with(&build_spheres(scene, max_level), false);
         let refit = super::refit::GpuRefit::new(&ctx, &bvh)?;
         ctx.check_binding("the crowd's instances", (rows * std::mem::size_of::<super::layout::GpuInstance>()) as u64)?;
-        let device = &ctx.device;
-        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let read = wgpu::BufferBindingType::Storage { read_only: true };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("crowd pose"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform),
-                entry(1, read),
-                entry(2, read),
-                entry(3, read),
-                entry(4, read),
-                entry(5, wgpu::BufferBindingType::Storage { read_only: false }),
+        use super::context::{buffer_entry, BufferKind};
+        let (pipeline, layout) = ctx.compute_pass(
+            "crowd pose",
+            pose_source(),
+            "crowd_pose_main",
+            &[
+                buffer_entry(0, BufferKind::Uniform, None),
+                buffer_entry(1, BufferKind::Read, None),
+                buffer_entry(2, BufferKind::Read, None),
+                buffer_entry(3, BufferKind::Read, None),
+                buffer_entry(4, BufferKind::Read, None),
+                buffer_entry(5, BufferKind::Write, None),
             ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("crowd pose"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("pose.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(pose_source().into()),
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("crowd_pose_main"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("crowd_pose_main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        );
         let storage = |label, bytes: &[u8]| {
             // Bindings must not be empty.
             let padded = if bytes.is_empty() { &[0u8; 16][..] } else { bytes };
@@ -382,16 +350,7 @@ mod tests {
     use crate::render::instances::prepare_into;
     use crate::scene::car::pose_all;
 
-    fn context() -> Option<Arc<GpuContext>> {
-        match GpuContext::headless() {
-            Ok(c) => Some(Arc::new(c)),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
-            Err(e) => {
-                eprintln!("skipping GPU test: {e}");
-                None
-            }
-        }
-    }
+    use crate::gpu::context::test_context as context;
 
     /// The built-in car's parts at depth 6 (each a few thousand voxels).
     fn car_parts() -> Vec<Arc<crate::svo::Svo>> {

@@ -81,45 +81,20 @@ impl GpuRefit {
         let levels_buf = init("refit levels", &level_bytes, wgpu::BufferUsages::UNIFORM);
         let order_buf = init("refit order", bytemuck::cast_slice(&order), wgpu::BufferUsages::STORAGE);
         let items_buf = init("refit items", bytemuck::cast_slice(&bvh.items), wgpu::BufferUsages::STORAGE);
-        let device = &ctx.device;
-        let entry = |binding, ty, dynamic| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: dynamic,
-                min_binding_size: wgpu::BufferSize::new(if dynamic { 16 } else { 0 }),
-            },
-            count: None,
-        };
-        let read = wgpu::BufferBindingType::Storage { read_only: true };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("bvh refit"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform, true),
-                entry(1, read, false),
-                entry(2, read, false),
-                entry(3, read, false),
-                entry(4, wgpu::BufferBindingType::Storage { read_only: false }, false),
+        use super::context::{buffer_entry, BufferKind};
+        let (pipeline, layout) = ctx.compute_pass(
+            "bvh refit",
+            refit_source(),
+            "bvh_refit_main",
+            &[
+                // One level's record at a time, at its offset.
+                buffer_entry(0, BufferKind::Uniform, Some(16)),
+                buffer_entry(1, BufferKind::Read, None),
+                buffer_entry(2, BufferKind::Read, None),
+                buffer_entry(3, BufferKind::Read, None),
+                buffer_entry(4, BufferKind::Write, None),
             ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("bvh refit"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("refit.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(refit_source().into()),
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("bvh_refit_main"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("bvh_refit_main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        );
         Ok(GpuRefit {
             pipeline,
             layout,
@@ -196,18 +171,8 @@ mod tests {
     use super::*;
     use crate::gpu::layout::{GpuBvhNode, GpuInstance};
     use glam::DVec3;
-    use std::sync::Arc;
 
-    fn context() -> Option<Arc<GpuContext>> {
-        match GpuContext::headless() {
-            Ok(c) => Some(Arc::new(c)),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
-            Err(e) => {
-                eprintln!("skipping GPU test: {e}");
-                None
-            }
-        }
-    }
+    use crate::gpu::context::test_context as context;
 
     /// Every box the GPU refits holds the host's refit of the same (f32) spheres, their radii
     /// before the f32 test's growth, and is no wider than its slack; links are kept. The tree is built on other spheres (the

@@ -1467,13 +1467,7 @@ fn write_statics(ctx: &GpuContext, scene: &Scene, ids: &[u32], eye: glam::DVec3,
         return;
     }
     let boxes = crate::render::instances::part_boxes(scene, max_level);
-    let mut slot = Prepared {
-        part: 0,
-        to_unit: ToUnit::Scale { offset: glam::DVec3::ZERO, inv_size: 1.0 },
-        centre: glam::DVec3::ZERO,
-        radius: 0.0,
-        max_stretch: 0.0,
-    };
+    let mut slot = Prepared::BLANK;
     let row = std::mem::size_of::<GpuInstance>() as u64;
     let mut run: Vec<GpuInstance> = Vec::new();
     let mut start = ids[0];
@@ -1620,17 +1614,7 @@ mod tests {
         read(ctx, &rb).expect("instances read back")
     }
 
-    /// The device, or None (with a note) where there is none outside CI.
-    fn context() -> Option<Arc<GpuContext>> {
-        match GpuContext::headless() {
-            Ok(c) => Some(Arc::new(c)),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI needs a GPU adapter: {e}"),
-            Err(e) => {
-                eprintln!("skipping GPU test: {e}");
-                None
-            }
-        }
-    }
+    use crate::gpu::context::test_context as context;
 
     /// A camera in front of [`two_blocks`].
     fn blocks_camera() -> Camera {

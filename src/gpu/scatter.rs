@@ -33,40 +33,18 @@ pub(crate) struct ScatterRows {
 impl ScatterRows {
     /// The pass on `ctx`'s device.
     pub(crate) fn new(ctx: &GpuContext) -> ScatterRows {
-        let device = &ctx.device;
-        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let read = wgpu::BufferBindingType::Storage { read_only: true };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("scatter rows"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform),
-                entry(1, read),
-                entry(2, read),
-                entry(3, wgpu::BufferBindingType::Storage { read_only: false }),
+        use super::context::{buffer_entry, BufferKind};
+        let (pipeline, layout) = ctx.compute_pass(
+            "scatter rows",
+            include_str!("../../wgsl/scatter.wgsl").into(),
+            "scatter_rows",
+            &[
+                buffer_entry(0, BufferKind::Uniform, None),
+                buffer_entry(1, BufferKind::Read, None),
+                buffer_entry(2, BufferKind::Read, None),
+                buffer_entry(3, BufferKind::Write, None),
             ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("scatter rows"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("scatter.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("../../wgsl/scatter.wgsl").into()),
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("scatter_rows"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("scatter_rows"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        );
         ScatterRows { pipeline, layout, params: None, src: None, ids: None, bind: None }
     }
 

@@ -66,6 +66,15 @@ pub struct Prepared {
 }
 
 impl Prepared {
+    /// A slot before it is filled ([`fill_slot`] overwrites every field).
+    pub(crate) const BLANK: Prepared = Prepared {
+        part: 0,
+        to_unit: ToUnit::Affine(DAffine3::IDENTITY),
+        centre: DVec3::ZERO,
+        radius: 0.0,
+        max_stretch: 0.0,
+    };
+
     /// A world vector along the normal of object-space normal `n` (not of unit length: the
     /// callers normalize). Normals map by the inverse transpose of the world transform's
     /// linear part; the ray map's linear part is that inverse times 1/size > 0, so its
@@ -171,14 +180,7 @@ fn refill(
     };
     let n = scene.instances().len();
     // Last frame's slots, refilled in place.
-    let blank = Prepared {
-        part: 0,
-        to_unit: ToUnit::Affine(DAffine3::IDENTITY),
-        centre: DVec3::ZERO,
-        radius: 0.0,
-        max_stretch: 0.0,
-    };
-    out.resize(n, blank);
+    out.resize(n, Prepared::BLANK);
     // Without spheres to keep, an empty slice: each slot's sphere is then None.
     let spheres = match spheres {
         Some(s) => {
