@@ -176,16 +176,21 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
             keep(&best, index[k], trace_one(index[k], o, d, widen(t_max)));
         }
     } else {
+        // A pop pushes at most two, so the stack holds at most the tree's depth + 1 entries:
+        // the host's median-split trees (render::bvh::Bvh::build_with) stay under 34 levels
+        // for any u32 count. A deeper tree would overflow; then the culling search answers
+        // instead of losing the children that did not fit.
         var stack_node: array<u32, 64>;
         var stack_t: array<f32, 64>;
         var sp = 0u;
+        var overflow = false;
         let root = box_entry(bvh[0].lo.xyz, bvh[0].hi.xyz, o, d, BIG);
         if frame.bvh_nodes > 0u && root < BIG {
             stack_node[0] = 0u;
             stack_t[0] = root;
             sp = 1u;
         }
-        while sp > 0u {
+        while sp > 0u && !overflow {
             sp -= 1u;
             let n = stack_node[sp];
             if stack_t[sp] > bound(best) {
@@ -214,7 +219,10 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
                 let el = box_entry(bvh[first].lo.xyz, bvh[first].hi.xyz, o, d, t_max);
                 let er = box_entry(bvh[first + 1u].lo.xyz, bvh[first + 1u].hi.xyz, o, d, t_max);
                 // Push the farther child first so the nearer one is popped first.
-                if el < BIG && er < BIG && sp + 2u <= 64u {
+                let wanted = u32(el < BIG) + u32(er < BIG);
+                if sp + wanted > 64u {
+                    overflow = true;
+                } else if el < BIG && er < BIG {
                     if el <= er {
                         stack_node[sp] = first + 1u; stack_t[sp] = er;
                         stack_node[sp + 1u] = first; stack_t[sp + 1u] = el;
@@ -223,14 +231,20 @@ fn nearest(o: vec3<f32>, d: vec3<f32>) -> Nearest {
                         stack_node[sp + 1u] = first + 1u; stack_t[sp + 1u] = er;
                     }
                     sp += 2u;
-                } else if el < BIG && sp < 64u {
+                } else if el < BIG {
                     stack_node[sp] = first; stack_t[sp] = el;
                     sp += 1u;
-                } else if er < BIG && sp < 64u {
+                } else if er < BIG {
                     stack_node[sp] = first + 1u; stack_t[sp] = er;
                     sp += 1u;
                 }
             }
+        }
+        if overflow {
+            // Counted again by the culling search.
+            work_traced = 0u;
+            work_culled = 0u;
+            return nearest_cull(o, d);
         }
     }
     return best;
