@@ -14,10 +14,14 @@
 //! average; a sphere around the eye costs a whole image's), [`PixelSpheres::build`] gives up
 //! and the rays walk the BVH as before.
 
+use super::beam::TILE as TILE_SIDE;
 use super::instances::sphere_interval;
 use crate::scene::camera::{Camera, PixelGrid, PixelRect};
 use crate::scene::Scene;
 use glam::DVec3;
+
+/// The side of the tiles the lists are indexed by: the renderer's.
+const TILE: usize = TILE_SIDE as usize;
 
 /// Pixel tests per pixel, on average over the image, beyond which the lists are not built.
 pub const MAX_PER_PIXEL: u64 = 8;
@@ -33,19 +37,71 @@ const MOVED_CHUNK: usize = 512;
 /// How many moved instances ahead their spheres are asked for.
 const AHEAD: usize = 4;
 
-/// The lists of one frame's primary rays.
+/// The lists of one frame's primary rays, indexed by the renderer's 8×8 tiles: a crowd's
+/// frame lists a few thousand crossings over tens of thousands of pixels, and an index per
+/// tile is a sixty-fourth of one per pixel to clear and sum every frame.
 #[derive(Clone, Debug, Default)]
 pub struct PixelSpheres {
     width: u32,
-    /// Per pixel (row-major), where its entries start in `entries`; one more at the end.
-    start: Vec<u32>,
-    /// (sphere entry t, instance): per pixel ascending by t, then by instance.
+    height: u32,
+    /// Tiles across the image.
+    tiles_x: u32,
+    /// Per tile (row-major), where its entries start in `entries`; one more at the end.
+    tile_start: Vec<u32>,
+    /// Per tile, its pixels whose list is not empty: bit (y mod 8)·8 + (x mod 8).
+    tile_mask: Vec<u64>,
+    /// Per entry, its pixel's bit in its tile's mask: a tile's entries ascend by it.
+    local: Vec<u8>,
+    /// (sphere entry t, instance): per tile by pixel, per pixel ascending by t, then by
+    /// instance.
     entries: Vec<(f64, u32)>,
+    /// The entries by pixel bit only, before they are put in tile order (kept for its memory).
+    sorting: Vec<(f64, u32, u32)>,
     /// What the next frame's lists may take over: the camera and spheres these were built
     /// for, and every (pixel, entry t, instance) found, by ascending instance.
     camera: Option<Camera>,
     spheres: Vec<(DVec3, f64)>,
     found: Vec<(u32, f64, u32)>,
+}
+
+/// The lists of one tile's pixels ([`PixelSpheres::tile`]), by lane: (y mod 8)·8 + (x mod 8).
+#[derive(Clone, Copy, Debug)]
+pub struct TileLists<'a> {
+    /// The lanes whose list is not empty.
+    pub mask: u64,
+    /// Whether each of those lanes lists one sphere (a crowd's tiles): then a lane's entry is
+    /// found by counting the lanes before it.
+    one_each: bool,
+    entries: &'a [(f64, u32)],
+    local: &'a [u8],
+}
+
+impl<'a> TileLists<'a> {
+    /// A tile whose rays meet no sphere.
+    pub const EMPTY: TileLists<'static> = TileLists { mask: 0, one_each: true, entries: &[], local: &[] };
+
+    /// Whether no ray of the tile meets a sphere.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.mask == 0
+    }
+
+    /// The list of lane `k` (below 64): (sphere entry t, instance), nearest first.
+    #[inline]
+    pub fn at(&self, k: usize) -> &'a [(f64, u32)] {
+        if k >= 64 || self.mask >> k & 1 == 0 {
+            return &[];
+        }
+        // Each listed lane before this one holds at least one entry.
+        let before = (self.mask & ((1u64 << k) - 1)).count_ones() as usize;
+        if self.one_each {
+            return self.entries.get(before..before + 1).unwrap_or(&[]);
+        }
+        let skip = before.min(self.local.len());
+        let first = skip + self.local[skip..].iter().take_while(|&&l| (l as usize) < k).count();
+        let end = first + self.local[first..].iter().take_while(|&&l| l as usize == k).count();
+        self.entries.get(first..end).unwrap_or(&[])
+    }
 }
 
 /// What one chunk of instances found: (pixel, entry t, instance), in instance order.
@@ -257,68 +313,148 @@ impl PixelSpheres {
                 all
             }
         };
-        // Counting sort by pixel: instances in order, so each pixel's entries arrive by
-        // ascending instance; then each list by entry t (ties keep that order). A crowd's
-        // frame has a few thousand entries over tens of thousands of pixels: only the
-        // entries are walked, but for one pass that sums the counts.
-        let mut start = std::mem::take(&mut kept.start);
+        kept.width = w;
+        kept.height = h;
+        kept.sort_by_tile(&found);
+        kept.camera = Some(*camera);
+        kept.found = found;
+        Some(kept)
+    }
+
+    /// Puts `found` (pixel, entry t, instance) into the tile index: a stable counting sort
+    /// by the pixel's bit in its tile, then one by tile (each over the entries and a bucket
+    /// per bit or tile, never per pixel), then each pixel's entries with more than one by t
+    /// and instance.
+    fn sort_by_tile(&mut self, found: &[(u32, f64, u32)]) {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let tiles_x = w.div_ceil(TILE);
+        let tiles = tiles_x * h.div_ceil(TILE);
+        self.tiles_x = tiles_x as u32;
+        let tile_of = |px: u32| (px as usize / w / TILE) * tiles_x + (px as usize % w) / TILE;
+        let bit_of = |px: u32| ((px as usize / w) % TILE * TILE + (px as usize % w) % TILE) as u32;
+        // By bit: (t, instance, tile · 64 + bit).
+        let mut bits = [0u32; 65];
+        for &(px, _, _) in found {
+            bits[bit_of(px) as usize + 1] += 1;
+        }
+        for k in 1..bits.len() {
+            bits[k] += bits[k - 1];
+        }
+        let sorting = &mut self.sorting;
+        sorting.clear();
+        sorting.resize(found.len(), (0.0, 0, 0));
+        for &(px, t0, i) in found {
+            let bit = bit_of(px);
+            let slot = &mut bits[bit as usize];
+            sorting[*slot as usize] = (t0, i, (tile_of(px) as u32) << 6 | bit);
+            *slot += 1;
+        }
+        // By tile, keeping the bits' order.
+        let start = &mut self.tile_start;
         start.clear();
-        start.resize(pixels as usize + 1, 0);
-        // The pixels listing more than one sphere, whose entries need sorting by t.
-        let mut crowded = Vec::new();
-        for &(px, _, _) in &found {
-            let count = &mut start[px as usize + 1];
-            *count += 1;
-            if *count == 2 {
-                crowded.push(px);
-            }
+        start.resize(tiles + 1, 0);
+        let mask = &mut self.tile_mask;
+        mask.clear();
+        mask.resize(tiles, 0);
+        for &(_, _, key) in sorting.iter() {
+            start[(key >> 6) as usize + 1] += 1;
+            mask[(key >> 6) as usize] |= 1 << (key & 63);
         }
         for k in 1..start.len() {
             start[k] += start[k - 1];
         }
-        let mut entries = std::mem::take(&mut kept.entries);
-        entries.clear();
-        entries.resize(found.len(), (0.0, 0));
-        // Each entry to the end of its pixel's stretch, from the last found: the stretch's
-        // start moves down to where it began while the entries keep their order.
-        for &(px, t0, i) in found.iter().rev() {
-            let end = &mut start[px as usize + 1];
+        self.entries.clear();
+        self.entries.resize(found.len(), (0.0, 0));
+        self.local.clear();
+        self.local.resize(found.len(), 0);
+        // Each entry to the end of its tile's stretch, from the last: the stretch's start
+        // moves down to where it began while the entries keep their order.
+        for &(t0, i, key) in sorting.iter().rev() {
+            let end = &mut start[(key >> 6) as usize + 1];
             *end -= 1;
-            entries[*end as usize] = (t0, i);
+            self.entries[*end as usize] = (t0, i);
+            self.local[*end as usize] = (key & 63) as u8;
         }
-        // start[px + 1] now holds where pixel px's entries begin: one place back.
+        // start[tile + 1] now holds where the tile's entries begin: one place back.
         start.copy_within(1.., 0);
-        start[pixels as usize] = found.len() as u32;
-        for px in crowded {
-            let list = &mut entries[start[px as usize] as usize..start[px as usize + 1] as usize];
-            list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        start[tiles] = found.len() as u32;
+        // A tile has fewer entries than pixels when every ray meets one sphere or none (a
+        // crowd's tiles): then no pixel has two.
+        for tile in 0..tiles {
+            let (a, b) = (start[tile] as usize, start[tile + 1] as usize);
+            if b - a <= self.tile_mask[tile].count_ones() as usize {
+                continue;
+            }
+            let mut run = a;
+            while run < b {
+                let end = run + self.local[run..b].iter().take_while(|&&l| l == self.local[run]).count();
+                if end - run > 1 {
+                    self.entries[run..end].sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                }
+                run = end;
+            }
         }
-        Some(PixelSpheres { width: w, start, entries, camera: Some(*camera), spheres: kept.spheres, found })
     }
 
     /// The list of pixel (x, y): (sphere entry t, instance), nearest first; empty outside the
     /// image.
     #[inline]
     pub fn at(&self, x: u32, y: u32) -> &[(f64, u32)] {
-        let px = y as usize * self.width as usize + x as usize;
-        match (x < self.width, self.start.get(px), self.start.get(px + 1)) {
-            (true, Some(&a), Some(&b)) => &self.entries[a as usize..b as usize],
-            _ => &[],
+        if x >= self.width || y >= self.height {
+            return &[];
+        }
+        let tile = (x as usize % TILE, y as usize % TILE);
+        self.tile(x - tile.0 as u32, y - tile.1 as u32).at(tile.1 * TILE + tile.0)
+    }
+
+    /// The lists of the tile whose top-left pixel is (x0, y0) (multiples of the tile's side,
+    /// [`super::beam::TILE`]): a tile's rays look their lists up by lane without finding the
+    /// tile again for each.
+    #[inline]
+    pub fn tile(&self, x0: u32, y0: u32) -> TileLists<'_> {
+        debug_assert!(x0 as usize % TILE == 0 && y0 as usize % TILE == 0, "({x0}, {y0}) starts no tile");
+        let tile = (y0 as usize / TILE) * self.tiles_x as usize + x0 as usize / TILE;
+        match (
+            x0 < self.width && y0 < self.height,
+            self.tile_mask.get(tile),
+            self.tile_start.get(tile),
+            self.tile_start.get(tile + 1),
+        ) {
+            (true, Some(&mask), Some(&a), Some(&b)) if mask != 0 => {
+                let (a, b) = (a as usize, b as usize);
+                TileLists {
+                    mask,
+                    one_each: b - a == mask.count_ones() as usize,
+                    entries: self.entries.get(a..b).unwrap_or(&[]),
+                    local: self.local.get(a..b).unwrap_or(&[]),
+                }
+            }
+            _ => TileLists::EMPTY,
         }
     }
 
     /// Whether the rays of every pixel in x0..x1 × y0..y1 (clipped to the image) meet no
-    /// sphere: each row's lists are contiguous, so a row is one comparison of its ends.
+    /// sphere: each tile's mask, against the window's pixels in it.
     pub fn all_empty(&self, x0: u32, y0: u32, x1: u32, y1: u32) -> bool {
-        let w = self.width as usize;
-        let (x1, y1) = (x1.min(self.width) as usize, (y1 as usize).min(self.start.len().saturating_sub(1) / w.max(1)));
-        if x0 as usize >= x1 {
+        let (x1, y1) = (x1.min(self.width) as usize, y1.min(self.height) as usize);
+        let (x0, y0) = (x0 as usize, y0 as usize);
+        if x0 >= x1 || y0 >= y1 {
             return true;
         }
-        (y0 as usize..y1).all(|y| match (self.start.get(y * w + x0 as usize), self.start.get(y * w + x1)) {
-            (Some(a), Some(b)) => a == b,
-            _ => true,
-        })
+        for ty in y0 / TILE..=(y1 - 1) / TILE {
+            // The window's rows in this tile row, as bits of a tile's mask.
+            let (r0, r1) = (y0.max(ty * TILE) - ty * TILE, y1.min((ty + 1) * TILE) - ty * TILE);
+            let rows = (u64::MAX >> (64 - TILE * (r1 - r0))) << (TILE * r0);
+            for tx in x0 / TILE..=(x1 - 1) / TILE {
+                let (c0, c1) = (x0.max(tx * TILE) - tx * TILE, x1.min((tx + 1) * TILE) - tx * TILE);
+                let columns = ((1u64 << (c1 - c0)) - 1) << c0;
+                let window = rows & (columns * 0x0101_0101_0101_0101);
+                if self.tile_mask.get(ty * self.tiles_x as usize + tx).is_some_and(|&m| m & window != 0) {
+                    return false;
+                }
+            }
+        }
+        true
     }
 
     /// Whether these are the lists of `camera`'s pixels (a search through lists made for

@@ -3,7 +3,7 @@
 //! renderer's trace pass and library users who only want the hits share this loop.
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
-use super::pixel_spheres::PixelSpheres;
+use super::pixel_spheres::{PixelSpheres, TileLists};
 use super::tile_search::{each, nearest_moved_tile, nearest_tile, TileScratch};
 use super::visibility::{
     nearest_listed, nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work,
@@ -148,6 +148,8 @@ pub fn trace_tiles<T: Send, S>(
             masks[x0 / TILE as usize][0] = todo;
             band_rays += (todo | partial).count_ones() as u64;
             band_moved += partial.count_ones() as u64;
+            // The tile's sphere lists, by lane.
+            let tile_lists = lists.map_or(TileLists::EMPTY, |l| l.tile(x0 as u32, y0 as u32));
             // With beams, a tile whose rays can meet no instance stores misses untraced.
             let (fi, all_miss) = if p.beams {
                 // One beam serves the tiles of a [`BEAM_WIDTH`]-pixel run of the band: its cone
@@ -168,7 +170,7 @@ pub fn trace_tiles<T: Send, S>(
             } else {
                 let settled = match lists {
                     // No ray of the tile meets any sphere: a crowd's sky, most of its tiles.
-                    Some(lists) => lists.all_empty(x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32),
+                    Some(_) => tile_lists.is_empty(),
                     // Through the BVH: the tile's pyramid meets no instance's sphere.
                     None => {
                         p.bvh_beams
@@ -240,11 +242,11 @@ pub fn trace_tiles<T: Send, S>(
                 }
                 continue;
             }
-            if let Some(lists) = lists {
+            if lists.is_some() {
                 // The tile's rays read their nearest spheres' instances first: scattered over
                 // a crowd's megabytes, asked for together they load while the first rays trace.
-                for k in each(todo) {
-                    let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                for k in each(todo & tile_lists.mask) {
+                    let listed = tile_lists.at(k);
                     if let Some(&(_, i)) = listed.first() {
                         fi.prefetch_ray_map(i as usize);
                     }
@@ -252,8 +254,8 @@ pub fn trace_tiles<T: Send, S>(
             }
             for k in each(todo) {
                 let hit = match lists {
-                    Some(lists) => {
-                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                    Some(_) => {
+                        let listed = tile_lists.at(k);
                         if listed.is_empty() {
                             // The ray meets no sphere: a miss, without forming its direction,
                             // and not stored again where last frame stored one.
@@ -277,8 +279,8 @@ pub fn trace_tiles<T: Send, S>(
             for k in each(partial) {
                 let (t, instance) = bounds[k];
                 let found = match (lists, moved_flags) {
-                    (Some(lists), Some(flags)) => {
-                        let listed = lists.at((x0 + k % TILE as usize) as u32, (y0 + k / TILE as usize) as u32);
+                    (Some(_), Some(flags)) => {
+                        let listed = tile_lists.at(k);
                         if listed.is_empty() {
                             // No moved sphere meets the ray: the stored hit stands.
                             work.culled += p.moved.len() as u64;
