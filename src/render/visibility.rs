@@ -113,16 +113,25 @@ pub(crate) fn line_misses_occupied(svo: &Svo, max_level: u32, o: DVec3, d: DVec3
     if !(o.is_finite() && d.is_finite()) || crate::ray::parallel_axes(d) != 0 || (0..3).any(|k| lo[k] >= hi[k]) {
         return false;
     }
-    let cell = 1.0 / (1u64 << level) as f64;
-    let (mut enter, mut exit) = (f64::NEG_INFINITY, f64::INFINITY);
+    // 2⁻ˡᵉᵛᵉˡ from its exponent bits (a division per instance and ray was a sizeable share of
+    // a frame that tests every ray against every instance).
+    let cell = f64::from_bits((1023 - u64::from(level)) << 52);
+    let (mut enter, mut exit, mut nan) = (f64::NEG_INFINITY, f64::INFINITY, false);
     for k in 0..3 {
         let (a, b) = (lo[k] as f64 * cell - OCCUPIED_PAD, hi[k] as f64 * cell + OCCUPIED_PAD);
-        // No component is zero here (none is parallel).
-        let (t0, t1) = ((a - o[k]) / d[k], (b - o[k]) / d[k]);
-        enter = enter.max(t0.min(t1));
-        exit = exit.min(t0.max(t1));
+        // No component is zero here (none is parallel). A reciprocal and two products round
+        // within a few units of 2⁻⁵² of the quotients, far inside the padding. Selects that
+        // compile to minsd and maxsd instead of `f64::min`'s NaN handling; a NaN (the
+        // reciprocal of a subnormal component overflowed, times a zero) is caught after.
+        let inv = 1.0 / d[k];
+        let (t0, t1) = ((a - o[k]) * inv, (b - o[k]) * inv);
+        nan |= t0.is_nan() | t1.is_nan();
+        let near = if t0 < t1 { t0 } else { t1 };
+        let far = if t0 > t1 { t0 } else { t1 };
+        enter = if near > enter { near } else { enter };
+        exit = if far < exit { far } else { exit };
     }
-    enter > exit
+    !nan && enter > exit
 }
 
 /// Whether the ray's tile beam rules instance `i` out (see [`FrameInstances::starts`]).
