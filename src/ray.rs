@@ -79,6 +79,14 @@ pub fn parallel_axes(dir: DVec3) -> u32 {
     parallel_below(dir, dir.abs().max_element())
 }
 
+/// [`parallel_axes`] of a finite direction, its largest magnitude found by plain
+/// comparisons (the same classification without `f64::max`'s NaN handling).
+#[inline(always)]
+pub(crate) fn parallel_axes_finite(dir: DVec3) -> u32 {
+    let a = dir.abs();
+    parallel_below(dir, larger(larger(a.x, a.y), a.z))
+}
+
 /// [`parallel_axes`] given `m`, the largest of `dir`'s magnitudes.
 #[inline(always)]
 fn parallel_below(dir: DVec3, m: f64) -> u32 {

@@ -109,16 +109,13 @@ const OCCUPIED_PAD: f64 = 1e-4;
 /// (the traversal then holds that coordinate fixed), or a level with no box.
 pub(crate) fn line_misses_occupied(svo: &Svo, max_level: u32, o: DVec3, d: DVec3) -> bool {
     let level = max_level.min(svo.depth);
-    let Some(&[lo, hi]) = svo.occupied_cells().get(level as usize) else { return false };
-    if !(o.is_finite() && d.is_finite()) || crate::ray::parallel_axes(d) != 0 || (0..3).any(|k| lo[k] >= hi[k]) {
+    let Some(&[lo, hi]) = svo.occupied_unit().get(level as usize) else { return false };
+    if !(o.is_finite() && d.is_finite()) || crate::ray::parallel_axes_finite(d) != 0 || lo.cmpge(hi).any() {
         return false;
     }
-    // 2⁻ˡᵉᵛᵉˡ from its exponent bits (a division per instance and ray was a sizeable share of
-    // a frame that tests every ray against every instance).
-    let cell = f64::from_bits((1023 - u64::from(level)) << 52);
     let (mut enter, mut exit, mut nan) = (f64::NEG_INFINITY, f64::INFINITY, false);
     for k in 0..3 {
-        let (a, b) = (lo[k] as f64 * cell - OCCUPIED_PAD, hi[k] as f64 * cell + OCCUPIED_PAD);
+        let (a, b) = (lo[k] - OCCUPIED_PAD, hi[k] + OCCUPIED_PAD);
         // No component is zero here (none is parallel). A reciprocal and two products round
         // within a few units of 2⁻⁵² of the quotients, far inside the padding. Selects that
         // compile to minsd and maxsd instead of `f64::min`'s NaN handling; a NaN (the

@@ -319,7 +319,14 @@ pub struct Svo {
 /// (build an [`Svo`] with `Occupied::default()`). It is derived data: two octrees with the same
 /// masks are equal whether or not either has worked it out.
 #[derive(Clone, Debug, Default)]
-pub struct Occupied(std::sync::OnceLock<Vec<[[u32; 3]; 2]>>);
+pub struct Occupied(std::sync::OnceLock<OccupiedBoxes>);
+
+/// The boxes of [`Occupied`]: in cell coordinates, and the same in the unit cube.
+#[derive(Clone, Debug, Default)]
+struct OccupiedBoxes {
+    cells: Vec<[[u32; 3]; 2]>,
+    unit: Vec<[glam::DVec3; 2]>,
+}
 
 impl PartialEq for Occupied {
     fn eq(&self, _: &Self) -> bool {
@@ -372,6 +379,17 @@ impl Svo {
     /// holds geometry, so the box of a coarser level holds every finer one's; a hit traced
     /// down to level `l` lies in level `l`'s box. Worked out once, in one pass over the nodes.
     pub fn occupied_cells(&self) -> &[[[u32; 3]; 2]] {
+        &self.occupied_boxes().cells
+    }
+
+    /// [`Svo::occupied_cells`] in unit-cube coordinates (`[lo, hi]`, a level-`l` cell 2⁻ˡ wide,
+    /// exact): the traversal's early test of every ray against every instance reads these
+    /// instead of converting the cells each time.
+    pub fn occupied_unit(&self) -> &[[glam::DVec3; 2]] {
+        &self.occupied_boxes().unit
+    }
+
+    fn occupied_boxes(&self) -> &OccupiedBoxes {
         self.occupied.0.get_or_init(|| {
             let d = self.depth as usize;
             let mut boxes = vec![[[u32::MAX; 3], [0; 3]]; d + 1];
@@ -402,7 +420,16 @@ impl Svo {
                     *b = [[0; 3], [1u32 << l.min(31); 3]];
                 }
             }
-            boxes
+            let unit = boxes
+                .iter()
+                .enumerate()
+                .map(|(l, [lo, hi])| {
+                    let cell = 1.0 / (1u64 << l) as f64;
+                    let at = |c: [u32; 3]| glam::DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * cell;
+                    [at(*lo), at(*hi)]
+                })
+                .collect();
+            OccupiedBoxes { cells: boxes, unit }
         })
     }
 
