@@ -268,11 +268,9 @@ pub fn run_clip_timed(
                     shade_ms.push(sh);
                     let gi = session.backend().gi_pass_ms().unwrap_or(0.0);
                     // (A crowd posed on the GPU: its passes are the GPU's time, not the host's.)
-                    let crowd = session.backend().crowd_pass_ms().unwrap_or(0.0);
-                    host_ms.push(secs * 1e3 - tr - sh - gi - crowd);
-                    if let Some(ms) = session.backend().crowd_pass_ms() {
-                        crowd_ms.push(ms);
-                    }
+                    let crowd = session.backend().crowd_pass_ms();
+                    host_ms.push(secs * 1e3 - tr - sh - gi - crowd.unwrap_or(0.0));
+                    crowd_ms.extend(crowd);
                 }
                 if let Some(t) = session.backend().gpu_traffic() {
                     traffic.push(t);

@@ -378,8 +378,8 @@ impl PixelSpheres {
         // start[tile + 1] now holds where the tile's entries begin: one place back.
         start.copy_within(1.., 0);
         start[tiles] = found.len() as u32;
-        // A tile has fewer entries than pixels when every ray meets one sphere or none (a
-        // crowd's tiles): then no pixel has two.
+        // A tile with no more entries than listed pixels (a crowd's tiles, whose rays meet
+        // one sphere or none) has no pixel with two: nothing to sort.
         for tile in 0..tiles {
             let (a, b) = (start[tile] as usize, start[tile + 1] as usize);
             if b - a <= self.tile_mask[tile].count_ones() as usize {
