@@ -776,15 +776,15 @@ fn render_lit_here(
         }
         false => Vec::new(),
     };
-    // Per tile whose records were kept: no shadow ray from it can meet a moved sphere, so its
-    // kept records need no test of their own.
-    let shadows_valid: Vec<bool> = match (shade_from, lights.sun) {
-        (Some((reuse, _)), Some(sun)) if plan.shadows => par_map(tile_count, |t| {
-            same_records(t) && {
-                let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
-                let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
-                reuse.tile_shadows_valid(&old_tiles[t], &rays, sun.to_sun.as_dvec3())
-            }
+    // Per tile, the moved spheres that a kept record's shadow ray may meet (none: the tile's
+    // kept records need no test of their own; see Reuse::tile_shadow_suspects). Its records'
+    // summary is last frame's, which bounds the records it keeps whether or not others were
+    // traced afresh.
+    let shadow_suspects: Vec<Option<u64>> = match (shade_from, lights.sun) {
+        (Some((reuse, _)), Some(sun)) if plan.shadows && !old_tiles.is_empty() => par_map(tile_count, |t| {
+            let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
+            let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
+            reuse.tile_shadow_suspects(&old_tiles[t], &rays, sun.to_sun.as_dvec3())
         }),
         _ => Vec::new(),
     };
@@ -796,13 +796,16 @@ fn render_lit_here(
     // Shading, with each pixel's surface data (the AOVs) written in the same pass over the
     // records: one read of them instead of two.
     for_frame_rows(&mut f, |y, mut row| {
-        let mut kept = 0;
+        // (Counted per row and added once: one shared counter per shadow ray, bumped from
+        // every thread, cost 6 % of a mostly kept frame in cache-line traffic.)
+        let (mut kept, mut row_shadow_rays) = (0, 0);
         // This row's bits in a tile's pixel masks.
         let (ty, row_shift) = (y / TILE as usize, (y % TILE as usize) * TILE as usize);
         for tx in 0..tiles_x {
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
-            let shadows_checked = shadows_valid.get(t) == Some(&true);
+            let suspects = shadow_suspects.get(t).copied().flatten();
+            let shadows_checked = suspects == Some(0);
             let span = tx * TILE as usize..((tx + 1) * TILE as usize).min(w);
             if patch
                 && !fresh
@@ -847,7 +850,12 @@ fn render_lit_here(
                     if kept_hit(x, y)
                         && (!plan.shadows
                             || shadows_checked
-                            || reuse.shadow_valid(&records[k], lights, camera, &basis, x as u32, y as u32))
+                            || match suspects {
+                                Some(m) => {
+                                    reuse.shadow_valid_among(&records[k], lights, camera, &basis, x as u32, y as u32, m)
+                                }
+                                None => reuse.shadow_valid(&records[k], lights, camera, &basis, x as u32, y as u32),
+                            })
                     {
                         kept += 1;
                         if fresh {
@@ -887,7 +895,7 @@ fn render_lit_here(
                             if !plan.shadows {
                                 return true;
                             }
-                            shadow_rays.fetch_add(1, Ordering::Relaxed);
+                            row_shadow_rays += 1;
                             if t_max == f64::INFINITY && lights.sun.is_some_and(|s| s.to_sun.as_dvec3() == dir) {
                                 match sun_rays.get(k) {
                                     Some(&SunRay::Free) => return true,
@@ -910,6 +918,7 @@ fn render_lit_here(
             }
         }
         shade_reused.fetch_add(kept, Ordering::Relaxed);
+        shadow_rays.fetch_add(row_shadow_rays, Ordering::Relaxed);
         tick();
     });
     let colours_from_buffer = shade_from.is_some();

@@ -602,42 +602,67 @@ impl Reuse {
     /// that ball cannot meet any moved sphere. Conservative: margins far above the rounding
     /// of [`sphere_interval`] keep a sphere that any of those rays could meet.
     pub fn tile_shadows_valid(&self, tile: &TileSummary, rays: &super::beam::TileRays, to_sun: DVec3) -> bool {
-        if !(tile.t_lo <= tile.t_hi) {
-            return true; // misses only: no shadow rays
+        match ShadowBall::of(tile, rays) {
+            ShadowBall::NoRays => true,
+            ShadowBall::Unknown => false,
+            ShadowBall::Around(ball) => !self.any_moved(
+                |lo, hi| !ball.clears_box(lo, hi, to_sun),
+                |k| {
+                    let (c, r, _) = self.moved_spheres[k];
+                    !ball.clears(c, r, to_sun)
+                },
+            ),
         }
-        let (lo, hi) = (tile.t_lo as f64, tile.t_hi as f64);
-        let axis = rays.corners.iter().copied().sum::<DVec3>().normalize_or_zero();
-        if axis == DVec3::ZERO {
-            return false;
+    }
+
+    /// The moved spheres that a kept record's shadow ray from a tile may still meet, as a
+    /// mask over [`Reuse::moved_spheres`] (bit k: sphere k): those that the ball of
+    /// [`Reuse::tile_shadows_valid`] does not clear. Zero when that test passes the tile;
+    /// with more than 64 moved spheres, zero when it does and None otherwise. A pixel of
+    /// the tile asks [`Reuse::shadow_valid_among`] about these spheres alone, and gets
+    /// [`Reuse::shadow_valid`]'s answer: a sphere the ball clears meets none of its rays.
+    pub fn tile_shadow_suspects(&self, tile: &TileSummary, rays: &super::beam::TileRays, to_sun: DVec3) -> Option<u64> {
+        let n = self.moved_spheres.len();
+        if n > 64 {
+            return self.tile_shadows_valid(tile, rays, to_sun).then_some(0);
         }
-        // A pixel's hit is d·t with d inside the corners' spherical quadrilateral (no farther
-        // from the axis than its farthest corner) and t in [lo, hi]; its shadow ray starts at
-        // most 1.1 voxels from there (cpu::leave: a unit normal and a tenth of a unit face
-        // normal).
-        let spread = rays.corners.iter().map(|d| (*d - axis).length()).fold(0.0, f64::max);
-        let mid = axis * (0.5 * (lo + hi));
-        let ball = (hi * spread + 0.5 * (hi - lo) + 1.1 * tile.voxel as f64) * (1.0 + 1e-6) + 1e-9 * hi;
-        // Every shadow ray from the ball passes wide of the sphere, or the sphere lies wholly
-        // behind where each of them starts.
-        let clear = |c: DVec3, r: f64, margin: f64| {
-            let oc = c - mid;
-            let along = oc.dot(to_sun);
-            let across = (oc - to_sun * along).length();
-            across > r + ball + margin || along + r + ball + margin < 0.0
+        let every = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+        let ball = match ShadowBall::of(tile, rays) {
+            ShadowBall::NoRays => return Some(0),
+            ShadowBall::Unknown => return Some(every),
+            ShadowBall::Around(ball) => ball,
         };
-        let margin = |c: DVec3, r: f64| (r + ball) * 1e-6 + 1e-7 * ((c - mid).length() + ball);
-        !self.any_moved(
-            // A sphere inside the box's ball (centre b, radius rb) lies within rb − r of b, so
-            // it is clear if that ball is, with the margin of the largest sphere it can hold.
-            |lo, hi| {
-                let (b, rb) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
-                !clear(b, rb, margin(b, rb) + 1e-7 * rb)
-            },
-            |k| {
-                let (c, r, _) = self.moved_spheres[k];
-                !clear(c, r, margin(c, r))
-            },
-        )
+        let suspect = |k: usize| {
+            let (c, r, _) = self.moved_spheres[k];
+            !ball.clears(c, r, to_sun)
+        };
+        let mut mask = 0u64;
+        let walked = self.moved_bvh.as_ref().and_then(|bvh| {
+            let found = std::cell::Cell::new(0u64);
+            // (Never true: the walk goes on to every sphere its boxes let through.)
+            let all = bvh.any_item(
+                usize::MAX,
+                |lo, hi| !ball.clears_box(lo, hi, to_sun),
+                |k| {
+                    if suspect(k as usize) {
+                        found.set(found.get() | 1 << k);
+                    }
+                    false
+                },
+            );
+            all.map(|_| found.get())
+        });
+        match walked {
+            Some(m) => mask = m,
+            None => {
+                for k in 0..n {
+                    if suspect(k) {
+                        mask |= 1 << k;
+                    }
+                }
+            }
+        }
+        Some(mask)
     }
 
     /// What pixel (x, y) with stored record `r` needs this frame. `spheres` lists the moved
@@ -679,13 +704,10 @@ impl Reuse {
         x: u32,
         y: u32,
     ) -> bool {
-        let Some(sun) = lights.sun.filter(|s| r.instance >= 0 && r.normal.dot(s.to_sun) > 0.0) else {
+        let Some((from, to_sun)) = shadow_ray(r, lights, camera, basis, x, y) else {
             // No shadow ray: the colour depends on the record and the lights alone.
             return true;
         };
-        let d = camera.ray_dir(basis, x, y);
-        let from = super::cpu::leave(r, d * r.t as f64);
-        let to_sun = sun.to_sun.as_dvec3();
         // The slab test rounds by a few units in 2⁻⁵² of the distances it spans: boxes grow by
         // far more, relative to this ray's origin too.
         let (inv, slack) = (to_sun.recip(), DVec3::splat(1e-9 * from.length()));
@@ -696,6 +718,113 @@ impl Reuse {
                 sphere_interval(c, rad, from, to_sun).is_some()
             },
         )
+    }
+
+    /// [`Reuse::shadow_valid`] for a record of a tile whose
+    /// [`Reuse::tile_shadow_suspects`] are `suspects`: the shadow ray is tested against
+    /// those spheres alone.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn shadow_valid_among(
+        &self,
+        r: &HitRecord,
+        lights: &Lights,
+        camera: &Camera,
+        basis: &crate::scene::camera::Basis,
+        x: u32,
+        y: u32,
+        suspects: u64,
+    ) -> bool {
+        if suspects == 0 {
+            return true;
+        }
+        let Some((from, to_sun)) = shadow_ray(r, lights, camera, basis, x, y) else {
+            return true;
+        };
+        !super::tile_search::each(suspects).any(|k| {
+            let (c, rad, _) = self.moved_spheres[k];
+            sphere_interval(c, rad, from, to_sun).is_some()
+        })
+    }
+}
+
+/// Where record `r`'s shadow ray towards the sun starts (as [`super::cpu`] starts it) and
+/// its direction, or None when it casts none (a miss, no sun, or a surface facing away).
+#[inline]
+fn shadow_ray(
+    r: &HitRecord,
+    lights: &Lights,
+    camera: &Camera,
+    basis: &crate::scene::camera::Basis,
+    x: u32,
+    y: u32,
+) -> Option<(DVec3, DVec3)> {
+    let sun = lights.sun.filter(|s| r.instance >= 0 && r.normal.dot(s.to_sun) > 0.0)?;
+    let d = camera.ray_dir(basis, x, y);
+    Some((super::cpu::leave(r, d * r.t as f64), sun.to_sun.as_dvec3()))
+}
+
+/// Where the shadow rays of a tile's kept records start, for the tile tests of [`Reuse`].
+enum ShadowBall {
+    /// The tile holds misses only: no shadow rays.
+    NoRays,
+    /// The tile's rays have no axis: nothing is known.
+    Unknown,
+    /// Every start lies in this ball.
+    Around(Ball),
+}
+
+/// A ball holding the starts of a tile's shadow rays.
+struct Ball {
+    mid: DVec3,
+    radius: f64,
+}
+
+impl ShadowBall {
+    /// The ball of a tile's hits (`tile`, on the rays `rays` of its pixels).
+    fn of(tile: &TileSummary, rays: &super::beam::TileRays) -> ShadowBall {
+        if !(tile.t_lo <= tile.t_hi) {
+            return ShadowBall::NoRays;
+        }
+        let (lo, hi) = (tile.t_lo as f64, tile.t_hi as f64);
+        let axis = rays.corners.iter().copied().sum::<DVec3>().normalize_or_zero();
+        if axis == DVec3::ZERO {
+            return ShadowBall::Unknown;
+        }
+        // A pixel's hit is d·t with d inside the corners' spherical quadrilateral (no farther
+        // from the axis than its farthest corner) and t in [lo, hi]; its shadow ray starts at
+        // most 1.1 voxels from there (cpu::leave: a unit normal and a tenth of a unit face
+        // normal).
+        let spread = rays.corners.iter().map(|d| (*d - axis).length()).fold(0.0, f64::max);
+        let mid = axis * (0.5 * (lo + hi));
+        let radius = (hi * spread + 0.5 * (hi - lo) + 1.1 * tile.voxel as f64) * (1.0 + 1e-6) + 1e-9 * hi;
+        ShadowBall::Around(Ball { mid, radius })
+    }
+}
+
+impl Ball {
+    /// Whether every shadow ray towards `to_sun` from the ball passes wide of the sphere
+    /// (`c`, `r`), or the sphere lies wholly behind where each of them starts, with margins
+    /// far above the rounding of [`sphere_interval`].
+    fn clears(&self, c: DVec3, r: f64, to_sun: DVec3) -> bool {
+        let margin = (r + self.radius) * 1e-6 + 1e-7 * ((c - self.mid).length() + self.radius);
+        self.clears_by(c, r, to_sun, margin)
+    }
+
+    /// Whether [`Ball::clears`] holds for every sphere inside the box `lo..hi`.
+    fn clears_box(&self, lo: DVec3, hi: DVec3, to_sun: DVec3) -> bool {
+        // A sphere inside the box's ball (centre b, radius rb) lies within rb − r of b, so
+        // it is clear if that ball is, with the margin of the largest sphere it can hold.
+        let (b, rb) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
+        let margin = (rb + self.radius) * 1e-6 + 1e-7 * ((b - self.mid).length() + self.radius);
+        self.clears_by(b, rb, to_sun, margin + 1e-7 * rb)
+    }
+
+    fn clears_by(&self, c: DVec3, r: f64, to_sun: DVec3, margin: f64) -> bool {
+        let oc = c - self.mid;
+        let along = oc.dot(to_sun);
+        let across = (oc - to_sun * along).length();
+        across > r + self.radius + margin || along + r + self.radius + margin < 0.0
     }
 }
 
@@ -755,7 +884,13 @@ mod tests {
             let reuse = Reuse::new(vec![false], vec![(centre, radius, [0, 0, 0, 0])], vec![1]);
             let rays = super::super::beam::TileRays::new(&camera, &basis, x0, y0, x0 + TILE, y0 + TILE);
             let each_valid = records.iter().all(|(x, y, r)| reuse.shadow_valid(r, &lights, &camera, &basis, *x, *y));
+            let suspects = reuse.tile_shadow_suspects(&tile, &rays, to_sun.as_dvec3());
+            let each_among = records
+                .iter()
+                .all(|(x, y, r)| reuse.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, suspects.unwrap_or(1)));
+            assert_eq!(each_among, each_valid, "a record tested against its tile's suspects alone");
             if reuse.tile_shadows_valid(&tile, &rays, to_sun.as_dvec3()) {
+                assert_eq!(suspects, Some(0));
                 whole += 1;
                 assert!(each_valid, "a tile passed whole has a record whose shadow ray meets a moved sphere");
             } else if !each_valid {
@@ -813,7 +948,7 @@ mod tests {
             height: 64,
         };
         let basis = camera.basis();
-        let (mut valid, mut invalid, mut tiles_whole, mut tiles_not) = (0, 0, 0, 0);
+        let (mut valid, mut invalid, mut tiles_whole, mut tiles_not, mut partial) = (0, 0, 0, 0, 0);
         for round in 0..400 {
             let to_sun = rng.unit_vector();
             let lights = Lights { sun: Some(Sun { to_sun, irradiance: Vec3::ONE }), ..Lights::default() };
@@ -872,6 +1007,24 @@ mod tests {
             let rays = super::super::beam::TileRays::new(&camera, &basis, x0, y0, x0 + TILE, y0 + TILE);
             let whole = with.tile_shadows_valid(&tile, &rays, to_sun.as_dvec3());
             assert_eq!(whole, without.tile_shadows_valid(&tile, &rays, to_sun.as_dvec3()));
+            // The tile's suspects, walked through the BVH or sphere by sphere, are the same,
+            // and each record tested against them alone answers as against every sphere.
+            let suspects = with.tile_shadow_suspects(&tile, &rays, to_sun.as_dvec3());
+            assert_eq!(suspects, without.tile_shadow_suspects(&tile, &rays, to_sun.as_dvec3()));
+            assert_eq!(suspects == Some(0), whole);
+            match suspects {
+                Some(m) => {
+                    partial += (m != 0 && (m.count_ones() as usize) < count) as usize;
+                    for (x, y, r) in &records {
+                        assert_eq!(
+                            with.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, m),
+                            with.shadow_valid(r, &lights, &camera, &basis, *x, *y),
+                            "pixel {x},{y}"
+                        );
+                    }
+                }
+                None => assert!(count > 64 && !whole),
+            }
             if whole {
                 tiles_whole += 1;
             } else {
@@ -880,5 +1033,6 @@ mod tests {
         }
         assert!(valid > 400 && invalid > 400, "{valid} valid, {invalid} invalid pixels");
         assert!(tiles_whole > 20 && tiles_not > 20, "{tiles_whole} tiles whole, {tiles_not} not");
+        assert!(partial > 20, "{partial} tiles suspect some moved spheres but not all");
     }
 }
