@@ -182,7 +182,9 @@ enum SunRay {
 
 /// The sun's shadow rays (towards `to_sun`, unbounded, down to the frame's `max_level`) of
 /// the pixels `needs(x, y)` says, starting at `origin(x, y)`, traced tile by tile as packets
-/// ([`super::tile_search::occluded_tile`]): per pixel of a `width` × `height` frame.
+/// ([`super::tile_search::occluded_tile`]): per pixel of a `width` × `height` frame. Only a
+/// tile's `candidates(tile)` (its lanes; tiles row-major) are asked: a mostly kept frame
+/// then looks at its few traced pixels instead of all of them.
 #[allow(clippy::too_many_arguments)]
 fn sun_shadows(
     fi: &FrameInstances,
@@ -191,23 +193,23 @@ fn sun_shadows(
     to_sun: DVec3,
     search: super::visibility::Search,
     max_level: u32,
+    candidates: impl Fn(usize) -> u64 + Sync + Send,
     needs: impl Fn(usize, usize) -> bool + Sync + Send,
     origin: impl Fn(usize, usize) -> DVec3 + Sync + Send,
 ) -> Vec<SunRay> {
     let t = TILE as usize;
+    let tiles_x = width.div_ceil(t);
     let mut out = vec![SunRay::Untraced; width * height];
     let band_with = |y0: usize, rows: &mut [SunRay], scratch: &mut super::tile_search::TileScratch| {
         let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
         let tile_h = rows.len() / width;
         for x0 in (0..width).step_by(t) {
             let mut lanes = 0u64;
-            for ty in 0..tile_h {
-                for x in x0..(x0 + t).min(width) {
-                    if needs(x, y0 + ty) {
-                        let k = ty * t + x - x0;
-                        origins[k] = origin(x, y0 + ty);
-                        lanes |= 1 << k;
-                    }
+            for k in super::tile_search::each(candidates((y0 / t) * tiles_x + x0 / t)) {
+                let (x, y) = (x0 + k % t, y0 + k / t);
+                if x < width && k / t < tile_h && needs(x, y) {
+                    origins[k] = origin(x, y);
+                    lanes |= 1 << k;
                 }
             }
             if lanes == 0 {
@@ -749,7 +751,10 @@ fn render_lit_here(
                 let r = &records[y * w + x];
                 leave(r, camera.ray_dir(&basis, x as u32, y as u32) * r.t as f64)
             };
-            sun_shadows(&fi, w, camera.height as usize, sun.to_sun.as_dvec3(), search, opts.max_level, needs, origin)
+            // Only a pixel traced this frame can be without its kept colour.
+            let candidates = |t: usize| if shade_from.is_some() { traced.stored[t] } else { u64::MAX };
+            let (to_sun, height) = (sun.to_sun.as_dvec3(), camera.height as usize);
+            sun_shadows(&fi, w, height, to_sun, search, opts.max_level, candidates, needs, origin)
         }
         _ => Vec::new(),
     };
