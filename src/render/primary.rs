@@ -69,6 +69,13 @@ pub enum Todo {
     Keep,
     /// A search among every instance.
     All,
+    /// A search among every instance, for a pixel whose stored hit is on `instance`, which
+    /// moved: its new hit is usually near the old one, so it is searched first (the answer
+    /// is [`Todo::All`]'s).
+    Again {
+        /// The instance of the stored hit.
+        instance: u32,
+    },
     /// A search among the moved instances ([`Primary::moved`]) only, against the nearest hit
     /// `(t, instance)` among all the others (+∞ and −1 for none): the stored hit, when it is
     /// on an instance that did not move.
@@ -126,12 +133,25 @@ pub fn trace_tiles<T: Send, S>(
             let mut todo = 0u64;
             let mut partial = 0u64;
             let mut bounds = [(0.0f32, 0i32); (TILE * TILE) as usize];
+            // The instance most of the tile's Again pixels hit last frame (a vote: one counter
+            // that a different instance decrements).
+            let (mut first, mut votes) = (None, 0u32);
             for ty in 0..tile_h {
                 for x in x0..x1 {
                     let k = ty * TILE as usize + x - x0;
                     match pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
                         Todo::Keep => {}
                         Todo::All => todo |= 1 << k,
+                        Todo::Again { instance } => {
+                            todo |= 1 << k;
+                            if first == Some(instance as usize) {
+                                votes += 1;
+                            } else if votes == 0 {
+                                (first, votes) = (Some(instance as usize), 1);
+                            } else {
+                                votes -= 1;
+                            }
+                        }
                         Todo::Moved { t, instance } => {
                             partial |= 1 << k;
                             bounds[k] = (t, instance);
@@ -215,7 +235,18 @@ pub fn trace_tiles<T: Send, S>(
                     dirs[k] = dir(k);
                 }
                 if todo != 0 {
-                    nearest_tile(&fi, DVec3::ZERO, &dirs, todo, p.search, &p.opts, &mut work, scratch, &mut hits);
+                    nearest_tile(
+                        &fi,
+                        DVec3::ZERO,
+                        &dirs,
+                        todo,
+                        p.search,
+                        &p.opts,
+                        &mut work,
+                        scratch,
+                        &mut hits,
+                        first,
+                    );
                     for k in each(todo) {
                         store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
                     }

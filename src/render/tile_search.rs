@@ -93,6 +93,8 @@ pub(crate) fn each(mut mask: u64) -> impl Iterator<Item = usize> {
 /// The nearest hit of each ray `o + t·dirs[k]` for the lanes `k` of `lanes` (up to
 /// [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for the
 /// ray. `fi.starts` holds the tile's beam starts (every ray of `dirs` inside the tile's beam).
+/// Instance `first`, when given, is searched before the others (the answer is the same in
+/// any order): the instance the rays hit last frame, whose hit then bounds the rest.
 #[allow(clippy::too_many_arguments)]
 pub fn nearest_tile(
     fi: &FrameInstances,
@@ -104,6 +106,7 @@ pub fn nearest_tile(
     work: &mut Work,
     scratch: &mut TileScratch,
     out: &mut [Option<InstanceHit>],
+    first: Option<usize>,
 ) {
     let n = fi.prepared.len();
     let starts = fi.starts.unwrap_or(&[]);
@@ -117,6 +120,9 @@ pub fn nearest_tile(
     order.clear();
     order.extend((0..n).map(|i| (start_of(i), i)).filter(|&(s, _)| s != f32::INFINITY));
     order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    if let Some(at) = first.and_then(|f| order.iter().position(|&(_, i)| i == f)) {
+        order[..=at].rotate_right(1);
+    }
     let beam_culled = (n - order.len()) as u64;
     let rays = lanes.count_ones() as u64;
     if search != Search::Plain {
@@ -319,7 +325,25 @@ mod tests {
             let lanes = if round % 3 == 0 { u64::MAX } else { Rng::new(round + 100).next_u64() };
             let mut out = [None; LANES];
             TileScratch::with(|s| {
-                nearest_tile(&fi, DVec3::ZERO, &dirs, lanes, Search::CullSort, &opts, &mut Work::default(), s, &mut out)
+                nearest_tile(
+                    &fi,
+                    DVec3::ZERO,
+                    &dirs,
+                    lanes,
+                    Search::CullSort,
+                    &opts,
+                    &mut Work::default(),
+                    s,
+                    &mut out,
+                    None,
+                )
+            });
+            // Any instance searched first, the same answers.
+            let mut first_out = [None; LANES];
+            let first = (round as usize * 5) % fi.prepared.len();
+            TileScratch::with(|s| {
+                let (w, o) = (&mut Work::default(), &mut first_out);
+                nearest_tile(&fi, DVec3::ZERO, &dirs, lanes, Search::CullSort, &opts, w, s, o, Some(first))
             });
             let origins: Vec<DVec3> = dirs.iter().map(|d| *d * 0.5).collect();
             let blocked = TileScratch::with(|s| {
@@ -328,6 +352,7 @@ mod tests {
             for l in each(lanes) {
                 let one = nearest_work(&fi, DVec3::ZERO, dirs[l], Search::Plain, &opts, &mut Work::default());
                 assert_eq!(out[l], one, "round {round}, lane {l}");
+                assert_eq!(first_out[l], one, "round {round}, lane {l}, instance {first} first");
                 hits += one.is_some() as usize;
                 let up = crate::render::visibility::occluded(
                     &fi,
