@@ -6,8 +6,9 @@
 //! every mode finds the plain search's answer (the nearest t, equal t to the lower instance),
 //! a trace bounded by the best t so far finds either the unbounded trace's hit or nothing,
 //! and the packet finds what the scalar traversal finds. The search differs only in order:
-//! the tile visits its instances by beam start, nearest first, and a ray skips an instance
-//! whose beam start or sphere entry lies beyond its best hit.
+//! the tile visits its instances by beam start, nearest first (or, before them, the one its
+//! rays hit last frame), and a ray skips an instance whose beam start or sphere entry lies
+//! beyond its best hit.
 
 use super::instances::{sphere_interval, Prepared};
 use super::visibility::{keep, widen, FrameInstances, InstanceHit, Search, Work};
