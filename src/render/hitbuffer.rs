@@ -636,7 +636,6 @@ impl Reuse {
             let (c, r, _) = self.moved_spheres[k];
             !ball.clears(c, r, to_sun)
         };
-        let mut mask = 0u64;
         let walked = self.moved_bvh.as_ref().and_then(|bvh| {
             let found = std::cell::Cell::new(0u64);
             // (Never true: the walk goes on to every sphere its boxes let through.)
@@ -652,17 +651,8 @@ impl Reuse {
             );
             all.map(|_| found.get())
         });
-        match walked {
-            Some(m) => mask = m,
-            None => {
-                for k in 0..n {
-                    if suspect(k) {
-                        mask |= 1 << k;
-                    }
-                }
-            }
-        }
-        Some(mask)
+        // Without the tree, or past its walk's limits, sphere by sphere.
+        Some(walked.unwrap_or_else(|| (0..n).filter(|&k| suspect(k)).fold(0, |m, k| m | 1 << k)))
     }
 
     /// What pixel (x, y) with stored record `r` needs this frame. `spheres` lists the moved
@@ -820,6 +810,7 @@ impl Ball {
         self.clears_by(b, rb, to_sun, margin + 1e-7 * rb)
     }
 
+    /// The test of [`Ball::clears`] with the margin given.
     fn clears_by(&self, c: DVec3, r: f64, to_sun: DVec3, margin: f64) -> bool {
         let oc = c - self.mid;
         let along = oc.dot(to_sun);

@@ -30,8 +30,8 @@ pub struct Primary<'a> {
     /// crowds, where `beams` is off): their rays miss without a search.
     pub bvh_beams: bool,
     /// Per pixel, the instances whose sphere its ray meets ([`PixelSpheres`]): when given
-    /// (and `beams` is off), [`Todo::All`] pixels search their list instead of the BVH, and
-    /// [`Todo::Moved`] pixels the moved instances of their list.
+    /// (and `beams` is off), [`Todo::All`] and [`Todo::Again`] pixels search their list
+    /// instead of the BVH, and [`Todo::Moved`] pixels the moved instances of their list.
     pub lists: Option<&'a PixelSpheres>,
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
@@ -49,7 +49,7 @@ pub struct Primary<'a> {
 pub struct Traced {
     /// What the searches cost.
     pub work: Work,
-    /// Rays traced ([`Todo::All`] and [`Todo::Moved`] pixels).
+    /// Rays traced ([`Todo::All`], [`Todo::Again`] and [`Todo::Moved`] pixels).
     pub rays: u64,
     /// Of those, the rays searched among the moved instances only.
     pub moved_only: u64,
