@@ -787,6 +787,10 @@ fn render_lit_here(
     // traced afresh.
     let shadow_suspects: Vec<Option<u64>> = match (shade_from, lights.sun) {
         (Some((reuse, _)), Some(sun)) if plan.shadows && !old_tiles.is_empty() => par_map(tile_count, |t| {
+            if !old_tiles[t].has_hits() {
+                // Sky: no shadow rays, and no need to form the tile's rays to say so.
+                return Some(0);
+            }
             let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
             let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
             reuse.tile_shadow_suspects(&old_tiles[t], &rays, sun.to_sun.as_dvec3())

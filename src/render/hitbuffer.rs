@@ -154,6 +154,12 @@ impl TileSummary {
     /// A tile of misses.
     pub const NONE: TileSummary = TileSummary { instances: 0, t_lo: f32::INFINITY, t_hi: 0.0, voxel: 0.0 };
 
+    /// Whether the tile holds a hit (else its records are misses, which cast no shadow rays).
+    #[inline]
+    pub fn has_hits(&self) -> bool {
+        self.t_lo <= self.t_hi
+    }
+
     /// The summary with one more record.
     #[inline]
     pub fn with(self, r: &HitRecord) -> TileSummary {
@@ -773,7 +779,7 @@ struct Ball {
 impl ShadowBall {
     /// The ball of a tile's hits (`tile`, on the rays `rays` of its pixels).
     fn of(tile: &TileSummary, rays: &super::beam::TileRays) -> ShadowBall {
-        if !(tile.t_lo <= tile.t_hi) {
+        if !tile.has_hits() {
             return ShadowBall::NoRays;
         }
         let (lo, hi) = (tile.t_lo as f64, tile.t_hi as f64);
