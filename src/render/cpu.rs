@@ -859,12 +859,15 @@ fn render_lit_here(
                     if kept_hit(x, y)
                         && (!plan.shadows
                             || shadows_checked
-                            || match suspects {
-                                Some(m) => {
-                                    reuse.shadow_valid_among(&records[k], lights, camera, &basis, x as u32, y as u32, m)
-                                }
-                                None => reuse.shadow_valid(&records[k], lights, camera, &basis, x as u32, y as u32),
-                            })
+                            || reuse.shadow_valid_among(
+                                &records[k],
+                                lights,
+                                camera,
+                                &basis,
+                                x as u32,
+                                y as u32,
+                                suspects,
+                            ))
                     {
                         kept += 1;
                         if fresh {

@@ -700,25 +700,12 @@ impl Reuse {
         x: u32,
         y: u32,
     ) -> bool {
-        let Some((from, to_sun)) = shadow_ray(r, lights, camera, basis, x, y) else {
-            // No shadow ray: the colour depends on the record and the lights alone.
-            return true;
-        };
-        // The slab test rounds by a few units in 2⁻⁵² of the distances it spans: boxes grow by
-        // far more, relative to this ray's origin too.
-        let (inv, slack) = (to_sun.recip(), DVec3::splat(1e-9 * from.length()));
-        !self.any_moved(
-            |lo, hi| super::bvh::box_entry(lo - slack, hi + slack, from, inv, f64::INFINITY).is_some(),
-            |k| {
-                let (c, rad, _) = self.moved_spheres[k];
-                sphere_interval(c, rad, from, to_sun).is_some()
-            },
-        )
+        self.shadow_valid_among(r, lights, camera, basis, x, y, None)
     }
 
     /// [`Reuse::shadow_valid`] for a record of a tile whose
     /// [`Reuse::tile_shadow_suspects`] are `suspects`: the shadow ray is tested against
-    /// those spheres alone.
+    /// those spheres alone (None: against every moved sphere).
     #[inline]
     #[allow(clippy::too_many_arguments)]
     pub fn shadow_valid_among(
@@ -729,35 +716,35 @@ impl Reuse {
         basis: &crate::scene::camera::Basis,
         x: u32,
         y: u32,
-        suspects: u64,
+        suspects: Option<u64>,
     ) -> bool {
-        if suspects == 0 {
+        if suspects == Some(0) {
             return true;
         }
-        let Some((from, to_sun)) = shadow_ray(r, lights, camera, basis, x, y) else {
+        let sun = lights.sun.filter(|s| r.instance >= 0 && r.normal.dot(s.to_sun) > 0.0);
+        let Some(to_sun) = sun.map(|s| s.to_sun.as_dvec3()) else {
+            // No shadow ray: the colour depends on the record and the lights alone.
             return true;
         };
-        !super::tile_search::each(suspects).any(|k| {
+        // Where super::cpu starts the shadow ray.
+        let from = super::cpu::leave(r, camera.ray_dir(basis, x, y) * r.t as f64);
+        let meets = |k: usize| {
             let (c, rad, _) = self.moved_spheres[k];
             sphere_interval(c, rad, from, to_sun).is_some()
-        })
+        };
+        match suspects {
+            Some(m) => !super::tile_search::each(m).any(meets),
+            None => {
+                // The slab test rounds by a few units in 2⁻⁵² of the distances it spans: boxes
+                // grow by far more, relative to this ray's origin too.
+                let (inv, slack) = (to_sun.recip(), DVec3::splat(1e-9 * from.length()));
+                !self.any_moved(
+                    |lo, hi| super::bvh::box_entry(lo - slack, hi + slack, from, inv, f64::INFINITY).is_some(),
+                    meets,
+                )
+            }
+        }
     }
-}
-
-/// Where record `r`'s shadow ray towards the sun starts (as [`super::cpu`] starts it) and
-/// its direction, or None when it casts none (a miss, no sun, or a surface facing away).
-#[inline]
-fn shadow_ray(
-    r: &HitRecord,
-    lights: &Lights,
-    camera: &Camera,
-    basis: &crate::scene::camera::Basis,
-    x: u32,
-    y: u32,
-) -> Option<(DVec3, DVec3)> {
-    let sun = lights.sun.filter(|s| r.instance >= 0 && r.normal.dot(s.to_sun) > 0.0)?;
-    let d = camera.ray_dir(basis, x, y);
-    Some((super::cpu::leave(r, d * r.t as f64), sun.to_sun.as_dvec3()))
 }
 
 /// Where the shadow rays of a tile's kept records start, for the tile tests of [`Reuse`].
@@ -882,9 +869,8 @@ mod tests {
             let rays = super::super::beam::TileRays::new(&camera, &basis, x0, y0, x0 + TILE, y0 + TILE);
             let each_valid = records.iter().all(|(x, y, r)| reuse.shadow_valid(r, &lights, &camera, &basis, *x, *y));
             let suspects = reuse.tile_shadow_suspects(&tile, &rays, to_sun.as_dvec3());
-            let each_among = records
-                .iter()
-                .all(|(x, y, r)| reuse.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, suspects.unwrap_or(1)));
+            let each_among =
+                records.iter().all(|(x, y, r)| reuse.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, suspects));
             assert_eq!(each_among, each_valid, "a record tested against its tile's suspects alone");
             if reuse.tile_shadows_valid(&tile, &rays, to_sun.as_dvec3()) {
                 assert_eq!(suspects, Some(0));
@@ -1014,7 +1000,7 @@ mod tests {
                     partial += (m != 0 && (m.count_ones() as usize) < count) as usize;
                     for (x, y, r) in &records {
                         assert_eq!(
-                            with.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, m),
+                            with.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, Some(m)),
                             with.shadow_valid(r, &lights, &camera, &basis, *x, *y),
                             "pixel {x},{y}"
                         );
