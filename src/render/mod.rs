@@ -15,6 +15,7 @@ pub mod pixel_spheres;
 pub mod plan;
 pub mod primary;
 pub mod radiance_cache;
+mod ray_setup;
 pub mod splat;
 pub mod tile_search;
 pub mod visibility;

@@ -69,6 +69,22 @@ impl TileScratch {
         self.opts[k] = opts;
     }
 
+    /// The rays of the lanes `lanes`, `unit_o + t·d` with `d` the direction `dirs[k]` mapped
+    /// into instance `p`'s unit cube: [`Self::set_mapped`]'s rays, set up four at a time
+    /// ([`super::ray_setup`]). Their options are set apart.
+    fn map_lanes(&mut self, p: &Prepared, unit_o: DVec3, dirs: &[DVec3], lanes: u64) {
+        let mut l = lanes;
+        while l != 0 {
+            let (mut ks, mut n) = ([lanes.trailing_zeros() as usize; 4], 0);
+            while l != 0 && n < 4 {
+                ks[n] = l.trailing_zeros() as usize;
+                l &= l - 1;
+                n += 1;
+            }
+            super::ray_setup::map_four(&p.to_unit, unit_o, dirs, n, &ks, &mut self.rays);
+        }
+    }
+
     /// Traces the lanes `todo` (each set by [`Self::set`]) through `svo` as one packet and
     /// returns the hits, lowest lane first.
     fn trace(&mut self, svo: &Svo, todo: u64) -> impl Iterator<Item = (usize, Hit)> + '_ {
@@ -150,9 +166,10 @@ pub fn nearest_tile(
                 continue;
             }
             work.traced += 1;
-            scratch.set_mapped(k, p, unit_o, d, TraceOptions { t_min, t_max: widen(bound), ..*opts });
+            scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
             todo |= 1 << k;
         }
+        scratch.map_lanes(p, unit_o, dirs, todo);
         for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
             keep(&mut out[k], i, h);
         }
@@ -262,9 +279,10 @@ pub fn nearest_moved_tile(
             work.traced += 1;
             let start = fi.starts.map_or(opts.t_min, |s| s[i]);
             let t_min = if start > opts.t_min { start } else { opts.t_min };
-            scratch.set_mapped(k, p, unit_o, dirs[k], TraceOptions { t_min, t_max: widen(t_max), ..*opts });
+            scratch.opts[k] = TraceOptions { t_min, t_max: widen(t_max), ..*opts };
             todo |= 1 << k;
         }
+        scratch.map_lanes(p, unit_o, dirs, todo);
         for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
             let (best_t, best_i) = best[k];
             if h.t < best_t || (h.t == best_t && i < best_i) {

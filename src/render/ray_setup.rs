@@ -1,0 +1,252 @@
+//! A tile's rays set up four at a time: [`UnitRay::from_unit`] of the directions a tile's
+//! rays take into one instance's unit cube, in AVX2 vectors where the CPU has them.
+//!
+//! The rays are the scalar set-up's bit for bit: the map into the cube, the cube entry, the
+//! origin's move, the power-of-two rescale and the mirroring are the same IEEE operations
+//! in the same order (minima and maxima with the operand order of `from_unit`'s, no fused
+//! multiply-add, conversions rounding to nearest). A lane off that path (an axis parallel,
+//! non-finite input, a direction tiny or huge) is made by `from_unit` itself.
+
+use super::instances::ToUnit;
+use crate::ray::{UnitRay, MAX_UNIT_ORIGIN, PARALLEL_RATIO};
+use glam::DVec3;
+
+/// Sets `out[k]` to `from_unit(unit_o, to_unit.vector(dirs[k]))` for `k = ks[j]`, `j < n`
+/// (`n ≤ 4`; the lanes past `n` are set up, not written, so `ks` holds valid indices there
+/// too). `dirs` should have been written well before: gathered straight after narrower
+/// stores, its loads would wait on them.
+pub(crate) fn map_four(
+    to_unit: &ToUnit,
+    unit_o: DVec3,
+    dirs: &[DVec3],
+    n: usize,
+    ks: &[usize; 4],
+    out: &mut [Option<UnitRay>],
+) {
+    let n = n.min(4);
+    #[cfg(target_arch = "x86_64")]
+    if avx2() {
+        // SAFETY: the CPU has AVX and AVX2 (checked above).
+        let slow = unsafe { avx::map_four(to_unit, unit_o, dirs, n, ks, out) };
+        for j in (0..n).filter(|j| slow & (1 << j) != 0) {
+            out[ks[j]] = UnitRay::from_unit(unit_o, to_unit.vector(dirs[ks[j]]));
+        }
+        return;
+    }
+    for j in 0..n {
+        out[ks[j]] = UnitRay::from_unit(unit_o, to_unit.vector(dirs[ks[j]]));
+    }
+}
+
+/// Whether the CPU runs [`avx::map_four`] (asked once).
+#[cfg(target_arch = "x86_64")]
+fn avx2() -> bool {
+    static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *HAS.get_or_init(|| std::arch::is_x86_feature_detected!("avx") && std::arch::is_x86_feature_detected!("avx2"))
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use super::*;
+    use std::arch::x86_64::*;
+
+    /// [`super::map_four`] in AVX2 vectors, one lane per ray; returns the lanes (`j < n`)
+    /// left for the scalar set-up, writes the others.
+    ///
+    /// # Safety
+    /// The CPU has AVX and AVX2.
+    #[target_feature(enable = "avx,avx2")]
+    pub(super) unsafe fn map_four(
+        to_unit: &ToUnit,
+        unit_o: DVec3,
+        dirs: &[DVec3],
+        n: usize,
+        ks: &[usize; 4],
+        out: &mut [Option<UnitRay>],
+    ) -> u32 {
+        let lanes = (1u32 << n) - 1;
+        if !unit_o.is_finite() {
+            return lanes;
+        }
+        let w = ks.map(|k| dirs[k]);
+        let axis = |i: usize| _mm256_set_pd(w[3][i], w[2][i], w[1][i], w[0][i]);
+        let (wx, wy, wz) = (axis(0), axis(1), axis(2));
+        let splat = |x: f64| _mm256_set1_pd(x);
+        // `ToUnit::vector`, component by component as glam forms it.
+        let d: [__m256d; 3] = match to_unit {
+            ToUnit::Scale { inv_size, .. } => {
+                let s = splat(*inv_size);
+                [_mm256_mul_pd(wx, s), _mm256_mul_pd(wy, s), _mm256_mul_pd(wz, s)]
+            }
+            ToUnit::Affine(m) => {
+                let (x, y, z) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
+                [0, 1, 2].map(|c| {
+                    let xy = _mm256_add_pd(_mm256_mul_pd(splat(x[c]), wx), _mm256_mul_pd(splat(y[c]), wy));
+                    _mm256_add_pd(xy, _mm256_mul_pd(splat(z[c]), wz))
+                })
+            }
+        };
+        let sign = splat(-0.0);
+        let a = d.map(|v| _mm256_andnot_pd(sign, v));
+        // `from_unit`'s `larger(larger(a.x, a.y), a.z)`: `vmaxpd` keeps its first operand
+        // only where it is greater, as `larger` does.
+        let m = _mm256_max_pd(_mm256_max_pd(a[0], a[1]), a[2]);
+        // Finite: every magnitude below infinity (false for NaN).
+        let finite = a.iter().fold(_mm256_castsi256_pd(_mm256_set1_epi64x(-1)), |acc, &v| {
+            _mm256_and_pd(acc, _mm256_cmp_pd::<_CMP_LT_OQ>(v, splat(f64::INFINITY)))
+        });
+        let ratio = _mm256_mul_pd(splat(PARALLEL_RATIO as f64), m);
+        let parallel =
+            a.iter().fold(_mm256_setzero_pd(), |acc, &v| _mm256_or_pd(acc, _mm256_cmp_pd::<_CMP_LT_OQ>(v, ratio)));
+        // The rescale 2^-floor(log2 m) from m's biased exponent e: 2^(1023 − e) has biased
+        // exponent 2046 − e (e = 2046 would give a subnormal: the scalar set-up takes it).
+        let e = _mm256_and_si256(_mm256_srli_epi64::<52>(_mm256_castpd_si256(m)), _mm256_set1_epi64x(0x7FF));
+        let huge = _mm256_castsi256_pd(_mm256_cmpeq_epi64(e, _mm256_set1_epi64x(2046)));
+        let t_scale = _mm256_castsi256_pd(_mm256_slli_epi64::<52>(_mm256_sub_epi64(_mm256_set1_epi64x(2046), e)));
+        let usable = _mm256_andnot_pd(
+            _mm256_or_pd(parallel, huge),
+            _mm256_and_pd(finite, _mm256_cmp_pd::<_CMP_GE_OQ>(m, splat(1e-300))),
+        );
+        let slow = !(_mm256_movemask_pd(usable) as u32) & lanes;
+        // The cube entry: per axis the two plane crossings, folded as `from_unit` folds them
+        // (its starting −∞ and +∞ give way to the first axis's values).
+        let mut t_enter = _mm256_setzero_pd();
+        let mut t_exit = _mm256_setzero_pd();
+        for (i, &di) in d.iter().enumerate() {
+            let lo = _mm256_div_pd(splat(-unit_o[i]), di);
+            let hi = _mm256_div_pd(splat(1.0 - unit_o[i]), di);
+            let (near, far) = (_mm256_min_pd(lo, hi), _mm256_max_pd(lo, hi));
+            (t_enter, t_exit) =
+                if i == 0 { (near, far) } else { (_mm256_max_pd(t_enter, near), _mm256_min_pd(t_exit, far)) };
+        }
+        let entered = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(t_enter, t_exit)) as u32;
+        let zero = _mm256_setzero_pd();
+        let off = _mm256_or_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(t_enter, zero), _mm256_cmp_pd::<_CMP_LT_OQ>(t_exit, zero));
+        let t_offset = _mm256_and_pd(off, t_enter);
+        let moved = [0, 1, 2].map(|i| _mm256_add_pd(splat(unit_o[i]), _mm256_mul_pd(t_offset, d[i])));
+        let scaled = d.map(|v| _mm256_mul_pd(v, t_scale));
+        // f32 origins and directions; a negative direction mirrors its axis (its sign bit
+        // picks the mirrored values, and its magnitude is the mirrored direction).
+        let o32 = moved.map(|v| _mm256_cvtpd_ps(v));
+        let d32 = scaled.map(|v| _mm256_cvtpd_ps(v));
+        let sign32 = _mm_set1_ps(-0.0);
+        let near_cube = o32.iter().fold(0xF, |acc, &v| {
+            acc & _mm_movemask_ps(_mm_cmp_ps::<_CMP_LE_OQ>(_mm_andnot_ps(sign32, v), _mm_set1_ps(MAX_UNIT_ORIGIN)))
+                as u32
+        });
+        let mirror = d32.map(|v| _mm_movemask_ps(v) as u32);
+        let origin32 = [0, 1, 2].map(|i| _mm_blendv_ps(o32[i], _mm_sub_ps(_mm_set1_ps(1.0), o32[i]), d32[i]));
+        let inv32 = d32.map(|v| _mm_div_ps(_mm_set1_ps(1.0), _mm_andnot_ps(sign32, v)));
+        let origin64 = [0, 1, 2].map(|i| _mm256_blendv_pd(moved[i], _mm256_sub_pd(splat(1.0), moved[i]), scaled[i]));
+        let dir64 = scaled.map(|v| _mm256_andnot_pd(sign, v));
+        let f32s = |v: __m128| std::mem::transmute::<__m128, [f32; 4]>(v);
+        let f64s = |v: __m256d| std::mem::transmute::<__m256d, [f64; 4]>(v);
+        let (origin32, inv32) = (origin32.map(f32s), inv32.map(f32s));
+        let (origin64, dir64) = (origin64.map(f64s), dir64.map(f64s));
+        let (t_scale, t_offset) = (f64s(t_scale), f64s(t_offset));
+        for j in 0..n {
+            if slow & (1 << j) != 0 {
+                continue;
+            }
+            out[ks[j]] = (entered & near_cube & (1 << j) != 0).then(|| UnitRay {
+                origin: origin32.map(|v| v[j]),
+                inv_dir: inv32.map(|v| v[j]),
+                mirror: (mirror[0] >> j & 1) | (mirror[1] >> j & 1) << 1 | (mirror[2] >> j & 1) << 2,
+                parallel: 0,
+                t_scale: t_scale[j],
+                t_offset: t_offset[j],
+                origin64: origin64.map(|v| v[j]),
+                dir64: dir64.map(|v| v[j]),
+            });
+        }
+        slow
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use glam::{DAffine3, DMat3};
+
+    /// Every field's bits (so −0.0 and 0.0 differ), or `None`.
+    fn bits(r: &Option<UnitRay>) -> Option<Vec<u64>> {
+        r.map(|r| {
+            let mut v: Vec<u64> = r.origin.iter().chain(&r.inv_dir).map(|x| x.to_bits() as u64).collect();
+            v.extend([r.mirror as u64, r.parallel as u64, r.t_scale.to_bits(), r.t_offset.to_bits()]);
+            v.extend(r.origin64.iter().chain(&r.dir64).map(|x| x.to_bits()));
+            v
+        })
+    }
+
+    /// A direction component that tells set-ups apart: ordinary, zero of either sign,
+    /// tiny against the others (parallel), huge, not finite.
+    fn component(rng: &mut Rng) -> f64 {
+        match rng.below(16) {
+            0 => 0.0,
+            1 => -0.0,
+            2 => 1e-13 * (rng.f64() - 0.5),
+            3 => 1e-305,
+            4 => 1.7e308 * (rng.f64() - 0.5),
+            5 => f64::NAN,
+            6 => f64::NEG_INFINITY,
+            7 => (rng.f64() - 0.5) * 2f64.powi(rng.below(120) as i32 - 60),
+            _ => rng.f64() * 2.0 - 1.0,
+        }
+    }
+
+    /// Four lanes at a time set up the rays one at a time sets up, bit for bit, for both
+    /// kinds of ray map, origins inside, outside, far from and on the cube, and the
+    /// directions that take the scalar path; lanes not asked for are left alone.
+    #[test]
+    fn four_lanes_set_up_the_scalar_rays() {
+        let mut rng = Rng::new(97);
+        let (mut compared, mut vector_path) = (0, 0);
+        for round in 0..12000 {
+            let to_unit = if round % 2 == 0 {
+                ToUnit::Scale { offset: DVec3::ZERO, inv_size: 0.1 + rng.f64() * 4.0 }
+            } else {
+                let m = DMat3::from_cols_array(&[0.0; 9].map(|_| rng.f64() * 2.0 - 1.0));
+                ToUnit::Affine(DAffine3::from_mat3_translation(m, DVec3::ZERO))
+            };
+            let unit_o = match round % 5 {
+                0 => DVec3::new(rng.f64(), rng.f64(), rng.f64()),
+                1 => DVec3::new(-3.0 + rng.f64(), 0.5, 2.0 * rng.f64()),
+                2 => DVec3::new(rng.f64() * 1e9, -1e9, 0.5),
+                3 => DVec3::new(0.0, 1.0, rng.f64()),
+                _ => DVec3::new(rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0),
+            };
+            let unit_o = if round % 97 == 0 { DVec3::new(f64::NAN, 0.0, 0.0) } else { unit_o };
+            let dirs: Vec<DVec3> = (0..8)
+                .map(|_| {
+                    if rng.below(4) == 0 {
+                        DVec3::new(component(&mut rng), component(&mut rng), component(&mut rng))
+                    } else {
+                        DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5)
+                    }
+                })
+                .collect();
+            let n = 1 + rng.below(4) as usize;
+            let mut ks = [0usize; 4].map(|_| rng.below(8) as usize);
+            ks[..n].sort_unstable();
+            let mut unique = ks[..n].to_vec();
+            unique.dedup();
+            if unique.len() < n {
+                continue;
+            }
+            let marker = Some(UnitRay::from_unit(DVec3::splat(0.5), DVec3::X).expect("a ray"));
+            let mut out = vec![marker; 8];
+            map_four(&to_unit, unit_o, &dirs, n, &ks, &mut out);
+            for k in 0..8 {
+                let expect = match ks[..n].contains(&k) {
+                    true => UnitRay::from_unit(unit_o, to_unit.vector(dirs[k])),
+                    false => marker,
+                };
+                assert_eq!(bits(&out[k]), bits(&expect), "round {round}, lane {k}: {:?} from {unit_o:?}", dirs[k]);
+                compared += 1;
+                vector_path += (ks[..n].contains(&k) && expect.is_some_and(|r| r.parallel == 0)) as usize;
+            }
+        }
+        assert!(compared > 60_000 && vector_path > 5_000, "{compared} lanes, {vector_path} through the vectors");
+    }
+}
