@@ -13,7 +13,7 @@
 
 use super::instances::Prepared;
 use crate::scene::camera::{Basis, Camera};
-use crate::svo::Svo;
+use crate::svo::{Svo, MAX_DEPTH};
 use glam::DVec3;
 
 /// Tile side in pixels.
@@ -276,8 +276,11 @@ fn nearest_node(svo: &Svo, cone: &Cone, leaf_level: u32) -> Option<f64> {
         return Some(root.sqrt());
     }
     let mut best = f64::INFINITY;
-    // Depth first, nearest child first; at most 8 entries per level are pending.
-    let mut stack: Vec<(u32, u32, [u32; 3], f64)> = Vec::with_capacity(8 * svo.depth as usize + 1);
+    // Depth first, nearest child first; at most 8 entries per level are pending. On the stack
+    // of this call, not the heap: one beam's descent is about a microsecond, and an
+    // allocation per beam and instance was a measurable part of it.
+    let mut stack =
+        crate::uninit_stack::UninitStack::<(u32, u32, [u32; 3], f64), { 8 * MAX_DEPTH as usize + 1 }>::new();
     stack.push((0, 0, [0; 3], root));
     while let Some((node, level, coord, dist2)) = stack.pop() {
         if dist2 >= best {
