@@ -146,6 +146,12 @@ trait Kernel: Lanes {
     /// # Safety
     /// As for [`Kernel::visit`].
     unsafe fn run(pass: &mut Pass<'_, Self>, lanes: u64);
+    /// [`walk_alone`], compiled for the same instructions (its sibling ranks are population
+    /// counts, one instruction where the CPU has it).
+    ///
+    /// # Safety
+    /// As for [`Kernel::visit`].
+    unsafe fn walk(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk;
 }
 
 impl Kernel for f32x4 {
@@ -154,6 +160,9 @@ impl Kernel for f32x4 {
     }
     unsafe fn run(pass: &mut Pass<'_, Self>, lanes: u64) {
         pass.run_body(lanes)
+    }
+    unsafe fn walk(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
+        walk_alone(svo, mirror, start, t_min, t_max, max_level)
     }
 }
 
@@ -168,6 +177,10 @@ impl Kernel for Avx8 {
     #[target_feature(enable = "avx,avx2,bmi1,bmi2,lzcnt,popcnt")]
     unsafe fn run(pass: &mut Pass<'_, Self>, lanes: u64) {
         pass.run_body(lanes)
+    }
+    #[target_feature(enable = "avx,avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn walk(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
+        walk_alone_body(svo, mirror, start, t_min, t_max, max_level)
     }
 }
 
@@ -315,7 +328,8 @@ impl<V: Kernel> Pass<'_, V> {
             let (t0, t1) = self.frames[level].lane_child(c, q, l);
             let (t_min, t_max) = (self.t_min[q].lane(l), self.t_max[q].lane(l));
             let start = Below::new(level as u32 + 1, child, cc, t0, t1);
-            match walk_alone(self.svo, self.mirror, start, t_min, t_max, self.max_level) {
+            // SAFETY: this runs inside `V::visit`, so the CPU has V's instructions.
+            match unsafe { V::walk(self.svo, self.mirror, start, t_min, t_max, self.max_level) } {
                 Walk::Left => continue,
                 // Zero length: the chain from the root may not enter this child at all.
                 Walk::Reached(r) if r.te.max(t_min) == r.tx => {
@@ -384,6 +398,12 @@ fn crossed_alone(cell: &Cell, t_min: f32, t_max: f32, occupied: u32) -> u32 {
 /// checks, as for the packet's own leaves); [`Walk::Left`] when the ray crosses no leaf below
 /// `start`. All t-values are Revelles' halvings, as the scalar loop forms them.
 fn walk_alone(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
+    walk_alone_body(svo, mirror, start, t_min, t_max, max_level)
+}
+
+/// [`walk_alone`]'s body, inlined into each of its builds ([`Kernel::walk`]).
+#[inline(always)]
+fn walk_alone_body(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
     // One entry per level below `start` (`level − start.level` of them).
     let mut stack = AloneStack::new();
     let Below { mut level, mut node, mut coord, mut cell } = start;
@@ -424,6 +444,19 @@ fn walk_alone(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_
 /// for every ray that leaves its packet.
 type AloneStack = crate::uninit_stack::UninitStack<(u32, u8, Cell), { MAX_DEPTH as usize }>;
 
+/// [`walk_alone`] in the eight-lane kernel's build where the CPU runs it (asked once).
+fn walk_single(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
+    #[cfg(target_arch = "x86_64")]
+    {
+        static AVX8: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        if *AVX8.get_or_init(avx8_supported) {
+            // SAFETY: the CPU has the eight-lane kernel's instructions (checked above).
+            return unsafe { Avx8::walk(svo, mirror, start, t_min, t_max, max_level) };
+        }
+    }
+    walk_alone(svo, mirror, start, t_min, t_max, max_level)
+}
+
 /// `trace_unit(svo, ray, opts).hit`, found as a packet of one ray (`walk_alone` from the
 /// root): the same answer (module notes), at a lower cost per node than Revelles' chain.
 /// Rays with a parallel axis, whole-tree level limits and zero-length leaves take
@@ -446,7 +479,7 @@ pub fn trace_single(svo: &Svo, ray: &UnitRay, opts: &TraceOptions) -> Option<Hit
         return None;
     }
     let root = Below { level: 0, node: 0, coord: [0; 3], cell };
-    match walk_alone(svo, ray.mirror, root, t_min, t_max, max_level) {
+    match walk_single(svo, ray.mirror, root, t_min, t_max, max_level) {
         Walk::Left => None,
         Walk::Reached(r) if r.te.max(t_min) != r.tx => {
             finish(ray, r.te, t_min, r.level, r.coord, svo.attrs[r.attr], r.ct0.to_array())
