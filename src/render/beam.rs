@@ -103,7 +103,14 @@ impl Cone {
     /// back so that the cone grows by the radius, then the region behind the apex). Compared
     /// squared, without roots: `a·d < |d| cos` with cos > 0 is `a·d < 0 or (a·d)² < |d|² cos²`.
     fn meets_ball(&self, centre: DVec3, radius: f64) -> bool {
-        let back = self.apex - self.axis * (radius / self.sin);
+        self.meets_ball_with(centre, radius, radius / self.sin)
+    }
+
+    /// [`Self::meets_ball`] with `radius / sin` formed by the caller (once for many balls of
+    /// one radius).
+    #[inline]
+    fn meets_ball_with(&self, centre: DVec3, radius: f64, radius_over_sin: f64) -> bool {
+        let back = self.apex - self.axis * radius_over_sin;
         let d = centre - back;
         let ad = self.axis.dot(d);
         if ad < 0.0 || ad * ad < d.length_squared() * self.cos * self.cos {
@@ -260,18 +267,25 @@ fn nearest_node(svo: &Svo, cone: &Cone, leaf_level: u32) -> Option<f64> {
     let grow = DVec3::splat(GROW);
     // A node is small against the cone when size ≤ STOP_RATIO · 2 tan · distance.
     let small = (STOP_RATIO * 2.0 * cone.tan).powi(2);
+    // The ball around a grown cube of side `size`: its half-diagonal, rounded up far beyond
+    // f64's rounding of the cube's corners (a larger ball only lets the cone meet more, so the
+    // start stays conservative); with `radius / sin` for the cone test, formed once per size.
+    let ball = |size: f64| {
+        let r = (size + 2.0 * GROW) * (0.5 * 3f64.sqrt()) * (1.0 + 1e-9);
+        (r, r / cone.sin)
+    };
     // The squared distance to the grown cube at `lo` if the cone meets it and it could beat
     // `best`.
-    let meets = |lo: DVec3, size: f64, best: f64| -> Option<f64> {
+    let meets = |lo: DVec3, size: f64, (r, r_sin): (f64, f64), best: f64| -> Option<f64> {
         let (glo, ghi) = (lo - grow, lo + DVec3::splat(size) + grow);
         let d2 = box_distance2(cone.apex, glo, ghi);
         if d2 >= best {
             return None;
         }
         let centre = (glo + ghi) * 0.5;
-        cone.meets_ball(centre, (ghi - glo).length() * 0.5).then_some(d2)
+        cone.meets_ball_with(centre, r, r_sin).then_some(d2)
     };
-    let root = meets(DVec3::ZERO, 1.0, f64::INFINITY)?;
+    let root = meets(DVec3::ZERO, 1.0, ball(1.0), f64::INFINITY)?;
     if leaf_level == 0 {
         return Some(root.sqrt());
     }
@@ -289,6 +303,7 @@ fn nearest_node(svo: &Svo, cone: &Cone, leaf_level: u32) -> Option<f64> {
         let mask = svo.masks[node as usize];
         let child_level = level + 1;
         let size = 1.0 / (1u64 << child_level) as f64;
+        let child_ball = ball(size);
         let mut kids: [(f64, u32, [u32; 3]); 8] = [(0.0, 0, [0; 3]); 8];
         let mut n = 0;
         for oct in 0..8u32 {
@@ -297,7 +312,7 @@ fn nearest_node(svo: &Svo, cone: &Cone, leaf_level: u32) -> Option<f64> {
             }
             let c = [0, 1, 2].map(|i| 2 * coord[i] + ((oct >> i) & 1));
             let lo = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * size;
-            let Some(d2) = meets(lo, size, best) else { continue };
+            let Some(d2) = meets(lo, size, child_ball, best) else { continue };
             // A voxel, or a node no wider than the cone there: its distance bounds every
             // voxel inside it.
             if child_level >= leaf_level || size * size <= small * d2 {
