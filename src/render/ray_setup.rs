@@ -24,16 +24,14 @@ pub(crate) fn map_four(
     out: &mut [Option<UnitRay>],
 ) {
     let n = n.min(4);
-    #[cfg(target_arch = "x86_64")]
-    if avx2() {
-        // SAFETY: the CPU has AVX and AVX2 (checked above).
-        let slow = unsafe { avx::map_four(to_unit, unit_o, dirs, n, ks, out) };
-        for j in (0..n).filter(|j| slow & (1 << j) != 0) {
-            out[ks[j]] = UnitRay::from_unit(unit_o, to_unit.vector(dirs[ks[j]]));
-        }
-        return;
-    }
-    for j in 0..n {
+    // The lanes left for the scalar set-up: all of them without AVX2.
+    let slow = match () {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU has AVX and AVX2 (checked by the guard).
+        () if avx2() => unsafe { avx::map_four(to_unit, unit_o, dirs, n, ks, out) },
+        () => (1u32 << n) - 1,
+    };
+    for j in (0..n).filter(|j| slow & (1 << j) != 0) {
         out[ks[j]] = UnitRay::from_unit(unit_o, to_unit.vector(dirs[ks[j]]));
     }
 }
