@@ -410,12 +410,14 @@ fn walk_alone_body(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32,
     let mut todo = crossed_alone(&cell, t_min, t_max, MIRRORED[mirror as usize][svo.masks[node] as usize] as u32);
     loop {
         if todo == 0 {
-            let Some((parent, parent_todo, parent_cell)) = stack.pop() else {
+            // Back to the nearest ancestor with children left (only those are on the stack).
+            let Some((parent, parent_todo, parent_level, parent_cell)) = stack.pop() else {
                 return Walk::Left;
             };
-            level -= 1;
+            let up = level - parent_level as u32;
+            level = parent_level as u32;
             (node, todo, cell) = (parent as usize, parent_todo as u32, parent_cell);
-            coord = coord.map(|v| v >> 1);
+            coord = coord.map(|v| v >> up);
             continue;
         }
         let c = todo.trailing_zeros();
@@ -429,7 +431,10 @@ fn walk_alone_body(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32,
             let (te, tx) = (ct0.max_element(), ct1.min_element());
             return Walk::Reached(Reached { te, tx, level: child_level, coord: cc, attr, ct0 });
         }
-        stack.push((node as u32, todo as u8, cell));
+        // A node whose crossed children are all taken is not returned to.
+        if todo != 0 {
+            stack.push((node as u32, todo as u8, level as u8, cell));
+        }
         node = svo.child_node(node, octant);
         coord = cc;
         level = child_level;
@@ -439,10 +444,10 @@ fn walk_alone_body(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32,
     }
 }
 
-/// The ancestors [`walk_alone`] returns to: node, children still to visit, t-values; one
-/// entry per level, so the tree's depth bounds it. Uninitialized storage: a lone walk starts
+/// The ancestors [`walk_alone`] returns to: node, children still to visit, level, t-values;
+/// at most one entry per level (only nodes with children left), so the tree's depth bounds it. Uninitialized storage: a lone walk starts
 /// for every ray that leaves its packet.
-type AloneStack = crate::uninit_stack::UninitStack<(u32, u8, Cell), { MAX_DEPTH as usize }>;
+type AloneStack = crate::uninit_stack::UninitStack<(u32, u8, u8, Cell), { MAX_DEPTH as usize }>;
 
 /// [`walk_alone`] in the eight-lane kernel's build where the CPU runs it (asked once).
 fn walk_single(svo: &Svo, mirror: u32, start: Below, t_min: f32, t_max: f32, max_level: u32) -> Walk {
@@ -649,11 +654,11 @@ mod tests {
         assert!(stack.pop().is_none());
         for round in 0..2u32 {
             for k in 0..MAX_DEPTH {
-                stack.push((k + round, (k * 7) as u8, cell(k + round)));
+                stack.push((k + round, (k * 7) as u8, k as u8, cell(k + round)));
             }
             for k in (0..MAX_DEPTH).rev() {
-                let (node, todo, c) = stack.pop().expect("pushed");
-                assert_eq!((node, todo), (k + round, (k * 7) as u8));
+                let (node, todo, level, c) = stack.pop().expect("pushed");
+                assert_eq!((node, todo, level), (k + round, (k * 7) as u8, k as u8));
                 assert_eq!((c.t0, c.tm, c.t1), (cell(k + round).t0, cell(k + round).tm, cell(k + round).t1));
             }
             assert!(stack.pop().is_none());
