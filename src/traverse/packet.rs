@@ -229,50 +229,66 @@ fn next_group<V: Lanes>(groups: &mut u64) -> usize {
 impl<V: Kernel> Pass<'_, V> {
     /// Visits the children of `node` (level `level`, mirrored coordinates `coord`) for the rays
     /// `lanes`, whose t-values for the node are `frames[level]`.
+    ///
+    /// The last child that any of the rays cross is entered in place (the loop goes on with
+    /// it as its node), not by a call: nothing is left to do here once it is done.
     #[inline(always)]
-    fn visit_body(&mut self, level: usize, node: usize, coord: [u32; 3], lanes: u64) {
-        // Occupied children in mirrored numbering (bit c: octant c ^ mirror holds geometry).
-        let occupied = MIRRORED[self.mirror as usize][self.svo.masks[node] as usize] as u32;
-        let crossed = self.crossed(level, lanes, occupied);
-        let mut todo = occupied;
-        while todo != 0 {
-            let c = todo.trailing_zeros();
-            todo &= todo - 1;
-            let lanes = lanes & self.active;
-            if lanes == 0 {
-                return;
+    fn visit_body(&mut self, mut level: usize, mut node: usize, mut coord: [u32; 3], mut lanes: u64) {
+        'node: loop {
+            // Occupied children in mirrored numbering (bit c: octant c ^ mirror holds geometry).
+            let occupied = MIRRORED[self.mirror as usize][self.svo.masks[node] as usize] as u32;
+            let crossed = self.crossed(level, lanes, occupied);
+            // The children some ray crosses (fewer may be left when their turn comes).
+            let mut met = 0u32;
+            for (c, &x) in crossed.iter().enumerate() {
+                met |= ((x != 0) as u32) << c;
             }
-            let crossed = crossed[c as usize] & lanes;
-            if crossed == 0 {
-                continue;
-            }
-            let octant = c ^ self.mirror;
-            let (up_x, up_y, up_z) = (c & 1 != 0, c & 2 != 0, c & 4 != 0);
-            let child_level = level as u32 + 1;
-            let cc = [2 * coord[0] + up_x as u32, 2 * coord[1] + up_y as u32, 2 * coord[2] + up_z as u32];
-            if child_level >= self.max_level {
-                self.hits(level, node, c, cc, crossed);
-                continue;
-            }
-            if crossed.count_ones() <= SOLO {
-                self.solo(level, node, c, cc, crossed);
-                continue;
-            }
-            let (lo, hi) = self.frames.split_at_mut(level + 1);
-            let (f, g) = (&lo[level], &mut hi[0]);
-            let mut quads = groups_of::<V>(crossed);
-            while quads != 0 {
-                let q = next_group::<V>(&mut quads);
-                for (a, up) in [up_x, up_y, up_z].into_iter().enumerate() {
-                    let (t0, t1) = f.child(a, up, q);
-                    g.t0[a][q] = t0;
-                    g.t1[a][q] = t1;
-                    // Revelles §3.1: the midplanes halfway in t (as the scalar loop).
-                    g.tm[a][q] = (t0 + t1) * V::splat(0.5);
+            let mut todo = occupied & met;
+            while todo != 0 {
+                let c = todo.trailing_zeros();
+                todo &= todo - 1;
+                let live = lanes & self.active;
+                if live == 0 {
+                    return;
                 }
+                let crossed = crossed[c as usize] & live;
+                if crossed == 0 {
+                    continue;
+                }
+                let octant = c ^ self.mirror;
+                let (up_x, up_y, up_z) = (c & 1 != 0, c & 2 != 0, c & 4 != 0);
+                let child_level = level as u32 + 1;
+                let cc = [2 * coord[0] + up_x as u32, 2 * coord[1] + up_y as u32, 2 * coord[2] + up_z as u32];
+                if child_level >= self.max_level {
+                    self.hits(level, node, c, cc, crossed);
+                    continue;
+                }
+                if crossed.count_ones() <= SOLO {
+                    self.solo(level, node, c, cc, crossed);
+                    continue;
+                }
+                let (lo, hi) = self.frames.split_at_mut(level + 1);
+                let (f, g) = (&lo[level], &mut hi[0]);
+                let mut quads = groups_of::<V>(crossed);
+                while quads != 0 {
+                    let q = next_group::<V>(&mut quads);
+                    for (a, up) in [up_x, up_y, up_z].into_iter().enumerate() {
+                        let (t0, t1) = f.child(a, up, q);
+                        g.t0[a][q] = t0;
+                        g.t1[a][q] = t1;
+                        // Revelles §3.1: the midplanes halfway in t (as the scalar loop).
+                        g.tm[a][q] = (t0 + t1) * V::splat(0.5);
+                    }
+                }
+                let child = self.svo.child_node(node, octant);
+                if todo == 0 {
+                    (level, node, coord, lanes) = (level + 1, child, cc, crossed);
+                    continue 'node;
+                }
+                // SAFETY: this runs inside `V::visit` or `V::run`, so the CPU has V's instructions.
+                unsafe { V::visit(self, level + 1, child, cc, crossed) };
             }
-            // SAFETY: this runs inside `V::visit` or `V::run`, so the CPU has V's instructions.
-            unsafe { V::visit(self, level + 1, self.svo.child_node(node, octant), cc, crossed) };
+            return;
         }
     }
 
