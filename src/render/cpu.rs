@@ -199,46 +199,38 @@ fn sun_shadows(
 ) -> Vec<SunRay> {
     let t = TILE as usize;
     let tiles_x = width.div_ceil(t);
-    let mut out = vec![SunRay::Untraced; width * height];
-    let band_with = |y0: usize, rows: &mut [SunRay], scratch: &mut super::tile_search::TileScratch| {
-        let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
-        let tile_h = rows.len() / width;
-        for x0 in (0..width).step_by(t) {
-            let mut lanes = 0u64;
-            for k in super::tile_search::each(candidates((y0 / t) * tiles_x + x0 / t)) {
-                let (x, y) = (x0 + k % t, y0 + k / t);
-                if x < width && k / t < tile_h && needs(x, y) {
-                    origins[k] = origin(x, y);
-                    lanes |= 1 << k;
-                }
-            }
-            if lanes == 0 {
-                continue;
-            }
-            let blocked = super::tile_search::occluded_tile(
-                fi,
-                &origins,
-                to_sun,
-                lanes,
-                f64::INFINITY,
-                search,
-                max_level,
-                scratch,
-            );
-            for k in super::tile_search::each(lanes) {
-                let free = blocked & (1 << k) == 0;
-                rows[(k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
+    // Tile by tile (a mostly kept frame's shadow rays lie in a few bands of tiles, too few
+    // pieces to share between threads): each tile's rays asked, and the ones blocked.
+    let per_tile = par_map(tiles_x * height.div_ceil(t), |tile| {
+        let (x0, y0) = ((tile % tiles_x) * t, (tile / tiles_x) * t);
+        let mut lanes = 0u64;
+        for k in super::tile_search::each(candidates(tile)) {
+            let (x, y) = (x0 + k % t, y0 + k / t);
+            if x < width && y < height && needs(x, y) {
+                lanes |= 1 << k;
             }
         }
-    };
-    let band = |y0: usize, rows: &mut [SunRay]| super::tile_search::TileScratch::with(|s| band_with(y0, rows, s));
-    #[cfg(feature = "parallel")]
-    {
-        use rayon::prelude::*;
-        out.par_chunks_mut(width * t).enumerate().for_each(|(i, rows)| band(i * t, rows));
+        if lanes == 0 {
+            return (0, 0);
+        }
+        // (Filled only for tiles with rays: most of a mostly kept frame's have none.)
+        let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
+        for k in super::tile_search::each(lanes) {
+            origins[k] = origin(x0 + k % t, y0 + k / t);
+        }
+        let blocked = super::tile_search::TileScratch::with(|scratch| {
+            super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, max_level, scratch)
+        });
+        (lanes, blocked)
+    });
+    let mut out = vec![SunRay::Untraced; width * height];
+    for (tile, &(lanes, blocked)) in per_tile.iter().enumerate() {
+        let (x0, y0) = ((tile % tiles_x) * t, (tile / tiles_x) * t);
+        for k in super::tile_search::each(lanes) {
+            let free = blocked & (1 << k) == 0;
+            out[(y0 + k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
+        }
     }
-    #[cfg(not(feature = "parallel"))]
-    out.chunks_mut(width * t).enumerate().for_each(|(i, rows)| band(i * t, rows));
     out
 }
 
@@ -733,8 +725,55 @@ fn render_lit_here(
         }
     });
     let shadow_cone = relative_cone.as_ref().map(|c| c as &ShadowCone);
+    // Per tile, the kept records whose shadow ray may now meet a moved sphere (their pixels
+    // are shaded afresh): decided before the sun's shadow packets, so that those rays go in
+    // the packets instead of one by one in the shading pass.
+    let reshade: Vec<u64> = match shade_from {
+        Some((reuse, _)) if plan.shadows => par_map(tile_count, |t| {
+            let (x0, y0) = ((t % tiles_x) * TILE as usize, (t / tiles_x) * TILE as usize);
+            // The tile's kept records: the pixels of the image its trace did not store.
+            let (tw, th) = ((w - x0).min(TILE as usize), (h - y0).min(TILE as usize));
+            let row = (1u64 << tw) - 1;
+            let inside = (0..th).fold(0u64, |m, ty| m | row << (ty * TILE as usize));
+            let kept = inside & !traced.stored[t];
+            if kept == 0 {
+                return 0;
+            }
+            // The moved spheres their shadow rays may meet (Reuse::tile_shadow_suspects; none
+            // needs no test of its own). Its records' summary is last frame's, which bounds
+            // the records it keeps whether or not others were traced afresh.
+            let suspects = match (lights.sun, old_tiles.get(t)) {
+                // Sky: no shadow rays, and no need to form the tile's rays to say so.
+                (Some(_), Some(old)) if !old.has_hits() => Some(0),
+                (Some(sun), Some(old)) => {
+                    let (x0, y0) = (x0 as u32, y0 as u32);
+                    let rays = TileRays::new(camera, &basis, x0, y0, x0 + tw as u32, y0 + th as u32);
+                    reuse.tile_shadow_suspects(old, &rays, sun.to_sun.as_dvec3())
+                }
+                _ => None,
+            };
+            if suspects == Some(0) {
+                return 0;
+            }
+            let mut out = 0u64;
+            for k in super::tile_search::each(kept) {
+                let (x, y) = (x0 + k % TILE as usize, y0 + k / TILE as usize);
+                let r = &records[y * w + x];
+                if !reuse.shadow_valid_among(r, lights, camera, &basis, x as u32, y as u32, suspects) {
+                    out |= 1 << k;
+                }
+            }
+            out
+        }),
+        _ => Vec::new(),
+    };
+    // Whether pixel (x, y), its hit kept, is shaded afresh for its shadow ray.
+    let reshaded = |x: usize, y: usize| {
+        let t = (y / TILE as usize) * tiles_x + x / TILE as usize;
+        reshade.get(t).is_some_and(|m| m & (1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize)) != 0)
+    };
     // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
-    // answers as one by one); kept hits whose colour turns out not to be kept ask later.
+    // answers as one by one).
     let sun_rays = match lights.sun {
         // (Few instances: with beams, or with sphere lists where they are small on screen.)
         Some(sun)
@@ -742,7 +781,7 @@ fn render_lit_here(
         {
             // (A kept colour's record is not read: most of the frame's records stay untouched.)
             let needs = |x: usize, y: usize| {
-                !kept_colour(x, y) && {
+                (!kept_colour(x, y) || reshaded(x, y)) && {
                     let r = &records[y * w + x];
                     r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0
                 }
@@ -751,8 +790,14 @@ fn render_lit_here(
                 let r = &records[y * w + x];
                 leave(r, camera.ray_dir(&basis, x as u32, y as u32) * r.t as f64)
             };
-            // Only a pixel traced this frame can be without its kept colour.
-            let candidates = |t: usize| if shade_from.is_some() { traced.stored[t] } else { u64::MAX };
+            // Only a pixel traced this frame, or reshaded, can be without its kept colour.
+            let candidates = |t: usize| {
+                if shade_from.is_some() {
+                    traced.stored[t] | reshade.get(t).copied().unwrap_or(0)
+                } else {
+                    u64::MAX
+                }
+            };
             let (to_sun, height) = (sun.to_sun.as_dvec3(), camera.height as usize);
             sun_shadows(&fi, w, height, to_sun, search, opts.max_level, candidates, needs, origin)
         }
@@ -781,22 +826,6 @@ fn render_lit_here(
         }
         false => Vec::new(),
     };
-    // Per tile, the moved spheres that a kept record's shadow ray may meet (none: the tile's
-    // kept records need no test of their own; see Reuse::tile_shadow_suspects). Its records'
-    // summary is last frame's, which bounds the records it keeps whether or not others were
-    // traced afresh.
-    let shadow_suspects: Vec<Option<u64>> = match (shade_from, lights.sun) {
-        (Some((reuse, _)), Some(sun)) if plan.shadows && !old_tiles.is_empty() => par_map(tile_count, |t| {
-            if !old_tiles[t].has_hits() {
-                // Sky: no shadow rays, and no need to form the tile's rays to say so.
-                return Some(0);
-            }
-            let (x0, y0) = ((t % tiles_x) as u32 * TILE, (t / tiles_x) as u32 * TILE);
-            let rays = TileRays::new(camera, &basis, x0, y0, (x0 + TILE).min(w as u32), (y0 + TILE).min(h as u32));
-            reuse.tile_shadow_suspects(&old_tiles[t], &rays, sun.to_sun.as_dvec3())
-        }),
-        _ => Vec::new(),
-    };
     // Per tile, the pixels shaded afresh, when the buffer's colours are to be updated there.
     let shaded: Vec<AtomicU64> = match shade_from {
         Some(_) => (0..tile_count).map(|_| AtomicU64::new(0)).collect(),
@@ -813,14 +842,9 @@ fn render_lit_here(
         for tx in 0..tiles_x {
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
-            let suspects = shadow_suspects.get(t).copied().flatten();
-            let shadows_checked = suspects == Some(0);
+            let reshade_row = (reshade.get(t).copied().unwrap_or(0) >> row_shift) & ((1 << TILE) - 1);
             let span = tx * TILE as usize..((tx + 1) * TILE as usize).min(w);
-            if patch
-                && !fresh
-                && (traced.stored[t] >> row_shift) & ((1 << TILE) - 1) == 0
-                && (!plan.shadows || shadows_checked)
-            {
+            if patch && !fresh && (traced.stored[t] >> row_shift) & ((1 << TILE) - 1) == 0 && reshade_row == 0 {
                 // Every pixel of this tile row keeps its colour, which the frame holds.
                 kept += span.len() as u64;
                 continue;
@@ -855,20 +879,8 @@ fn render_lit_here(
                     shaded_here |= bit;
                     continue;
                 }
-                if let Some((reuse, prev)) = shade_from {
-                    if kept_hit(x, y)
-                        && (!plan.shadows
-                            || shadows_checked
-                            || reuse.shadow_valid_among(
-                                &records[k],
-                                lights,
-                                camera,
-                                &basis,
-                                x as u32,
-                                y as u32,
-                                suspects,
-                            ))
-                    {
+                if let Some((_, prev)) = shade_from {
+                    if kept_hit(x, y) && (reshade_row >> (x % TILE as usize)) & 1 == 0 {
                         kept += 1;
                         if fresh {
                             summary = summary.with(&records[k]);
