@@ -505,6 +505,14 @@ fn render_lit_here(
     camera.validate()?;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let basis = camera.basis();
+    // `camera.ray_dir` of every pixel, with each column's and row's share formed once: a
+    // mostly kept frame forms the directions of its pixels near moving parts several times
+    // (their reuse, shadow and shading tests), three divisions each.
+    let (columns, rows): (Vec<f64>, Vec<f64>) = (
+        (0..w as u32).map(|x| camera.screen_x(&basis, x)).collect(),
+        (0..h as u32).map(|y| camera.screen_y(&basis, y)).collect(),
+    );
+    let ray_dir = |x: usize, y: usize| basis.dir(columns[x], rows[y]);
     let mut hits = hits;
     // Last frame's instances' memory, refilled.
     let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
@@ -619,7 +627,7 @@ fn render_lit_here(
     };
     let pending = |spheres: &Vec<u32>, x: u32, y: u32, rec: &mut HitRecord| match &reuse {
         // `rec` still holds last frame's record of this pixel.
-        Some(r) => r.todo(rec, spheres, || camera.ray_dir(&basis, x, y), x, y),
+        Some(r) => r.todo(rec, spheres, || ray_dir(x as usize, y as usize), x, y),
         None => Todo::All,
     };
     let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
@@ -708,7 +716,7 @@ fn render_lit_here(
                 if !needed(x, y) {
                     return Vec3::ZERO;
                 }
-                let d = camera.ray_dir(&basis, x as u32, y as u32);
+                let d = ray_dir(x, y);
                 let glossy = g.glossy.get(k).copied().flatten();
                 (a.term)(&records[k], camera.eye + d * records[k].t as f64, d, g.light[k], glossy).max(Vec3::ZERO)
             })
@@ -759,7 +767,7 @@ fn render_lit_here(
             for k in super::tile_search::each(kept) {
                 let (x, y) = (x0 + k % TILE as usize, y0 + k / TILE as usize);
                 let r = &records[y * w + x];
-                if !reuse.shadow_valid_among(r, lights, camera, &basis, x as u32, y as u32, suspects) {
+                if !reuse.shadow_valid_among(r, lights, || ray_dir(x, y), suspects) {
                     out |= 1 << k;
                 }
             }
@@ -788,7 +796,7 @@ fn render_lit_here(
             };
             let origin = |x: usize, y: usize| {
                 let r = &records[y * w + x];
-                leave(r, camera.ray_dir(&basis, x as u32, y as u32) * r.t as f64)
+                leave(r, ray_dir(x, y) * r.t as f64)
             };
             // Only a pixel traced this frame, or reshaded, can be without its kept colour.
             let candidates = |t: usize| {
@@ -907,7 +915,7 @@ fn render_lit_here(
                         // reflectance × sky.
                         None => (albedo + Vec3::splat(ks)) * sky,
                     };
-                    let d = camera.ray_dir(&basis, x as u32, y as u32);
+                    let d = ray_dir(x, y);
                     let radiance = direct_light(
                         r,
                         camera.eye,

@@ -700,22 +700,20 @@ impl Reuse {
         x: u32,
         y: u32,
     ) -> bool {
-        self.shadow_valid_among(r, lights, camera, basis, x, y, None)
+        self.shadow_valid_among(r, lights, || camera.ray_dir(basis, x, y), None)
     }
 
     /// [`Reuse::shadow_valid`] for a record of a tile whose
     /// [`Reuse::tile_shadow_suspects`] are `suspects`: the shadow ray is tested against
-    /// those spheres alone (None: against every moved sphere).
+    /// those spheres alone (None: against every moved sphere). `dir` gives the unit direction
+    /// of the pixel's ray from the eye ([`Camera::ray_dir`]), asked for only when the record
+    /// casts a shadow ray.
     #[inline]
-    #[allow(clippy::too_many_arguments)]
     pub fn shadow_valid_among(
         &self,
         r: &HitRecord,
         lights: &Lights,
-        camera: &Camera,
-        basis: &crate::scene::camera::Basis,
-        x: u32,
-        y: u32,
+        dir: impl Fn() -> DVec3,
         suspects: Option<u64>,
     ) -> bool {
         if suspects == Some(0) {
@@ -727,7 +725,7 @@ impl Reuse {
             return true;
         };
         // Where super::cpu starts the shadow ray.
-        let from = super::cpu::leave(r, camera.ray_dir(basis, x, y) * r.t as f64);
+        let from = super::cpu::leave(r, dir() * r.t as f64);
         let meets = |k: usize| {
             let (c, rad, _) = self.moved_spheres[k];
             sphere_interval(c, rad, from, to_sun).is_some()
@@ -869,8 +867,9 @@ mod tests {
             let rays = super::super::beam::TileRays::new(&camera, &basis, x0, y0, x0 + TILE, y0 + TILE);
             let each_valid = records.iter().all(|(x, y, r)| reuse.shadow_valid(r, &lights, &camera, &basis, *x, *y));
             let suspects = reuse.tile_shadow_suspects(&tile, &rays, to_sun.as_dvec3());
-            let each_among =
-                records.iter().all(|(x, y, r)| reuse.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, suspects));
+            let each_among = records
+                .iter()
+                .all(|(x, y, r)| reuse.shadow_valid_among(r, &lights, || camera.ray_dir(&basis, *x, *y), suspects));
             assert_eq!(each_among, each_valid, "a record tested against its tile's suspects alone");
             if reuse.tile_shadows_valid(&tile, &rays, to_sun.as_dvec3()) {
                 assert_eq!(suspects, Some(0));
@@ -1000,7 +999,7 @@ mod tests {
                     partial += (m != 0 && (m.count_ones() as usize) < count) as usize;
                     for (x, y, r) in &records {
                         assert_eq!(
-                            with.shadow_valid_among(r, &lights, &camera, &basis, *x, *y, Some(m)),
+                            with.shadow_valid_among(r, &lights, || camera.ray_dir(&basis, *x, *y), Some(m)),
                             with.shadow_valid(r, &lights, &camera, &basis, *x, *y),
                             "pixel {x},{y}"
                         );
