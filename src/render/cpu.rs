@@ -508,10 +508,7 @@ fn render_lit_here(
     // `camera.ray_dir` of every pixel, with each column's and row's share formed once: a
     // mostly kept frame forms the directions of its pixels near moving parts several times
     // (their reuse, shadow and shading tests), three divisions each.
-    let (columns, rows): (Vec<f64>, Vec<f64>) = (
-        (0..w as u32).map(|x| camera.screen_x(&basis, x)).collect(),
-        (0..h as u32).map(|y| camera.screen_y(&basis, y)).collect(),
-    );
+    let (columns, rows) = camera.screen_slopes(&basis);
     let ray_dir = |x: usize, y: usize| basis.dir(columns[x], rows[y]);
     let mut hits = hits;
     // Last frame's instances' memory, refilled.

@@ -164,8 +164,7 @@ impl PixelSpheres {
         let basis = camera.basis();
         let limit = per_pixel.saturating_mul(pixels);
         let grid = PixelGrid::new(camera, &basis);
-        let columns: Vec<f64> = (0..w).map(|x| camera.screen_x(&basis, x)).collect();
-        let rows: Vec<f64> = (0..h).map(|y| camera.screen_y(&basis, y)).collect();
+        let (columns, rows) = camera.screen_slopes(&basis);
         // One sphere, tested pixel by pixel inside its projection: its findings and the
         // pixels tested.
         let project = |i: u32, (centre, radius): (DVec3, f64), found: &mut Found| -> u64 {

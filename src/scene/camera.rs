@@ -271,6 +271,16 @@ impl Camera {
         (2.0 * (px as f64 + 0.5) / w - 1.0) * b.tan_half * w / h
     }
 
+    /// [`Self::screen_x`] of every pixel column and [`Self::screen_y`] of every row: a pass
+    /// over many pixels forms `ray_dir(b, x, y)` as `b.dir(columns[x], rows[y])`, the same
+    /// value without the three divisions.
+    pub fn screen_slopes(&self, b: &Basis) -> (Vec<f64>, Vec<f64>) {
+        (
+            (0..self.width).map(|px| self.screen_x(b, px)).collect(),
+            (0..self.height).map(|py| self.screen_y(b, py)).collect(),
+        )
+    }
+
     /// How far above the view axis the rays of pixel row `py` go per unit forward (see
     /// [`Self::screen_x`]).
     #[inline]
@@ -303,6 +313,34 @@ mod tests {
         // tan(45°) = 1: the top row centre is at sy = (1 − 1/3).
         let d = c.ray_dir(&b, 1, 0);
         assert!((d.y / d.z - 2.0 / 3.0).abs() < 1e-12);
+    }
+
+    /// The slope tables give `ray_dir`'s directions bit for bit, on a wide and a tall image.
+    #[test]
+    fn slope_tables_give_ray_dir() {
+        for (w, h) in [(37, 11), (5, 23)] {
+            let c = Camera {
+                eye: DVec3::new(1.0, 2.0, -3.0),
+                target: DVec3::new(0.3, 0.1, 4.0),
+                up: DVec3::Y,
+                vfov_deg: 50.0,
+                width: w,
+                height: h,
+            };
+            let b = c.basis();
+            let (columns, rows) = c.screen_slopes(&b);
+            assert_eq!((columns.len(), rows.len()), (w as usize, h as usize));
+            for y in 0..h {
+                for x in 0..w {
+                    let d = b.dir(columns[x as usize], rows[y as usize]);
+                    assert_eq!(
+                        d.to_array().map(f64::to_bits),
+                        c.ray_dir(&b, x, y).to_array().map(f64::to_bits),
+                        "pixel {x},{y}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

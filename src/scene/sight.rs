@@ -122,8 +122,7 @@ impl Sight {
             }
         }
         let basis = camera.basis();
-        let columns = (0..camera.width).map(|px| camera.screen_x(&basis, px)).collect();
-        let rows = (0..camera.height).map(|py| camera.screen_y(&basis, py)).collect();
+        let (columns, rows) = camera.screen_slopes(&basis);
         let grid = PixelGrid::new(camera, &basis);
         Ok(Sight { camera: *camera, basis, suns, surfaces, columns, rows, grid })
     }
