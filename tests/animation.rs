@@ -507,6 +507,56 @@ fn kept_colours_follow_moving_shadows() {
     assert!(kept_on_ground > 0);
 }
 
+/// A kept record whose sun shadow ray an instance blocked, which then moves away, is asked
+/// about every instance again, not the moved ones alone: another instance that stayed put
+/// may block it too. Here a body (instance 0) and its still copy (instance 1) hang in the
+/// same place over the ground under a sun straight above; the first moves away, and the
+/// ground below must stay in the copy's shadow.
+#[test]
+fn a_shadow_whose_blocker_leaves_asks_every_instance_again() {
+    use voxray::scene::lights::Sun;
+    let mut scene = Scene::new(vec![car_parts()[0].clone()]);
+    let hung = Transform { translation: DVec3::new(0.0, 3.0, 0.0), ..Transform::IDENTITY };
+    for _ in 0..2 {
+        scene.add(Instance { part: 0, parent: None, local: hung }).unwrap();
+    }
+    voxray::scene::stage::add_ground(&mut scene, (DVec3::new(-3.0, 0.0, -3.0), DVec3::new(3.0, 1.0, 3.0))).unwrap();
+    scene.update().unwrap();
+    let lights =
+        Lights { sun: Some(Sun { to_sun: glam::Vec3::Y, irradiance: glam::Vec3::splat(3.0) }), ..Lights::default() };
+    // Low, to see the ground under the bodies.
+    let cam = Camera {
+        eye: DVec3::new(0.0, 1.2, 14.0),
+        target: DVec3::new(0.0, 0.6, 0.0),
+        up: DVec3::Y,
+        vfov_deg: 40.0,
+        width: 96,
+        height: 64,
+    };
+    let mut hits = HitBuffer::new();
+    for f in 0..3 {
+        if f == 1 {
+            let away = Transform { translation: DVec3::new(40.0, 3.0, 0.0), ..Transform::IDENTITY };
+            scene.set_local(0, away).unwrap();
+            scene.update().unwrap();
+        }
+        let plan = FramePlan::new(&scene, &cam, &lights, &Features::default(), (f > 0).then_some(&hits));
+        let fast =
+            render(&scene, &cam, &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {}).unwrap();
+        let plain = FramePlan::new(&scene, &cam, &lights, &Features::NONE.with_shadows(), None);
+        let slow = render(&scene, &cam, &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+        assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+        // The ground in shadow is in view, and its records are kept after the move.
+        let ground = 2;
+        let lit = fast.radiance.iter().zip(&fast.instance).filter(|(_, &i)| i == ground).map(|(r, _)| r.x);
+        let (dark, bright) = lit.fold((f32::INFINITY, 0f32), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        assert!(dark < 0.5 * bright, "frame {f}: no ground in shadow ({dark} against {bright})");
+        if f > 0 {
+            assert!(fast.reused > 0 && fast.shade_reused > 0, "frame {f}: nothing kept");
+        }
+    }
+}
+
 #[test]
 fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
     // Two instances of the body; one moves onto the other, so every pixel they cover has two

@@ -13,6 +13,7 @@ use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
 use crate::scene::{Camera, CameraError, Lights, Scene};
+use crate::traverse::packet::LANES;
 use crate::traverse::TraceOptions;
 use glam::{DVec3, Vec3};
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
@@ -176,15 +177,50 @@ enum SunRay {
     Untraced,
     /// Nothing blocks it.
     Free,
-    /// An instance blocks it.
-    Blocked,
+    /// This instance blocks it (the first in the instances' order).
+    Blocked(u32),
 }
+
+/// The sun's shadow rays of a frame's pixels ([`sun_shadows`]), per tile: none for a frame
+/// that traced none.
+#[derive(Default)]
+struct SunRays {
+    /// Tiles per row.
+    tiles_x: usize,
+    /// Per tile (row-major), the lanes traced, those blocked, and the blocked lanes'
+    /// blockers in lane order.
+    tiles: Vec<(u64, u64, Vec<u32>)>,
+}
+
+impl SunRays {
+    /// Pixel (x, y)'s shadow ray.
+    fn get(&self, x: usize, y: usize) -> SunRay {
+        let t = TILE as usize;
+        let Some((lanes, blocked, blockers)) = self.tiles.get((y / t) * self.tiles_x + x / t) else {
+            return SunRay::Untraced;
+        };
+        let bit = 1u64 << ((y % t) * t + x % t);
+        match (lanes & bit != 0, blocked & bit != 0) {
+            (false, _) => SunRay::Untraced,
+            (true, false) => SunRay::Free,
+            (true, true) => SunRay::Blocked(blockers[(blocked & (bit - 1)).count_ones() as usize]),
+        }
+    }
+}
+
+/// A pixel's sun shadow ray blocked by no instance (its entry in [`HitBuffer`]'s
+/// `sun_blockers`).
+pub(crate) const SUN_FREE: u32 = u32::MAX;
+/// A pixel's sun shadow ray blocked by an instance not known, or not traced.
+pub(crate) const SUN_UNKNOWN: u32 = u32::MAX - 1;
 
 /// The sun's shadow rays (towards `to_sun`, unbounded, down to the frame's `max_level`) of
 /// the pixels `needs(x, y)` says, starting at `origin(x, y)`, traced tile by tile as packets
 /// ([`super::tile_search::occluded_tile`]): per pixel of a `width` × `height` frame. Only a
 /// tile's `candidates(tile)` (its lanes; tiles row-major) are asked: a mostly kept frame
-/// then looks at its few traced pixels instead of all of them.
+/// then looks at its few traced pixels instead of all of them. Of those, the lanes
+/// `moved_only(tile)` are asked about the instances that `moved` says moved, alone
+/// ([`super::tile_search::MovedOnly`]).
 #[allow(clippy::too_many_arguments)]
 fn sun_shadows(
     fi: &FrameInstances,
@@ -194,9 +230,11 @@ fn sun_shadows(
     search: super::visibility::Search,
     max_level: u32,
     candidates: impl Fn(usize) -> u64 + Sync + Send,
+    moved_only: impl Fn(usize) -> u64 + Sync + Send,
+    moved: &[bool],
     needs: impl Fn(usize, usize) -> bool + Sync + Send,
     origin: impl Fn(usize, usize) -> DVec3 + Sync + Send,
-) -> Vec<SunRay> {
+) -> SunRays {
     let t = TILE as usize;
     let tiles_x = width.div_ceil(t);
     // Tile by tile (a mostly kept frame's shadow rays lie in a few bands of tiles, too few
@@ -211,27 +249,22 @@ fn sun_shadows(
             }
         }
         if lanes == 0 {
-            return (0, 0);
+            return (0, 0, Vec::new());
         }
         // (Filled only for tiles with rays: most of a mostly kept frame's have none.)
         let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
         for k in super::tile_search::each(lanes) {
             origins[k] = origin(x0 + k % t, y0 + k / t);
         }
+        let only = super::tile_search::MovedOnly { lanes: moved_only(tile) & lanes, moved };
+        let mut blockers = [0; LANES];
         let blocked = super::tile_search::TileScratch::with(|scratch| {
-            super::tile_search::occluded_tile(fi, &origins, to_sun, lanes, f64::INFINITY, search, max_level, scratch)
+            let (inf, b) = (f64::INFINITY, &mut blockers);
+            super::tile_search::occluded_tile_by(fi, &origins, to_sun, lanes, only, inf, search, max_level, scratch, b)
         });
-        (lanes, blocked)
+        (lanes, blocked, super::tile_search::each(blocked).map(|k| blockers[k]).collect())
     });
-    let mut out = vec![SunRay::Untraced; width * height];
-    for (tile, &(lanes, blocked)) in per_tile.iter().enumerate() {
-        let (x0, y0) = ((tile % tiles_x) * t, (tile / tiles_x) * t);
-        for k in super::tile_search::each(lanes) {
-            let free = blocked & (1 << k) == 0;
-            out[(y0 + k / t) * width + x0 + k % t] = if free { SunRay::Free } else { SunRay::Blocked };
-        }
-    }
-    out
+    SunRays { tiles_x, tiles: per_tile }
 }
 
 /// The hit record of a nearest hit along unit direction `d`: world normals turned to face the
@@ -301,6 +334,8 @@ struct FrameRow<'a> {
     albedo: &'a mut [Vec3],
     specular: &'a mut [f32],
     shininess: &'a mut [f32],
+    /// What blocks each pixel's sun shadow ray ([`SUN_FREE`], [`SUN_UNKNOWN`] or an instance).
+    sun_blocker: &'a mut [u32],
 }
 
 impl FrameRow<'_> {
@@ -318,8 +353,9 @@ impl FrameRow<'_> {
     }
 }
 
-/// Runs `f(y, row)` over the rows of a frame's per-pixel buffers, in parallel when enabled.
-fn for_frame_rows(f: &mut Frame, each: impl Fn(usize, FrameRow) + Sync + Send) {
+/// Runs `f(y, row)` over the rows of a frame's per-pixel buffers and of `sun_blocker` (as
+/// many pixels), in parallel when enabled.
+fn for_frame_rows(f: &mut Frame, sun_blocker: &mut [u32], each: impl Fn(usize, FrameRow) + Sync + Send) {
     let w = f.width as usize;
     #[cfg(feature = "parallel")]
     {
@@ -332,9 +368,10 @@ fn for_frame_rows(f: &mut Frame, each: impl Fn(usize, FrameRow) + Sync + Send) {
             .zip(f.albedo.par_chunks_mut(w))
             .zip(f.specular.par_chunks_mut(w))
             .zip(f.shininess.par_chunks_mut(w))
+            .zip(sun_blocker.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(y, ((((((radiance, t), instance), normal), albedo), specular), shininess))| {
-                each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess })
+            .for_each(|(y, (((((((radiance, t), instance), normal), albedo), specular), shininess), sun_blocker))| {
+                each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess, sun_blocker })
             });
     }
     #[cfg(not(feature = "parallel"))]
@@ -347,9 +384,12 @@ fn for_frame_rows(f: &mut Frame, each: impl Fn(usize, FrameRow) + Sync + Send) {
             .zip(f.normal.chunks_mut(w))
             .zip(f.albedo.chunks_mut(w))
             .zip(f.specular.chunks_mut(w))
-            .zip(f.shininess.chunks_mut(w));
-        for (y, ((((((radiance, t), instance), normal), albedo), specular), shininess)) in rows.enumerate() {
-            each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess });
+            .zip(f.shininess.chunks_mut(w))
+            .zip(sun_blocker.chunks_mut(w));
+        for (y, (((((((radiance, t), instance), normal), albedo), specular), shininess), sun_blocker)) in
+            rows.enumerate()
+        {
+            each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess, sun_blocker });
         }
     }
 }
@@ -580,6 +620,9 @@ fn render_lit_here(
     let old_tiles = if reuse.is_some() && old_tiles.len() == tile_count { old_tiles } else { Vec::new() };
     let (spare, as_rendered) = hits.as_deref_mut().map(|b| b.take_spare()).unwrap_or((None, None));
     let spare_at = spare.as_ref().map(|f| f.radiance.as_ptr() as usize);
+    // What blocked each stored colour's sun shadow ray; the pixels this frame shades write
+    // theirs.
+    let mut sun_blockers = hits.as_deref_mut().map(|h| std::mem::take(&mut h.sun_blockers)).unwrap_or_default();
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
     let done = AtomicU32::new(0);
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
@@ -668,6 +711,10 @@ fn render_lit_here(
     let shadow_rays = AtomicU64::new(0);
     let shade_reused = AtomicU64::new(0);
     let n = w * h;
+    if sun_blockers.len() != n {
+        sun_blockers.clear();
+        sun_blockers.resize(n, SUN_UNKNOWN);
+    }
     let shade_from = reuse.as_ref().zip(previous).filter(|(_, prev)| {
         prev.lights.as_ref() == Some(lights)
             && prev.shadows == plan.shadows
@@ -732,8 +779,9 @@ fn render_lit_here(
     let shadow_cone = relative_cone.as_ref().map(|c| c as &ShadowCone);
     // Per tile, the kept records whose shadow ray may now meet a moved sphere (their pixels
     // are shaded afresh): decided before the sun's shadow packets, so that those rays go in
-    // the packets instead of one by one in the shading pass.
-    let reshade: Vec<u64> = match shade_from {
+    // the packets instead of one by one in the shading pass. Of those, the ones that no
+    // instance blocked (`.1`): only a moved instance can block them now.
+    let reshade_tiles: Vec<(u64, u64)> = match shade_from {
         Some((reuse, _)) if plan.shadows => par_map(tile_count, |t| {
             let (x0, y0) = ((t % tiles_x) * TILE as usize, (t / tiles_x) * TILE as usize);
             // The tile's kept records: the pixels of the image its trace did not store.
@@ -742,7 +790,7 @@ fn render_lit_here(
             let inside = (0..th).fold(0u64, |m, ty| m | row << (ty * TILE as usize));
             let kept = inside & !traced.stored[t];
             if kept == 0 {
-                return 0;
+                return (0, 0);
             }
             // The moved spheres their shadow rays may meet (Reuse::tile_shadow_suspects; none
             // needs no test of its own). Its records' summary is last frame's, which bounds
@@ -758,20 +806,29 @@ fn render_lit_here(
                 _ => None,
             };
             if suspects == Some(0) {
-                return 0;
+                return (0, 0);
             }
-            let mut out = 0u64;
+            let (mut out, mut free) = (0u64, 0u64);
             for k in super::tile_search::each(kept) {
                 let (x, y) = (x0 + k % TILE as usize, y0 + k / TILE as usize);
+                let blocker = sun_blockers[y * w + x];
+                // The same ray, blocked by an instance that stayed where it was: blocked still.
+                if reuse.moved.get(blocker as usize).is_some_and(|m| !m) {
+                    continue;
+                }
                 let r = &records[y * w + x];
                 if !reuse.shadow_valid_among(r, lights, || ray_dir(x, y), suspects) {
                     out |= 1 << k;
+                    if blocker == SUN_FREE {
+                        free |= 1 << k;
+                    }
                 }
             }
-            out
+            (out, free)
         }),
         _ => Vec::new(),
     };
+    let reshade: Vec<u64> = reshade_tiles.iter().map(|r| r.0).collect();
     // Whether pixel (x, y), its hit kept, is shaded afresh for its shadow ray.
     let reshaded = |x: usize, y: usize| {
         let t = (y / TILE as usize) * tiles_x + x / TILE as usize;
@@ -804,9 +861,12 @@ fn render_lit_here(
                 }
             };
             let (to_sun, height) = (sun.to_sun.as_dvec3(), camera.height as usize);
-            sun_shadows(&fi, w, height, to_sun, search, opts.max_level, candidates, needs, origin)
+            let moved_only = |t: usize| reshade_tiles.get(t).map_or(0, |r| r.1);
+            let moved = reuse.as_ref().map_or(&[][..], |r| &r.moved[..]);
+            let max_level = opts.max_level;
+            sun_shadows(&fi, w, height, to_sun, search, max_level, candidates, moved_only, moved, needs, origin)
         }
-        _ => Vec::new(),
+        _ => SunRays::default(),
     };
     // A frame that is the stored colours' own frame, back unchanged, already holds every
     // kept pixel's colour and surface data: only the other pixels are written.
@@ -838,7 +898,7 @@ fn render_lit_here(
     };
     // Shading, with each pixel's surface data (the AOVs) written in the same pass over the
     // records: one read of them instead of two.
-    for_frame_rows(&mut f, |y, mut row| {
+    for_frame_rows(&mut f, &mut sun_blockers, |y, mut row| {
         // (Counted per row and added once: one shared counter per shadow ray, bumped from
         // every thread, cost 6 % of a mostly kept frame in cache-line traffic.)
         let (mut kept, mut row_shadow_rays) = (0, 0);
@@ -913,6 +973,7 @@ fn render_lit_here(
                         None => (albedo + Vec3::splat(ks)) * sky,
                     };
                     let d = ray_dir(x, y);
+                    let mut blocker = SUN_FREE;
                     let radiance = direct_light(
                         r,
                         camera.eye,
@@ -926,16 +987,25 @@ fn render_lit_here(
                             }
                             row_shadow_rays += 1;
                             if t_max == f64::INFINITY && lights.sun.is_some_and(|s| s.to_sun.as_dvec3() == dir) {
-                                match sun_rays.get(k) {
-                                    Some(&SunRay::Free) => return true,
-                                    Some(&SunRay::Blocked) => return false,
-                                    _ => {}
+                                match sun_rays.get(x, y) {
+                                    SunRay::Free => return true,
+                                    SunRay::Blocked(i) => {
+                                        blocker = i;
+                                        return false;
+                                    }
+                                    SunRay::Untraced => {}
                                 }
+                                let blocked = occluded(&fi, start, dir, t_max, search, opts.max_level);
+                                if blocked {
+                                    blocker = SUN_UNKNOWN;
+                                }
+                                return !blocked;
                             }
                             !occluded(&fi, start, dir, t_max, search, opts.max_level)
                         },
                         shadow_cone,
                     );
+                    row.sun_blocker[x] = blocker;
                     ambient_term + radiance
                 };
             }
@@ -981,6 +1051,7 @@ fn render_lit_here(
             b.bvh = bvh;
         }
         b.pixel_spheres = lists;
+        b.sun_blockers = sun_blockers;
         b.prepared = prepared;
         b.prepared_spheres = spheres;
     }

@@ -90,6 +90,11 @@ pub struct HitBuffer {
     pub radiance: Vec<Vec3>,
     /// Each pixel's ambient occlusion in the stored frame (empty without GI).
     pub ao: Vec<f32>,
+    /// Per pixel of the stored colours, what blocked its sun shadow ray: an instance (the
+    /// first in the instances' order), `cpu::SUN_FREE` or `cpu::SUN_UNKNOWN`. A kept record
+    /// whose ray an instance that stayed put blocked keeps its colour; one that nothing
+    /// blocked asks the moved instances alone.
+    pub(crate) sun_blockers: Vec<u32>,
     /// The stored colours' ambient term came from GI's cones, not the flat sky.
     pub lit_by_gi: bool,
     /// The lights the stored colours were computed under.

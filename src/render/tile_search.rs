@@ -196,6 +196,38 @@ pub fn occluded_tile(
     max_level: u32,
     scratch: &mut TileScratch,
 ) -> u64 {
+    let only = MovedOnly { lanes: 0, moved: &[] };
+    let mut blockers = [0; LANES];
+    occluded_tile_by(fi, origins, dir, lanes, only, t_max, search, max_level, scratch, &mut blockers)
+}
+
+/// Lanes of a shadow packet that are asked about the moved instances alone: their rays, the
+/// same as last frame's, were blocked by no instance then, so no instance that stayed put
+/// blocks them now.
+#[derive(Clone, Copy, Debug)]
+pub struct MovedOnly<'a> {
+    /// The lanes asked about the moved instances alone.
+    pub lanes: u64,
+    /// Per instance, whether it moved (an instance past its end counts as moved).
+    pub moved: &'a [bool],
+}
+
+/// [`occluded_tile`], with the lanes of `only` tested against the moved instances alone, and
+/// `blockers[k]` set to the instance that blocked lane `k` (where bit `k` of the result is
+/// set; the first in the order of `fi.prepared`).
+#[allow(clippy::too_many_arguments)]
+pub fn occluded_tile_by(
+    fi: &FrameInstances,
+    origins: &[DVec3],
+    dir: DVec3,
+    lanes: u64,
+    only: MovedOnly,
+    t_max: f64,
+    search: Search,
+    max_level: u32,
+    scratch: &mut TileScratch,
+    blockers: &mut [u32; LANES],
+) -> u64 {
     let opts = TraceOptions { t_max: t_max as f32, max_level, ..TraceOptions::default() };
     // The rays are parallel: they lie in a cylinder around the line through the centre of
     // their origins' bounding box, as wide as the box's half-diagonal. An instance whose
@@ -207,12 +239,13 @@ pub fn occluded_tile(
     }
     let (centre, width) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
     let mut open = lanes;
-    for p in fi.prepared {
-        if sphere_interval(p.centre, p.radius + width, centre, dir).is_none() {
+    for (i, p) in fi.prepared.iter().enumerate() {
+        let asked = if only.moved.get(i).is_some_and(|m| !m) { open & !only.lanes } else { open };
+        if asked == 0 || sphere_interval(p.centre, p.radius + width, centre, dir).is_none() {
             continue;
         }
         let mut todo = 0u64;
-        for k in each(open) {
+        for k in each(asked) {
             // Every search but the plain one skips instances whose sphere the ray misses (or
             // enters beyond t_max): that changes no answer, the octree lies inside the sphere.
             if search != Search::Plain
@@ -225,6 +258,7 @@ pub fn occluded_tile(
         }
         for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
             open &= !(1 << k);
+            blockers[k] = i as u32;
         }
         if open == 0 {
             break;
