@@ -828,11 +828,12 @@ fn render_lit_here(
         }),
         _ => Vec::new(),
     };
-    let reshade: Vec<u64> = reshade_tiles.iter().map(|r| r.0).collect();
+    // Tile t's kept records shaded afresh for their shadow ray.
+    let reshade = |t: usize| reshade_tiles.get(t).map_or(0, |r| r.0);
     // Whether pixel (x, y), its hit kept, is shaded afresh for its shadow ray.
     let reshaded = |x: usize, y: usize| {
         let t = (y / TILE as usize) * tiles_x + x / TILE as usize;
-        reshade.get(t).is_some_and(|m| m & (1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize)) != 0)
+        reshade(t) & (1 << ((y % TILE as usize) * TILE as usize + x % TILE as usize)) != 0
     };
     // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
     // answers as one by one).
@@ -855,7 +856,7 @@ fn render_lit_here(
             // Only a pixel traced this frame, or reshaded, can be without its kept colour.
             let candidates = |t: usize| {
                 if shade_from.is_some() {
-                    traced.stored[t] | reshade.get(t).copied().unwrap_or(0)
+                    traced.stored[t] | reshade(t)
                 } else {
                     u64::MAX
                 }
@@ -907,7 +908,7 @@ fn render_lit_here(
         for tx in 0..tiles_x {
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
-            let reshade_row = (reshade.get(t).copied().unwrap_or(0) >> row_shift) & ((1 << TILE) - 1);
+            let reshade_row = (reshade(t) >> row_shift) & ((1 << TILE) - 1);
             let span = tx * TILE as usize..((tx + 1) * TILE as usize).min(w);
             if patch && !fresh && (traced.stored[t] >> row_shift) & ((1 << TILE) - 1) == 0 && reshade_row == 0 {
                 // Every pixel of this tile row keeps its colour, which the frame holds.
@@ -986,7 +987,9 @@ fn render_lit_here(
                                 return true;
                             }
                             row_shadow_rays += 1;
-                            if t_max == f64::INFINITY && lights.sun.is_some_and(|s| s.to_sun.as_dvec3() == dir) {
+                            let sun_ray =
+                                t_max == f64::INFINITY && lights.sun.is_some_and(|s| s.to_sun.as_dvec3() == dir);
+                            if sun_ray {
                                 match sun_rays.get(x, y) {
                                     SunRay::Free => return true,
                                     SunRay::Blocked(i) => {
@@ -995,13 +998,13 @@ fn render_lit_here(
                                     }
                                     SunRay::Untraced => {}
                                 }
-                                let blocked = occluded(&fi, start, dir, t_max, search, opts.max_level);
-                                if blocked {
-                                    blocker = SUN_UNKNOWN;
-                                }
-                                return !blocked;
                             }
-                            !occluded(&fi, start, dir, t_max, search, opts.max_level)
+                            let blocked = occluded(&fi, start, dir, t_max, search, opts.max_level);
+                            if sun_ray && blocked {
+                                // Traced alone: which instance blocked it is not known.
+                                blocker = SUN_UNKNOWN;
+                            }
+                            !blocked
                         },
                         shadow_cone,
                     );
