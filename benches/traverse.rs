@@ -171,6 +171,14 @@ fn car_primary_rays(c: &mut Criterion) {
             g.bench_function(format!("{name}_{threads}_threads"), |b| {
                 b.iter(|| pool.install(|| caster.nearest_all(rays).iter().filter(|h| h.is_some()).count()))
             });
+            // Into one buffer kept between the calls, as a caller casting batch after batch.
+            let mut hits = Vec::new();
+            g.bench_function(format!("{name}_into_{threads}_threads"), |b| {
+                b.iter(|| {
+                    pool.install(|| caster.nearest_into(rays, &mut hits));
+                    hits.iter().filter(|h| h.is_some()).count()
+                })
+            });
         }
     }
     g.finish();

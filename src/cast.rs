@@ -48,9 +48,11 @@
 use crate::render::bvh::Bvh;
 use crate::render::instances::{prepare_into, Prepared};
 use crate::render::plan::BVH_MIN_INSTANCES;
-use crate::render::visibility::{nearest, occluded, FrameInstances, Search};
+use crate::render::tile_search::{each, nearest_packet, occluded_rays, Origins, TileScratch};
+use crate::render::visibility::{nearest, occluded, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::Scene;
 use crate::svo::Svo;
+use crate::traverse::packet::LANES;
 use crate::traverse::{Hit, TraceOptions};
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
@@ -189,9 +191,14 @@ impl SceneCaster {
 
     /// [`SceneCaster::nearest`] of one [`CastRay`], within its `t_max`.
     pub fn nearest_ray(&self, r: &CastRay) -> Option<SceneHit> {
-        let (origin, dir) = (r.origin, r.dir);
-        let (o, d) = self.relative(origin, dir)?;
+        let (o, d) = self.relative(r.origin, r.dir)?;
         let found = nearest(&self.frame(), o, d, self.search(), &self.opts)?;
+        self.scene_hit(r, d, found)
+    }
+
+    /// What ray `r` (unit direction `d`) hit, given its nearest hit `found`: None beyond its
+    /// reach.
+    fn scene_hit(&self, r: &CastRay, d: DVec3, found: InstanceHit) -> Option<SceneHit> {
         let p = &self.prepared[found.instance];
         let t = found.hit.t as f64;
         // (The nearest hit beyond the reach: none within it. Compared in f64 as the GPU's.)
@@ -203,11 +210,24 @@ impl SceneCaster {
             instance: found.instance,
             part: p.part,
             t,
-            position: origin + d * t,
+            position: r.origin + d * t,
             normal: n,
             albedo: found.hit.albedo(),
             voxel: found.hit,
         })
+    }
+
+    /// Up to [`LANES`] rays relative to the reference point with unit directions, written to
+    /// `origins` and `dirs`: the lanes that have one (see [`Self::relative`]).
+    fn packet(&self, rays: &[CastRay], origins: &mut [DVec3; LANES], dirs: &mut [DVec3; LANES]) -> u64 {
+        let mut lanes = 0u64;
+        for (k, r) in rays.iter().enumerate().take(LANES) {
+            if let Some((o, d)) = self.relative(r.origin, r.dir) {
+                (origins[k], dirs[k]) = (o, d);
+                lanes |= 1 << k;
+            }
+        }
+        lanes
     }
 
     /// Whether anything lies on the ray from `origin` in direction `dir` within distance
@@ -221,24 +241,126 @@ impl SceneCaster {
     }
 
     /// [`SceneCaster::nearest_ray`] of every ray, in parallel (with the `parallel` feature).
+    ///
+    /// Runs of [`LANES`] consecutive rays go through each octree together, as packets (the
+    /// renderer's tiles do, [`crate::traverse::packet`]), with the same answers as one by
+    /// one: rays in an order that keeps neighbours close (a camera's, row by row; each hit's
+    /// own rays in turn) trace fastest. A scene of [`BVH_MIN_INSTANCES`] instances or more
+    /// casts each ray through its instance BVH alone.
     pub fn nearest_all(&self, rays: &[CastRay]) -> Vec<Option<SceneHit>> {
-        map_rays(rays, |r| self.nearest_ray(r))
+        collect_runs(rays, |run, out| self.nearest_run(run, out))
+    }
+
+    /// [`Self::nearest_all`] written into `out` (resized to the rays' count): a caller that
+    /// casts batch after batch keeps one buffer, whose memory is then not faulted in again
+    /// for each (a third of a batch of camera rays' time, `docs/benchmarks.md`).
+    pub fn nearest_into(&self, rays: &[CastRay], out: &mut Vec<Option<SceneHit>>) {
+        fill_runs(rays, out, |run, out| self.nearest_run(run, out));
     }
 
     /// [`SceneCaster::occluded`] of every ray within its `t_max`, in parallel (with the
-    /// `parallel` feature).
+    /// `parallel` feature); as [`Self::nearest_all`], runs of consecutive rays as packets.
     pub fn occluded_all(&self, rays: &[CastRay]) -> Vec<bool> {
-        map_rays(rays, |r| self.occluded(r.origin, r.dir, r.t_max))
+        collect_runs(rays, |run, out| self.occluded_run(run, out))
+    }
+
+    /// [`Self::occluded_all`] written into `out` (resized to the rays' count), as
+    /// [`Self::nearest_into`].
+    pub fn occluded_into(&self, rays: &[CastRay], out: &mut Vec<bool>) {
+        fill_runs(rays, out, |run, out| self.occluded_run(run, out));
+    }
+
+    /// The nearest hits of a run of up to [`LANES`] rays, into `out` (as long as the run).
+    fn nearest_run(&self, run: &[CastRay], out: &mut [Option<SceneHit>]) {
+        if self.bvh.is_some() {
+            for (r, o) in run.iter().zip(out) {
+                *o = self.nearest_ray(r);
+            }
+            return;
+        }
+        let (mut origins, mut dirs) = ([DVec3::ZERO; LANES], [DVec3::ZERO; LANES]);
+        let lanes = self.packet(run, &mut origins, &mut dirs);
+        // Rays from one point (a camera's) are set up four at a time.
+        let first = origins[lanes.trailing_zeros().min(LANES as u32 - 1) as usize];
+        let bits = |o: DVec3| o.to_array().map(f64::to_bits);
+        let origins = match each(lanes).all(|k| bits(origins[k]) == bits(first)) {
+            true => Origins::One(first),
+            false => Origins::Each(&origins),
+        };
+        let mut found = [None; LANES];
+        TileScratch::with(|s| {
+            let (fi, w) = (self.frame(), &mut Work::default());
+            nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None)
+        });
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = found[k].and_then(|f| self.scene_hit(&run[k], dirs[k], f));
+        }
+    }
+
+    /// Whether each ray of a run of up to [`LANES`] is blocked within its reach, into `out`
+    /// (as long as the run).
+    fn occluded_run(&self, run: &[CastRay], out: &mut [bool]) {
+        if self.bvh.is_some() {
+            for (r, o) in run.iter().zip(out) {
+                *o = self.occluded(r.origin, r.dir, r.t_max);
+            }
+            return;
+        }
+        let (mut origins, mut dirs) = ([DVec3::ZERO; LANES], [DVec3::ZERO; LANES]);
+        let mut lanes = self.packet(run, &mut origins, &mut dirs);
+        let mut t_max = [0.0; LANES];
+        for k in each(lanes) {
+            t_max[k] = run[k].t_max;
+            // (Nothing within a reach that is not above 0, or not a number.)
+            if !(t_max[k] > 0.0) {
+                lanes &= !(1 << k);
+            }
+        }
+        let (fi, search, max_level) = (self.frame(), self.search(), self.opts.max_level);
+        let blocked = TileScratch::with(|s| occluded_rays(&fi, &origins, &dirs, &t_max, lanes, search, max_level, s));
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = blocked >> k & 1 != 0;
+        }
     }
 }
 
-/// `f` of every ray, in order: in parallel chunks with the `parallel` feature.
-fn map_rays<T: Send>(rays: &[CastRay], f: impl Fn(&CastRay) -> T + Sync + Send) -> Vec<T> {
+/// `f` of every run of [`LANES`] consecutive rays (writing the run's answers), collected in
+/// order: in parallel with the `parallel` feature, each run's answers written where they
+/// stay by the thread that found them (filled on one thread first, the fresh pages cost a
+/// tenth of a batch of camera rays).
+fn collect_runs<T: Send + Default + Copy>(rays: &[CastRay], f: impl Fn(&[CastRay], &mut [T]) + Sync + Send) -> Vec<T> {
+    let run = |r: &[CastRay]| {
+        let mut out = [T::default(); LANES];
+        f(r, &mut out[..r.len()]);
+        out
+    };
+    #[cfg(feature = "parallel")]
+    let runs: Vec<[T; LANES]> = {
+        use rayon::prelude::*;
+        rays.par_chunks(LANES).with_min_len(4).map(run).collect()
+    };
+    #[cfg(not(feature = "parallel"))]
+    let runs: Vec<[T; LANES]> = rays.chunks(LANES).map(run).collect();
+    let mut out = runs.into_flattened();
+    out.truncate(rays.len());
+    out
+}
+
+/// `f` of every run of [`LANES`] consecutive rays, writing the run's answers into `out`
+/// (resized to the rays' count): in parallel with the `parallel` feature.
+fn fill_runs<T: Send + Default + Clone>(
+    rays: &[CastRay],
+    out: &mut Vec<T>,
+    f: impl Fn(&[CastRay], &mut [T]) + Sync + Send,
+) {
+    out.resize(rays.len(), T::default());
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;
-        rays.par_iter().with_min_len(256).map(f).collect()
+        out.par_chunks_mut(LANES).zip(rays.par_chunks(LANES)).with_min_len(4).for_each(|(o, r)| f(r, o));
     }
     #[cfg(not(feature = "parallel"))]
-    rays.iter().map(f).collect()
+    for (o, r) in out.chunks_mut(LANES).zip(rays.chunks(LANES)) {
+        f(r, o);
+    }
 }

@@ -164,15 +164,55 @@ fn far_apart_instances_are_hit_as_the_oracle_says() {
 }
 
 /// The batches give each ray's single answer, and every answer is bit for bit the plain
-/// search's (every instance traced over the whole ray), as the renderer's searches are.
+/// search's (every instance traced over the whole ray), as the renderer's searches are:
+/// through the instance BVH (48 instances, each ray alone) and among few instances (runs of
+/// rays as packets).
 #[test]
 fn batches_and_the_plain_search_give_the_same_hits() {
-    let (scene, coords) = scene(48, 3);
+    check_batches(48, 3);
+}
+
+#[test]
+fn packets_of_few_instances_and_the_plain_search_give_the_same_hits() {
+    check_batches(7, 5);
+}
+
+/// Rays for the batches: [`rays`] (each from a point of its own), then fans of camera rays
+/// from one point over the grid (runs of one origin, a few without a direction among them),
+/// in a count that leaves a last run short.
+fn batch_rays(scene: &Scene, coords: &[[u32; 3]], seed: u64) -> Vec<CastRay> {
+    let mut all = rays(scene, coords, 2000, seed);
+    let (lo, hi) = scene.bounds();
+    let mut rng = Rng::new(seed + 1);
+    for view in 0..3 {
+        let eye = (lo + hi) * 0.5 + rng.unit_vector().as_dvec3() * (hi - lo).length();
+        let ahead = ((lo + hi) * 0.5 - eye).normalize();
+        let side = ahead.cross(DVec3::Z).normalize();
+        let up = side.cross(ahead);
+        for y in 0..24 {
+            for x in 0..40 {
+                let (sx, sy) = (x as f64 / 40.0 - 0.5, y as f64 / 24.0 - 0.5);
+                let dir = if (x + y + view) % 97 == 0 { DVec3::ZERO } else { ahead + side * sx + up * sy * 0.6 };
+                all.push(CastRay::new(eye, dir));
+            }
+        }
+    }
+    all.truncate(all.len() - 13);
+    all
+}
+
+/// [`batches_and_the_plain_search_give_the_same_hits`] over `n` instances.
+fn check_batches(n: usize, seed: u64) {
+    let (scene, coords) = scene(n, seed);
     let reference = DVec3::new(1.0, 2.0, 3.0);
     let caster = SceneCaster::with(&scene, reference, u32::MAX).unwrap();
-    assert_eq!(caster.instances(), 48);
-    let rays = rays(&scene, &coords, 2000, 4);
+    assert_eq!(caster.instances(), n);
+    let rays = batch_rays(&scene, &coords, seed + 1);
     let all = caster.nearest_all(&rays);
+    // Into a buffer that held another batch's answers: the same.
+    let mut kept = caster.nearest_all(&rays[..777]);
+    caster.nearest_into(&rays, &mut kept);
+    assert!(kept == all, "nearest_into differs from nearest_all");
     let mut prepared = Vec::new();
     prepare_into(&scene, reference, true, u32::MAX, &mut prepared);
     let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
@@ -184,9 +224,13 @@ fn batches_and_the_plain_search_give_the_same_hits() {
     }
     // Occlusion: a hit blocks past its distance, not short of it; a miss blocks nothing.
     let far = caster.occluded_all(&rays);
+    let mut kept = vec![true; 5];
+    caster.occluded_into(&rays, &mut kept);
+    assert!(kept == far, "occluded_into differs from occluded_all");
     for (k, (h, blocked)) in all.iter().zip(&far).enumerate() {
         assert_eq!(*blocked, h.is_some(), "ray {k}");
     }
+    assert!(all.iter().filter(|h| h.is_some()).count() > rays.len() / 5, "too few hits to tell");
     let hit_rays: Vec<(CastRay, f64)> =
         rays.iter().zip(&all).filter_map(|(r, h)| h.filter(|h| h.t > 1e-3).map(|h| (*r, h.t))).collect();
     assert!(hit_rays.len() > 100);
@@ -194,11 +238,17 @@ fn batches_and_the_plain_search_give_the_same_hits() {
         assert!(caster.occluded(r.origin, r.dir, t * 1.001 + 1e-6), "{r:?} within {t}");
         assert!(!caster.occluded(r.origin, r.dir, t * 0.999), "{r:?} short of {t}");
     }
-    // Each ray's own reach, in batches: short of its hit, nothing; past it, the same hit.
+    // Each ray's own reach, in batches: short of its hit, nothing; past it, the same hit;
+    // within reaches mixed with ones that are not above 0 or not a number, the single answers.
     let short: Vec<CastRay> = hit_rays.iter().map(|(r, t)| r.up_to(t * 0.999)).collect();
     let long: Vec<CastRay> = hit_rays.iter().map(|(r, t)| r.up_to(t * 1.001 + 1e-6)).collect();
     assert!(caster.occluded_all(&short).iter().all(|&b| !b));
     assert!(caster.occluded_all(&long).iter().all(|&b| b));
+    let reaches = [f64::NAN, 0.0, -1.0, 0.5, 3.0, f64::INFINITY];
+    let mixed: Vec<CastRay> = rays.iter().enumerate().map(|(k, r)| r.up_to(reaches[k % reaches.len()])).collect();
+    for (k, (r, blocked)) in mixed.iter().zip(caster.occluded_all(&mixed)).enumerate() {
+        assert_eq!(blocked, caster.occluded(r.origin, r.dir, r.t_max), "ray {k}: {r:?}");
+    }
     assert!(caster.nearest_all(&short).iter().all(Option::is_none));
     for ((r, t), h) in hit_rays.iter().zip(caster.nearest_all(&long)) {
         assert_eq!(h.map(|h| h.t), Some(*t), "{r:?}");

@@ -249,8 +249,9 @@ pub fn ambient_occlusion_rays(caster: &SceneCaster, rays: &[CastRay]) -> Vec<Cas
 }
 
 /// Wall times (ms) of `cfg.frames` casts of `rays` after `cfg.warmup` untimed ones, through
-/// the session's backend's caster (made once, outside the timing): the CPU's on the thread
-/// pool, the GPU's with the rays' upload and the hits' read-back.
+/// the session's backend's caster (made once, outside the timing) into one buffer of hits
+/// kept between the casts, as a caller casting batch after batch keeps it: the CPU's on the
+/// thread pool, the GPU's with the rays' upload and the hits' read-back.
 fn time_casts(
     session: &Session,
     scene: &Scene,
@@ -263,7 +264,11 @@ fn time_casts(
     let on_gpu: Option<Cast> = match session.backend().gpu() {
         Some(g) => {
             let caster = crate::gpu::cast::GpuSceneCaster::new(g.ctx.clone(), scene)?;
-            Some(Box::new(move || Ok(caster.nearest_all(rays)?.iter().flatten().count())))
+            let mut hits = Vec::new();
+            Some(Box::new(move || {
+                caster.nearest_into(rays, &mut hits)?;
+                Ok(hits.iter().flatten().count())
+            }))
         }
         None => None,
     };
@@ -275,8 +280,11 @@ fn time_casts(
     let mut cast: Cast = match on_gpu {
         Some(c) => c,
         None => {
-            let caster = SceneCaster::new(scene)?;
-            Box::new(move || Ok(crate::pool::run_awake(|| caster.nearest_all(rays)).iter().flatten().count()))
+            let (caster, mut hits) = (SceneCaster::new(scene)?, Vec::new());
+            Box::new(move || {
+                crate::pool::run_awake(|| caster.nearest_into(rays, &mut hits));
+                Ok(hits.iter().flatten().count())
+            })
         }
     };
     let mut times = Vec::with_capacity(frames);

@@ -343,10 +343,11 @@ same image).\n\n";
     let rs = of("cast");
     if !rs.is_empty() {
         md += "### Rays of your own: the scene caster\n\n";
-        md += "A library caller's batch of rays through `cast::SceneCaster` (CPU, on the thread pool) and \
-`gpu::cast::GpuSceneCaster` (GPU: the rays' upload and the hits' read-back included), nearest hits, \
-one ray at a time (no beams or packets), against the car's 8 parts on its ground: every pixel's \
-camera ray of the paper scenario's view, then one ambient-occlusion ray from each of their hits \
+        md += "A library caller's batch of rays through `cast::SceneCaster::nearest_into` (CPU, on the thread \
+pool: runs of 64 consecutive rays through each octree together as packets, with each ray's own answer) and \
+`gpu::cast::GpuSceneCaster::nearest_into` (GPU: the rays' upload and the hits' read-back included), nearest \
+hits into one buffer kept between the calls, against the car's 8 parts on its ground: every pixel's \
+camera ray of the paper scenario's view, row by row, then one ambient-occlusion ray from each of their hits \
 (short, incoherent, from just off the surface). Median wall time of one call over the timed calls.\n\n";
         md += &provenance(&rs);
         md += "\n| rays | backend | rays per call | median ms | p95 ms | Mrays/s |\n|---|---|---|---|---|---|\n";

@@ -152,39 +152,44 @@ impl GpuSceneCaster {
 
     /// [`crate::cast::SceneCaster::nearest_all`] on the GPU.
     pub fn nearest_all(&self, rays: &[CastRay]) -> Result<Vec<Option<SceneHit>>, GpuError> {
+        let mut out = Vec::new();
+        self.nearest_into(rays, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`crate::cast::SceneCaster::nearest_into`] on the GPU: the answers into the caller's
+    /// buffer (replacing what it held).
+    pub fn nearest_into(&self, rays: &[CastRay], out: &mut Vec<Option<SceneHit>>) -> Result<(), GpuError> {
         let (gpu_rays, dirs) = self.gpu_rays(rays);
         let found = self.ctx.scoped(|| self.run(&self.nearest, &gpu_rays))?;
-        Ok(rays
-            .iter()
-            .zip(&found)
-            .zip(dirs)
-            .map(|((r, g), d)| {
-                let p = self.prepared.get(g.instance as usize).filter(|_| d.is_some())?;
-                let d = d?;
-                let attr = Attr { albedo: g.attr[0], normal: g.attr[1], emission: g.attr[2] };
-                let voxel = Hit {
-                    t: g.t,
-                    level: g.level,
-                    coord: [g.coord[0], g.coord[1], g.coord[2]],
-                    attr,
-                    face_normal: glam::Vec3::new(g.face_normal[0], g.face_normal[1], g.face_normal[2]),
-                };
-                let t = g.t as f64;
-                // (The nearest hit beyond the reach: none within it; compared as the CPU's.)
-                if !(t <= r.t_max) {
-                    return None;
-                }
-                Some(SceneHit {
-                    instance: g.instance as usize,
-                    part: p.part,
-                    t,
-                    position: r.origin + d * t,
-                    normal: p.normal_to_world(voxel.normal().as_dvec3()).normalize_or_zero(),
-                    albedo: voxel.albedo(),
-                    voxel,
-                })
+        out.clear();
+        out.extend(rays.iter().zip(&found).zip(dirs).map(|((r, g), d)| {
+            let p = self.prepared.get(g.instance as usize).filter(|_| d.is_some())?;
+            let d = d?;
+            let attr = Attr { albedo: g.attr[0], normal: g.attr[1], emission: g.attr[2] };
+            let voxel = Hit {
+                t: g.t,
+                level: g.level,
+                coord: [g.coord[0], g.coord[1], g.coord[2]],
+                attr,
+                face_normal: glam::Vec3::new(g.face_normal[0], g.face_normal[1], g.face_normal[2]),
+            };
+            let t = g.t as f64;
+            // (The nearest hit beyond the reach: none within it; compared as the CPU's.)
+            if !(t <= r.t_max) {
+                return None;
+            }
+            Some(SceneHit {
+                instance: g.instance as usize,
+                part: p.part,
+                t,
+                position: r.origin + d * t,
+                normal: p.normal_to_world(voxel.normal().as_dvec3()).normalize_or_zero(),
+                albedo: voxel.albedo(),
+                voxel,
             })
-            .collect())
+        }));
+        Ok(())
     }
 
     /// [`crate::cast::SceneCaster::occluded_all`] on the GPU.

@@ -107,6 +107,26 @@ pub(crate) fn each(mut mask: u64) -> impl Iterator<Item = usize> {
     })
 }
 
+/// Where a packet's rays start.
+#[derive(Clone, Copy, Debug)]
+pub enum Origins<'a> {
+    /// Every ray at one point (a camera's rays).
+    One(DVec3),
+    /// Lane `k`'s ray at the `k`-th point (a library caller's rays of its own).
+    Each(&'a [DVec3]),
+}
+
+impl Origins<'_> {
+    /// Where lane `k`'s ray starts.
+    #[inline(always)]
+    fn of(&self, k: usize) -> DVec3 {
+        match self {
+            Origins::One(o) => *o,
+            Origins::Each(at) => at[k],
+        }
+    }
+}
+
 /// The nearest hit of each ray `o + t·dirs[k]` for the lanes `k` of `lanes` (up to
 /// [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for the
 /// ray. `fi.starts` holds the tile's beam starts (every ray of `dirs` inside the tile's beam).
@@ -116,6 +136,26 @@ pub(crate) fn each(mut mask: u64) -> impl Iterator<Item = usize> {
 pub fn nearest_tile(
     fi: &FrameInstances,
     o: DVec3,
+    dirs: &[DVec3],
+    lanes: u64,
+    search: Search,
+    opts: &TraceOptions,
+    work: &mut Work,
+    scratch: &mut TileScratch,
+    out: &mut [Option<InstanceHit>],
+    first: Option<usize>,
+) {
+    nearest_packet(fi, Origins::One(o), dirs, lanes, search, opts, work, scratch, out, first);
+}
+
+/// [`nearest_tile`] for rays from points of their own as well: lane `k`'s ray is
+/// `origins.of(k) + t·dirs[k]`. Without beam starts (`fi.starts`) the instances are searched
+/// in their order, `first` first.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn nearest_packet(
+    fi: &FrameInstances,
+    origins: Origins,
     dirs: &[DVec3],
     lanes: u64,
     search: Search,
@@ -148,13 +188,12 @@ pub fn nearest_tile(
     for &(start, i) in order.iter() {
         let p = &fi.prepared[i];
         let t_min = if start > opts.t_min { start } else { opts.t_min };
-        let unit_o = p.to_unit.point(o);
         let mut todo = 0u64;
         for k in each(lanes) {
             let d = dirs[k];
             let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
             if search != Search::Plain {
-                let Some((entry, _)) = sphere_interval(p.centre, p.radius, o, d) else {
+                let Some((entry, _)) = sphere_interval(p.centre, p.radius, origins.of(k), d) else {
                     work.culled += 1;
                     continue;
                 };
@@ -169,7 +208,14 @@ pub fn nearest_tile(
             scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
             todo |= 1 << k;
         }
-        scratch.map_lanes(p, unit_o, dirs, todo);
+        match origins {
+            Origins::One(o) => scratch.map_lanes(p, p.to_unit.point(o), dirs, todo),
+            Origins::Each(at) => {
+                for k in each(todo) {
+                    scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(at[k]), p.to_unit.vector(dirs[k]));
+                }
+            }
+        }
         for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
             keep(&mut out[k], i, h);
         }
@@ -259,6 +305,46 @@ pub fn occluded_tile_by(
         for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
             open &= !(1 << k);
             blockers[k] = i as u32;
+        }
+        if open == 0 {
+            break;
+        }
+    }
+    lanes & !open
+}
+
+/// Whether each ray `origins[k] + t·dirs[k]`, `0 ≤ t ≤ t_max[k]`, for the lanes `k` of
+/// `lanes` (up to [`LANES`]), hits an instance: bit `k` of the result set when it does. What
+/// [`super::visibility::occluded`] answers for each ray, the octrees traversed by the rays
+/// together (a library caller's batch: [`crate::cast::SceneCaster::occluded_all`]).
+#[allow(clippy::too_many_arguments)]
+pub fn occluded_rays(
+    fi: &FrameInstances,
+    origins: &[DVec3],
+    dirs: &[DVec3],
+    t_max: &[f64],
+    lanes: u64,
+    search: Search,
+    max_level: u32,
+    scratch: &mut TileScratch,
+) -> u64 {
+    let mut open = lanes;
+    for p in fi.prepared {
+        let mut todo = 0u64;
+        for k in each(open) {
+            let (o, d) = (origins[k], dirs[k]);
+            // As `occluded_tile_by`: the octree lies inside the sphere.
+            if search != Search::Plain
+                && !sphere_interval(p.centre, p.radius, o, d).is_some_and(|(t0, _)| t0 <= t_max[k])
+            {
+                continue;
+            }
+            let opts = TraceOptions { t_max: t_max[k] as f32, max_level, ..TraceOptions::default() };
+            scratch.set(k, p, o, d, opts);
+            todo |= 1 << k;
+        }
+        for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
+            open &= !(1 << k);
         }
         if open == 0 {
             break;
