@@ -31,8 +31,41 @@ pub(crate) fn map_four(
         () if avx2() => unsafe { avx::map_four(to_unit, unit_o, dirs, n, ks, out) },
         () => (1u32 << n) - 1,
     };
+    scalar(to_unit, |_| unit_o, dirs, n, ks, slow, out);
+}
+
+/// [`map_four`] for rays from points of their own: lane `ks[j]`'s from `unit_o[j]` (in the
+/// unit cube).
+pub(crate) fn map_four_from(
+    to_unit: &ToUnit,
+    unit_o: &[DVec3; 4],
+    dirs: &[DVec3],
+    n: usize,
+    ks: &[usize; 4],
+    out: &mut [Option<UnitRay>],
+) {
+    let n = n.min(4);
+    let slow = match () {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU has AVX and AVX2 (checked by the guard).
+        () if avx2() => unsafe { avx::map_four_from(to_unit, unit_o, dirs, n, ks, out) },
+        () => (1u32 << n) - 1,
+    };
+    scalar(to_unit, |j| unit_o[j], dirs, n, ks, slow, out);
+}
+
+/// The lanes `j < n` in `slow` set up one at a time, lane `ks[j]`'s from `unit_o(j)`.
+fn scalar(
+    to_unit: &ToUnit,
+    unit_o: impl Fn(usize) -> DVec3,
+    dirs: &[DVec3],
+    n: usize,
+    ks: &[usize; 4],
+    slow: u32,
+    out: &mut [Option<UnitRay>],
+) {
     for j in (0..n).filter(|j| slow & (1 << j) != 0) {
-        out[ks[j]] = UnitRay::from_unit(unit_o, to_unit.vector(dirs[ks[j]]));
+        out[ks[j]] = UnitRay::from_unit(unit_o(j), to_unit.vector(dirs[ks[j]]));
     }
 }
 
@@ -62,14 +95,53 @@ mod avx {
         ks: &[usize; 4],
         out: &mut [Option<UnitRay>],
     ) -> u32 {
-        let lanes = (1u32 << n) - 1;
         if !unit_o.is_finite() {
-            return lanes;
+            return (1u32 << n) - 1;
         }
+        let o = [_mm256_set1_pd(unit_o.x), _mm256_set1_pd(unit_o.y), _mm256_set1_pd(unit_o.z)];
+        map_four_at(to_unit, o, dirs, n, ks, out)
+    }
+
+    /// [`super::map_four_from`] in AVX2 vectors, as [`map_four`].
+    ///
+    /// # Safety
+    /// The CPU has AVX and AVX2.
+    #[target_feature(enable = "avx,avx2")]
+    pub(super) unsafe fn map_four_from(
+        to_unit: &ToUnit,
+        unit_o: &[DVec3; 4],
+        dirs: &[DVec3],
+        n: usize,
+        ks: &[usize; 4],
+        out: &mut [Option<UnitRay>],
+    ) -> u32 {
+        // (Past `n` a lane may start anywhere: its ray is not written.)
+        if !unit_o[..n].iter().all(|o| o.is_finite()) {
+            return (1u32 << n) - 1;
+        }
+        let o = [0, 1, 2].map(|i| _mm256_set_pd(unit_o[3][i], unit_o[2][i], unit_o[1][i], unit_o[0][i]));
+        map_four_at(to_unit, o, dirs, n, ks, out)
+    }
+
+    /// The four lanes from the origins `o` (by axis, finite for the lanes `j < n`).
+    ///
+    /// # Safety
+    /// The CPU has AVX and AVX2.
+    #[target_feature(enable = "avx,avx2")]
+    #[inline]
+    unsafe fn map_four_at(
+        to_unit: &ToUnit,
+        o: [__m256d; 3],
+        dirs: &[DVec3],
+        n: usize,
+        ks: &[usize; 4],
+        out: &mut [Option<UnitRay>],
+    ) -> u32 {
+        let lanes = (1u32 << n) - 1;
+        let splat = |x: f64| _mm256_set1_pd(x);
         let w = ks.map(|k| dirs[k]);
         let axis = |i: usize| _mm256_set_pd(w[3][i], w[2][i], w[1][i], w[0][i]);
         let (wx, wy, wz) = (axis(0), axis(1), axis(2));
-        let splat = |x: f64| _mm256_set1_pd(x);
         // `ToUnit::vector`, component by component as glam forms it.
         let d: [__m256d; 3] = match to_unit {
             ToUnit::Scale { inv_size, .. } => {
@@ -111,8 +183,9 @@ mod avx {
         let mut t_enter = _mm256_setzero_pd();
         let mut t_exit = _mm256_setzero_pd();
         for (i, &di) in d.iter().enumerate() {
-            let lo = _mm256_div_pd(splat(-unit_o[i]), di);
-            let hi = _mm256_div_pd(splat(1.0 - unit_o[i]), di);
+            // `-origin` and `1 − origin` as `from_unit` forms them (negation is exact).
+            let lo = _mm256_div_pd(_mm256_xor_pd(o[i], splat(-0.0)), di);
+            let hi = _mm256_div_pd(_mm256_sub_pd(splat(1.0), o[i]), di);
             let (near, far) = (_mm256_min_pd(lo, hi), _mm256_max_pd(lo, hi));
             (t_enter, t_exit) =
                 if i == 0 { (near, far) } else { (_mm256_max_pd(t_enter, near), _mm256_min_pd(t_exit, far)) };
@@ -121,7 +194,7 @@ mod avx {
         let zero = _mm256_setzero_pd();
         let off = _mm256_or_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(t_enter, zero), _mm256_cmp_pd::<_CMP_LT_OQ>(t_exit, zero));
         let t_offset = _mm256_and_pd(off, t_enter);
-        let moved = [0, 1, 2].map(|i| _mm256_add_pd(splat(unit_o[i]), _mm256_mul_pd(t_offset, d[i])));
+        let moved = [0, 1, 2].map(|i| _mm256_add_pd(o[i], _mm256_mul_pd(t_offset, d[i])));
         let scaled = d.map(|v| _mm256_mul_pd(v, t_scale));
         // f32 origins and directions; a negative direction mirrors its axis (its sign bit
         // picks the mirrored values, and its magnitude is the mirrored direction).
@@ -193,13 +266,25 @@ mod tests {
         }
     }
 
+    /// An origin in the unit cube's frame: inside, outside, far from and on the cube.
+    fn origin(round: usize, rng: &mut Rng) -> DVec3 {
+        match round % 5 {
+            0 => DVec3::new(rng.f64(), rng.f64(), rng.f64()),
+            1 => DVec3::new(-3.0 + rng.f64(), 0.5, 2.0 * rng.f64()),
+            2 => DVec3::new(rng.f64() * 1e9, -1e9, 0.5),
+            3 => DVec3::new(0.0, 1.0, rng.f64()),
+            _ => DVec3::new(rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0),
+        }
+    }
+
     /// Four lanes at a time set up the rays one at a time sets up, bit for bit, for both
-    /// kinds of ray map, origins inside, outside, far from and on the cube, and the
-    /// directions that take the scalar path; lanes not asked for are left alone.
+    /// kinds of ray map, origins inside, outside, far from and on the cube (one for all four
+    /// lanes, or one each, now and then not finite), and the directions that take the scalar
+    /// path; lanes not asked for are left alone.
     #[test]
     fn four_lanes_set_up_the_scalar_rays() {
         let mut rng = Rng::new(97);
-        let (mut compared, mut vector_path) = (0, 0);
+        let (mut compared, mut vector_path, mut own_origins) = (0, 0, 0);
         for round in 0..12000 {
             let to_unit = if round % 2 == 0 {
                 ToUnit::Scale { offset: DVec3::ZERO, inv_size: 0.1 + rng.f64() * 4.0 }
@@ -207,14 +292,19 @@ mod tests {
                 let m = DMat3::from_cols_array(&[0.0; 9].map(|_| rng.f64() * 2.0 - 1.0));
                 ToUnit::Affine(DAffine3::from_mat3_translation(m, DVec3::ZERO))
             };
-            let unit_o = match round % 5 {
-                0 => DVec3::new(rng.f64(), rng.f64(), rng.f64()),
-                1 => DVec3::new(-3.0 + rng.f64(), 0.5, 2.0 * rng.f64()),
-                2 => DVec3::new(rng.f64() * 1e9, -1e9, 0.5),
-                3 => DVec3::new(0.0, 1.0, rng.f64()),
-                _ => DVec3::new(rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0),
-            };
-            let unit_o = if round % 97 == 0 { DVec3::new(f64::NAN, 0.0, 0.0) } else { unit_o };
+            // One origin for the four lanes in two rounds of three, one each in the third.
+            let shared = origin(round, &mut rng);
+            let mut unit_o = [shared; 4];
+            if round % 3 == 2 {
+                unit_o = unit_o.map(|_| origin(rng.below(5) as usize, &mut rng));
+            }
+            if round % 97 == 0 {
+                match round % 3 {
+                    2 => unit_o[rng.below(4) as usize] = DVec3::new(f64::NAN, 0.0, 0.0),
+                    _ => unit_o = [DVec3::new(f64::NAN, 0.0, 0.0); 4],
+                }
+            }
+
             let dirs: Vec<DVec3> = (0..8)
                 .map(|_| {
                     if rng.below(4) == 0 {
@@ -234,17 +324,27 @@ mod tests {
             }
             let marker = Some(UnitRay::from_unit(DVec3::splat(0.5), DVec3::X).expect("a ray"));
             let mut out = vec![marker; 8];
-            map_four(&to_unit, unit_o, &dirs, n, &ks, &mut out);
+            match round % 3 {
+                2 => map_four_from(&to_unit, &unit_o, &dirs, n, &ks, &mut out),
+                _ => map_four(&to_unit, unit_o[0], &dirs, n, &ks, &mut out),
+            }
             for k in 0..8 {
-                let expect = match ks[..n].contains(&k) {
-                    true => UnitRay::from_unit(unit_o, to_unit.vector(dirs[k])),
-                    false => marker,
+                let j = ks[..n].iter().position(|&kj| kj == k);
+                let expect = match j {
+                    Some(j) => UnitRay::from_unit(unit_o[j], to_unit.vector(dirs[k])),
+                    None => marker,
                 };
-                assert_eq!(bits(&out[k]), bits(&expect), "round {round}, lane {k}: {:?} from {unit_o:?}", dirs[k]);
+                let from = j.map(|j| unit_o[j]);
+                assert_eq!(bits(&out[k]), bits(&expect), "round {round}, lane {k}: {:?} from {from:?}", dirs[k]);
                 compared += 1;
-                vector_path += (ks[..n].contains(&k) && expect.is_some_and(|r| r.parallel == 0)) as usize;
+                let vector = expect.is_some_and(|r| r.parallel == 0) && unit_o[..n].iter().all(|o| o.is_finite());
+                vector_path += (j.is_some() && vector) as usize;
+                own_origins += (j.is_some() && vector && round % 3 == 2) as usize;
             }
         }
-        assert!(compared > 60_000 && vector_path > 5_000, "{compared} lanes, {vector_path} through the vectors");
+        assert!(
+            compared > 60_000 && vector_path > 5_000 && own_origins > 1_000,
+            "{compared} lanes, {vector_path} through the vectors, {own_origins} of them from origins of their own"
+        );
     }
 }

@@ -56,36 +56,23 @@ impl TileScratch {
         out
     }
 
-    /// Sets lane `k` to the ray `o + t·d`, mapped into instance `p`'s unit cube, traced with
-    /// `opts`.
-    fn set(&mut self, k: usize, p: &Prepared, o: DVec3, d: DVec3, opts: TraceOptions) {
-        self.set_mapped(k, p, p.to_unit.point(o), d, opts);
-    }
-
-    /// [`Self::set`] with the origin already mapped into the unit cube (`unit_o`): rays from
-    /// one point map it once per instance.
-    fn set_mapped(&mut self, k: usize, p: &Prepared, unit_o: DVec3, d: DVec3, opts: TraceOptions) {
-        self.rays[k] = UnitRay::from_unit(unit_o, p.to_unit.vector(d));
-        self.opts[k] = opts;
-    }
-
     /// The rays of the lanes `lanes`, `unit_o + t·d` with `d` the direction `dirs[k]` mapped
-    /// into instance `p`'s unit cube: [`Self::set_mapped`]'s rays, set up four at a time
+    /// into instance `p`'s unit cube: `UnitRay::from_unit`'s rays, set up four at a time
     /// ([`super::ray_setup`]). Their options are set apart.
     fn map_lanes(&mut self, p: &Prepared, unit_o: DVec3, dirs: &[DVec3], lanes: u64) {
-        let mut l = lanes;
-        while l != 0 {
-            let (mut ks, mut n) = ([lanes.trailing_zeros() as usize; 4], 0);
-            while l != 0 && n < 4 {
-                ks[n] = l.trailing_zeros() as usize;
-                l &= l - 1;
-                n += 1;
-            }
-            super::ray_setup::map_four(&p.to_unit, unit_o, dirs, n, &ks, &mut self.rays);
-        }
+        for_fours(lanes, |n, ks| super::ray_setup::map_four(&p.to_unit, unit_o, dirs, n, ks, &mut self.rays));
     }
 
-    /// Traces the lanes `todo` (each set by [`Self::set`]) through `svo` as one packet and
+    /// [`Self::map_lanes`] for rays from points of their own: lane `k`'s from `origins[k]`
+    /// (before its map into the cube).
+    fn map_lanes_from(&mut self, p: &Prepared, origins: &[DVec3], dirs: &[DVec3], lanes: u64) {
+        for_fours(lanes, |n, ks| {
+            let unit_o = ks.map(|k| p.to_unit.point(origins[k]));
+            super::ray_setup::map_four_from(&p.to_unit, &unit_o, dirs, n, ks, &mut self.rays)
+        });
+    }
+
+    /// Traces the lanes `todo` (each set by [`Self::map_lanes`] or its kin) through `svo` as one packet and
     /// returns the hits, lowest lane first.
     fn trace(&mut self, svo: &Svo, todo: u64) -> impl Iterator<Item = (usize, Hit)> + '_ {
         if todo != 0 {
@@ -93,6 +80,22 @@ impl TileScratch {
         }
         let hits = &self.hits;
         each(todo).filter_map(move |k| hits[k].map(|h| (k, h)))
+    }
+}
+
+/// `f(n, ks)` for the lanes of `lanes` four at a time: `ks[..n]` the next `n ≤ 4` of them,
+/// lowest first (the places past `n` repeat the lowest lane).
+#[inline(always)]
+fn for_fours(lanes: u64, mut f: impl FnMut(usize, &[usize; 4])) {
+    let mut l = lanes;
+    while l != 0 {
+        let (mut ks, mut n) = ([lanes.trailing_zeros() as usize; 4], 0);
+        while l != 0 && n < 4 {
+            ks[n] = l.trailing_zeros() as usize;
+            l &= l - 1;
+            n += 1;
+        }
+        f(n, &ks);
     }
 }
 
@@ -210,11 +213,7 @@ pub fn nearest_packet(
         }
         match origins {
             Origins::One(o) => scratch.map_lanes(p, p.to_unit.point(o), dirs, todo),
-            Origins::Each(at) => {
-                for k in each(todo) {
-                    scratch.rays[k] = UnitRay::from_unit(p.to_unit.point(at[k]), p.to_unit.vector(dirs[k]));
-                }
-            }
+            Origins::Each(at) => scratch.map_lanes_from(p, at, dirs, todo),
         }
         for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
             keep(&mut out[k], i, h);
@@ -284,6 +283,7 @@ pub fn occluded_tile_by(
         hi = hi.max(origins[k]);
     }
     let (centre, width) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
+    let dirs = [dir; LANES];
     let mut open = lanes;
     for (i, p) in fi.prepared.iter().enumerate() {
         let asked = if only.moved.get(i).is_some_and(|m| !m) { open & !only.lanes } else { open };
@@ -299,9 +299,10 @@ pub fn occluded_tile_by(
             {
                 continue;
             }
-            scratch.set(k, p, origins[k], dir, opts);
+            scratch.opts[k] = opts;
             todo |= 1 << k;
         }
+        scratch.map_lanes_from(p, origins, &dirs, todo);
         for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
             open &= !(1 << k);
             blockers[k] = i as u32;
@@ -339,10 +340,10 @@ pub fn occluded_rays(
             {
                 continue;
             }
-            let opts = TraceOptions { t_max: t_max[k] as f32, max_level, ..TraceOptions::default() };
-            scratch.set(k, p, o, d, opts);
+            scratch.opts[k] = TraceOptions { t_max: t_max[k] as f32, max_level, ..TraceOptions::default() };
             todo |= 1 << k;
         }
+        scratch.map_lanes_from(p, origins, dirs, todo);
         for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
             open &= !(1 << k);
         }
