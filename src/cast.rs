@@ -6,9 +6,10 @@
 //! map into its octree and its bounding sphere, relative to a reference point kept in f64)
 //! and, from [`BVH_MIN_INSTANCES`] instances on, builds the instance BVH over the spheres.
 //! Each ray then goes through [`render::visibility`](crate::render::visibility) as the
-//! renderer's own rays do, so a hit is bit for bit the one the frame's search would find
-//! (every search agrees with the plain "trace every instance" one; the tests hold both to
-//! the DDA oracle).
+//! renderer's own rays do, and a batch among fewer instances goes in runs of 64 rays through
+//! the tiles' packet search ([`render::tile_search`](crate::render::tile_search)), so a hit
+//! is bit for bit the one the frame's search would find (every search agrees with the plain
+//! "trace every instance" one; the tests hold both to the DDA oracle).
 //!
 //! ```
 //! use glam::{DVec3, Vec3};

@@ -1,5 +1,7 @@
 //! A tile's rays set up four at a time: [`UnitRay::from_unit`] of the directions a tile's
-//! rays take into one instance's unit cube, in AVX2 vectors where the CPU has them.
+//! rays take into one instance's unit cube, from one point (the eye) or from points of their
+//! own (a tile's shadow rays, a library caller's rays), in AVX2 vectors where the CPU has
+//! them.
 //!
 //! The rays are the scalar set-up's bit for bit: the map into the cube, the cube entry, the
 //! origin's move, the power-of-two rescale and the mirroring are the same IEEE operations

@@ -1,6 +1,7 @@
 //! The nearest-hit search of [`super::visibility`] for a whole tile of primary rays at once:
 //! each instance's octree is traversed by the tile's rays as one packet
-//! ([`crate::traverse::packet`]) instead of ray by ray.
+//! ([`crate::traverse::packet`]) instead of ray by ray; and the same for shadow rays, and
+//! for a library caller's runs of rays from points of their own ([`crate::cast`]).
 //!
 //! The answers are [`super::visibility::nearest_work`]'s bit for bit, in every search mode:
 //! every mode finds the plain search's answer (the nearest t, equal t to the lower instance),
@@ -72,8 +73,8 @@ impl TileScratch {
         });
     }
 
-    /// Traces the lanes `todo` (each set by [`Self::map_lanes`] or its kin) through `svo` as one packet and
-    /// returns the hits, lowest lane first.
+    /// Traces the lanes `todo` (each set by [`Self::map_lanes`] or [`Self::map_lanes_from`])
+    /// through `svo` as one packet and returns the hits, lowest lane first.
     fn trace(&mut self, svo: &Svo, todo: u64) -> impl Iterator<Item = (usize, Hit)> + '_ {
         if todo != 0 {
             trace_packet(svo, &self.rays, &self.opts, todo, &mut self.stack, &mut self.hits);
