@@ -116,7 +116,7 @@ impl MatrixConfig {
                 Scenario::Resolution => self.resolutions.len(),
                 Scenario::Depth => 1 + self.lod_levels.len().max(3),
                 Scenario::Splat => 2 * (self.cars.len() + 1 + self.lod_levels.len().max(3)),
-                Scenario::Cast => 2,
+                Scenario::Cast => 3,
             })
             .sum()
     }
@@ -211,12 +211,29 @@ fn framed(st: &crate::scene::Staged) -> (glam::DVec3, glam::DVec3) {
     }
 }
 
-/// The cast scenario's two batches: every pixel's camera ray, and from each of their hits
+/// What a batch of the cast scenario asks of each ray.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Query {
+    /// Its nearest hit (`nearest_into`).
+    Nearest,
+    /// Whether anything lies within its reach (`occluded_into`).
+    Occluded,
+}
+
+/// One batch of the cast scenario: its name, what it asks and its rays.
+type CastBatch = (&'static str, Query, Vec<CastRay>);
+
+/// How far the cast scenario's occlusion rays reach: half a metre on the car (a part's
+/// neighbourhood, as ambient occlusion asks).
+const OCCLUSION_REACH: f64 = 0.5;
+
+/// The cast scenario's three batches: every pixel's camera ray, and from each of their hits
 /// (found by the CPU's caster, so that both backends cast the same rays) one ray into the
-/// hemisphere around its normal, from just off the surface.
-fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[(&'static str, Vec<CastRay>); 2], crate::Error> {
-    // Per pixel: its camera ray, its hit and at most one ambient-occlusion ray.
-    let per_ray = 2 * std::mem::size_of::<CastRay>() + std::mem::size_of::<Option<crate::cast::SceneHit>>();
+/// hemisphere around its normal, from just off the surface, asked for its nearest hit and,
+/// within [`OCCLUSION_REACH`], for any.
+fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[CastBatch; 3], crate::Error> {
+    // Per pixel: its camera ray, its hit and at most two ambient-occlusion rays and an answer.
+    let per_ray = 3 * std::mem::size_of::<CastRay>() + std::mem::size_of::<Option<crate::cast::SceneHit>>() + 1;
     crate::memory::check(
         "the cast scenario's rays and hits",
         camera.width as u64 * camera.height as u64 * per_ray as u64,
@@ -228,7 +245,12 @@ fn cast_rays(scene: &Scene, camera: &Camera) -> Result<[(&'static str, Vec<CastR
         .map(|(x, y)| CastRay::new(camera.eye, camera.ray_dir(&basis, x, y)))
         .collect();
     let ao_rays = ambient_occlusion_rays(&SceneCaster::new(scene)?, &camera_rays);
-    Ok([("camera rays", camera_rays), ("ambient-occlusion rays", ao_rays)])
+    let reach = ao_rays.iter().map(|r| r.up_to(OCCLUSION_REACH)).collect();
+    Ok([
+        ("camera rays", Query::Nearest, camera_rays),
+        ("ambient-occlusion rays", Query::Nearest, ao_rays),
+        ("ambient-occlusion rays, any hit within 0.5", Query::Occluded, reach),
+    ])
 }
 
 /// From each hit of `rays` (through `caster`), one ray into the hemisphere around the hit's
@@ -248,14 +270,15 @@ pub fn ambient_occlusion_rays(caster: &SceneCaster, rays: &[CastRay]) -> Vec<Cas
         .collect()
 }
 
-/// Wall times (ms) of `cfg.frames` casts of `rays` after `cfg.warmup` untimed ones, through
-/// the session's backend's caster (made once, outside the timing) into one buffer of hits
-/// kept between the casts, as a caller casting batch after batch keeps it: the CPU's on the
-/// thread pool, the GPU's with the rays' upload and the hits' read-back.
+/// Wall times (ms) of `cfg.frames` casts of `rays` after `cfg.warmup` untimed ones, asking
+/// `query`, through the session's backend's caster (made once, outside the timing) into one
+/// buffer of answers kept between the casts, as a caller casting batch after batch keeps it:
+/// the CPU's on the thread pool, the GPU's with the rays' upload and the answers' read-back.
 fn time_casts(
     session: &Session,
     scene: &Scene,
     rays: &[CastRay],
+    query: Query,
     cfg: &MatrixConfig,
 ) -> Result<Vec<f64>, crate::Error> {
     let frames = cfg.frames.max(1);
@@ -264,10 +287,16 @@ fn time_casts(
     let on_gpu: Option<Cast> = match session.backend().gpu() {
         Some(g) => {
             let caster = crate::gpu::cast::GpuSceneCaster::new(g.ctx.clone(), scene)?;
-            let mut hits = Vec::new();
-            Some(Box::new(move || {
-                caster.nearest_into(rays, &mut hits)?;
-                Ok(hits.iter().flatten().count())
+            let (mut hits, mut blocked) = (Vec::new(), Vec::new());
+            Some(Box::new(move || match query {
+                Query::Nearest => {
+                    caster.nearest_into(rays, &mut hits)?;
+                    Ok(hits.iter().flatten().count())
+                }
+                Query::Occluded => {
+                    caster.occluded_into(rays, &mut blocked)?;
+                    Ok(blocked.iter().filter(|&&b| b).count())
+                }
             }))
         }
         None => None,
@@ -280,10 +309,16 @@ fn time_casts(
     let mut cast: Cast = match on_gpu {
         Some(c) => c,
         None => {
-            let (caster, mut hits) = (SceneCaster::new(scene)?, Vec::new());
-            Box::new(move || {
-                crate::pool::run_awake(|| caster.nearest_into(rays, &mut hits));
-                Ok(hits.iter().flatten().count())
+            let (caster, mut hits, mut blocked) = (SceneCaster::new(scene)?, Vec::new(), Vec::new());
+            Box::new(move || match query {
+                Query::Nearest => {
+                    crate::pool::run_awake(|| caster.nearest_into(rays, &mut hits));
+                    Ok(hits.iter().flatten().count())
+                }
+                Query::Occluded => {
+                    crate::pool::run_awake(|| caster.occluded_into(rays, &mut blocked));
+                    Ok(blocked.iter().filter(|&&b| b).count())
+                }
             })
         }
     };
@@ -348,10 +383,10 @@ pub fn run(
                 let (st, _) = sweep_scene(None, car, &mut slot)?;
                 let (lo, hi) = framed(st);
                 let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
-                for (setting, rays) in cast_rays(&st.scene, &camera)? {
+                for (setting, query, rays) in cast_rays(&st.scene, &camera)? {
                     let name = format!("{setting}, {} rays", rays.len());
                     progress(&name);
-                    let times = time_casts(session, &st.scene, &rays, cfg)?;
+                    let times = time_casts(session, &st.scene, &rays, query, cfg)?;
                     let (median_ms, p95_ms, min_ms) = super::summarize(&times);
                     let r = Record {
                         width: camera.width,

@@ -348,7 +348,8 @@ pool: runs of 64 consecutive rays through each octree together as packets, with 
 `gpu::cast::GpuSceneCaster::nearest_into` (GPU: the rays' upload and the hits' read-back included), nearest \
 hits into one buffer kept between the calls, against the car's 8 parts on its ground: every pixel's \
 camera ray of the paper scenario's view, row by row, then one ambient-occlusion ray from each of their hits \
-(short, incoherent, from just off the surface). Median wall time of one call over the timed calls.\n\n";
+(short, incoherent, from just off the surface), and the same rays asked through `occluded_into` whether \
+anything lies within half a metre of their start. Median wall time of one call over the timed calls.\n\n";
         md += &provenance(&rs);
         md += "\n| rays | backend | rays per call | median ms | p95 ms | Mrays/s |\n|---|---|---|---|---|---|\n";
         for r in &rs {

@@ -194,14 +194,19 @@ impl GpuSceneCaster {
 
     /// [`crate::cast::SceneCaster::occluded_all`] on the GPU.
     pub fn occluded_all(&self, rays: &[CastRay]) -> Result<Vec<bool>, GpuError> {
+        let mut out = Vec::new();
+        self.occluded_into(rays, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`crate::cast::SceneCaster::occluded_into`] on the GPU: the answers into the caller's
+    /// buffer (replacing what it held).
+    pub fn occluded_into(&self, rays: &[CastRay], out: &mut Vec<bool>) -> Result<(), GpuError> {
         let (gpu_rays, dirs) = self.gpu_rays(rays);
         let found = self.ctx.scoped(|| self.run(&self.occluded, &gpu_rays))?;
-        Ok(found
-            .iter()
-            .zip(dirs)
-            .zip(rays)
-            .map(|((g, d), r)| d.is_some() && r.t_max > 0.0 && g.instance == 0)
-            .collect())
+        out.clear();
+        out.extend(found.iter().zip(dirs).zip(rays).map(|((g, d), r)| d.is_some() && r.t_max > 0.0 && g.instance == 0));
+        Ok(())
     }
 
     /// The rays relative to the reference point with unit directions, in f32, and each
