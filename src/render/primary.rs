@@ -4,7 +4,7 @@
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::pixel_spheres::{PixelSpheres, TileLists};
-use super::tile_search::{each, nearest_moved_tile, nearest_tile, TileScratch};
+use super::tile_search::{each, nearest_moved_tile, nearest_packet, Origins, TileScratch};
 use super::visibility::{
     nearest_listed, nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work,
 };
@@ -235,9 +235,9 @@ pub fn trace_tiles<T: Send, S>(
                     dirs[k] = dir(k);
                 }
                 if todo != 0 {
-                    nearest_tile(
+                    nearest_packet(
                         &fi,
-                        DVec3::ZERO,
+                        Origins::One(DVec3::ZERO),
                         &dirs,
                         todo,
                         p.search,

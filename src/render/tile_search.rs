@@ -19,7 +19,7 @@ use crate::traverse::packet::{trace_packet, PacketStack, LANES};
 use crate::traverse::{Hit, TraceOptions};
 use glam::DVec3;
 
-/// Reusable memory of [`nearest_tile`]: make one per thread, or borrow the thread's own
+/// Reusable memory of [`nearest_packet`]: make one per thread, or borrow the thread's own
 /// ([`TileScratch::with`]).
 pub struct TileScratch {
     stack: PacketStack,
@@ -131,30 +131,13 @@ impl Origins<'_> {
     }
 }
 
-/// The nearest hit of each ray `o + t·dirs[k]` for the lanes `k` of `lanes` (up to
-/// [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for the
-/// ray. `fi.starts` holds the tile's beam starts (every ray of `dirs` inside the tile's beam).
+/// The nearest hit of each ray `origins.of(k) + t·dirs[k]` for the lanes `k` of `lanes` (up
+/// to [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for
+/// the ray. The rays start at one point (a tile's, from the eye) or each at its own (a
+/// library caller's). `fi.starts`, when given, holds the tile's beam starts (every ray of
+/// `dirs` inside the tile's beam); without them the instances are searched in their order.
 /// Instance `first`, when given, is searched before the others (the answer is the same in
 /// any order): the instance the rays hit last frame, whose hit then bounds the rest.
-#[allow(clippy::too_many_arguments)]
-pub fn nearest_tile(
-    fi: &FrameInstances,
-    o: DVec3,
-    dirs: &[DVec3],
-    lanes: u64,
-    search: Search,
-    opts: &TraceOptions,
-    work: &mut Work,
-    scratch: &mut TileScratch,
-    out: &mut [Option<InstanceHit>],
-    first: Option<usize>,
-) {
-    nearest_packet(fi, Origins::One(o), dirs, lanes, search, opts, work, scratch, out, first);
-}
-
-/// [`nearest_tile`] for rays from points of their own as well: lane `k`'s ray is
-/// `origins.of(k) + t·dirs[k]`. Without beam starts (`fi.starts`) the instances are searched
-/// in their order, `first` first.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn nearest_packet(
@@ -466,9 +449,9 @@ mod tests {
             let lanes = if round % 3 == 0 { u64::MAX } else { Rng::new(round + 100).next_u64() };
             let mut out = [None; LANES];
             TileScratch::with(|s| {
-                nearest_tile(
+                nearest_packet(
                     &fi,
-                    DVec3::ZERO,
+                    Origins::One(DVec3::ZERO),
                     &dirs,
                     lanes,
                     Search::CullSort,
@@ -484,7 +467,8 @@ mod tests {
             let first = (round as usize * 5) % fi.prepared.len();
             TileScratch::with(|s| {
                 let (w, o) = (&mut Work::default(), &mut first_out);
-                nearest_tile(&fi, DVec3::ZERO, &dirs, lanes, Search::CullSort, &opts, w, s, o, Some(first))
+                let one = Origins::One(DVec3::ZERO);
+                nearest_packet(&fi, one, &dirs, lanes, Search::CullSort, &opts, w, s, o, Some(first))
             });
             let origins: Vec<DVec3> = dirs.iter().map(|d| *d * 0.5).collect();
             let blocked = TileScratch::with(|s| {
