@@ -28,8 +28,9 @@ pub enum Scenario {
     /// frame time and the splat image's error against the traced one.
     Splat,
     /// A library caller's own rays through the scene caster ([`crate::cast::SceneCaster`], on
-    /// the GPU `gpu::cast::GpuSceneCaster`): the car on its ground, every pixel's
-    /// camera ray and one ambient-occlusion ray from each of their hits, one batch per call.
+    /// the GPU `gpu::cast::GpuSceneCaster`): the car on its ground and a parked crowd on
+    /// theirs, every pixel's camera ray and one ambient-occlusion ray from each of their hits,
+    /// one batch per call.
     Cast,
 }
 
@@ -116,7 +117,7 @@ impl MatrixConfig {
                 Scenario::Resolution => self.resolutions.len(),
                 Scenario::Depth => 1 + self.lod_levels.len().max(3),
                 Scenario::Splat => 2 * (self.cars.len() + 1 + self.lod_levels.len().max(3)),
-                Scenario::Cast => 3,
+                Scenario::Cast => 6,
             })
             .sum()
     }
@@ -226,6 +227,10 @@ type CastBatch = (&'static str, Query, Vec<CastRay>);
 /// How far the cast scenario's occlusion rays reach: half a metre on the car (a part's
 /// neighbourhood, as ambient occlusion asks).
 const OCCLUSION_REACH: f64 = 0.5;
+
+/// Cars of the cast scenario's crowd: parked in rows on their ground, 801 instances, past
+/// the scene caster's instance-BVH threshold ([`crate::render::plan::BVH_MIN_INSTANCES`]).
+const CAST_CROWD_CARS: usize = 100;
 
 /// The cast scenario's three batches: every pixel's camera ray, and from each of their hits
 /// (found by the CPU's caster, so that both backends cast the same rays) one ray into the
@@ -379,30 +384,36 @@ pub fn run(
         match scenario {
             Scenario::Instances | Scenario::Splat | Scenario::Cast if car.is_none() => {}
             Scenario::Cast => {
-                let mut slot = None;
-                let (st, _) = sweep_scene(None, car, &mut slot)?;
-                let (lo, hi) = framed(st);
-                let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
-                for (setting, query, rays) in cast_rays(&st.scene, &camera)? {
-                    let name = format!("{setting}, {} rays", rays.len());
-                    progress(&name);
-                    let times = time_casts(session, &st.scene, &rays, query, cfg)?;
-                    let (median_ms, p95_ms, min_ms) = super::summarize(&times);
-                    let r = Record {
-                        width: camera.width,
-                        height: camera.height,
-                        warmup: cfg.warmup,
-                        frames: times.len(),
-                        instances: st.scene.instances().len(),
-                        median_ms,
-                        p95_ms,
-                        min_ms,
-                        mrays_per_s: rays.len() as f64 / median_ms.max(1e-9) / 1e3,
-                        backend: backend_name.to_string(),
-                        backend_kind: session.backend().kind_name().to_string(),
-                        ..Record::default()
-                    };
-                    out.push(label(r, cfg, group, name, setting.into(), rays.len() as f64));
+                let car = car.ok_or(crate::Error::CarParts { got: 0 })?;
+                // The car alone (8 instances: packets through each octree) and a parked crowd
+                // (past `BVH_MIN_INSTANCES`: its instance BVH), each on its ground.
+                for cars in [1, CAST_CROWD_CARS] {
+                    let st = stage_cars(&car.parts, cars, false, true)?;
+                    let (lo, hi) = framed(&st);
+                    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), cfg.size.0, cfg.size.1);
+                    let scene_name = if cars == 1 { String::new() } else { format!("{cars} cars: ") };
+                    for (what, query, rays) in cast_rays(&st.scene, &camera)? {
+                        let setting = format!("{scene_name}{what}");
+                        let name = format!("{setting}, {} rays", rays.len());
+                        progress(&name);
+                        let times = time_casts(session, &st.scene, &rays, query, cfg)?;
+                        let (median_ms, p95_ms, min_ms) = super::summarize(&times);
+                        let r = Record {
+                            width: camera.width,
+                            height: camera.height,
+                            warmup: cfg.warmup,
+                            frames: times.len(),
+                            instances: st.scene.instances().len(),
+                            median_ms,
+                            p95_ms,
+                            min_ms,
+                            mrays_per_s: rays.len() as f64 / median_ms.max(1e-9) / 1e3,
+                            backend: backend_name.to_string(),
+                            backend_kind: session.backend().kind_name().to_string(),
+                            ..Record::default()
+                        };
+                        out.push(label(r, cfg, group, name, setting, rays.len() as f64));
+                    }
                 }
             }
             Scenario::Splat => {

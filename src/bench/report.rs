@@ -346,10 +346,12 @@ same image).\n\n";
         md += "A library caller's batch of rays through `cast::SceneCaster::nearest_into` (CPU, on the thread \
 pool: runs of 64 consecutive rays through each octree together as packets, with each ray's own answer) and \
 `gpu::cast::GpuSceneCaster::nearest_into` (GPU: the rays' upload and the hits' read-back included), nearest \
-hits into one buffer kept between the calls, against the car's 8 parts on its ground: every pixel's \
-camera ray of the paper scenario's view, row by row, then one ambient-occlusion ray from each of their hits \
-(short, incoherent, from just off the surface), and the same rays asked through `occluded_into` whether \
-anything lies within half a metre of their start. Median wall time of one call over the timed calls.\n\n";
+hits into one buffer kept between the calls, against the car's 8 parts on its ground and against 100 \
+parked cars on theirs (801 instances, searched through their instance BVH, the runs' rays walking it \
+together): every pixel's camera ray of a view that frames the scene, row by row, then one ambient-occlusion \
+ray from each of their hits (short, incoherent, from just off the surface), and the same rays asked through \
+`occluded_into` whether anything lies within half a metre of their start. Median wall time of one call over \
+the timed calls.\n\n";
         md += &provenance(&rs);
         md += "\n| rays | backend | rays per call | median ms | p95 ms | Mrays/s |\n|---|---|---|---|---|---|\n";
         for r in &rs {
