@@ -6,8 +6,17 @@
 //! f64 walk's (`tests`, and `tests/render.rs` against the plain search). Every box is widened
 //! on both sides by [`SLACK`] times the largest coordinate magnitude of the scene's boxes,
 //! which dwarfs the f32 rounding of the box corners and of the slab arithmetic for any ray
-//! whose origin lies within that magnitude ([`WideBvh::covers_origin`]); other rays use the
-//! binary f64 walk.
+//! whose origin lies within [`REACH`] times that magnitude ([`WideBvh::covers_origin`]); other
+//! rays use the binary f64 walk.
+//!
+//! Why that reach. A slab's t is `(corner − origin) · (1 / d)` in f32: the corner, the origin,
+//! their difference, the reciprocal and the product each round once, by at most 2⁻²⁴ of
+//! their magnitude, so the t found is the exact t of a plane moved along its axis by at most
+//! about 4·2⁻²⁴·(|corner| + |origin|). Max, min and `≤` are exact, so the walk tests the
+//! exact box with its planes moved that little. With corners within the scale `s` (widened by
+//! 10⁻⁵ s) and origins within 10 s, a plane moves by at most 44·2⁻²⁴ s ≈ 2.6·10⁻⁶ s, under a
+//! third of the widening: the box tested still holds the f64 box strictly inside, and a ray
+//! that meets the f64 box (even at one point) meets it with room to spare.
 
 use super::bvh::Bvh;
 use glam::{BVec4A, DVec3, Vec4};
@@ -15,6 +24,10 @@ use glam::{BVec4A, DVec3, Vec4};
 /// Widening of every box, relative to the largest coordinate magnitude of the scene's boxes.
 /// The slab arithmetic in f32 errs by a few units in 2⁻²⁴ of that magnitude.
 pub const SLACK: f64 = 1e-5;
+
+/// The f32 walk answers for rays whose origin lies within this many times the scale (the
+/// module notes show why 10 is safe: its rounding stays under a third of [`SLACK`]).
+pub const REACH: f64 = 10.0;
 
 /// Four children's boxes (lane k: child k) and what each child is.
 #[derive(Clone, Copy, Debug)]
@@ -138,10 +151,11 @@ impl WideBvh {
         self.nodes.iter_mut().for_each(fill);
     }
 
-    /// Whether the f32 walk answers for rays from `o` (within the magnitude it was widened for).
+    /// Whether the f32 walk answers for rays from `o`: within [`REACH`] times the magnitude
+    /// the boxes were widened for.
     #[inline]
     pub fn covers_origin(&self, o: DVec3) -> bool {
-        !self.nodes.is_empty() && o.abs().max_element() <= self.scale
+        !self.nodes.is_empty() && o.abs().max_element() <= self.scale * REACH
     }
 }
 
@@ -234,9 +248,27 @@ mod tests {
             .collect();
         let bvh = Bvh::build(&spheres);
         let wide = WideBvh::collapse(&bvh);
-        for r in 0..3000 {
-            let o = DVec3::new(rng.f64() * 200.0 - 100.0, rng.f64() * 4.0, rng.f64() * 200.0 - 100.0);
-            let mut d = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5).normalize();
+        // Origins within the scene, and from every third ray on, out to `REACH` times its scale
+        // (the last ones right at it, per axis), those aimed at a point just inside or outside
+        // a face of some sphere's box: the rays that graze the boxes, where rounding tells.
+        let mut far = 0;
+        for r in 0..6000 {
+            let near = DVec3::new(rng.f64() * 200.0 - 100.0, rng.f64() * 4.0, rng.f64() * 200.0 - 100.0);
+            let (o, mut d) = if r % 3 == 0 {
+                (near, DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5).normalize())
+            } else {
+                let reach = wide.scale * REACH * if r % 10 == 1 { 1.0 } else { rng.f64() };
+                let o = (rng.unit_vector().as_dvec3() * reach * 3f64.sqrt())
+                    .clamp(DVec3::splat(-reach), DVec3::splat(reach));
+                let (c, rad) = spheres[rng.below(spheres.len() as u64) as usize];
+                let axis = rng.below(3) as usize;
+                let mut target = c + DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * 2.0 * rad;
+                target[axis] = c[axis] + rad * if rng.below(2) == 0 { 1.0 } else { -1.0 };
+                target[axis] += (rng.f64() - 0.5) * 1e-6 * wide.scale;
+                far += usize::from(o.abs().max_element() > wide.scale);
+                (o, (target - o).normalize())
+            };
+            assert!(wide.covers_origin(o));
             if r % 7 == 0 {
                 d.y = 0.0; // parallel to a slab
             }
@@ -269,7 +301,8 @@ mod tests {
             }
             got.sort();
             want.retain(|i| got.binary_search(i).is_err());
-            assert!(want.is_empty(), "ray {r}: skipped {want:?}");
+            assert!(want.is_empty(), "ray {r} from {o}: skipped {want:?}");
         }
+        assert!(far > 2000, "{far} rays from beyond the scale");
     }
 }
