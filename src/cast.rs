@@ -6,8 +6,9 @@
 //! map into its octree and its bounding sphere, relative to a reference point kept in f64)
 //! and, from [`BVH_MIN_INSTANCES`] instances on, builds the instance BVH over the spheres.
 //! Each ray then goes through [`render::visibility`](crate::render::visibility) as the
-//! renderer's own rays do, and a batch among fewer instances goes in runs of 64 rays through
-//! the tiles' packet search ([`render::tile_search`](crate::render::tile_search)), so a hit
+//! renderer's own rays do, and a batch goes in runs of 64 rays through the tiles' packet
+//! search ([`render::tile_search`](crate::render::tile_search); with an instance BVH, the
+//! run walks it together: [`render::packet_bvh`](crate::render::packet_bvh)), so a hit
 //! is bit for bit the one the frame's search would find (every search agrees with the plain
 //! "trace every instance" one; the tests hold both to the DDA oracle).
 //!
@@ -48,6 +49,7 @@
 
 use crate::render::bvh::Bvh;
 use crate::render::instances::{prepare_into, Prepared};
+use crate::render::packet_bvh::{nearest_packet_bvh, occluded_rays_bvh};
 use crate::render::plan::BVH_MIN_INSTANCES;
 use crate::render::tile_search::{each, nearest_packet, occluded_rays, Origins, TileScratch};
 use crate::render::visibility::{nearest, occluded, FrameInstances, InstanceHit, Search, Work};
@@ -246,8 +248,9 @@ impl SceneCaster {
     /// Runs of [`LANES`] consecutive rays go through each octree together, as packets (the
     /// renderer's tiles do, [`crate::traverse::packet`]), with the same answers as one by
     /// one: rays in an order that keeps neighbours close (a camera's, row by row; each hit's
-    /// own rays in turn) trace fastest. A scene of [`BVH_MIN_INSTANCES`] instances or more
-    /// casts each ray through its instance BVH alone.
+    /// own rays in turn) trace fastest. In a scene of [`BVH_MIN_INSTANCES`] instances or more
+    /// a run walks the instance BVH together, each instance it reaches traced as one packet
+    /// ([`crate::render::packet_bvh`]).
     pub fn nearest_all(&self, rays: &[CastRay]) -> Vec<Option<SceneHit>> {
         collect_runs(rays, |run, out| self.nearest_run(run, out))
     }
@@ -273,12 +276,6 @@ impl SceneCaster {
 
     /// The nearest hits of a run of up to [`LANES`] rays, into `out` (as long as the run).
     fn nearest_run(&self, run: &[CastRay], out: &mut [Option<SceneHit>]) {
-        if self.bvh.is_some() {
-            for (r, o) in run.iter().zip(out) {
-                *o = self.nearest_ray(r);
-            }
-            return;
-        }
         let (mut origins, mut dirs) = ([DVec3::ZERO; LANES], [DVec3::ZERO; LANES]);
         let lanes = self.packet(run, &mut origins, &mut dirs);
         // Rays from one point (a camera's) are set up four at a time.
@@ -291,7 +288,10 @@ impl SceneCaster {
         let mut found = [None; LANES];
         TileScratch::with(|s| {
             let (fi, w) = (self.frame(), &mut Work::default());
-            nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None)
+            match self.bvh {
+                Some(_) => nearest_packet_bvh(&fi, origins, &dirs, lanes, &self.opts, w, s, &mut found),
+                None => nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None),
+            }
         });
         for (k, o) in out.iter_mut().enumerate() {
             *o = found[k].and_then(|f| self.scene_hit(&run[k], dirs[k], f));
@@ -301,12 +301,6 @@ impl SceneCaster {
     /// Whether each ray of a run of up to [`LANES`] is blocked within its reach, into `out`
     /// (as long as the run).
     fn occluded_run(&self, run: &[CastRay], out: &mut [bool]) {
-        if self.bvh.is_some() {
-            for (r, o) in run.iter().zip(out) {
-                *o = self.occluded(r.origin, r.dir, r.t_max);
-            }
-            return;
-        }
         let (mut origins, mut dirs) = ([DVec3::ZERO; LANES], [DVec3::ZERO; LANES]);
         let mut lanes = self.packet(run, &mut origins, &mut dirs);
         let mut t_max = [0.0; LANES];
@@ -318,7 +312,10 @@ impl SceneCaster {
             }
         }
         let (fi, search, max_level) = (self.frame(), self.search(), self.opts.max_level);
-        let blocked = TileScratch::with(|s| occluded_rays(&fi, &origins, &dirs, &t_max, lanes, search, max_level, s));
+        let blocked = TileScratch::with(|s| match self.bvh {
+            Some(_) => occluded_rays_bvh(&fi, &origins, &dirs, &t_max, lanes, max_level, s),
+            None => occluded_rays(&fi, &origins, &dirs, &t_max, lanes, search, max_level, s),
+        });
         for (k, o) in out.iter_mut().enumerate() {
             *o = blocked >> k & 1 != 0;
         }

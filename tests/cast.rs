@@ -179,7 +179,9 @@ fn packets_of_few_instances_and_the_plain_search_give_the_same_hits() {
 
 /// Rays for the batches: [`rays`] (each from a point of its own), then fans of camera rays
 /// from one point over the grid (runs of one origin, a few without a direction among them),
-/// in a count that leaves a last run short.
+/// and from one far point (50 times the grid's size away: the instance BVH's f32 walk does not
+/// answer for it, the binary walk does) rays at the instances' voxels, in a count that leaves
+/// a last run short.
 fn batch_rays(scene: &Scene, coords: &[[u32; 3]], seed: u64) -> Vec<CastRay> {
     let mut all = rays(scene, coords, 2000, seed);
     let (lo, hi) = scene.bounds();
@@ -196,6 +198,14 @@ fn batch_rays(scene: &Scene, coords: &[[u32; 3]], seed: u64) -> Vec<CastRay> {
                 all.push(CastRay::new(eye, dir));
             }
         }
+    }
+    let far = (lo + hi) * 0.5 + rng.unit_vector().as_dvec3() * (hi - lo).length() * 50.0;
+    for k in 0..960 {
+        let i = rng.below(scene.instances().len() as u64) as usize;
+        let c = coords[rng.below(coords.len() as u64) as usize];
+        let centre = (glam::UVec3::from(c).as_dvec3() + 0.5) / (1u64 << DEPTH) as f64;
+        let dir = if k % 97 == 0 { DVec3::ZERO } else { scene.world(i).transform_point3(centre) - far };
+        all.push(CastRay::new(far, dir));
     }
     all.truncate(all.len() - 13);
     all
@@ -231,6 +241,8 @@ fn check_batches(n: usize, seed: u64) {
         assert_eq!(*blocked, h.is_some(), "ray {k}");
     }
     assert!(all.iter().filter(|h| h.is_some()).count() > rays.len() / 5, "too few hits to tell");
+    // (The far rays, the last 947, hit too.)
+    assert!(all[rays.len() - 947..].iter().filter(|h| h.is_some()).count() > 300, "too few far hits");
     let hit_rays: Vec<(CastRay, f64)> =
         rays.iter().zip(&all).filter_map(|(r, h)| h.filter(|h| h.t > 1e-3).map(|h| (*r, h.t))).collect();
     assert!(hit_rays.len() > 100);

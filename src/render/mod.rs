@@ -11,6 +11,7 @@ pub mod gather;
 pub mod hitbuffer;
 pub mod instances;
 pub mod output;
+pub mod packet_bvh;
 pub mod pixel_spheres;
 pub mod plan;
 pub mod primary;

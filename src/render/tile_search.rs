@@ -123,7 +123,7 @@ pub enum Origins<'a> {
 impl Origins<'_> {
     /// Where lane `k`'s ray starts.
     #[inline(always)]
-    fn of(&self, k: usize) -> DVec3 {
+    pub(super) fn of(&self, k: usize) -> DVec3 {
         match self {
             Origins::One(o) => *o,
             Origins::Each(at) => at[k],
@@ -173,40 +173,63 @@ pub fn nearest_packet(
         work.culled += beam_culled * rays;
     }
     for &(start, i) in order.iter() {
-        let p = &fi.prepared[i];
-        let t_min = if start > opts.t_min { start } else { opts.t_min };
-        let mut todo = 0u64;
-        for k in each(lanes) {
-            let d = dirs[k];
-            let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
-            if search != Search::Plain {
-                let Some((entry, _)) = sphere_interval(p.centre, p.radius, origins.of(k), d) else {
-                    work.culled += 1;
-                    continue;
-                };
-                if entry > bound as f64 {
-                    continue;
-                }
-            }
-            if start > bound {
-                continue;
-            }
-            work.traced += 1;
-            scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
-            todo |= 1 << k;
-        }
-        match origins {
-            Origins::One(o) => scratch.map_lanes(p, p.to_unit.point(o), dirs, todo),
-            Origins::Each(at) => scratch.map_lanes_from(p, at, dirs, todo),
-        }
-        for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
-            keep(&mut out[k], i, h);
-        }
+        nearest_instance(fi, i, start, origins, dirs, lanes, search, opts, work, scratch, out);
     }
     scratch.order = order;
     if search == Search::Plain {
         // The plain search counts every instance as traced.
         work.traced += beam_culled * rays;
+    }
+}
+
+/// One instance's step of a packet's nearest-hit search ([`nearest_packet`],
+/// [`super::packet_bvh::nearest_packet_bvh`]): the lanes of `lanes` whose ray meets instance
+/// `i`'s sphere (every lane, in the plain search) no later than its best hit so far `out[k]`
+/// are traced through its octree from `start` (its beam start, or `opts.t_min`) up to that
+/// hit, and a hit found replaces the best where it is nearer, or as near on a lower instance.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(super) fn nearest_instance(
+    fi: &FrameInstances,
+    i: usize,
+    start: f32,
+    origins: Origins,
+    dirs: &[DVec3],
+    lanes: u64,
+    search: Search,
+    opts: &TraceOptions,
+    work: &mut Work,
+    scratch: &mut TileScratch,
+    out: &mut [Option<InstanceHit>],
+) {
+    let p = &fi.prepared[i];
+    let t_min = if start > opts.t_min { start } else { opts.t_min };
+    let mut todo = 0u64;
+    for k in each(lanes) {
+        let d = dirs[k];
+        let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
+        if search != Search::Plain {
+            let Some((entry, _)) = sphere_interval(p.centre, p.radius, origins.of(k), d) else {
+                work.culled += 1;
+                continue;
+            };
+            if entry > bound as f64 {
+                continue;
+            }
+        }
+        if start > bound {
+            continue;
+        }
+        work.traced += 1;
+        scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
+        todo |= 1 << k;
+    }
+    match origins {
+        Origins::One(o) => scratch.map_lanes(p, p.to_unit.point(o), dirs, todo),
+        Origins::Each(at) => scratch.map_lanes_from(p, at, dirs, todo),
+    }
+    for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
+        keep(&mut out[k], i, h);
     }
 }
 
@@ -315,27 +338,42 @@ pub fn occluded_rays(
 ) -> u64 {
     let mut open = lanes;
     for p in fi.prepared {
-        let mut todo = 0u64;
-        for k in each(open) {
-            let (o, d) = (origins[k], dirs[k]);
-            // As `occluded_tile_by`: the octree lies inside the sphere.
-            if search != Search::Plain
-                && !sphere_interval(p.centre, p.radius, o, d).is_some_and(|(t0, _)| t0 <= t_max[k])
-            {
-                continue;
-            }
-            scratch.opts[k] = TraceOptions { t_max: t_max[k] as f32, max_level, ..TraceOptions::default() };
-            todo |= 1 << k;
-        }
-        scratch.map_lanes_from(p, origins, dirs, todo);
-        for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
-            open &= !(1 << k);
-        }
+        open &= !occluded_instance(fi, p, origins, dirs, t_max, open, search, max_level, scratch);
         if open == 0 {
             break;
         }
     }
     lanes & !open
+}
+
+/// One instance's step of [`occluded_rays`] (and [`super::packet_bvh::occluded_rays_bvh`]):
+/// the lanes of `open` whose ray `origins[k] + t·dirs[k]` meets instance `p` within
+/// `t_max[k]`, as a bit mask.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(super) fn occluded_instance(
+    fi: &FrameInstances,
+    p: &Prepared,
+    origins: &[DVec3],
+    dirs: &[DVec3],
+    t_max: &[f64],
+    open: u64,
+    search: Search,
+    max_level: u32,
+    scratch: &mut TileScratch,
+) -> u64 {
+    let mut todo = 0u64;
+    for k in each(open) {
+        let (o, d) = (origins[k], dirs[k]);
+        // As `occluded_tile_by`: the octree lies inside the sphere.
+        if search != Search::Plain && !sphere_interval(p.centre, p.radius, o, d).is_some_and(|(t0, _)| t0 <= t_max[k]) {
+            continue;
+        }
+        scratch.opts[k] = TraceOptions { t_max: t_max[k] as f32, max_level, ..TraceOptions::default() };
+        todo |= 1 << k;
+    }
+    scratch.map_lanes_from(p, origins, dirs, todo);
+    scratch.trace(&fi.parts[p.part], todo).fold(0, |blocked, (k, _)| blocked | 1 << k)
 }
 
 /// [`super::visibility::nearest_moved`] for each ray `o + t·dirs[k]` of the lanes `k` of
