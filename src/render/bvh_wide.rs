@@ -183,7 +183,8 @@ impl WideRay {
         WideRay { o: [0, 1, 2].map(|i| Vec4::splat(o[i] as f32)), inv: [0, 1, 2].map(|i| Vec4::splat(inv(d[i]))) }
     }
 
-    /// Per lane: whether the ray meets child k's box within `[0, t_max]`, and its entry t.
+    /// Per lane: whether the ray meets child k's box within `[0, t_max]`, and its entry t
+    /// (+∞ where it does not: a packet takes the least entry of its rays lane by lane).
     #[inline]
     pub fn test(&self, n: &Node4, t_max: f32) -> (u32, Vec4) {
         let mut t0 = Vec4::ZERO;
@@ -196,7 +197,7 @@ impl WideRay {
             t1 = t1.min(a.max(b));
         }
         let hit: BVec4A = t0.cmple(t1);
-        (hit.bitmask() & n.used, t0)
+        (hit.bitmask() & n.used, Vec4::select(hit, t0, Vec4::INFINITY))
     }
 }
 

@@ -18,7 +18,7 @@ use super::visibility::{nearest_work, occluded, FrameInstances, InstanceHit, Sea
 use crate::traverse::packet::LANES;
 use crate::traverse::TraceOptions;
 use crate::uninit_stack::UninitStack;
-use glam::DVec3;
+use glam::{DVec3, Vec4};
 use std::cell::Cell;
 
 /// Marks a stack entry as a leaf child (wide node · 4 + child) rather than a node.
@@ -62,15 +62,13 @@ fn walk_wide(
         }
         let node = &bvh.wide.nodes[n as usize];
         let mut entered = [0u64; 4];
-        let mut nearest = [f32::INFINITY; 4];
+        let mut nearest = Vec4::INFINITY;
         for k in each(mask) {
-            let (mut hit, t0) = rays[k].test(node, bound(k));
-            while hit != 0 {
-                let c = hit.trailing_zeros() as usize;
-                hit &= hit - 1;
-                entered[c] |= 1 << k;
-                nearest[c] = nearest[c].min(t0[c]);
+            let (hit, t0) = rays[k].test(node, bound(k));
+            for (c, e) in entered.iter_mut().enumerate() {
+                *e |= u64::from(hit >> c & 1) << k;
             }
+            nearest = nearest.min(t0);
         }
         let mut next = [(0u32, 0u64, 0.0f32); 4];
         let mut len = 0;
