@@ -286,13 +286,15 @@ impl SceneCaster {
             false => Origins::Each(&origins),
         };
         let mut found = [None; LANES];
-        TileScratch::with(|s| {
-            let (fi, w) = (self.frame(), &mut Work::default());
-            match self.bvh {
-                Some(_) => nearest_packet_bvh(&fi, origins, &dirs, lanes, &self.opts, w, s, &mut found),
-                None => nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None),
+        let (fi, w) = (self.frame(), &mut Work::default());
+        match self.bvh {
+            Some(_) => {
+                TileScratch::with(|s| nearest_packet_bvh(&fi, origins, &dirs, lanes, &self.opts, w, s, &mut found))
             }
-        });
+            None => TileScratch::with(|s| {
+                nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None)
+            }),
+        }
         for (k, o) in out.iter_mut().enumerate() {
             *o = found[k].and_then(|f| self.scene_hit(&run[k], dirs[k], f));
         }
@@ -312,10 +314,10 @@ impl SceneCaster {
             }
         }
         let (fi, search, max_level) = (self.frame(), self.search(), self.opts.max_level);
-        let blocked = TileScratch::with(|s| match self.bvh {
-            Some(_) => occluded_rays_bvh(&fi, &origins, &dirs, &t_max, lanes, max_level, s),
-            None => occluded_rays(&fi, &origins, &dirs, &t_max, lanes, search, max_level, s),
-        });
+        let blocked = match self.bvh {
+            Some(_) => TileScratch::with(|s| occluded_rays_bvh(&fi, &origins, &dirs, &t_max, lanes, max_level, s)),
+            None => TileScratch::with(|s| occluded_rays(&fi, &origins, &dirs, &t_max, lanes, search, max_level, s)),
+        };
         for (k, o) in out.iter_mut().enumerate() {
             *o = blocked >> k & 1 != 0;
         }
