@@ -238,10 +238,10 @@ fn the_splat_scenario_compares_squares_with_rays() {
     assert!(d.join("docs/images/bench-splat.png").exists());
 }
 
-/// The caster's rays on both backends (lavapipe in CI): per backend a batch of every pixel's
-/// camera ray and one of ambient-occlusion rays from their hits, asked for nearest hits, and
-/// the same ambient-occlusion rays asked for any hit within their reach, timed, with its
-/// table.
+/// The caster's rays on both backends (lavapipe in CI): per backend and scene (the car, and
+/// the parked crowd through its instance BVH) a batch of every pixel's camera ray and one of
+/// ambient-occlusion rays from their hits, asked for nearest hits, and the same
+/// ambient-occlusion rays asked for any hit within their reach, timed, with its table.
 #[test]
 fn the_cast_scenario_times_a_callers_rays_on_each_backend() {
     let d = tmp("cast");
@@ -255,13 +255,16 @@ fn the_cast_scenario_times_a_callers_rays_on_each_backend() {
     for kind in kinds {
         let of: Vec<&serde_json::Value> =
             records.iter().filter(|r| r["group"] == "cast" && r["backend_kind"] == *kind).collect();
-        assert_eq!(of.len(), 3, "{kind}: {json}");
-        // Every pixel of the 48 × 32 view; the car fills some of them, each hit one AO ray.
-        assert_eq!(of[0]["x"].as_f64(), Some(48.0 * 32.0));
-        let ao = of[1]["x"].as_f64().unwrap();
-        assert!(ao > 0.0 && ao < 48.0 * 32.0, "{ao}");
-        assert_eq!(of[2]["x"].as_f64(), Some(ao), "the occlusion batch is the AO rays");
-        assert!(of[2]["name"].as_str().is_some_and(|n| n.contains("any hit within")), "{}", of[2]);
+        assert_eq!(of.len(), 6, "{kind}: {json}");
+        for (scene, instances) in [(&of[..3], 9), (&of[3..], 801)] {
+            // Every pixel of the 48 × 32 view; the cars fill some of them, each hit one AO ray.
+            assert_eq!(scene[0]["x"].as_f64(), Some(48.0 * 32.0));
+            let ao = scene[1]["x"].as_f64().unwrap();
+            assert!(ao > 0.0 && ao < 48.0 * 32.0, "{ao}");
+            assert_eq!(scene[2]["x"].as_f64(), Some(ao), "the occlusion batch is the AO rays");
+            assert!(scene[2]["name"].as_str().is_some_and(|n| n.contains("any hit within")), "{}", scene[2]);
+            assert!(scene.iter().all(|r| r["instances"].as_u64() == Some(instances)), "{kind}: {json}");
+        }
         for r in &of {
             assert!(r["median_ms"].as_f64().unwrap() > 0.0 && r["mrays_per_s"].as_f64().unwrap() > 0.0, "{r}");
             assert_eq!(r["frames"].as_u64(), Some(2));
@@ -271,7 +274,8 @@ fn the_cast_scenario_times_a_callers_rays_on_each_backend() {
     assert!(
         md.contains("### Rays of your own: the scene caster")
             && md.contains("| camera rays | cpu | 1536 |")
-            && md.contains("| ambient-occlusion rays, any hit within 0.5 | cpu |"),
+            && md.contains("| ambient-occlusion rays, any hit within 0.5 | cpu |")
+            && md.contains("| 100 cars: camera rays | cpu | 1536 |"),
         "{md}"
     );
 }
