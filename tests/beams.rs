@@ -215,7 +215,9 @@ fn beams_stay_exact_for_a_crowd_under_the_instance_limit() {
 /// untraced. Over a clip of moving cars and a turning camera, with a hit buffer carried from
 /// frame to frame (a beam's miss already stored is not written again), with the hit buffer on
 /// and off, every frame of both equals the one rendered with beams off, bit for bit, and tiles
-/// are settled.
+/// are settled. On the ground, whose cars' shadows the sun's rays find through the instance
+/// BVH as packets, the frames also equal the plain search's (every ray against every
+/// instance, one at a time).
 #[test]
 fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
     let parts = car_parts();
@@ -252,6 +254,12 @@ fn bvh_beams_stay_exact_for_a_crowd_past_the_instance_limit() {
             assert!(covered > 100, "{what}: the crowd covers only {covered} pixels");
             assert_same_frames(&frames[0], &frames[2], &format!("{what}, sphere lists"));
             assert_same_frames(&frames[1], &frames[2], &format!("{what}, beams through the BVH"));
+            if ground {
+                let plain = FramePlan::new(&st.scene, &cam, &lights, &Features::NONE.with_shadows(), None);
+                let opts = RenderOptions::default();
+                let oracle = render(&st.scene, &cam, &lights, &plain, &opts, None, &|_, _| {}).unwrap();
+                assert_same_frames(&frames[2], &oracle, &format!("{what}, against the plain search"));
+            }
             if hit_buffer {
                 // The kept hits and colours (with the sun's shadow rays checked against the
                 // 320 moved spheres through their BVH) against a frame rendered afresh.

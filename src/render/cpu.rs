@@ -216,7 +216,9 @@ pub(crate) const SUN_UNKNOWN: u32 = u32::MAX - 1;
 
 /// The sun's shadow rays (towards `to_sun`, unbounded, down to the frame's `max_level`) of
 /// the pixels `needs(x, y)` says, starting at `origin(x, y)`, traced tile by tile as packets
-/// ([`super::tile_search::occluded_tile`]): per pixel of a `width` × `height` frame. Only a
+/// ([`super::tile_search::occluded_tile`]; through the instance BVH together where the frame
+/// searches it, [`super::packet_bvh::occluded_tile_bvh`]): per pixel of a `width` × `height`
+/// frame. Only a
 /// tile's `candidates(tile)` (its lanes; tiles row-major) are asked: a mostly kept frame
 /// then looks at its few traced pixels instead of all of them. Of those, the lanes
 /// `moved_only(tile)` are asked about the instances that `moved` says moved, alone
@@ -258,10 +260,21 @@ fn sun_shadows(
         }
         let only = super::tile_search::MovedOnly { lanes: moved_only(tile) & lanes, moved };
         let mut blockers = [0; LANES];
-        let blocked = super::tile_search::TileScratch::with(|scratch| {
-            let (inf, b) = (f64::INFINITY, &mut blockers);
-            super::tile_search::occluded_tile_by(fi, &origins, to_sun, lanes, only, inf, search, max_level, scratch, b)
-        });
+        let (inf, b) = (f64::INFINITY, &mut blockers);
+        let blocked = match (search, fi.bvh) {
+            // A crowd's: through its instance BVH together. (Up to the beams' limit, the test of
+            // each instance's sphere against the tile's cylinder measured faster.)
+            (super::visibility::Search::Bvh, Some(_)) if fi.prepared.len() > super::beam::MAX_INSTANCES => {
+                super::tile_search::TileScratch::with(|scratch| {
+                    super::packet_bvh::occluded_tile_bvh(fi, &origins, to_sun, lanes, only, inf, max_level, scratch, b)
+                })
+            }
+            _ => super::tile_search::TileScratch::with(|scratch| {
+                super::tile_search::occluded_tile_by(
+                    fi, &origins, to_sun, lanes, only, inf, search, max_level, scratch, b,
+                )
+            }),
+        };
         (lanes, blocked, super::tile_search::each(blocked).map(|k| blockers[k]).collect())
     });
     SunRays { tiles_x, tiles: per_tile }
@@ -838,9 +851,15 @@ fn render_lit_here(
     // The sun's shadow rays of the pixels to be shaded, a tile's rays as packets (the same
     // answers as one by one).
     let sun_rays = match lights.sun {
-        // (Few instances: with beams, or with sphere lists where they are small on screen.)
+        // (Few instances: with beams, or with sphere lists where they are small on screen;
+        // more: through the instance BVH.)
         Some(sun)
-            if plan.shadows && (plan.beams || plan.sphere_lists) && prepared.len() <= super::beam::MAX_INSTANCES =>
+            if plan.shadows
+                && if prepared.len() <= super::beam::MAX_INSTANCES {
+                    plan.beams || plan.sphere_lists
+                } else {
+                    search == super::visibility::Search::Bvh && fi.bvh.is_some()
+                } =>
         {
             // (A kept colour's record is not read: most of the frame's records stay untouched.)
             let needs = |x: usize, y: usize| {

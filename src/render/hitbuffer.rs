@@ -91,7 +91,8 @@ pub struct HitBuffer {
     /// Each pixel's ambient occlusion in the stored frame (empty without GI).
     pub ao: Vec<f32>,
     /// Per pixel of the stored colours, what blocked its sun shadow ray: an instance (the
-    /// first in the instances' order), `cpu::SUN_FREE` or `cpu::SUN_UNKNOWN`. A kept record
+    /// first in the instances' order; past the beams' limit, the first the instance BVH's
+    /// walk reached), `cpu::SUN_FREE` or `cpu::SUN_UNKNOWN`. A kept record
     /// whose ray an instance that stayed put blocked keeps its colour; one that nothing
     /// blocked asks the moved instances alone.
     pub(crate) sun_blockers: Vec<u32>,

@@ -13,7 +13,8 @@
 
 use super::bvh::{box_entry, Bvh};
 use super::bvh_wide::WideRay;
-use super::tile_search::{each, nearest_instance, occluded_instance, Origins, TileScratch};
+use super::cpu::SUN_UNKNOWN;
+use super::tile_search::{each, nearest_instance, occluded_instance, MovedOnly, Origins, TileScratch};
 use super::visibility::{nearest_work, occluded, FrameInstances, InstanceHit, Search, Work};
 use crate::traverse::packet::LANES;
 use crate::traverse::TraceOptions;
@@ -239,12 +240,56 @@ pub fn occluded_rays_bvh(
     max_level: u32,
     scratch: &mut TileScratch,
 ) -> u64 {
+    let only = MovedOnly { lanes: 0, moved: &[] };
+    occluded_walk(fi, origins, dirs, t_max, lanes, only, max_level, scratch, &mut [0; LANES])
+}
+
+/// [`super::tile_search::occluded_tile_by`] through the instance BVH (the sun's shadow rays
+/// of a tile in a crowd): whether each ray `origins[k] + t·dir`, `0 ≤ t ≤ t_max`, for the
+/// lanes `k` of `lanes` hits an instance (the lanes of `only` asked about the moved instances
+/// alone), with `blockers[k]` set to an instance that blocks lane `k` (where bit `k` of the
+/// result is set; the first the walk reaches, or [`crate::render::cpu`]'s unknown mark
+/// where the lane was asked one ray at a time).
+#[allow(clippy::too_many_arguments)]
+pub fn occluded_tile_bvh(
+    fi: &FrameInstances,
+    origins: &[DVec3],
+    dir: DVec3,
+    lanes: u64,
+    only: MovedOnly,
+    t_max: f64,
+    max_level: u32,
+    scratch: &mut TileScratch,
+    blockers: &mut [u32; LANES],
+) -> u64 {
+    occluded_walk(fi, origins, &[dir; LANES], &[t_max; LANES], lanes, only, max_level, scratch, blockers)
+}
+
+/// [`occluded_rays_bvh`] with the lanes of `only` asked about the moved instances alone and
+/// each blocked lane's blocker written to `blockers` (see [`occluded_tile_bvh`]).
+#[allow(clippy::too_many_arguments)]
+fn occluded_walk(
+    fi: &FrameInstances,
+    origins: &[DVec3],
+    dirs: &[DVec3],
+    t_max: &[f64],
+    lanes: u64,
+    only: MovedOnly,
+    max_level: u32,
+    scratch: &mut TileScratch,
+    blockers: &mut [u32; LANES],
+) -> u64 {
     // (A reach that is not above 0, or not a number, is left to the one-ray search.)
     let reaching = each(lanes).filter(|&k| t_max[k] > 0.0).fold(0u64, |m, k| m | 1 << k);
     let mut blocked = 0u64;
     let one_by_one = if fi.bvh.is_some() { lanes & !reaching } else { lanes };
     for k in each(one_by_one) {
-        blocked |= (occluded(fi, origins[k], dirs[k], t_max[k], Search::Bvh, max_level) as u64) << k;
+        // (No lane is asked about the moved instances alone without a reach: those come from
+        // the sun, at an infinite one.)
+        if occluded(fi, origins[k], dirs[k], t_max[k], Search::Bvh, max_level) {
+            blocked |= 1 << k;
+            blockers[k] = SUN_UNKNOWN;
+        }
     }
     let Some(bvh) = fi.bvh else { return blocked };
     // The box tests' reach per lane: rounded up to f32 (the next float above, for a reach
@@ -269,7 +314,13 @@ pub fn occluded_rays_bvh(
             let mut still = mask;
             for &i in &bvh.items[first..first + count] {
                 let p = &fi.prepared[i as usize];
-                still &= !occluded_instance(fi, p, origins, dirs, t_max, still, Search::Bvh, max_level, scratch);
+                // An instance that stayed put is not asked about the lanes of `only`.
+                let asked = if only.moved.get(i as usize).is_some_and(|m| !m) { still & !only.lanes } else { still };
+                let hit = occluded_instance(fi, p, origins, dirs, t_max, asked, Search::Bvh, max_level, scratch);
+                for k in each(hit) {
+                    blockers[k] = i;
+                }
+                still &= !hit;
                 if still == 0 {
                     break;
                 }
