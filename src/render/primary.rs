@@ -4,10 +4,8 @@
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::pixel_spheres::{PixelSpheres, TileLists};
-use super::tile_search::{each, nearest_moved_tile, nearest_packet, Origins, TileScratch};
-use super::visibility::{
-    nearest_listed, nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work,
-};
+use super::tile_search::{each, nearest_listed_packet, nearest_moved_tile, nearest_packet, Origins, TileScratch};
+use super::visibility::{nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
 use glam::DVec3;
@@ -31,7 +29,8 @@ pub struct Primary<'a> {
     pub bvh_beams: bool,
     /// Per pixel, the instances whose sphere its ray meets ([`PixelSpheres`]): when given
     /// (and `beams` is off), [`Todo::All`] and [`Todo::Again`] pixels search their list
-    /// instead of the BVH, and [`Todo::Moved`] pixels the moved instances of their list.
+    /// instead of the BVH (a tile's rays as packets, [`nearest_listed_packet`]), and
+    /// [`Todo::Moved`] pixels the moved instances of their list.
     pub lists: Option<&'a PixelSpheres>,
     /// The instances that moved since the stored hits were traced (ascending), searched by
     /// [`Todo::Moved`] pixels.
@@ -273,39 +272,32 @@ pub fn trace_tiles<T: Send, S>(
                 }
                 continue;
             }
-            if lists.is_some() {
-                // The tile's rays read their nearest spheres' instances first: scattered over
-                // a crowd's megabytes, asked for together they load while the first rays trace.
-                for k in each(todo & tile_lists.mask) {
-                    let listed = tile_lists.at(k);
-                    if let Some(&(_, i)) = listed.first() {
-                        fi.prefetch_ray_map(i as usize);
-                    }
+            if lists.is_none() {
+                for k in each(todo) {
+                    let d = dir(k);
+                    let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d));
+                    store(&mut rows[at(k)], hit);
                 }
-            }
-            for k in each(todo) {
-                let hit = match lists {
-                    Some(_) => {
-                        let listed = tile_lists.at(k);
-                        if listed.is_empty() {
-                            // The ray meets no sphere: a miss, without forming its direction,
-                            // and not stored again where last frame stored one.
-                            work.culled += fi.prepared.len() as u64;
-                            masks[x0 / TILE as usize][1] |= 1 << k;
-                            if missed_before >> k & 1 == 0 {
-                                store(&mut rows[at(k)], None);
-                            }
-                            continue;
-                        }
-                        let d = dir(k);
-                        nearest_listed(&fi, DVec3::ZERO, d, listed, &p.opts, &mut work).map(|h| (h, d))
-                    }
-                    None => {
-                        let d = dir(k);
-                        nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d))
-                    }
-                };
-                store(&mut rows[at(k)], hit);
+            } else if todo != 0 {
+                // A ray whose list holds no sphere misses, without forming its direction, and
+                // is not stored again where last frame stored a miss.
+                let unlisted = todo & !tile_lists.mask;
+                work.culled += unlisted.count_ones() as u64 * fi.prepared.len() as u64;
+                masks[x0 / TILE as usize][1] |= unlisted;
+                for k in each(unlisted & !missed_before) {
+                    store(&mut rows[at(k)], None);
+                }
+                // The others: the instances their lists hold, each traced by its lanes as one
+                // packet.
+                let listed = todo & tile_lists.mask;
+                for k in each(listed) {
+                    dirs[k] = dir(k);
+                }
+                let list = |k: usize| tile_lists.at(k);
+                nearest_listed_packet(&fi, &dirs, listed, list, &p.opts, &mut work, scratch, &mut hits);
+                for k in each(listed) {
+                    store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
+                }
             }
             for k in each(partial) {
                 let (t, instance) = bounds[k];

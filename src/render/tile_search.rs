@@ -27,6 +27,8 @@ pub struct TileScratch {
     opts: Vec<TraceOptions>,
     hits: Vec<Option<Hit>>,
     order: Vec<(f32, usize)>,
+    /// [`nearest_listed_packet`]'s instances: (least sphere entry, instance, lanes listing it).
+    listed: Vec<(f64, u32, u64)>,
 }
 
 impl Default for TileScratch {
@@ -37,6 +39,7 @@ impl Default for TileScratch {
             opts: vec![TraceOptions::default(); LANES],
             hits: vec![None; LANES],
             order: Vec::new(),
+            listed: Vec::new(),
         }
     }
 }
@@ -180,6 +183,47 @@ pub fn nearest_packet(
         // The plain search counts every instance as traced.
         work.traced += beam_culled * rays;
     }
+}
+
+/// The nearest hit of each ray `t·dirs[k]` from the origin (the camera) for the lanes `k` of
+/// `lanes` (up to [`LANES`]), written to `out[k]`, among the instances of its own list
+/// `list(k)` ((sphere entry t, instance), as [`super::pixel_spheres`] lists them): what
+/// [`super::visibility::nearest_listed`] answers for the ray. The instances the lanes list
+/// are traced nearest entry first, each by the lanes that list it as one packet.
+#[allow(clippy::too_many_arguments)]
+pub fn nearest_listed_packet<'l>(
+    fi: &FrameInstances,
+    dirs: &[DVec3],
+    lanes: u64,
+    list: impl Fn(usize) -> &'l [(f64, u32)],
+    opts: &TraceOptions,
+    work: &mut Work,
+    scratch: &mut TileScratch,
+    out: &mut [Option<InstanceHit>],
+) {
+    let mut listed = std::mem::take(&mut scratch.listed);
+    listed.clear();
+    for k in each(lanes) {
+        out[k] = None;
+        let l = list(k);
+        work.culled += fi.prepared.len().saturating_sub(l.len()) as u64;
+        for &(entry, i) in l {
+            // (A tile's lanes list few instances: a crowd's, mostly one each.)
+            match listed.iter_mut().find(|e| e.1 == i) {
+                Some(e) => {
+                    e.0 = e.0.min(entry);
+                    e.2 |= 1 << k;
+                }
+                None => listed.push((entry, i, 1 << k)),
+            }
+        }
+    }
+    listed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    for &(_, i, by) in &listed {
+        let one = Origins::One(DVec3::ZERO);
+        nearest_instance(fi, i as usize, opts.t_min, one, dirs, by, Search::CullSort, opts, work, scratch, out);
+    }
+    scratch.listed = listed;
 }
 
 /// One instance's step of a packet's nearest-hit search ([`nearest_packet`],
