@@ -185,11 +185,17 @@ pub fn nearest_packet(
     }
 }
 
+/// [`nearest_listed_packet`] traces a tile's rays as packets only where its lanes list this
+/// many instances' spheres apiece or more (a listing lane per instance, on average): below,
+/// one ray at a time measured faster.
+const LISTED_LANES: usize = 4;
+
 /// The nearest hit of each ray `t·dirs[k]` from the origin (the camera) for the lanes `k` of
 /// `lanes` (up to [`LANES`]), written to `out[k]`, among the instances of its own list
 /// `list(k)` ((sphere entry t, instance), as [`super::pixel_spheres`] lists them): what
 /// [`super::visibility::nearest_listed`] answers for the ray. The instances the lanes list
-/// are traced nearest entry first, each by the lanes that list it as one packet.
+/// are traced nearest entry first, each by the lanes that list it as one packet (where they
+/// are few to an instance, each ray alone: [`LISTED_LANES`]).
 #[allow(clippy::too_many_arguments)]
 pub fn nearest_listed_packet<'l>(
     fi: &FrameInstances,
@@ -205,9 +211,7 @@ pub fn nearest_listed_packet<'l>(
     listed.clear();
     for k in each(lanes) {
         out[k] = None;
-        let l = list(k);
-        work.culled += fi.prepared.len().saturating_sub(l.len()) as u64;
-        for &(entry, i) in l {
+        for &(entry, i) in list(k) {
             // (A tile's lanes list few instances: a crowd's, mostly one each.)
             match listed.iter_mut().find(|e| e.1 == i) {
                 Some(e) => {
@@ -217,6 +221,17 @@ pub fn nearest_listed_packet<'l>(
                 None => listed.push((entry, i, 1 << k)),
             }
         }
+    }
+    if (lanes.count_ones() as usize) < LISTED_LANES * listed.len() {
+        // Instances a few pixels wide (a far crowd's): one ray at a time is cheaper.
+        for k in each(lanes) {
+            out[k] = super::visibility::nearest_listed(fi, DVec3::ZERO, dirs[k], list(k), opts, work);
+        }
+        scratch.listed = listed;
+        return;
+    }
+    for k in each(lanes) {
+        work.culled += fi.prepared.len().saturating_sub(list(k).len()) as u64;
     }
     listed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     for &(_, i, by) in &listed {
