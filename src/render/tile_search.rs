@@ -188,7 +188,7 @@ pub fn nearest_packet(
 /// [`nearest_listed_packet`] traces a tile's rays as packets only where its lanes list this
 /// many instances' spheres apiece or more (a listing lane per instance, on average): below,
 /// one ray at a time measured faster.
-const LISTED_LANES: usize = 4;
+pub const LISTED_LANES: usize = 4;
 
 /// The nearest hit of each ray `t·dirs[k]` from the origin (the camera) for the lanes `k` of
 /// `lanes` (up to [`LANES`]), written to `out[k]`, among the instances of its own list
