@@ -1,15 +1,17 @@
 //! A packet of up to [`LANES`] rays walking the instance BVH together (its four-wide f32
-//! tree, [`super::bvh_wide`]): a library caller's runs of rays in a scene of many instances
-//! ([`crate::cast::SceneCaster`]), each instance the walk reaches traced by the lanes that
-//! need it as one packet through its octree ([`super::tile_search`]), where one ray at a time
-//! would walk the tree and traverse each octree alone.
+//! tree, [`super::bvh_wide`], or the binary f64 one for origins the f32 tree does not cover):
+//! a library caller's runs of rays in a scene of many instances ([`crate::cast::SceneCaster`])
+//! and the sun's shadow rays of a tile in a crowd, each instance the walk reaches traced by
+//! the lanes that need it as one packet through its octree ([`super::tile_search`]), where one
+//! ray at a time would walk the tree and traverse each octree alone.
 //!
 //! The answers are the one-ray search's bit for bit ([`super::visibility::nearest_work`] and
 //! [`super::visibility::occluded`] with [`Search::Bvh`]). The walk only culls: a lane leaves a
-//! box only when its ray misses it within the lane's best hit so far (the boxes are widened
-//! past the f32 rounding for every origin the tree covers; lanes from other origins search one
-//! at a time), and each instance reached takes the one-instance step of the packets of few
-//! instances, whose answer does not depend on the order in which instances come.
+//! box only when its ray misses it within the lane's best hit so far (the f32 boxes are
+//! widened past the rounding for every origin the tree covers; the binary tree's are tested
+//! as the one-ray walk tests them), and each instance reached takes the one-instance step of
+//! the packets of few instances, whose answer does not depend on the order in which
+//! instances come.
 
 use super::bvh::{box_entry, Bvh};
 use super::bvh_wide::WideRay;
