@@ -239,6 +239,10 @@ fn sun_shadows(
 ) -> SunRays {
     let t = TILE as usize;
     let tiles_x = width.div_ceil(t);
+    // A crowd's tiles walk its instance BVH together. (Up to the beams' limit, the test of each
+    // instance's sphere against the tile's cylinder measured faster.)
+    let through_bvh =
+        search == super::visibility::Search::Bvh && fi.bvh.is_some() && fi.prepared.len() > super::beam::MAX_INSTANCES;
     // Tile by tile (a mostly kept frame's shadow rays lie in a few bands of tiles, too few
     // pieces to share between threads): each tile's rays asked, and the ones blocked.
     let per_tile = par_map(tiles_x * height.div_ceil(t), |tile| {
@@ -261,15 +265,11 @@ fn sun_shadows(
         let only = super::tile_search::MovedOnly { lanes: moved_only(tile) & lanes, moved };
         let mut blockers = [0; LANES];
         let (inf, b) = (f64::INFINITY, &mut blockers);
-        let blocked = match (search, fi.bvh) {
-            // A crowd's: through its instance BVH together. (Up to the beams' limit, the test of
-            // each instance's sphere against the tile's cylinder measured faster.)
-            (super::visibility::Search::Bvh, Some(_)) if fi.prepared.len() > super::beam::MAX_INSTANCES => {
-                super::tile_search::TileScratch::with(|scratch| {
-                    super::packet_bvh::occluded_tile_bvh(fi, &origins, to_sun, lanes, only, inf, max_level, scratch, b)
-                })
-            }
-            _ => super::tile_search::TileScratch::with(|scratch| {
+        let blocked = match through_bvh {
+            true => super::tile_search::TileScratch::with(|scratch| {
+                super::packet_bvh::occluded_tile_bvh(fi, &origins, to_sun, lanes, only, inf, max_level, scratch, b)
+            }),
+            false => super::tile_search::TileScratch::with(|scratch| {
                 super::tile_search::occluded_tile_by(
                     fi, &origins, to_sun, lanes, only, inf, search, max_level, scratch, b,
                 )

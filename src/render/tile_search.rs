@@ -209,9 +209,13 @@ pub fn nearest_listed_packet<'l>(
 ) {
     let mut listed = std::mem::take(&mut scratch.listed);
     listed.clear();
+    // Instances the lanes do not list (counted as culled when the lanes go as packets).
+    let mut unlisted = 0u64;
     for k in each(lanes) {
         out[k] = None;
-        for &(entry, i) in list(k) {
+        let l = list(k);
+        unlisted += fi.prepared.len().saturating_sub(l.len()) as u64;
+        for &(entry, i) in l {
             // (A tile's lanes list few instances: a crowd's, mostly one each.)
             match listed.iter_mut().find(|e| e.1 == i) {
                 Some(e) => {
@@ -230,9 +234,7 @@ pub fn nearest_listed_packet<'l>(
         scratch.listed = listed;
         return;
     }
-    for k in each(lanes) {
-        work.culled += fi.prepared.len().saturating_sub(list(k).len()) as u64;
-    }
+    work.culled += unlisted;
     listed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     for &(_, i, by) in &listed {
         let one = Origins::One(DVec3::ZERO);
