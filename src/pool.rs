@@ -92,6 +92,133 @@ pub fn rest() {
 #[cfg(not(feature = "parallel"))]
 pub fn rest() {}
 
+/// Runs `f(i)` for every `i` in `0..n`, each once, on the calling thread and the pool's
+/// others: each thread takes the next piece (a run of indices) from a shared counter until
+/// none is left, and the caller then waits for the ones still running by spinning, not by
+/// sleeping.
+///
+/// Rayon's loops end with the calling thread asleep on a latch whenever another thread
+/// holds the last piece: the wake-up after it took 100–120 µs on the 2-core host, after
+/// each of a sub-millisecond frame's loops (its tiles' last pieces came back at 255 µs of a
+/// 375 µs trace pass: docs/benchmarks.md, step 116). Meant for a frame's loops of some tens
+/// to a few thousand pieces of microseconds each; `f` may run loops of its own.
+#[cfg(feature = "parallel")]
+pub fn for_each_index(n: usize, f: impl Fn(usize) + Sync + Send) {
+    use std::sync::atomic::AtomicUsize;
+    let threads = rayon::current_num_threads();
+    if n <= 1 || threads == 1 {
+        (0..n).for_each(f);
+        return;
+    }
+    // Pieces of consecutive indices: each taken costs a counter's cache line moving between
+    // cores, which a thousand indices of a few microseconds each would pay a thousand times.
+    let pieces = n.min(PIECES * threads);
+    let (next, finished) = (AtomicUsize::new(0), AtomicUsize::new(0));
+    // Raised by a piece that panics: its indices never count as finished, and the caller
+    // must not wait for them (the scope then hands the panic on).
+    let failed = AtomicBool::new(false);
+    struct Failed<'a>(&'a AtomicBool);
+    impl Drop for Failed<'_> {
+        fn drop(&mut self) {
+            if std::thread::panicking() {
+                self.0.store(true, Ordering::Release);
+            }
+        }
+    }
+    let take = || {
+        let _failed = Failed(&failed);
+        let mut done = 0;
+        loop {
+            let p = next.fetch_add(1, Ordering::Relaxed);
+            if p >= pieces {
+                break;
+            }
+            let range = p * n / pieces..(p + 1) * n / pieces;
+            done += range.len();
+            range.for_each(&f);
+        }
+        finished.fetch_add(done, Ordering::Release);
+    };
+    rayon::in_place_scope(|s| {
+        for _ in 1..threads.min(pieces) {
+            s.spawn(|_| take());
+        }
+        take();
+        // Only pieces already running are left, each short: spin until they are done (a
+        // helper job not yet started is run here by the scope's end, and finds nothing).
+        while finished.load(Ordering::Acquire) < n && !failed.load(Ordering::Acquire) {
+            std::hint::spin_loop();
+        }
+    });
+}
+
+/// Pieces per thread that [`for_each_index`] cuts a loop into, at most.
+#[cfg(feature = "parallel")]
+const PIECES: usize = 64;
+
+/// Runs `f(i)` for every `i` in `0..n` (without the `parallel` feature there is no pool).
+#[cfg(not(feature = "parallel"))]
+pub fn for_each_index(n: usize, f: impl Fn(usize)) {
+    (0..n).for_each(f);
+}
+
+/// `f(0..n)` collected in order, computed as [`for_each_index`] runs them.
+pub(crate) fn map_index<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    let mut out: Vec<T> = Vec::with_capacity(n);
+    let cells = Disjoint::new(&mut out.spare_capacity_mut()[..n]);
+    for_each_index(n, |i| {
+        // SAFETY: index i is written by this call alone.
+        unsafe { cells.at(i) }.write(f(i));
+    });
+    // SAFETY: every index below n was written (each ran once, all before `for_each_index`
+    // returned; a panic in `f` leaves before this, leaking what was written).
+    unsafe { out.set_len(n) };
+    out
+}
+
+/// A slice shared out to parallel work items that each touch elements of their own only
+/// (a frame's tiles: disjoint pixel rectangles of one row-major image, which no split of the
+/// slice into contiguous pieces can hand out).
+pub(crate) struct Disjoint<'a, T> {
+    at: *mut T,
+    len: usize,
+    of: std::marker::PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: sharing the pointer shares the elements (`T: Send`, each reached by one thread at a
+// time); that no two threads reach one element is each caller's promise at `Disjoint::at`.
+unsafe impl<T: Send> Send for Disjoint<'_, T> {}
+unsafe impl<T: Send> Sync for Disjoint<'_, T> {}
+
+impl<'a, T> Disjoint<'a, T> {
+    /// The elements of `of`, to be handed out one or a run at a time.
+    pub(crate) fn new(of: &'a mut [T]) -> Disjoint<'a, T> {
+        Disjoint { at: of.as_mut_ptr(), len: of.len(), of: std::marker::PhantomData }
+    }
+
+    /// Element `i`.
+    ///
+    /// # Safety
+    /// While the reference lives, nothing else reaches element `i`.
+    #[allow(clippy::mut_from_ref)]
+    pub(crate) unsafe fn at(&self, i: usize) -> &mut T {
+        assert!(i < self.len, "index {i} past {}", self.len);
+        // SAFETY: in bounds (above); exclusive by the caller's promise.
+        unsafe { &mut *self.at.add(i) }
+    }
+
+    /// Elements `start..start + len`.
+    ///
+    /// # Safety
+    /// While the slice lives, nothing else reaches those elements.
+    #[allow(clippy::mut_from_ref)]
+    pub(crate) unsafe fn run(&self, start: usize, len: usize) -> &mut [T] {
+        assert!(start.checked_add(len).is_some_and(|end| end <= self.len), "{start}+{len} past {}", self.len);
+        // SAFETY: in bounds (above); exclusive by the caller's promise.
+        unsafe { std::slice::from_raw_parts_mut(self.at.add(start), len) }
+    }
+}
+
 /// On one of the pool's threads: runs the pool's pending work, one piece at a time, until
 /// `done` or until none has come for [`IDLE`]. A thread that picks this job up while it
 /// waits inside other work must soon return to that work: so it returns at once on the
@@ -127,6 +254,65 @@ fn keep_taking_work(done: &AtomicBool, driver: Option<usize>) {
 #[cfg(all(test, feature = "parallel"))]
 mod tests {
     use super::*;
+
+    /// Every index of a loop runs once, for sizes around the pieces' count and with loops
+    /// nested in its pieces (on a pool of four, under a watchdog: a lost piece would leave
+    /// the caller spinning); `map_index` keeps the order.
+    #[test]
+    fn every_index_runs_once_and_maps_in_order() {
+        use std::sync::atomic::AtomicU32;
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("a pool of four");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let result = pool.install(|| {
+                let mut wrong = Vec::new();
+                for n in [0, 1, 2, 3, 255, 256, 257, 1000, 4099] {
+                    let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+                    for_each_index(n, |i| {
+                        counts[i].fetch_add(1, Ordering::Relaxed);
+                    });
+                    if counts.iter().any(|c| c.load(Ordering::Relaxed) != 1) {
+                        wrong.push(n);
+                    }
+                    // Each item also sums a loop of its own.
+                    let mapped = map_index(n, |i| i * i + map_index(i % 7, |j| j + 1).iter().sum::<usize>());
+                    let expected: Vec<usize> = (0..n).map(|i| i * i + (1..=i % 7).sum::<usize>()).collect();
+                    if mapped != expected {
+                        wrong.push(n);
+                    }
+                }
+                wrong
+            });
+            let _ = tx.send(result);
+        });
+        let wrong = rx.recv_timeout(std::time::Duration::from_secs(300)).expect("the loops returned");
+        assert!(wrong.is_empty(), "loops of these sizes went wrong: {wrong:?}");
+    }
+
+    /// A piece that panics on another thread than the caller's hands its panic to the
+    /// caller, which must not wait for the indices it never finished (under a watchdog).
+    #[test]
+    fn a_panicking_piece_reaches_the_caller() {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("a pool of four");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let result = pool.install(|| {
+                let driver = rayon::current_thread_index();
+                std::panic::catch_unwind(|| {
+                    for_each_index(4000, |_| {
+                        if rayon::current_thread_index() != driver {
+                            panic!("a helper's piece fails");
+                        }
+                        std::thread::sleep(std::time::Duration::from_micros(10));
+                    })
+                })
+                .is_err()
+            });
+            let _ = tx.send(result);
+        });
+        let panicked = rx.recv_timeout(std::time::Duration::from_secs(300)).expect("the loop returned");
+        assert!(panicked, "the helper's panic was lost");
+    }
 
     /// Work handed to the pool runs on one of its threads, under the caller's own memory
     /// budget (a job's limit must hold for the frames it renders there). (Work started on the

@@ -595,6 +595,50 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
     }
 }
 
+/// A pixel whose stored hit is on an instance that moves searches the instances that stayed
+/// put only from just short of that hit (none of them has a hit before it). Here a moving
+/// copy of the body lies exactly on a still one (the tie went to the mover, instance 0), or
+/// a hair in front of it, and then leaves: every pixel it covered must find the still body
+/// at the stored t or just behind it, as a fresh frame does.
+#[test]
+fn pixels_a_moved_instance_leaves_find_the_still_one_just_behind() {
+    let body = car_parts()[0].clone();
+    let lights = Lights::default();
+    for ahead in [0.0, 1e-3] {
+        let mut scene = Scene::new(vec![body.clone()]);
+        let front = Transform { translation: DVec3::new(0.0, 0.0, ahead), ..Transform::IDENTITY };
+        scene.add(Instance { part: 0, parent: None, local: front }).unwrap();
+        scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY }).unwrap();
+        scene.update().unwrap();
+        let mut hits = HitBuffer::new();
+        for f in 0..3 {
+            if f == 2 {
+                let away = Transform { translation: DVec3::new(0.0, 9.0, ahead), ..Transform::IDENTITY };
+                scene.set_local(0, away).unwrap();
+                scene.update().unwrap();
+            }
+            let plan = FramePlan::new(&scene, &camera(), &lights, &Features::default(), (f > 0).then_some(&hits));
+            let fast =
+                render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {})
+                    .unwrap();
+            let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
+            let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+            assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+            match f {
+                1 => assert!(
+                    fast.instance.contains(&0) && !fast.instance.contains(&1),
+                    "ahead {ahead}: the mover in front"
+                ),
+                2 => {
+                    assert!(fast.instance.contains(&1), "ahead {ahead}: the still body behind");
+                    assert!(fast.reused > 0, "ahead {ahead}: the hit buffer kept nothing");
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
 /// Past the beams' limit each pixel searches its own sphere list; with the hit buffer, a
 /// pixel whose stored hit is on a still instance (or a miss), crossed by a moved sphere,
 /// searches only the moved instances of its list against that hit. Here three cars drive

@@ -245,7 +245,7 @@ fn sun_shadows(
         search == super::visibility::Search::Bvh && fi.bvh.is_some() && fi.prepared.len() > super::beam::MAX_INSTANCES;
     // Tile by tile (a mostly kept frame's shadow rays lie in a few bands of tiles, too few
     // pieces to share between threads): each tile's rays asked, and the ones blocked.
-    let per_tile = par_map(tiles_x * height.div_ceil(t), |tile| {
+    let per_tile = crate::pool::map_index(tiles_x * height.div_ceil(t), |tile| {
         let (x0, y0) = ((tile % tiles_x) * t, (tile / tiles_x) * t);
         let mut lanes = 0u64;
         for k in super::tile_search::each(candidates(tile)) {
@@ -367,44 +367,57 @@ impl FrameRow<'_> {
 }
 
 /// Runs `f(y, row)` over the rows of a frame's per-pixel buffers and of `sun_blocker` (as
-/// many pixels), in parallel when enabled.
-fn for_frame_rows(f: &mut Frame, sun_blocker: &mut [u32], each: impl Fn(usize, FrameRow) + Sync + Send) {
-    let w = f.width as usize;
-    #[cfg(feature = "parallel")]
-    {
-        use rayon::prelude::*;
-        f.radiance
-            .par_chunks_mut(w)
-            .zip(f.t.par_chunks_mut(w))
-            .zip(f.instance.par_chunks_mut(w))
-            .zip(f.normal.par_chunks_mut(w))
-            .zip(f.albedo.par_chunks_mut(w))
-            .zip(f.specular.par_chunks_mut(w))
-            .zip(f.shininess.par_chunks_mut(w))
-            .zip(sun_blocker.par_chunks_mut(w))
-            .enumerate()
-            .for_each(|(y, (((((((radiance, t), instance), normal), albedo), specular), shininess), sun_blocker))| {
-                each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess, sun_blocker })
-            });
-    }
-    #[cfg(not(feature = "parallel"))]
-    {
-        let rows = f
-            .radiance
-            .chunks_mut(w)
-            .zip(f.t.chunks_mut(w))
-            .zip(f.instance.chunks_mut(w))
-            .zip(f.normal.chunks_mut(w))
-            .zip(f.albedo.chunks_mut(w))
-            .zip(f.specular.chunks_mut(w))
-            .zip(f.shininess.chunks_mut(w))
-            .zip(sun_blocker.chunks_mut(w));
-        for (y, (((((((radiance, t), instance), normal), albedo), specular), shininess), sun_blocker)) in
-            rows.enumerate()
-        {
-            each(y, FrameRow { radiance, t, instance, normal, albedo, specular, shininess, sun_blocker });
+/// many pixels), in parallel when enabled ([`crate::pool::for_each_index`]: a band of
+/// [`TILE`] rows each), and returns the sums of what it returns; `band_done(rows)` hears of
+/// each band as it finishes. (Counted per band and added once: counters shared by every row
+/// cost a mostly kept frame's shading pass more than its two threads gained.)
+fn for_frame_rows(
+    f: &mut Frame,
+    sun_blocker: &mut [u32],
+    each: impl Fn(usize, FrameRow) -> [u64; 2] + Sync + Send,
+    band_done: impl Fn(usize) + Sync + Send,
+) -> [u64; 2] {
+    use crate::pool::Disjoint;
+    let (w, h) = (f.width as usize, f.height as usize);
+    let radiance = Disjoint::new(&mut f.radiance);
+    let t = Disjoint::new(&mut f.t);
+    let instance = Disjoint::new(&mut f.instance);
+    let normal = Disjoint::new(&mut f.normal);
+    let albedo = Disjoint::new(&mut f.albedo);
+    let specular = Disjoint::new(&mut f.specular);
+    let shininess = Disjoint::new(&mut f.shininess);
+    let sun_blocker = Disjoint::new(sun_blocker);
+    let sums = [AtomicU64::new(0), AtomicU64::new(0)];
+    let band = TILE as usize;
+    crate::pool::for_each_index(h.div_ceil(band), |b| {
+        let mut sum = [0u64; 2];
+        let rows = b * band..((b + 1) * band).min(h);
+        for y in rows.clone() {
+            let at = y * w;
+            // SAFETY: row y's pixels are this call's alone.
+            let row = unsafe {
+                FrameRow {
+                    radiance: radiance.run(at, w),
+                    t: t.run(at, w),
+                    instance: instance.run(at, w),
+                    normal: normal.run(at, w),
+                    albedo: albedo.run(at, w),
+                    specular: specular.run(at, w),
+                    shininess: shininess.run(at, w),
+                    sun_blocker: sun_blocker.run(at, w),
+                }
+            };
+            let [a, b] = each(y, row);
+            sum = [sum[0] + a, sum[1] + b];
         }
-    }
+        for (total, part) in sums.iter().zip(sum) {
+            if part != 0 {
+                total.fetch_add(part, Ordering::Relaxed);
+            }
+        }
+        band_done(rows.len());
+    });
+    sums.map(AtomicU64::into_inner)
 }
 
 /// Where a secondary ray from hit `r` at (camera-relative) `at` starts: one voxel along the
@@ -638,7 +651,7 @@ fn render_lit_here(
     let mut sun_blockers = hits.as_deref_mut().map(|h| std::mem::take(&mut h.sun_blockers)).unwrap_or_default();
     let previous = hits.as_deref().filter(|_| plan.hit_buffer);
     let done = AtomicU32::new(0);
-    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, 2 * h as u32);
+    let ticks = |n: usize| progress(done.fetch_add(n as u32, Ordering::Relaxed) + n as u32, 2 * h as u32);
 
     // Pass 1: primary visibility, tile by tile (beams start each tile's rays late); reused
     // pixels are decided first, so a tile that reuses all traces nothing.
@@ -689,9 +702,7 @@ fn render_lit_here(
     let traced = if splatting {
         let per_instance = splat_cache.for_frame(scene, &prepared, camera, opts.max_level);
         super::splat::rasterize(scene, &prepared, &per_instance, camera, opts.splat_factor, &mut records);
-        for _ in 0..h {
-            tick();
-        }
+        ticks(h);
         let tiles = w.div_ceil(TILE as usize) * h.div_ceil(TILE as usize);
         // Every pixel is drawn afresh: none counts as reused.
         super::primary::Traced {
@@ -702,11 +713,7 @@ fn render_lit_here(
             missed: Vec::new(),
         }
     } else {
-        trace_tiles(&primary, &mut records, tile_spheres, pending, store, |rows| {
-            for _ in 0..rows {
-                tick();
-            }
-        })
+        trace_tiles(&primary, &mut records, tile_spheres, pending, store, ticks)
     };
 
     // Pass 2: shading. A pixel keeps last frame's colour when it kept its hit record (it was
@@ -721,8 +728,6 @@ fn render_lit_here(
     // Emitters light the frame when there are any and they are sampled.
     let emitters =
         if lights.emitter_sampling() > 0 { EmitterTable::new(scene, camera.eye) } else { EmitterTable::default() };
-    let shadow_rays = AtomicU64::new(0);
-    let shade_reused = AtomicU64::new(0);
     let n = w * h;
     if sun_blockers.len() != n {
         sun_blockers.clear();
@@ -795,7 +800,7 @@ fn render_lit_here(
     // the packets instead of one by one in the shading pass. Of those, the ones that no
     // instance blocked (`.1`): only a moved instance can block them now.
     let reshade_tiles: Vec<(u64, u64)> = match shade_from {
-        Some((reuse, _)) if plan.shadows => par_map(tile_count, |t| {
+        Some((reuse, _)) if plan.shadows => crate::pool::map_index(tile_count, |t| {
             let (x0, y0) = ((t % tiles_x) * TILE as usize, (t / tiles_x) * TILE as usize);
             // The tile's kept records: the pixels of the image its trace did not store.
             let (tw, th) = ((w - x0).min(TILE as usize), (h - y0).min(TILE as usize));
@@ -918,9 +923,9 @@ fn render_lit_here(
     };
     // Shading, with each pixel's surface data (the AOVs) written in the same pass over the
     // records: one read of them instead of two.
-    for_frame_rows(&mut f, &mut sun_blockers, |y, mut row| {
-        // (Counted per row and added once: one shared counter per shadow ray, bumped from
-        // every thread, cost 6 % of a mostly kept frame in cache-line traffic.)
+    let shading = |y: usize, mut row: FrameRow| {
+        // (Counted per row and added once per band: one shared counter per shadow ray, bumped
+        // from every thread, cost 6 % of a mostly kept frame in cache-line traffic.)
         let (mut kept, mut row_shadow_rays) = (0, 0);
         // This row's bits in a tile's pixel masks.
         let (ty, row_shift) = (y / TILE as usize, (y % TILE as usize) * TILE as usize);
@@ -1038,14 +1043,13 @@ fn render_lit_here(
                 shaded[t].fetch_or(shaded_here, Ordering::Relaxed);
             }
         }
-        shade_reused.fetch_add(kept, Ordering::Relaxed);
-        shadow_rays.fetch_add(row_shadow_rays, Ordering::Relaxed);
-        tick();
-    });
+        [kept, row_shadow_rays]
+    };
+    let [shade_reused, shadow_rays] = for_frame_rows(&mut f, &mut sun_blockers, shading, ticks);
     let colours_from_buffer = shade_from.is_some();
     f.reused = n as u64 - traced.rays;
-    f.shadow_rays = shadow_rays.into_inner();
-    f.shade_reused = shade_reused.into_inner();
+    f.shadow_rays = shadow_rays;
+    f.shade_reused = shade_reused;
     if let Some(b) = hits {
         b.reused = f.reused;
         b.splats = splat_cache;

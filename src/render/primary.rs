@@ -4,12 +4,14 @@
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::pixel_spheres::{PixelSpheres, TileLists};
-use super::tile_search::{each, nearest_listed_packet, nearest_moved_tile, nearest_packet, Origins, TileScratch};
+use super::tile_search::{
+    each, nearest_listed_packet, nearest_moved_tile, nearest_packet_after, Origins, StillAfter, TileScratch,
+};
 use super::visibility::{nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
 use glam::DVec3;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 /// What the primary rays of one frame search.
 #[derive(Clone, Copy)]
@@ -74,6 +76,9 @@ pub enum Todo {
     Again {
         /// The instance of the stored hit.
         instance: u32,
+        /// The stored hit's ray parameter: no instance that did not move has a hit before it
+        /// ([`StillAfter`]).
+        t: f32,
     },
     /// A search among the moved instances ([`Primary::moved`]) only, against the nearest hit
     /// `(t, instance)` among all the others (+∞ and −1 for none): the stored hit, when it is
@@ -112,18 +117,35 @@ pub fn trace_tiles<T: Send, S>(
     let moved_flags = (p.moved_flags.len() == p.instances.prepared.len()).then_some(p.moved_flags);
     let (traced, culled, rays) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
     let moved_only = AtomicU64::new(0);
-    // One band of tiles, with the thread's scratch.
-    let band_with = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]], scratch: &mut TileScratch| {
+    let h = p.camera.height as usize;
+    assert_eq!(out.len(), w * h, "one item per pixel");
+    // Work items: the tiles of one beam's run of a band (a few tiles). A mostly kept frame's
+    // work lies in the few tiles around its moving parts, often in two or three bands:
+    // shared out band by band, one thread traced most of it while the other waited.
+    let (bands, runs) = (h.div_ceil(TILE as usize), w.div_ceil(BEAM_WIDTH as usize));
+    // Per band, its runs not yet done (the last one done reports the band's rows).
+    let band_left: Vec<AtomicU32> = (0..bands).map(|_| AtomicU32::new(runs as u32)).collect();
+    let cells = crate::pool::Disjoint::new(out);
+    let tile_masks = crate::pool::Disjoint::new(&mut masks);
+    // One run of tiles, with the thread's scratch.
+    let run_with = |item: usize, scratch: &mut TileScratch| {
+        let (band, run) = (item / runs, item % runs);
+        let y0 = band * TILE as usize;
+        let tile_h = (h - y0).min(TILE as usize);
+        // SAFETY: item `item` touches only the pixels of its own tiles (columns x_lo..x_hi of
+        // rows y0..y0 + tile_h) and their masks, and holds one reference to one at a time.
+        let rows = |i: usize| unsafe { cells.at(y0 * w + i) };
+        let mask = |x0: usize| unsafe { tile_masks.at(band * tiles_x + x0 / TILE as usize) };
         let mut work = Work::default();
         let mut band_rays = 0u64;
         let mut band_moved = 0u64;
-        let mut starts = Vec::new();
+        let mut starts = std::mem::take(&mut scratch.starts);
         // Where the beam in `starts` begins (none yet).
         let mut beam_x0 = usize::MAX;
         let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
         let mut hits = [None; (TILE * TILE) as usize];
-        let tile_h = rows.len() / w;
-        for x0 in (0..w).step_by(TILE as usize) {
+        let x_lo = run * BEAM_WIDTH as usize;
+        for x0 in (x_lo..(x_lo + BEAM_WIDTH as usize).min(w)).step_by(TILE as usize) {
             let x1 = (x0 + TILE as usize).min(w);
             let Some(setup) = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]) else {
                 continue;
@@ -132,17 +154,21 @@ pub fn trace_tiles<T: Send, S>(
             let mut todo = 0u64;
             let mut partial = 0u64;
             let mut bounds = [(0.0f32, 0i32); (TILE * TILE) as usize];
+            // The Again pixels, and their stored hits' t.
+            let (mut again, mut again_t) = (0u64, [0.0f32; (TILE * TILE) as usize]);
             // The instance most of the tile's Again pixels hit last frame (a vote: one counter
             // that a different instance decrements).
             let (mut first, mut votes) = (None, 0u32);
             for ty in 0..tile_h {
                 for x in x0..x1 {
                     let k = ty * TILE as usize + x - x0;
-                    match pending(&setup, x as u32, (y0 + ty) as u32, &mut rows[ty * w + x]) {
+                    match pending(&setup, x as u32, (y0 + ty) as u32, rows(ty * w + x)) {
                         Todo::Keep => {}
                         Todo::All => todo |= 1 << k,
-                        Todo::Again { instance } => {
+                        Todo::Again { instance, t } => {
                             todo |= 1 << k;
+                            again |= 1 << k;
+                            again_t[k] = t;
                             if first == Some(instance as usize) {
                                 votes += 1;
                             } else if votes == 0 {
@@ -164,7 +190,7 @@ pub fn trace_tiles<T: Send, S>(
             // This tile's pixels whose item holds a miss already.
             let missed_before =
                 p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
-            masks[x0 / TILE as usize][0] = todo;
+            mask(x0)[0] = todo;
             band_rays += (todo | partial).count_ones() as u64;
             band_moved += partial.count_ones() as u64;
             // The tile's sphere lists, by lane.
@@ -212,12 +238,12 @@ pub fn trace_tiles<T: Send, S>(
             if all_miss {
                 // Every pending ray misses (and no moved instance beats a bound); a miss stored
                 // there by last frame's beams is already in place.
-                masks[x0 / TILE as usize][1] = todo;
+                mask(x0)[1] = todo;
                 todo &= !missed_before;
                 while todo != 0 {
                     let k = todo.trailing_zeros() as usize;
                     todo &= todo - 1;
-                    store(&mut rows[(k / TILE as usize) * w + x0 + k % TILE as usize], None);
+                    store(rows((k / TILE as usize) * w + x0 + k % TILE as usize), None);
                 }
                 continue;
             }
@@ -234,7 +260,10 @@ pub fn trace_tiles<T: Send, S>(
                     dirs[k] = dir(k);
                 }
                 if todo != 0 {
-                    nearest_packet(
+                    // The instances that stayed put are searched by the Again rays from their
+                    // stored hit on.
+                    let after = StillAfter { lanes: again, t: &again_t, moved: p.moved_flags };
+                    nearest_packet_after(
                         &fi,
                         Origins::One(DVec3::ZERO),
                         &dirs,
@@ -245,9 +274,10 @@ pub fn trace_tiles<T: Send, S>(
                         scratch,
                         &mut hits,
                         first,
+                        after,
                     );
                     for k in each(todo) {
-                        store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
+                        store(rows(at(k)), hits[k].map(|h| (h, dirs[k])));
                     }
                 }
                 if partial != 0 {
@@ -265,8 +295,8 @@ pub fn trace_tiles<T: Send, S>(
                     );
                     for k in each(partial) {
                         if let Some(hit) = hits[k] {
-                            store(&mut rows[at(k)], Some((hit, dirs[k])));
-                            masks[x0 / TILE as usize][0] |= 1 << k;
+                            store(rows(at(k)), Some((hit, dirs[k])));
+                            mask(x0)[0] |= 1 << k;
                         }
                     }
                 }
@@ -276,16 +306,16 @@ pub fn trace_tiles<T: Send, S>(
                 for k in each(todo) {
                     let d = dir(k);
                     let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d));
-                    store(&mut rows[at(k)], hit);
+                    store(rows(at(k)), hit);
                 }
             } else if todo != 0 {
                 // A ray whose list holds no sphere misses, without forming its direction, and
                 // is not stored again where last frame stored a miss.
                 let unlisted = todo & !tile_lists.mask;
                 work.culled += unlisted.count_ones() as u64 * fi.prepared.len() as u64;
-                masks[x0 / TILE as usize][1] |= unlisted;
+                mask(x0)[1] |= unlisted;
                 for k in each(unlisted & !missed_before) {
-                    store(&mut rows[at(k)], None);
+                    store(rows(at(k)), None);
                 }
                 // The others: the instances their lists hold, each traced by its lanes as one
                 // packet.
@@ -296,7 +326,7 @@ pub fn trace_tiles<T: Send, S>(
                 let list = |k: usize| tile_lists.at(k);
                 nearest_listed_packet(&fi, &dirs, listed, list, &p.opts, &mut work, scratch, &mut hits);
                 for k in each(listed) {
-                    store(&mut rows[at(k)], hits[k].map(|h| (h, dirs[k])));
+                    store(rows(at(k)), hits[k].map(|h| (h, dirs[k])));
                 }
             }
             for k in each(partial) {
@@ -330,32 +360,25 @@ pub fn trace_tiles<T: Send, S>(
                     }
                 };
                 if let Some((hit, d)) = found {
-                    store(&mut rows[at(k)], Some((hit, d)));
-                    masks[x0 / TILE as usize][0] |= 1 << k;
+                    store(rows(at(k)), Some((hit, d)));
+                    mask(x0)[0] |= 1 << k;
                 }
             }
         }
-        traced.fetch_add(work.traced, Ordering::Relaxed);
-        culled.fetch_add(work.culled, Ordering::Relaxed);
-        rays.fetch_add(band_rays, Ordering::Relaxed);
-        moved_only.fetch_add(band_moved, Ordering::Relaxed);
-        rows_done(tile_h);
+        scratch.starts = starts;
+        if work != Work::default() {
+            traced.fetch_add(work.traced, Ordering::Relaxed);
+            culled.fetch_add(work.culled, Ordering::Relaxed);
+        }
+        if band_rays != 0 {
+            rays.fetch_add(band_rays, Ordering::Relaxed);
+            moved_only.fetch_add(band_moved, Ordering::Relaxed);
+        }
+        if band_left[band].fetch_sub(1, Ordering::AcqRel) == 1 {
+            rows_done(tile_h);
+        }
     };
-    let band = |y0: usize, rows: &mut [T], masks: &mut [[u64; 2]]| TileScratch::with(|s| band_with(y0, rows, masks, s));
-    let rows = w * TILE as usize;
-    #[cfg(feature = "parallel")]
-    {
-        use rayon::prelude::*;
-        out.par_chunks_mut(rows)
-            .zip(masks.par_chunks_mut(tiles_x))
-            .enumerate()
-            .for_each(|(i, (r, m))| band(i * TILE as usize, r, m));
-    }
-    #[cfg(not(feature = "parallel"))]
-    out.chunks_mut(rows)
-        .zip(masks.chunks_mut(tiles_x))
-        .enumerate()
-        .for_each(|(i, (r, m))| band(i * TILE as usize, r, m));
+    crate::pool::for_each_index(bands * runs, |item| TileScratch::with(|s| run_with(item, s)));
     Traced {
         work: Work { traced: traced.into_inner(), culled: culled.into_inner() },
         rays: rays.into_inner(),
