@@ -93,27 +93,47 @@ pub fn rest() {
 pub fn rest() {}
 
 /// Runs `f(i)` for every `i` in `0..n`, each once, on the calling thread and the pool's
-/// others: each thread takes the next piece (a run of indices) from a shared counter until
-/// none is left, and the caller then waits for the ones still running by spinning, not by
-/// sleeping.
+/// others: each thread takes pieces (runs of indices) from its share until none is left,
+/// then from the others', and the caller then waits for the ones still running by
+/// spinning, not by sleeping.
 ///
 /// Rayon's loops end with the calling thread asleep on a latch whenever another thread
 /// holds the last piece: the wake-up after it took 100–120 µs on the 2-core host, after
 /// each of a sub-millisecond frame's loops (its tiles' last pieces came back at 255 µs of a
 /// 375 µs trace pass: docs/benchmarks.md, step 116). Meant for a frame's loops of some tens
 /// to a few thousand pieces of microseconds each; `f` may run loops of its own.
-#[cfg(feature = "parallel")]
 pub fn for_each_index(n: usize, f: impl Fn(usize) + Sync + Send) {
+    for_each_index_with(n, || (), |_, i| f(i), |_| ());
+}
+
+/// [`for_each_index`] with a state of each thread's own: a thread that takes part makes one
+/// with `init`, hands it to `f` with each index it runs, and gives it to `finish` when no
+/// piece is left (a loop's counters summed per thread, not bumped in shared memory per
+/// index; every thread's `finish` has run when this returns).
+#[cfg(feature = "parallel")]
+pub fn for_each_index_with<S>(
+    n: usize,
+    init: impl Fn() -> S + Sync + Send,
+    f: impl Fn(&mut S, usize) + Sync + Send,
+    finish: impl Fn(S) + Sync + Send,
+) {
     use std::sync::atomic::AtomicUsize;
     let threads = rayon::current_num_threads();
     if n <= 1 || threads == 1 {
-        (0..n).for_each(f);
+        let mut state = init();
+        (0..n).for_each(|i| f(&mut state, i));
+        finish(state);
         return;
     }
-    // Pieces of consecutive indices: each taken costs a counter's cache line moving between
-    // cores, which a thousand indices of a few microseconds each would pay a thousand times.
-    let pieces = n.min(PIECES * threads);
-    let (next, finished) = (AtomicUsize::new(0), AtomicUsize::new(0));
+    // Each thread owns an even share of the pieces (runs of consecutive indices) and takes
+    // them from a counter of its own, on a cache line of its own; a thread whose share is
+    // done takes the others' from their counters. A counter shared by every piece cost a
+    // frame's loops a cache line moving between cores per piece, and big pieces left one
+    // thread with the heavy tiles of a piece while the other waited.
+    let slots = threads.min(n);
+    let pieces = n.min(PIECES * slots);
+    let next: Vec<Padded> = (0..slots).map(|k| Padded(AtomicUsize::new(k * pieces / slots))).collect();
+    let finished = AtomicUsize::new(0);
     // Raised by a piece that panics: its indices never count as finished, and the caller
     // must not wait for them (the scope then hands the panic on).
     let failed = AtomicBool::new(false);
@@ -125,25 +145,33 @@ pub fn for_each_index(n: usize, f: impl Fn(usize) + Sync + Send) {
             }
         }
     }
-    let take = || {
+    let take = |slot: usize| {
         let _failed = Failed(&failed);
-        let mut done = 0;
-        loop {
-            let p = next.fetch_add(1, Ordering::Relaxed);
-            if p >= pieces {
-                break;
+        let (mut done, mut state) = (0, None);
+        for k in (0..slots).map(|j| (slot + j) % slots) {
+            let end = (k + 1) * pieces / slots;
+            loop {
+                let p = next[k].0.fetch_add(1, Ordering::Relaxed);
+                if p >= end {
+                    break;
+                }
+                let range = p * n / pieces..(p + 1) * n / pieces;
+                done += range.len();
+                let state = state.get_or_insert_with(&init);
+                range.for_each(|i| f(state, i));
             }
-            let range = p * n / pieces..(p + 1) * n / pieces;
-            done += range.len();
-            range.for_each(&f);
+        }
+        if let Some(state) = state {
+            finish(state);
         }
         finished.fetch_add(done, Ordering::Release);
     };
+    let take = &take;
     rayon::in_place_scope(|s| {
-        for _ in 1..threads.min(pieces) {
-            s.spawn(|_| take());
+        for slot in 1..slots {
+            s.spawn(move |_| take(slot));
         }
-        take();
+        take(0);
         // Only pieces already running are left, each short: spin until they are done (a
         // helper job not yet started is run here by the scope's end, and finds nothing).
         while finished.load(Ordering::Acquire) < n && !failed.load(Ordering::Acquire) {
@@ -152,14 +180,24 @@ pub fn for_each_index(n: usize, f: impl Fn(usize) + Sync + Send) {
     });
 }
 
-/// Pieces per thread that [`for_each_index`] cuts a loop into, at most.
+/// Pieces per thread that [`for_each_index`] cuts a loop into, at most: a piece taken from
+/// a thread's own counter costs some nanoseconds, and the last piece running bounds how long
+/// the other threads wait.
 #[cfg(feature = "parallel")]
-const PIECES: usize = 64;
+const PIECES: usize = 1024;
 
-/// Runs `f(i)` for every `i` in `0..n` (without the `parallel` feature there is no pool).
+/// An atomic counter alone on its cache line (two lines: some cores fetch lines in pairs).
+#[cfg(feature = "parallel")]
+#[repr(align(128))]
+struct Padded(std::sync::atomic::AtomicUsize);
+
+/// [`for_each_index`] with a state of the loop's own (without the `parallel` feature there
+/// is no pool: one state, one thread).
 #[cfg(not(feature = "parallel"))]
-pub fn for_each_index(n: usize, f: impl Fn(usize)) {
-    (0..n).for_each(f);
+pub fn for_each_index_with<S>(n: usize, init: impl Fn() -> S, f: impl Fn(&mut S, usize), finish: impl Fn(S)) {
+    let mut state = init();
+    (0..n).for_each(|i| f(&mut state, i));
+    finish(state);
 }
 
 /// `f(0..n)` collected in order, computed as [`for_each_index`] runs them.

@@ -369,7 +369,7 @@ impl FrameRow<'_> {
 /// Runs `f(y, row)` over the rows of a frame's per-pixel buffers and of `sun_blocker` (as
 /// many pixels), in parallel when enabled ([`crate::pool::for_each_index`]: a band of
 /// [`TILE`] rows each), and returns the sums of what it returns; `band_done(rows)` hears of
-/// each band as it finishes. (Counted per band and added once: counters shared by every row
+/// each band as it finishes. (Summed per thread and added once: counters shared by every row
 /// cost a mostly kept frame's shading pass more than its two threads gained.)
 fn for_frame_rows(
     f: &mut Frame,
@@ -389,34 +389,38 @@ fn for_frame_rows(
     let sun_blocker = Disjoint::new(sun_blocker);
     let sums = [AtomicU64::new(0), AtomicU64::new(0)];
     let band = TILE as usize;
-    crate::pool::for_each_index(h.div_ceil(band), |b| {
-        let mut sum = [0u64; 2];
-        let rows = b * band..((b + 1) * band).min(h);
-        for y in rows.clone() {
-            let at = y * w;
-            // SAFETY: row y's pixels are this call's alone.
-            let row = unsafe {
-                FrameRow {
-                    radiance: radiance.run(at, w),
-                    t: t.run(at, w),
-                    instance: instance.run(at, w),
-                    normal: normal.run(at, w),
-                    albedo: albedo.run(at, w),
-                    specular: specular.run(at, w),
-                    shininess: shininess.run(at, w),
-                    sun_blocker: sun_blocker.run(at, w),
-                }
-            };
-            let [a, b] = each(y, row);
-            sum = [sum[0] + a, sum[1] + b];
-        }
+    let add = |sum: [u64; 2]| {
         for (total, part) in sums.iter().zip(sum) {
-            if part != 0 {
-                total.fetch_add(part, Ordering::Relaxed);
-            }
+            total.fetch_add(part, Ordering::Relaxed);
         }
-        band_done(rows.len());
-    });
+    };
+    crate::pool::for_each_index_with(
+        h.div_ceil(band),
+        || [0u64; 2],
+        |sum, b| {
+            let rows = b * band..((b + 1) * band).min(h);
+            for y in rows.clone() {
+                let at = y * w;
+                // SAFETY: row y's pixels are this call's alone.
+                let row = unsafe {
+                    FrameRow {
+                        radiance: radiance.run(at, w),
+                        t: t.run(at, w),
+                        instance: instance.run(at, w),
+                        normal: normal.run(at, w),
+                        albedo: albedo.run(at, w),
+                        specular: specular.run(at, w),
+                        shininess: shininess.run(at, w),
+                        sun_blocker: sun_blocker.run(at, w),
+                    }
+                };
+                let [a, b] = each(y, row);
+                *sum = [sum[0] + a, sum[1] + b];
+            }
+            band_done(rows.len());
+        },
+        add,
+    );
     sums.map(AtomicU64::into_inner)
 }
 

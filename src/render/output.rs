@@ -45,20 +45,17 @@ pub fn srgba8(frame: &Frame) -> Vec<u8> {
 fn encode(radiance: &[glam::Vec3], channels: usize) -> Vec<u8> {
     const BAND: usize = 4096;
     let mut out = vec![255u8; radiance.len() * channels];
-    let band = |(bytes, colours): (&mut [u8], &[glam::Vec3])| {
-        for (px, c) in bytes.chunks_exact_mut(channels).zip(colours) {
+    let bytes = crate::pool::Disjoint::new(&mut out);
+    crate::pool::for_each_index(radiance.len().div_ceil(BAND), |b| {
+        let colours = &radiance[b * BAND..((b + 1) * BAND).min(radiance.len())];
+        // SAFETY: band b's bytes are this call's alone.
+        let px = unsafe { bytes.run(b * BAND * channels, colours.len() * channels) };
+        for (px, c) in px.chunks_exact_mut(channels).zip(colours) {
             px[0] = linear_to_srgb8(c.x);
             px[1] = linear_to_srgb8(c.y);
             px[2] = linear_to_srgb8(c.z);
         }
-    };
-    #[cfg(feature = "parallel")]
-    {
-        use rayon::prelude::*;
-        out.par_chunks_mut(BAND * channels).zip(radiance.par_chunks(BAND)).for_each(band);
-    }
-    #[cfg(not(feature = "parallel"))]
-    out.chunks_mut(BAND * channels).zip(radiance.chunks(BAND)).for_each(band);
+    });
     out
 }
 

@@ -11,7 +11,7 @@ use super::visibility::{nearest_listed_moved, nearest_moved, nearest_work, Frame
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
 use glam::DVec3;
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
 /// What the primary rays of one frame search.
 #[derive(Clone, Copy)]
@@ -123,12 +123,20 @@ pub fn trace_tiles<T: Send, S>(
     // work lies in the few tiles around its moving parts, often in two or three bands:
     // shared out band by band, one thread traced most of it while the other waited.
     let (bands, runs) = (h.div_ceil(TILE as usize), w.div_ceil(BEAM_WIDTH as usize));
-    // Per band, its runs not yet done (the last one done reports the band's rows).
-    let band_left: Vec<AtomicU32> = (0..bands).map(|_| AtomicU32::new(runs as u32)).collect();
+    // Runs done, and the rows reported done (runs done × rows per run, rounded down).
+    let (runs_done, rows_reported) = (AtomicUsize::new(0), AtomicUsize::new(0));
+    let report = |n: usize| {
+        let done = runs_done.fetch_add(n, Ordering::Relaxed) + n;
+        let rows = done * h / (bands * runs);
+        let before = rows_reported.fetch_max(rows, Ordering::Relaxed);
+        if rows > before {
+            rows_done(rows - before);
+        }
+    };
     let cells = crate::pool::Disjoint::new(out);
     let tile_masks = crate::pool::Disjoint::new(&mut masks);
     // One run of tiles, with the thread's scratch.
-    let run_with = |item: usize, scratch: &mut TileScratch| {
+    let run_with = |item: usize, scratch: &mut TileScratch, tally: &mut Tally| {
         let (band, run) = (item / runs, item % runs);
         let y0 = band * TILE as usize;
         let tile_h = (h - y0).min(TILE as usize);
@@ -136,9 +144,6 @@ pub fn trace_tiles<T: Send, S>(
         // rows y0..y0 + tile_h) and their masks, and holds one reference to one at a time.
         let rows = |i: usize| unsafe { cells.at(y0 * w + i) };
         let mask = |x0: usize| unsafe { tile_masks.at(band * tiles_x + x0 / TILE as usize) };
-        let mut work = Work::default();
-        let mut band_rays = 0u64;
-        let mut band_moved = 0u64;
         let mut starts = std::mem::take(&mut scratch.starts);
         // Where the beam in `starts` begins (none yet).
         let mut beam_x0 = usize::MAX;
@@ -191,8 +196,8 @@ pub fn trace_tiles<T: Send, S>(
             let missed_before =
                 p.missed_before.get(y0 / TILE as usize * tiles_x + x0 / TILE as usize).copied().unwrap_or(0);
             mask(x0)[0] = todo;
-            band_rays += (todo | partial).count_ones() as u64;
-            band_moved += partial.count_ones() as u64;
+            tally.rays += (todo | partial).count_ones() as u64;
+            tally.moved += partial.count_ones() as u64;
             // The tile's sphere lists, by lane.
             let tile_lists = lists.map_or(TileLists::EMPTY, |l| l.tile(x0 as u32, y0 as u32));
             // With beams, a tile whose rays can meet no instance stores misses untraced.
@@ -209,7 +214,7 @@ pub fn trace_tiles<T: Send, S>(
                 // The tile's cone meets no instance's voxels.
                 let all_miss = starts.iter().all(|&s| s == f32::INFINITY);
                 if all_miss {
-                    work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
+                    tally.work.culled += ((todo | partial).count_ones() as usize * starts.len()) as u64;
                 }
                 (FrameInstances { starts: Some(&starts), ..p.instances }, all_miss)
             } else {
@@ -270,7 +275,7 @@ pub fn trace_tiles<T: Send, S>(
                         todo,
                         p.search,
                         &p.opts,
-                        &mut work,
+                        &mut tally.work,
                         scratch,
                         &mut hits,
                         first,
@@ -289,7 +294,7 @@ pub fn trace_tiles<T: Send, S>(
                         p.moved,
                         &bounds,
                         &p.opts,
-                        &mut work,
+                        &mut tally.work,
                         scratch,
                         &mut hits,
                     );
@@ -305,14 +310,14 @@ pub fn trace_tiles<T: Send, S>(
             if lists.is_none() {
                 for k in each(todo) {
                     let d = dir(k);
-                    let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut work).map(|h| (h, d));
+                    let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut tally.work).map(|h| (h, d));
                     store(rows(at(k)), hit);
                 }
             } else if todo != 0 {
                 // A ray whose list holds no sphere misses, without forming its direction, and
                 // is not stored again where last frame stored a miss.
                 let unlisted = todo & !tile_lists.mask;
-                work.culled += unlisted.count_ones() as u64 * fi.prepared.len() as u64;
+                tally.work.culled += unlisted.count_ones() as u64 * fi.prepared.len() as u64;
                 mask(x0)[1] |= unlisted;
                 for k in each(unlisted & !missed_before) {
                     store(rows(at(k)), None);
@@ -324,7 +329,7 @@ pub fn trace_tiles<T: Send, S>(
                     dirs[k] = dir(k);
                 }
                 let list = |k: usize| tile_lists.at(k);
-                nearest_listed_packet(&fi, &dirs, listed, list, &p.opts, &mut work, scratch, &mut hits);
+                nearest_listed_packet(&fi, &dirs, listed, list, &p.opts, &mut tally.work, scratch, &mut hits);
                 for k in each(listed) {
                     store(rows(at(k)), hits[k].map(|h| (h, dirs[k])));
                 }
@@ -336,7 +341,7 @@ pub fn trace_tiles<T: Send, S>(
                         let listed = tile_lists.at(k);
                         if listed.is_empty() {
                             // No moved sphere meets the ray: the stored hit stands.
-                            work.culled += p.moved.len() as u64;
+                            tally.work.culled += p.moved.len() as u64;
                             continue;
                         }
                         let d = dir(k);
@@ -350,13 +355,14 @@ pub fn trace_tiles<T: Send, S>(
                             t,
                             instance,
                             &p.opts,
-                            &mut work,
+                            &mut tally.work,
                         )
                         .map(|h| (h, d))
                     }
                     _ => {
                         let d = dir(k);
-                        nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut work).map(|h| (h, d))
+                        nearest_moved(&fi, DVec3::ZERO, d, p.moved, t, instance, &p.opts, &mut tally.work)
+                            .map(|h| (h, d))
                     }
                 };
                 if let Some((hit, d)) = found {
@@ -366,19 +372,26 @@ pub fn trace_tiles<T: Send, S>(
             }
         }
         scratch.starts = starts;
-        if work != Work::default() {
-            traced.fetch_add(work.traced, Ordering::Relaxed);
-            culled.fetch_add(work.culled, Ordering::Relaxed);
-        }
-        if band_rays != 0 {
-            rays.fetch_add(band_rays, Ordering::Relaxed);
-            moved_only.fetch_add(band_moved, Ordering::Relaxed);
-        }
-        if band_left[band].fetch_sub(1, Ordering::AcqRel) == 1 {
-            rows_done(tile_h);
+        // A band's worth of runs done: reported (once per band, not per run).
+        tally.runs += 1;
+        if tally.runs == runs {
+            report(std::mem::take(&mut tally.runs));
         }
     };
-    crate::pool::for_each_index(bands * runs, |item| TileScratch::with(|s| run_with(item, s)));
+    // What a thread traced, added up once it runs out of runs (counters bumped per run by
+    // both threads cost a full frame's trace pass a fifth).
+    crate::pool::for_each_index_with(
+        bands * runs,
+        Tally::default,
+        |tally, item| TileScratch::with(|s| run_with(item, s, tally)),
+        |tally| {
+            traced.fetch_add(tally.work.traced, Ordering::Relaxed);
+            culled.fetch_add(tally.work.culled, Ordering::Relaxed);
+            rays.fetch_add(tally.rays, Ordering::Relaxed);
+            moved_only.fetch_add(tally.moved, Ordering::Relaxed);
+            report(tally.runs);
+        },
+    );
     Traced {
         work: Work { traced: traced.into_inner(), culled: culled.into_inner() },
         rays: rays.into_inner(),
@@ -390,6 +403,17 @@ pub fn trace_tiles<T: Send, S>(
             Vec::new()
         },
     }
+}
+
+/// What one thread of [`trace_tiles`] traced.
+#[derive(Default)]
+struct Tally {
+    work: Work,
+    /// Rays traced, and of those the moved-only ones.
+    rays: u64,
+    moved: u64,
+    /// Runs done since the last report of rows done.
+    runs: usize,
 }
 
 /// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
