@@ -595,11 +595,12 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
     }
 }
 
-/// A pixel whose stored hit is on an instance that moves searches the instances that stayed
-/// put only from just short of that hit (none of them has a hit before it). Here a moving
+/// A pixel whose stored hit is on an instance that moves searches every instance again, and
+/// must find the ones that stayed put however close behind that hit they lie. Here a moving
 /// copy of the body lies exactly on a still one (the tie went to the mover, instance 0), or
 /// a hair in front of it, and then leaves: every pixel it covered must find the still body
-/// at the stored t or just behind it, as a fresh frame does.
+/// at the stored t or just behind it, as a fresh frame does. (It fails when the still
+/// instances are searched from 2⁻²⁰ of the distance past the stored hit.)
 #[test]
 fn pixels_a_moved_instance_leaves_find_the_still_one_just_behind() {
     let body = car_parts()[0].clone();

@@ -16,7 +16,7 @@
 use super::bvh::{box_entry, Bvh};
 use super::bvh_wide::WideRay;
 use super::cpu::SUN_UNKNOWN;
-use super::tile_search::{each, nearest_instance, occluded_instance, MovedOnly, Origins, StillAfter, TileScratch};
+use super::tile_search::{each, nearest_instance, occluded_instance, MovedOnly, Origins, TileScratch};
 use super::visibility::{nearest_work, occluded, FrameInstances, InstanceHit, Search, Work};
 use crate::traverse::packet::LANES;
 use crate::traverse::TraceOptions;
@@ -217,8 +217,7 @@ pub fn nearest_packet_bvh(
         |first, count, mask| {
             for &i in &bvh.items[first..first + count] {
                 let i = i as usize;
-                let none = StillAfter::NONE;
-                nearest_instance(fi, i, opts.t_min, origins, dirs, mask, Search::Bvh, opts, work, scratch, out, none);
+                nearest_instance(fi, i, opts.t_min, origins, dirs, mask, Search::Bvh, opts, work, scratch, out);
             }
             for k in each(mask) {
                 if let Some(b) = out[k] {

@@ -4,9 +4,7 @@
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::pixel_spheres::{PixelSpheres, TileLists};
-use super::tile_search::{
-    each, nearest_listed_packet, nearest_moved_tile, nearest_packet_after, Origins, StillAfter, TileScratch,
-};
+use super::tile_search::{each, nearest_listed_packet, nearest_moved_tile, nearest_packet, Origins, TileScratch};
 use super::visibility::{nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
@@ -76,9 +74,6 @@ pub enum Todo {
     Again {
         /// The instance of the stored hit.
         instance: u32,
-        /// The stored hit's ray parameter: no instance that did not move has a hit before it
-        /// ([`StillAfter`]).
-        t: f32,
     },
     /// A search among the moved instances ([`Primary::moved`]) only, against the nearest hit
     /// `(t, instance)` among all the others (+∞ and −1 for none): the stored hit, when it is
@@ -159,8 +154,6 @@ pub fn trace_tiles<T: Send, S>(
             let mut todo = 0u64;
             let mut partial = 0u64;
             let mut bounds = [(0.0f32, 0i32); (TILE * TILE) as usize];
-            // The Again pixels, and their stored hits' t.
-            let (mut again, mut again_t) = (0u64, [0.0f32; (TILE * TILE) as usize]);
             // The instance most of the tile's Again pixels hit last frame (a vote: one counter
             // that a different instance decrements).
             let (mut first, mut votes) = (None, 0u32);
@@ -170,10 +163,8 @@ pub fn trace_tiles<T: Send, S>(
                     match pending(&setup, x as u32, (y0 + ty) as u32, rows(ty * w + x)) {
                         Todo::Keep => {}
                         Todo::All => todo |= 1 << k,
-                        Todo::Again { instance, t } => {
+                        Todo::Again { instance } => {
                             todo |= 1 << k;
-                            again |= 1 << k;
-                            again_t[k] = t;
                             if first == Some(instance as usize) {
                                 votes += 1;
                             } else if votes == 0 {
@@ -265,10 +256,7 @@ pub fn trace_tiles<T: Send, S>(
                     dirs[k] = dir(k);
                 }
                 if todo != 0 {
-                    // The instances that stayed put are searched by the Again rays from their
-                    // stored hit on.
-                    let after = StillAfter { lanes: again, t: &again_t, moved: p.moved_flags };
-                    nearest_packet_after(
+                    nearest_packet(
                         &fi,
                         Origins::One(DVec3::ZERO),
                         &dirs,
@@ -279,7 +267,6 @@ pub fn trace_tiles<T: Send, S>(
                         scratch,
                         &mut hits,
                         first,
-                        after,
                     );
                     for k in each(todo) {
                         store(rows(at(k)), hits[k].map(|h| (h, dirs[k])));

@@ -137,35 +137,6 @@ impl Origins<'_> {
     }
 }
 
-/// Lanes of a camera packet whose pixel's stored hit, last frame's along the same ray, lies
-/// on an instance that has moved since, at `t[k]`: that hit was the nearest of all, so no
-/// instance that stayed put has a hit before it, and those instances are searched from just
-/// short of it ([`nearest_packet_after`]).
-#[derive(Clone, Copy, Debug)]
-pub struct StillAfter<'a> {
-    /// The lanes whose stored hit is on a moved instance.
-    pub lanes: u64,
-    /// Per lane, the stored hit's ray parameter (read for the lanes of `lanes`).
-    pub t: &'a [f32; LANES],
-    /// Per instance, whether it moved (an instance past its end counts as moved).
-    pub moved: &'a [bool],
-}
-
-impl StillAfter<'_> {
-    /// No lane: every instance searched from its start.
-    pub const NONE: StillAfter<'static> = StillAfter { lanes: 0, t: &[0.0; LANES], moved: &[] };
-
-    /// Where a lane's search of an instance that stayed put starts, when the lane is one of
-    /// [`StillAfter::lanes`]: a little short of the stored hit, so that no rounding of the
-    /// traversal's start drops a hit there (the traversal reports the same hit from any
-    /// start before it, as it does from a beam's). The margin, 2⁻¹² of the distance, is
-    /// thousands of the f32 roundings a start and a voxel's planes carry.
-    #[inline(always)]
-    fn floor(&self, k: usize) -> f32 {
-        self.t[k] - self.t[k] * (1.0 / 4096.0)
-    }
-}
-
 /// The nearest hit of each ray `origins.of(k) + t·dirs[k]` for the lanes `k` of `lanes` (up
 /// to [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for
 /// the ray. The rays start at one point (a tile's, from the eye) or each at its own (a
@@ -186,28 +157,6 @@ pub fn nearest_packet(
     scratch: &mut TileScratch,
     out: &mut [Option<InstanceHit>],
     first: Option<usize>,
-) {
-    let none = StillAfter::NONE;
-    nearest_packet_after(fi, origins, dirs, lanes, search, opts, work, scratch, out, first, none);
-}
-
-/// [`nearest_packet`], with the instances that stayed put searched by the lanes of `after`
-/// only from just short of their stored hit ([`StillAfter`]): the same answers, for less
-/// traversal of the instances in front of a moving part.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub fn nearest_packet_after(
-    fi: &FrameInstances,
-    origins: Origins,
-    dirs: &[DVec3],
-    lanes: u64,
-    search: Search,
-    opts: &TraceOptions,
-    work: &mut Work,
-    scratch: &mut TileScratch,
-    out: &mut [Option<InstanceHit>],
-    first: Option<usize>,
-    after: StillAfter,
 ) {
     let n = fi.prepared.len();
     let starts = fi.starts.unwrap_or(&[]);
@@ -230,7 +179,7 @@ pub fn nearest_packet_after(
         work.culled += beam_culled * rays;
     }
     for &(start, i) in order.iter() {
-        nearest_instance(fi, i, start, origins, dirs, lanes, search, opts, work, scratch, out, after);
+        nearest_instance(fi, i, start, origins, dirs, lanes, search, opts, work, scratch, out);
     }
     scratch.order = order;
     if search == Search::Plain {
@@ -292,8 +241,7 @@ pub fn nearest_listed_packet<'l>(
     listed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     for &(_, i, by) in &listed {
         let one = Origins::One(DVec3::ZERO);
-        let none = StillAfter::NONE;
-        nearest_instance(fi, i as usize, opts.t_min, one, dirs, by, Search::CullSort, opts, work, scratch, out, none);
+        nearest_instance(fi, i as usize, opts.t_min, one, dirs, by, Search::CullSort, opts, work, scratch, out);
     }
     scratch.listed = listed;
 }
@@ -317,33 +265,27 @@ pub(super) fn nearest_instance(
     work: &mut Work,
     scratch: &mut TileScratch,
     out: &mut [Option<InstanceHit>],
-    after: StillAfter,
 ) {
     let p = &fi.prepared[i];
     let t_min = if start > opts.t_min { start } else { opts.t_min };
-    // The lanes that search this instance from just short of their stored hit.
-    let floored = if after.moved.get(i) == Some(&false) { after.lanes & lanes } else { 0 };
     let mut todo = 0u64;
     for k in each(lanes) {
         let d = dirs[k];
         let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
-        let lane_min = if floored & (1 << k) != 0 { t_min.max(after.floor(k)) } else { t_min };
         if search != Search::Plain {
-            let Some((entry, exit)) = sphere_interval(p.centre, p.radius, origins.of(k), d) else {
+            let Some((entry, _)) = sphere_interval(p.centre, p.radius, origins.of(k), d) else {
                 work.culled += 1;
                 continue;
             };
-            // (The octree lies inside the sphere: a ray that leaves it before the lane's start
-            // has no hit there.)
-            if entry > bound as f64 || exit < lane_min as f64 {
+            if entry > bound as f64 {
                 continue;
             }
         }
-        if start > bound || lane_min > bound {
+        if start > bound {
             continue;
         }
         work.traced += 1;
-        scratch.opts[k] = TraceOptions { t_min: lane_min, t_max: widen(bound), ..*opts };
+        scratch.opts[k] = TraceOptions { t_min, t_max: widen(bound), ..*opts };
         todo |= 1 << k;
     }
     match origins {
