@@ -557,6 +557,17 @@ fn a_shadow_whose_blocker_leaves_asks_every_instance_again() {
     }
 }
 
+/// A frame of `scene` from `camera()` with every optimization and the hit buffer `hits`
+/// (read when `reuse`), held hit for hit to the same frame rendered afresh by the plain path.
+fn frame_as_fresh(scene: &Scene, lights: &Lights, hits: &mut HitBuffer, reuse: bool) -> Frame {
+    let plan = FramePlan::new(scene, &camera(), lights, &Features::default(), reuse.then_some(&*hits));
+    let fast = render(scene, &camera(), lights, &plan, &RenderOptions::default(), Some(hits), &|_, _| {}).unwrap();
+    let plain = FramePlan::new(scene, &camera(), lights, &Features::NONE.with_shadows(), None);
+    let slow = render(scene, &camera(), lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
+    assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+    fast
+}
+
 #[test]
 fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
     // Two instances of the body; one moves onto the other, so every pixel they cover has two
@@ -579,13 +590,7 @@ fn a_moved_instance_landing_on_a_still_one_ties_to_the_lower_index() {
                 scene.set_local(mover, Transform::IDENTITY).unwrap();
                 scene.update().unwrap();
             }
-            let plan = FramePlan::new(&scene, &camera(), &lights, &Features::default(), (f > 0).then_some(&hits));
-            let fast =
-                render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {})
-                    .unwrap();
-            let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
-            let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
-            assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+            let fast = frame_as_fresh(&scene, &lights, &mut hits, f > 0);
             moved_only += fast.moved_only;
             if f == 2 {
                 assert!(fast.instance.contains(&0) && !fast.instance.contains(&1), "mover {mover}: ties to instance 0");
@@ -618,13 +623,7 @@ fn pixels_a_moved_instance_leaves_find_the_still_one_just_behind() {
                 scene.set_local(0, away).unwrap();
                 scene.update().unwrap();
             }
-            let plan = FramePlan::new(&scene, &camera(), &lights, &Features::default(), (f > 0).then_some(&hits));
-            let fast =
-                render(&scene, &camera(), &lights, &plan, &RenderOptions::default(), Some(&mut hits), &|_, _| {})
-                    .unwrap();
-            let plain = FramePlan::new(&scene, &camera(), &lights, &Features::NONE.with_shadows(), None);
-            let slow = render(&scene, &camera(), &lights, &plain, &RenderOptions::default(), None, &|_, _| {}).unwrap();
-            assert_same_hits(std::slice::from_ref(&fast), &[slow]);
+            let fast = frame_as_fresh(&scene, &lights, &mut hits, f > 0);
             match f {
                 1 => assert!(
                     fast.instance.contains(&0) && !fast.instance.contains(&1),

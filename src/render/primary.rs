@@ -91,7 +91,8 @@ pub enum Todo {
 /// unit direction); `tile` is what `tile_setup([x0, y0, x1, y1])` made once for the tile
 /// holding the pixel (pixels x0..x1 × y0..y1), and a tile for which it returns None keeps
 /// every pixel's stored hit without `pending` being asked. A [`Todo::Moved`] pixel is stored only when a
-/// moved instance beats its bound. `rows_done(n)` hears of each band of rows as it finishes.
+/// moved instance beats its bound. `rows_done(n)` hears of the rows done, a band's worth at a
+/// time (the tiles are shared out in runs, not bands).
 /// Returns what was traced and which pixels were stored ([`Traced`]).
 pub fn trace_tiles<T: Send, S>(
     p: &Primary,
@@ -365,8 +366,8 @@ pub fn trace_tiles<T: Send, S>(
             report(std::mem::take(&mut tally.runs));
         }
     };
-    // What a thread traced, added up once it runs out of runs (counters bumped per run by
-    // both threads cost a full frame's trace pass a fifth).
+    // What a thread traced, added up once it runs out of runs (shared counters bumped per
+    // run would move their cache lines between the cores at every run).
     crate::pool::for_each_index_with(
         bands * runs,
         Tally::default,
