@@ -293,37 +293,43 @@ fn keep_taking_work(done: &AtomicBool, driver: Option<usize>) {
 mod tests {
     use super::*;
 
+    /// `work`'s result, run on a pool of four from a thread of its own, or a failed test if
+    /// it has not returned after five minutes (a thread left waiting or spinning).
+    fn on_pool_of_four<R: Send + 'static>(work: impl FnOnce() -> R + Send + 'static, returned: &str) -> R {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("a pool of four");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(pool.install(work));
+        });
+        rx.recv_timeout(std::time::Duration::from_secs(300)).expect(returned)
+    }
+
     /// Every index of a loop runs once, for sizes around the pieces' count and with loops
     /// nested in its pieces (on a pool of four, under a watchdog: a lost piece would leave
     /// the caller spinning); `map_index` keeps the order.
     #[test]
     fn every_index_runs_once_and_maps_in_order() {
         use std::sync::atomic::AtomicU32;
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("a pool of four");
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let result = pool.install(|| {
-                let mut wrong = Vec::new();
-                for n in [0, 1, 2, 3, 255, 256, 257, 1000, 4099] {
-                    let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
-                    for_each_index(n, |i| {
-                        counts[i].fetch_add(1, Ordering::Relaxed);
-                    });
-                    if counts.iter().any(|c| c.load(Ordering::Relaxed) != 1) {
-                        wrong.push(n);
-                    }
-                    // Each item also sums a loop of its own.
-                    let mapped = map_index(n, |i| i * i + map_index(i % 7, |j| j + 1).iter().sum::<usize>());
-                    let expected: Vec<usize> = (0..n).map(|i| i * i + (1..=i % 7).sum::<usize>()).collect();
-                    if mapped != expected {
-                        wrong.push(n);
-                    }
+        let loops = || {
+            let mut wrong = Vec::new();
+            for n in [0, 1, 2, 3, 255, 256, 257, 1000, 4099] {
+                let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+                for_each_index(n, |i| {
+                    counts[i].fetch_add(1, Ordering::Relaxed);
+                });
+                if counts.iter().any(|c| c.load(Ordering::Relaxed) != 1) {
+                    wrong.push(n);
                 }
-                wrong
-            });
-            let _ = tx.send(result);
-        });
-        let wrong = rx.recv_timeout(std::time::Duration::from_secs(300)).expect("the loops returned");
+                // Each item also sums a loop of its own.
+                let mapped = map_index(n, |i| i * i + map_index(i % 7, |j| j + 1).iter().sum::<usize>());
+                let expected: Vec<usize> = (0..n).map(|i| i * i + (1..=i % 7).sum::<usize>()).collect();
+                if mapped != expected {
+                    wrong.push(n);
+                }
+            }
+            wrong
+        };
+        let wrong = on_pool_of_four(loops, "the loops returned");
         assert!(wrong.is_empty(), "loops of these sizes went wrong: {wrong:?}");
     }
 
@@ -331,24 +337,19 @@ mod tests {
     /// caller, which must not wait for the indices it never finished (under a watchdog).
     #[test]
     fn a_panicking_piece_reaches_the_caller() {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("a pool of four");
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let result = pool.install(|| {
-                let driver = rayon::current_thread_index();
-                std::panic::catch_unwind(|| {
-                    for_each_index(4000, |_| {
-                        if rayon::current_thread_index() != driver {
-                            panic!("a helper's piece fails");
-                        }
-                        std::thread::sleep(std::time::Duration::from_micros(10));
-                    })
+        let run = || {
+            let driver = rayon::current_thread_index();
+            std::panic::catch_unwind(|| {
+                for_each_index(4000, |_| {
+                    if rayon::current_thread_index() != driver {
+                        panic!("a helper's piece fails");
+                    }
+                    std::thread::sleep(std::time::Duration::from_micros(10));
                 })
-                .is_err()
-            });
-            let _ = tx.send(result);
-        });
-        let panicked = rx.recv_timeout(std::time::Duration::from_secs(300)).expect("the loop returned");
+            })
+            .is_err()
+        };
+        let panicked = on_pool_of_four(run, "the loop returned");
         assert!(panicked, "the helper's panic was lost");
     }
 
@@ -373,29 +374,23 @@ mod tests {
     #[test]
     fn kept_awake_threads_stop_with_the_work() {
         use rayon::prelude::*;
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().expect("a pool of four");
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let result = pool.install(|| {
-                let sums: Vec<u64> = (0..40u64)
-                    .map(|round| {
-                        run_awake(|| {
-                            (0..2000u64)
-                                .into_par_iter()
-                                .map(|i| (0..i % 7).into_par_iter().map(|j| j + round).sum::<u64>())
-                                .sum()
-                        })
+        let run = || {
+            let sums: Vec<u64> = (0..40u64)
+                .map(|round| {
+                    run_awake(|| {
+                        (0..2000u64)
+                            .into_par_iter()
+                            .map(|i| (0..i % 7).into_par_iter().map(|j| j + round).sum::<u64>())
+                            .sum()
                     })
-                    .collect();
-                let panicked =
-                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_awake(|| panic!("the work fails"))));
-                let after = run_awake(|| (0..1000u64).into_par_iter().sum::<u64>());
-                (sums, panicked.is_err(), AWAKE.get(), after)
-            });
-            let _ = tx.send(result);
-        });
-        let (sums, panicked, still_marked, after) =
-            rx.recv_timeout(std::time::Duration::from_secs(300)).expect("run_awake returned");
+                })
+                .collect();
+            let panicked =
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_awake(|| panic!("the work fails"))));
+            let after = run_awake(|| (0..1000u64).into_par_iter().sum::<u64>());
+            (sums, panicked.is_err(), AWAKE.get(), after)
+        };
+        let (sums, panicked, still_marked, after) = on_pool_of_four(run, "run_awake returned");
         let expected: Vec<u64> =
             (0..40u64).map(|r| (0..2000u64).map(|i| (0..i % 7).map(|j| j + r).sum::<u64>()).sum()).collect();
         assert_eq!(sums, expected);

@@ -94,6 +94,9 @@ pub enum Todo {
 /// moved instance beats its bound. `rows_done(n)` hears of the rows done, a band's worth at a
 /// time (the tiles are shared out in runs, not bands).
 /// Returns what was traced and which pixels were stored ([`Traced`]).
+///
+/// # Panics
+/// When `out` does not hold one item per pixel of the camera's image.
 pub fn trace_tiles<T: Send, S>(
     p: &Primary,
     out: &mut [T],
