@@ -610,9 +610,10 @@ impl Reuse {
 
     /// Whether every kept record of a tile passes [`Reuse::shadow_valid`] towards `to_sun`
     /// without being looked at: the tile's hits (`tile`, on the rays `rays` of its pixels)
-    /// and the points their shadow rays start from lie in one ball, and the shadow rays from
-    /// that ball cannot meet any moved sphere. Conservative: margins far above the rounding
-    /// of [`sphere_interval`] keep a sphere that any of those rays could meet.
+    /// and the points their shadow rays start from lie in one ball (and in a capsule within
+    /// it), and the shadow rays from there cannot meet any moved sphere. Conservative:
+    /// margins far above the rounding of [`sphere_interval`] keep a sphere that any of those
+    /// rays could meet.
     pub fn tile_shadows_valid(&self, tile: &TileSummary, rays: &super::beam::TileRays, to_sun: DVec3) -> bool {
         match ShadowBall::of(tile, rays) {
             ShadowBall::NoRays => true,
@@ -761,10 +762,16 @@ enum ShadowBall {
     Around(Ball),
 }
 
-/// A ball holding the starts of a tile's shadow rays.
+/// A ball holding the starts of a tile's shadow rays, and within it a capsule that holds
+/// them too: the points within `reach` of the segment `near`–`far` (the tile's rays' axis
+/// between its nearest and farthest hit). Where a tile's hits spread far in depth (an edge
+/// with the ground behind it) the capsule is much the thinner.
 struct Ball {
     mid: DVec3,
     radius: f64,
+    near: DVec3,
+    far: DVec3,
+    reach: f64,
 }
 
 impl ShadowBall {
@@ -782,10 +789,13 @@ impl ShadowBall {
         // from the axis than its farthest corner) and t in [lo, hi]; its shadow ray starts at
         // most 1.1 voxels from there (cpu::leave: a unit normal and a tenth of a unit face
         // normal).
+        // Such a hit lies within hi·spread of the point at the same t on the axis.
         let spread = rays.corners.iter().map(|d| (*d - axis).length()).fold(0.0, f64::max);
         let mid = axis * (0.5 * (lo + hi));
-        let radius = (hi * spread + 0.5 * (hi - lo) + 1.1 * tile.voxel as f64) * (1.0 + 1e-6) + 1e-9 * hi;
-        ShadowBall::Around(Ball { mid, radius })
+        let grow = |r: f64| r * (1.0 + 1e-6) + 1e-9 * hi;
+        let radius = grow(hi * spread + 0.5 * (hi - lo) + 1.1 * tile.voxel as f64);
+        let reach = grow(hi * spread + 1.1 * tile.voxel as f64);
+        ShadowBall::Around(Ball { mid, radius, near: axis * lo, far: axis * hi, reach })
     }
 }
 
@@ -794,8 +804,29 @@ impl Ball {
     /// (`c`, `r`), or the sphere lies wholly behind where each of them starts, with margins
     /// far above the rounding of [`sphere_interval`].
     fn clears(&self, c: DVec3, r: f64, to_sun: DVec3) -> bool {
-        let margin = (r + self.radius) * 1e-6 + 1e-7 * ((c - self.mid).length() + self.radius);
-        self.clears_by(c, r, to_sun, margin)
+        let margin = self.margin(c, r);
+        self.clears_by(c, r, to_sun, margin) || self.capsule_clears(c, r, to_sun, margin)
+    }
+
+    /// The margin of [`Ball::clears`] for the sphere (`c`, `r`).
+    fn margin(&self, c: DVec3, r: f64) -> f64 {
+        (r + self.radius) * 1e-6 + 1e-7 * ((c - self.mid).length() + self.radius)
+    }
+
+    /// The test of [`Ball::clears`] for the capsule: seen along `to_sun`, the sphere's disc
+    /// lies wide of the capsule's (a segment's, within `reach`), or the sphere lies wholly
+    /// behind the capsule's lowest point along `to_sun`. Worked out from the ball's centre,
+    /// so that `margin` (the ball's) bounds its rounding too.
+    fn capsule_clears(&self, c: DVec3, r: f64, to_sun: DVec3, margin: f64) -> bool {
+        let flat = |p: DVec3| p - to_sun * p.dot(to_sun);
+        let (near, far, c) = (self.near - self.mid, self.far - self.mid, c - self.mid);
+        let (a, ab, pc) = (flat(near), flat(far) - flat(near), flat(c));
+        let len2 = ab.length_squared();
+        // The capsule's point nearest the sphere's centre, seen along `to_sun`.
+        let along = if len2 > 0.0 { ((pc - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        let across = (pc - (a + ab * along)).length();
+        let lowest = near.dot(to_sun).min(far.dot(to_sun)) - self.reach;
+        across > r + self.reach + margin || c.dot(to_sun) + r + margin < lowest
     }
 
     /// Whether [`Ball::clears`] holds for every sphere inside the box `lo..hi`.
@@ -837,14 +868,16 @@ mod tests {
             height: 64,
         };
         let basis = camera.basis();
-        let (mut whole, mut blocked, mut grazing) = (0, 0, 0);
+        let (mut whole, mut blocked, mut grazing, mut by_capsule) = (0, 0, 0, 0);
         for _ in 0..3000 {
             let to_sun = rng.unit_vector();
             let lights = Lights { sun: Some(Sun { to_sun, irradiance: Vec3::ONE }), ..Lights::default() };
             let (x0, y0) = (rng.below(12) as u32 * TILE, rng.below(8) as u32 * TILE);
             let t_base = rng.range(2.0, 20.0);
-            // Voxels from far below to far above the tile's spread in t and across.
-            let (t_spread, voxel_max) = (rng.range(0.0, 0.1), [0.01, 0.3, 2.0][rng.below(3) as usize]);
+            // Voxels from far below to far above the tile's spread in t and across; in half
+            // the tiles the hits spread far in depth (an edge with the ground behind it).
+            let t_spread = if rng.below(2) == 0 { rng.range(0.0, 0.1) } else { rng.range(0.1, 0.9) };
+            let voxel_max = [0.01, 0.3, 2.0][rng.below(3) as usize];
             let records: Vec<(u32, u32, HitRecord)> = (0..TILE * TILE)
                 .map(|k| {
                     let (x, y) = (x0 + k % TILE, y0 + k / TILE);
@@ -881,12 +914,18 @@ mod tests {
                 assert_eq!(suspects, Some(0));
                 whole += 1;
                 assert!(each_valid, "a tile passed whole has a record whose shadow ray meets a moved sphere");
+                // Passed by the capsule where the ball alone would not have passed it.
+                if let ShadowBall::Around(ball) = ShadowBall::of(&tile, &rays) {
+                    let s = to_sun.as_dvec3();
+                    by_capsule += !ball.clears_by(centre, radius, s, ball.margin(centre, radius)) as u32;
+                }
             } else if !each_valid {
                 blocked += 1;
             }
             grazing += (off < radius * 1.5) as u32;
         }
         assert!(whole > 300 && blocked > 300 && grazing > 100, "{whole} tiles passed whole, {blocked} blocked");
+        assert!(by_capsule > 50, "{by_capsule} tiles passed by the capsule alone");
     }
 
     /// The tiles' bins give every tile, and any rectangle within one, the spheres that
