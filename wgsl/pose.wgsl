@@ -119,6 +119,15 @@ fn farthest_corner(m: mat3x3<f32>, e: vec3<f32>) -> f32 {
     return sqrt(max(max(dot(z + a, z + a), dot(z - a, z - a)), max(dot(z + b, z + b), dot(z - b, z - b))));
 }
 
+// render::instances::stretch_bound: a bound on how far m stretches any vector (Gershgorin
+// on the columns' dot products).
+fn stretch_bound(m: mat3x3<f32>) -> f32 {
+    let ab = abs(dot(m[0], m[1]));
+    let ac = abs(dot(m[0], m[2]));
+    let bc = abs(dot(m[1], m[2]));
+    return sqrt(max(max(dot(m[0], m[0]) + ab + ac, dot(m[1], m[1]) + ab + bc), dot(m[2], m[2]) + ac + bc));
+}
+
 // Writes instance `inst` placing `part` by the camera-relative world rotation r and
 // translation t.
 fn write_instance(inst: u32, part: u32, r: mat3x3<f32>, t: vec3<f32>) {
@@ -132,7 +141,9 @@ fn write_instance(inst: u32, part: u32, r: mat3x3<f32>, t: vec3<f32>) {
     let unit = select(1.0, 1.0 / big, big > 0.0);
     let stretch = sqrt(max(max(dot(r[0], r[0]), dot(r[1], r[1])), dot(r[2], r[2])));
     let centre = r * pt.box_centre.xyz + t;
-    let r0 = farthest_corner(r, pt.box_half.xyz) * (1.0 + SPHERE_PAD) + 1.5 * size * stretch * SPHERE_PAD;
+    // As the host's fill_slot: the box's farthest corner or the cells' reach, the nearer.
+    let held = min(farthest_corner(r, pt.box_half.xyz), pt.box_half.w * stretch_bound(r));
+    let r0 = held * (1.0 + SPHERE_PAD) + 1.5 * size * stretch * SPHERE_PAD;
     // Both radii grown by what forming the transform in f32 here can add over the host's
     // f64: a few units in the last place of the distance. The one the boxes fit...
     let far = length(centre);

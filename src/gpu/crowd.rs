@@ -137,11 +137,11 @@ impl GpuCrowd {
         let parts: Vec<GpuCrowdPart> = crate::render::instances::part_boxes(scene, max_level)
             .into_iter()
             .zip(&scene.parts)
-            .map(|((c, e), svo)| {
-                let (c, e, min) = (c.as_vec3(), e.as_vec3(), svo.bounds.min);
+            .map(|(b, svo)| {
+                let (c, e, min) = (b.centre.as_vec3(), b.half.as_vec3(), svo.bounds.min);
                 GpuCrowdPart {
                     box_centre: [c.x, c.y, c.z, svo.bounds.size],
-                    box_half: [e.x, e.y, e.z, 0.0],
+                    box_half: [e.x, e.y, e.z, b.reach as f32],
                     cube_min: [min.x, min.y, min.z, 0.0],
                 }
             })

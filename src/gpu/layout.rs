@@ -530,7 +530,8 @@ pub struct GpuCrowdCar {
 pub struct GpuCrowdPart {
     /// Centre of the occupied box at the frame's level (object space); w: the cube's size.
     pub box_centre: [f32; 4],
-    /// Half extents of that box; w: unused.
+    /// Half extents of that box; w: the farthest occupied cell's reach from its centre
+    /// ([`crate::svo::Svo::occupied_reach`]).
     pub box_half: [f32; 4],
     /// The cube's minimum corner; w: unused.
     pub cube_min: [f32; 4],

@@ -230,14 +230,7 @@ fn refill(
 /// instance), field by field: built whole and assigned, each 152-byte instance went through a
 /// memcpy (3.5 % of a 10 000-car frame). `boxes`: [`part_boxes`] at the frame's level.
 #[inline]
-pub(crate) fn fill_slot(
-    scene: &Scene,
-    eye: DVec3,
-    transform: bool,
-    boxes: &[(DVec3, DVec3)],
-    i: usize,
-    slot: &mut Prepared,
-) {
+pub(crate) fn fill_slot(scene: &Scene, eye: DVec3, transform: bool, boxes: &[PartBox], i: usize, slot: &mut Prepared) {
     let inst = &scene.instances()[i];
     let cube = scene.parts[inst.part].bounds;
     let (min, size) = (cube.min.as_dvec3(), cube.size as f64);
@@ -257,11 +250,15 @@ pub(crate) fn fill_slot(
     // car's body fills a third of its cube's height): about the transformed centre of
     // their box, through its farthest corner.
     let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
-    let (centre_obj, e) = boxes[inst.part];
+    let PartBox { centre: centre_obj, half: e, reach } = boxes[inst.part];
     let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
-    // Rounding in f32 traversal scales with the cube, not with the box: the padding is
-    // also a fraction of a bound on the cube's sphere (|M·(±h, ±h, h)| ≤ 3h·max stretch).
-    let radius = farthest_corner(&w.matrix3, e) * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
+    // The box's farthest corner, or the farthest cell's reach stretched as far as the
+    // transform stretches anything (both hold every cell; a turned wheel's box corners lie
+    // far outside the wheel). Rounding in f32 traversal scales with the cube, not with the
+    // box: the padding is also a fraction of a bound on the cube's sphere
+    // (|M·(±h, ±h, h)| ≤ 3h·max stretch).
+    let held = farthest_corner(&w.matrix3, e).min(reach * stretch_bound(&w.matrix3) * (1.0 + 1e-12));
+    let radius = held * (1.0 + SPHERE_PAD) + 1.5 * size * max_stretch * SPHERE_PAD;
     slot.part = inst.part;
     slot.to_unit = to_unit;
     slot.centre = w.transform_point3(centre_obj) - eye;
@@ -339,17 +336,37 @@ pub(super) fn stretches<'a, T>(
     pieces
 }
 
-/// Per part (a handful, shared by thousands of instances): its occupied box's centre and half
-/// extents at `max_level`, about which an instance's sphere is drawn.
-pub(crate) fn part_boxes(scene: &Scene, max_level: u32) -> Vec<(DVec3, DVec3)> {
+/// A part's occupied box at a level, about whose centre an instance's sphere is drawn.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PartBox {
+    /// The box's centre (object space).
+    pub centre: DVec3,
+    /// Its half extents.
+    pub half: DVec3,
+    /// The largest distance from the centre to a point of an occupied cell
+    /// ([`crate::svo::Svo::occupied_reach`]).
+    pub reach: f64,
+}
+
+/// Per part (a handful, shared by thousands of instances): its [`PartBox`] at `max_level`.
+pub(crate) fn part_boxes(scene: &Scene, max_level: u32) -> Vec<PartBox> {
     scene
         .parts
         .iter()
         .map(|svo| {
             let (lo, hi) = svo.occupied_box(max_level);
-            ((lo + hi) * 0.5, (hi - lo) * 0.5)
+            PartBox { centre: (lo + hi) * 0.5, half: (hi - lo) * 0.5, reach: svo.occupied_reach(max_level) }
         })
         .collect()
+}
+
+/// A bound on how far `m` stretches any vector (its largest singular value): the largest
+/// row sum of |MᵀM| (Gershgorin), the largest column length when the columns are
+/// orthogonal (a rotation with any scale along the part's axes), more under shear.
+pub fn stretch_bound(m: &DMat3) -> f64 {
+    let (a, b, c) = (m.x_axis, m.y_axis, m.z_axis);
+    let (ab, ac, bc) = (a.dot(b).abs(), a.dot(c).abs(), b.dot(c).abs());
+    (a.length_squared() + ab + ac).max(b.length_squared() + ab + bc).max(c.length_squared() + ac + bc).sqrt()
 }
 
 /// How far a box's farthest corner lies from its centre once mapped by `m`, for half
@@ -408,6 +425,37 @@ pub fn sphere_interval(centre: DVec3, radius: f64, o: DVec3, d: DVec3) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `stretch_bound` holds how far random matrices (turns, anisotropic scales, shears)
+    /// stretch many directions, and is the largest scale of a turned anisotropic scale.
+    #[test]
+    fn stretch_bound_holds_every_direction() {
+        let mut rng = crate::rng::Rng::new(3);
+        let (mut sheared_past_columns, mut exact) = (0, 0);
+        for round in 0..2000 {
+            let turn = glam::DQuat::from_rotation_y(rng.f64() * 6.3) * glam::DQuat::from_rotation_x(rng.f64() * 6.3);
+            let scale = DVec3::new(rng.f64() * 3.0 + 0.01, rng.f64() * 3.0 + 0.01, rng.f64() * 3.0 + 0.01);
+            let mut m = DMat3::from_quat(turn) * DMat3::from_diagonal(scale);
+            if round % 2 == 1 {
+                // A shear (a parent's anisotropic scale over a turned child's).
+                m = DMat3::from_diagonal(DVec3::new(rng.f64() * 4.0 + 0.1, 1.0, rng.f64() * 0.5 + 0.1)) * m;
+            }
+            let bound = stretch_bound(&m);
+            let columns = m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length());
+            let mut most = 0.0f64;
+            for _ in 0..200 {
+                most = most.max((m * rng.unit_vector().as_dvec3().normalize()).length());
+            }
+            assert!(most <= bound * (1.0 + 1e-12), "round {round}: {most} past the bound {bound}");
+            sheared_past_columns += (most > columns * (1.0 + 1e-9)) as u32;
+            if round % 2 == 0 {
+                assert!((bound - scale.max_element()).abs() <= 1e-12 * bound, "round {round}: {bound} for {scale}");
+                exact += 1;
+            }
+        }
+        // Shears that stretch some direction more than any column: the reason for the bound.
+        assert!(sheared_past_columns > 50 && exact == 1000, "{sheared_past_columns} sheared past their columns");
+    }
     use crate::render::visibility::{nearest, FrameInstances, Search};
     use crate::scene::{Instance, Transform};
     use crate::svo::Cube;

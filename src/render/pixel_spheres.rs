@@ -491,7 +491,7 @@ pub fn mean_instance_area(scene: &Scene, camera: &Camera) -> Option<f64> {
         .iter()
         .zip(scene.worlds())
         .filter_map(|(inst, w)| {
-            let &(centre, half) = boxes.get(inst.part)?;
+            let &super::instances::PartBox { centre, half, .. } = boxes.get(inst.part)?;
             let c = w.transform_point3(centre) - camera.eye;
             let r = super::instances::farthest_corner(&w.matrix3, half);
             (c.is_finite() && r.is_finite()).then(|| grid.near(&[c], r).area(camera))

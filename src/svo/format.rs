@@ -326,6 +326,9 @@ pub struct Occupied(std::sync::OnceLock<OccupiedBoxes>);
 struct OccupiedBoxes {
     cells: Vec<[[u32; 3]; 2]>,
     unit: Vec<[glam::DVec3; 2]>,
+    /// Per level, the largest distance from the centre of that level's box to a corner of
+    /// one of its occupied cells, in that level's cells.
+    reach: Vec<f64>,
 }
 
 impl PartialEq for Occupied {
@@ -429,8 +432,61 @@ impl Svo {
                     [at(*lo), at(*hi)]
                 })
                 .collect();
-            OccupiedBoxes { cells: boxes, unit }
+            let reach = self.cell_reach(&boxes);
+            OccupiedBoxes { cells: boxes, unit, reach }
         })
+    }
+
+    /// [`OccupiedBoxes::reach`] for the boxes `boxes`: a second pass over the nodes, each
+    /// occupied cell's farthest corner measured from its level's box centre.
+    fn cell_reach(&self, boxes: &[[[u32; 3]; 2]]) -> Vec<f64> {
+        let d = self.depth as usize;
+        // (Twice the centre and the corners, so that everything stays in integers until the end.)
+        let centre2: Vec<[i64; 3]> =
+            boxes.iter().map(|[lo, hi]| [0, 1, 2].map(|i| lo[i] as i64 + hi[i] as i64)).collect();
+        let mut far2 = vec![0i64; d + 1];
+        // Level 0 is the whole cube, its one cell.
+        far2[0] = 3;
+        if d > 0 && !self.masks.is_empty() {
+            let mut stack = vec![(0usize, 0usize, [0u32; 3])];
+            while let Some((node, level, c)) = stack.pop() {
+                let Some(&mask) = self.masks.get(node) else { continue };
+                let ctr = centre2[level + 1];
+                for oct in 0..8u32 {
+                    if mask & (1 << oct) == 0 {
+                        continue;
+                    }
+                    let cc = [0, 1, 2].map(|i| 2 * c[i] + ((oct >> i) & 1));
+                    let dist2: i64 = (0..3)
+                        .map(|i| {
+                            let (a, b) = (2 * cc[i] as i64 - ctr[i], 2 * (cc[i] as i64 + 1) - ctr[i]);
+                            a.abs().max(b.abs()).pow(2)
+                        })
+                        .sum();
+                    far2[level + 1] = far2[level + 1].max(dist2);
+                    if level + 1 < d && node < self.links.len() {
+                        stack.push((self.child_node(node, oct), level + 1, cc));
+                    }
+                }
+            }
+        }
+        far2.iter()
+            .zip(boxes)
+            .map(|(&f, [lo, hi])| {
+                // A level without cells keeps the whole box (the whole cube, as above).
+                let whole: i64 = (0..3).map(|i| (hi[i] as i64 - lo[i] as i64).pow(2)).sum();
+                0.5 * (if f == 0 { whole } else { f } as f64).sqrt()
+            })
+            .collect()
+    }
+
+    /// The largest distance in object space from the centre of [`Svo::occupied_box`]`(level)`
+    /// to a point of an occupied cell at that level (capped at the depth): at most the box's
+    /// half-diagonal, and much less for a round part (a wheel in its square box).
+    pub fn occupied_reach(&self, level: u32) -> f64 {
+        let l = level.min(self.depth);
+        let cell = self.bounds.size as f64 / (1u64 << l) as f64;
+        self.occupied_boxes().reach[l as usize] * cell
     }
 
     /// The object-space box `(min, max)` of the cells occupied at `level` (capped at the
@@ -614,7 +670,8 @@ mod tests {
     }
 
     /// The occupied boxes of every level are the boxes of the voxels' coordinates shifted
-    /// down to that level, for scattered sets, one voxel, and a set touching the far corner.
+    /// down to that level, for scattered sets, one voxel, and a set touching the far corner;
+    /// each level's reach is the farthest corner of those cells from its box's centre.
     #[test]
     fn occupied_cells_box_the_voxels_at_every_level() {
         let mut rng = crate::rng::Rng::new(7);
@@ -641,6 +698,16 @@ mod tests {
                     }
                 }
                 assert_eq!(svo.occupied_cells()[level as usize], want, "{coords:?} level {level}");
+                // Every corner of every cell, from the box's centre (object space).
+                let cell = 4.0 / (1u64 << level) as f64;
+                let centre = [0, 1, 2].map(|i| (want[0][i] + want[1][i]) as f64 * 0.5);
+                let far = coords
+                    .iter()
+                    .flat_map(|c| (0..8u32).map(move |k| [0, 1, 2].map(|i| (c[i] >> shift) + ((k >> i) & 1))))
+                    .map(|q| (0..3).map(|i| (q[i] as f64 - centre[i]).powi(2)).sum::<f64>().sqrt() * cell)
+                    .fold(0.0, f64::max);
+                let reach = svo.occupied_reach(level);
+                assert!((reach - far).abs() <= 1e-12 * far, "{coords:?} level {level}: reach {reach}, farthest {far}");
             }
             // Object space: the deepest box, and levels past the depth are the depth's.
             let (lo, hi) = svo.occupied_box(99);

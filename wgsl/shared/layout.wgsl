@@ -352,6 +352,7 @@ struct CrowdCar {
 struct CrowdPart {
     // Occupied box centre at the frame's level; w: cube size.
     box_centre: vec4<f32>,
+    // Half extents; w: the farthest occupied cell's reach from the centre.
     box_half: vec4<f32>,
     cube_min: vec4<f32>,
 }
