@@ -248,7 +248,7 @@ pub(crate) fn fill_slot(scene: &Scene, eye: DVec3, transform: bool, boxes: &[Par
     };
     // The sphere holds the occupied cells at the traced level, not the whole cube (a
     // car's body fills a third of its cube's height): about the transformed centre of
-    // their box, through its farthest corner.
+    // their box, through its farthest corner or its farthest cell.
     let (c0, c1, c2) = (w.matrix3.x_axis, w.matrix3.y_axis, w.matrix3.z_axis);
     let PartBox { centre: centre_obj, half: e, reach } = boxes[inst.part];
     let max_stretch = c0.length_squared().max(c1.length_squared()).max(c2.length_squared()).sqrt();
@@ -425,6 +425,12 @@ pub fn sphere_interval(centre: DVec3, radius: f64, o: DVec3, d: DVec3) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::visibility::{nearest, FrameInstances, Search};
+    use crate::scene::{Instance, Transform};
+    use crate::svo::Cube;
+    use crate::traverse::TraceOptions;
+    use glam::{DQuat, Vec3};
+    use std::sync::Arc;
 
     /// `stretch_bound` holds how far random matrices (turns, anisotropic scales, shears)
     /// stretch many directions, and is the largest scale of a turned anisotropic scale.
@@ -433,7 +439,7 @@ mod tests {
         let mut rng = crate::rng::Rng::new(3);
         let (mut sheared_past_columns, mut exact) = (0, 0);
         for round in 0..2000 {
-            let turn = glam::DQuat::from_rotation_y(rng.f64() * 6.3) * glam::DQuat::from_rotation_x(rng.f64() * 6.3);
+            let turn = DQuat::from_rotation_y(rng.f64() * 6.3) * DQuat::from_rotation_x(rng.f64() * 6.3);
             let scale = DVec3::new(rng.f64() * 3.0 + 0.01, rng.f64() * 3.0 + 0.01, rng.f64() * 3.0 + 0.01);
             let mut m = DMat3::from_quat(turn) * DMat3::from_diagonal(scale);
             if round % 2 == 1 {
@@ -456,12 +462,6 @@ mod tests {
         // Shears that stretch some direction more than any column: the reason for the bound.
         assert!(sheared_past_columns > 50 && exact == 1000, "{sheared_past_columns} sheared past their columns");
     }
-    use crate::render::visibility::{nearest, FrameInstances, Search};
-    use crate::scene::{Instance, Transform};
-    use crate::svo::Cube;
-    use crate::traverse::TraceOptions;
-    use glam::{DQuat, Vec3};
-    use std::sync::Arc;
 
     /// World normals stay perpendicular to the world images of the surface's tangents and on
     /// the side the object normal points to, under rotations, anisotropic scales and
