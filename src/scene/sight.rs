@@ -12,8 +12,8 @@
 
 use super::camera::{PixelGrid, PixelRect};
 use super::{Camera, Lights};
-use crate::render::instances::farthest_corner;
-use glam::{DAffine3, DMat3, DVec3};
+use crate::render::instances::{farthest_corner, stretch_bound};
+use glam::{DAffine3, DVec3};
 
 /// Relative padding of a tested sphere's radius.
 const RADIUS_PAD: f64 = 1e-3;
@@ -296,7 +296,7 @@ impl Sight {
             up: im * b.up,
             forward: im * b.forward,
             stretch: (im.x_axis.length_squared() + im.y_axis.length_squared() + im.z_axis.length_squared()).sqrt(),
-            spectral: spectral_bound(&im),
+            spectral: stretch_bound(&im),
         })
     }
 
@@ -345,7 +345,7 @@ struct BoxFrame {
     /// A bound on how much the inverse stretches a length (its columns' Frobenius norm): a
     /// box grown by a world length l grows by at most l times this.
     stretch: f64,
-    /// [`spectral_bound`] of the inverse (tighter than `stretch`).
+    /// [`stretch_bound`] of the inverse (tighter than `stretch`).
     spectral: f64,
 }
 
@@ -421,14 +421,6 @@ fn growth_to_meet(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     } else {
         0.0
     }
-}
-
-/// A bound on the largest factor by which `m` stretches a vector (its spectral norm): the
-/// square root of the largest absolute row sum of MᵀM (Gershgorin); 1 for a rotation.
-fn spectral_bound(m: &DMat3) -> f64 {
-    let g = m.transpose() * *m;
-    let rows = [g.row(0), g.row(1), g.row(2)];
-    rows.iter().map(|r| r.abs().element_sum()).fold(0.0, f64::max).sqrt()
 }
 
 /// The stretch [s0, s1] (s ≥ 0) of the ray `c + s·dir` inside the box [lo, hi]; None when
