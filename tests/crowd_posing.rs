@@ -233,7 +233,9 @@ fn posing_only_the_seen_cars_draws_the_same_frames() {
 /// frames a thirtieth of a second apart (then back in time, then far ahead, then on): cars
 /// found clear of the rays are let go untested while their motion cannot bring them near a
 /// ray, cars found in sight are posed again untested for a moment, and every frame still
-/// equals, bit for bit, the crowd's with every car posed.
+/// equals, bit for bit, the crowd's with every car posed. Once, between two frames, every
+/// car is posed from outside at another time: a car found clear where it stood is not
+/// clear where it was put.
 #[test]
 fn cars_clear_of_the_rays_go_untested_and_the_frames_stay_the_same() {
     let parts = car_parts();
@@ -255,13 +257,17 @@ fn cars_clear_of_the_rays_go_untested_and_the_frames_stay_the_same() {
             .collect();
         let (mut tested, mut posed_total, mut covered) = (0, 0, 0);
         for (f, &t) in times.iter().enumerate() {
+            if f == 6 {
+                voxray::scene::car::pose_all(&mut lazy.st.scene, &lazy.st.cars, t + 0.8).unwrap();
+                lazy.st.scene.update().unwrap();
+            }
             let posed = lazy.st.pose_seen(t, Some(&sight), u32::MAX).unwrap();
             all.st.pose_seen(t, None, u32::MAX).unwrap();
             let a = draw(&mut lazy, &cam, &lights, &features, u32::MAX, f == 0);
             let b = draw(&mut all, &cam, &lights, &features, u32::MAX, f == 0);
             let what = format!("hit buffer {hit_buffer}, frame {f} at {t} s ({posed} cars posed)");
             assert_same_frames(&a, &b, &what);
-            if f > 0 {
+            if f > 0 && f != 6 {
                 tested += lazy.st.cars_tested();
             }
             posed_total += posed;

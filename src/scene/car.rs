@@ -548,32 +548,44 @@ pub struct SeenCars {
     /// [`max_yaw_rate`], once.
     yaw_rate: f64,
     sight: Option<Sight>,
+    /// The scene the sight's knowledge is of ([`Scene::id`]).
+    scene: Option<u64>,
     known: Vec<Known>,
+    /// Per car, the body placement last tested (read only when the body moved since).
+    placed: Vec<DAffine3>,
     /// Cars tested against the sight by the last [`SeenCars::pose`].
     tested: usize,
 }
 
-/// What is known of one car under the last sight.
+/// What is known of one car under the last sight, read for every car every frame (kept
+/// small: the crowd's frame streams ten thousand of these).
 #[derive(Clone, Copy, Debug)]
 struct Known {
-    /// The body placement last tested, and whether a ray can reach the car placed so.
-    placed: DAffine3,
-    seen: bool,
     /// Times at which the car, wherever it drives then, is reached by no ray (empty when
     /// not known); for a car `seen`, the times over which it is posed untested...
     clear: (f64, f64),
     /// ...for the car driving as it did then: its origin, phase and whether it travels.
     motion: (DVec3, f64, bool),
+    /// The scene update ([`Scene::epoch`]) as of which the body's world transform was the
+    /// placement last tested (0: not known to be): while the body's [`Scene::stamp`] is no
+    /// later, the two are not compared again.
+    placed_at: u64,
+    /// Whether a ray can reach the car placed as last tested.
+    seen: bool,
 }
 
 impl Known {
     const NONE: Known = Known {
-        placed: DAffine3 { matrix3: glam::DMat3::IDENTITY, translation: DVec3::new(f64::NAN, f64::NAN, f64::NAN) },
-        seen: false,
         clear: (f64::INFINITY, f64::NEG_INFINITY),
         motion: (DVec3::ZERO, 0.0, false),
+        placed_at: 0,
+        seen: false,
     };
 }
+
+/// A placement no body has: nothing is known of a car placed so.
+const NOWHERE: DAffine3 =
+    DAffine3 { matrix3: glam::DMat3::IDENTITY, translation: DVec3::new(f64::NAN, f64::NAN, f64::NAN) };
 
 /// Longest stretch of time a car is let go untested after a test found it clear of the
 /// rays (s): the room it is tested for is its speed times this.
@@ -626,37 +638,52 @@ impl SeenCars {
             self.boxes_for = key;
             self.sight = None;
         }
-        if self.sight.as_ref() != Some(sight) {
-            // Nothing known holds under another sight.
+        if self.sight.as_ref() != Some(sight) || self.scene != Some(scene.id()) {
+            // Nothing known holds under another sight, or of another scene.
             self.known.clear();
             self.known.resize(cars.len(), Known::NONE);
+            self.placed.clear();
+            self.placed.resize(cars.len(), NOWHERE);
             self.sight = Some(sight.clone());
+            self.scene = Some(scene.id());
         }
         let (scene_ref, boxes, shapes, yaw_rate) = (&*scene, &self.boxes, &self.shapes, self.yaw_rate);
+        let epoch = scene.epoch();
         // Whether car k is posed, and whether it was tested.
-        let seen = |k: usize, known: &mut Known| -> (bool, bool) {
+        let seen = |k: usize, (known, placed): (&mut Known, &mut DAffine3)| -> (bool, bool) {
             let car = &cars[k];
-            let (lo, hi, r, reach, shape) = boxes[k];
-            let parts = &shapes[shape as usize];
-            // (Of the car as it drives now: whether it travels is not part of the boxes' key.)
-            let speed = box_speed(car, reach, yaw_rate);
             // A missing body: posing reports it.
-            let Some(&old) = scene_ref.worlds().get(car.body) else { return (true, false) };
+            if car.body >= scene_ref.worlds().len() {
+                return (true, false);
+            }
             let motion = (car.origin, car.phase, car.travel);
             let within = known.motion == motion && known.clear.0 <= t && t <= known.clear.1;
-            // Still placed where it was found clear, and clear wherever it drives now.
-            if within && !known.seen && known.placed == old {
-                return (false, false);
+            // Still placed where it was found clear (its body unmoved since that was known, or
+            // moved back there), and clear wherever it drives now.
+            if within && !known.seen {
+                if scene_ref.stamp(car.body) <= known.placed_at {
+                    return (false, false);
+                }
+                if *placed == scene_ref.world(car.body) {
+                    known.placed_at = epoch;
+                    return (false, false);
+                }
             }
             // Found in sight a moment ago: posed again untested (posing a car no ray reaches
             // changes no pixel).
             if within && known.seen {
                 return (true, false);
             }
-            let new = body_world(car, t);
+            let (lo, hi, r, reach, shape) = boxes[k];
+            let parts = &shapes[shape as usize];
+            // (Of the car as it drives now: whether it travels is not part of the boxes' key.)
+            let speed = box_speed(car, reach, yaw_rate);
+            let (old, new) = (scene_ref.world(car.body), body_world(car, t));
             // The car's box, then its outline for the rays that come near the box.
             let Some(room) = sight.boxes_slack(&new, (lo, hi), parts, r, speed * CLEAR_FOR) else {
-                *known = Known { placed: new, seen: true, clear: (t - SEEN_FOR, t + SEEN_FOR), motion };
+                // Posed: its body stands elsewhere after the next update.
+                *placed = new;
+                *known = Known { clear: (t - SEEN_FOR, t + SEEN_FOR), motion, placed_at: 0, seen: true };
                 return (true, true);
             };
             // Its points cover the room in no less than room / speed (a parked car, never).
@@ -666,13 +693,15 @@ impl SeenCars {
                 _ => Known::NONE.clear,
             };
             // Where the car was last tested, under this sight: the same answer.
-            let old_seen = if known.placed == old { known.seen } else { sight.reaches_boxes(&old, (lo, hi), parts, r) };
-            // Posed (its old place is seen) it stands where it was found clear; else it stays.
-            *known = Known { placed: if old_seen { new } else { old }, seen: false, clear, motion };
+            let old_seen = if *placed == old { known.seen } else { sight.reaches_boxes(&old, (lo, hi), parts, r) };
+            // Posed (its old place is seen) it stands where it was found clear after the next
+            // update; else it stays where it is now.
+            *placed = if old_seen { new } else { old };
+            *known = Known { clear, motion, placed_at: if old_seen { 0 } else { epoch }, seen: false };
             (old_seen, true)
         };
         // Per car: posed, tested.
-        let each = |(mut list, tested): (Vec<usize>, usize), (k, known): (usize, &mut Known)| {
+        let each = |(mut list, tested): (Vec<usize>, usize), (k, known): (usize, (&mut Known, &mut DAffine3))| {
             let (posed, was_tested) = seen(k, known);
             if posed {
                 list.push(k);
@@ -682,16 +711,22 @@ impl SeenCars {
         #[cfg(feature = "parallel")]
         let (list, tested) = {
             use rayon::prelude::*;
-            self.known.par_iter_mut().enumerate().with_min_len(256).fold(|| (Vec::new(), 0), each).reduce(
-                || (Vec::new(), 0),
-                |(mut a, n), (b, m)| {
-                    a.extend_from_slice(&b);
-                    (a, n + m)
-                },
-            )
+            self.known
+                .par_iter_mut()
+                .zip(self.placed.par_iter_mut())
+                .enumerate()
+                .with_min_len(256)
+                .fold(|| (Vec::new(), 0), each)
+                .reduce(
+                    || (Vec::new(), 0),
+                    |(mut a, n), (b, m)| {
+                        a.extend_from_slice(&b);
+                        (a, n + m)
+                    },
+                )
         };
         #[cfg(not(feature = "parallel"))]
-        let (list, tested) = self.known.iter_mut().enumerate().fold((Vec::new(), 0), each);
+        let (list, tested) = self.known.iter_mut().zip(self.placed.iter_mut()).enumerate().fold((Vec::new(), 0), each);
         self.tested = tested;
         if let Err(e) = scene.set_locals_from(list.len(), |k| car_pose(&cars[list[k]], t)) {
             self.sight = None;
