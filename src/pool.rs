@@ -214,6 +214,23 @@ pub(crate) fn map_index<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send)
     out
 }
 
+/// `f` of each of `items`, in order, run as [`for_each_index`] runs its indices: a loop over
+/// pieces that each own a stretch of some buffer (a crowd's moved instances, a few thousand
+/// at a time), which rayon's loops end asleep when another thread holds the last piece.
+pub(crate) fn map_owned<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + Sync + Send) -> Vec<R> {
+    let mut items: Vec<Option<T>> = items.into_iter().map(Some).collect();
+    let cells = Disjoint::new(&mut items);
+    map_index(cells.len, |i| {
+        // SAFETY: index i is taken by this call alone.
+        let item = unsafe { cells.at(i) }.take();
+        // (Each index runs once: every item is there to take.)
+        item.map(&f)
+    })
+    .into_iter()
+    .flatten()
+    .collect()
+}
+
 /// A slice shared out to parallel work items that each touch elements of their own only
 /// (a frame's tiles: disjoint pixel rectangles of one row-major image, which no split of the
 /// slice into contiguous pieces can hand out).
@@ -306,7 +323,7 @@ mod tests {
 
     /// Every index of a loop runs once, for sizes around the pieces' count and with loops
     /// nested in its pieces (on a pool of four, under a watchdog: a lost piece would leave
-    /// the caller spinning); `map_index` keeps the order.
+    /// the caller spinning); `map_index` and `map_owned` keep the order.
     #[test]
     fn every_index_runs_once_and_maps_in_order() {
         use std::sync::atomic::AtomicU32;
@@ -324,6 +341,18 @@ mod tests {
                 let mapped = map_index(n, |i| i * i + map_index(i % 7, |j| j + 1).iter().sum::<usize>());
                 let expected: Vec<usize> = (0..n).map(|i| i * i + (1..=i % 7).sum::<usize>()).collect();
                 if mapped != expected {
+                    wrong.push(n);
+                }
+                // Pieces that own stretches of a buffer: each written once, results in order.
+                let mut buffer = vec![0usize; n];
+                let pieces: Vec<(usize, &mut [usize])> = buffer.chunks_mut(3).enumerate().collect();
+                let sums = map_owned(pieces, |(k, run)| {
+                    run.iter_mut().enumerate().for_each(|(j, v)| *v += 3 * k + j + 1);
+                    run.iter().sum::<usize>()
+                });
+                let expected: Vec<usize> =
+                    (0..n).collect::<Vec<_>>().chunks(3).map(|c| c.iter().map(|i| i + 1).sum()).collect();
+                if buffer != (1..=n).collect::<Vec<_>>() || sums != expected {
                     wrong.push(n);
                 }
             }

@@ -305,12 +305,11 @@ fn refill_listed<F: Fn(usize, &mut Prepared, Option<&mut (DVec3, f64)>) + Sync>(
     };
     #[cfg(feature = "parallel")]
     if ids.len() >= 1024 {
-        use rayon::prelude::*;
         const CHUNK: usize = 512;
         // (The spheres are as many as the slots, or none: their stretches start where the
         // slots' do, or are all empty.)
         let pieces: Vec<_> = stretches(ids, CHUNK, out).into_iter().zip(stretches(ids, CHUNK, spheres)).collect();
-        pieces.into_par_iter().for_each(|((chunk, first, a), (_, _, c))| run(chunk, first, a, c));
+        crate::pool::map_owned(pieces, |((chunk, first, a), (_, _, c))| run(chunk, first, a, c));
         return;
     }
     run(ids, 0, out, spheres);

@@ -232,13 +232,8 @@ impl PixelSpheres {
                         }
                         Some((found, again, tested))
                     };
-                #[cfg(feature = "parallel")]
-                let parts: Vec<(Found, Vec<u32>, u64)> = {
-                    use rayon::prelude::*;
-                    pieces.into_par_iter().map(each).collect::<Option<_>>()?
-                };
-                #[cfg(not(feature = "parallel"))]
-                let parts: Vec<(Found, Vec<u32>, u64)> = pieces.into_iter().map(each).collect::<Option<_>>()?;
+                let parts: Vec<(Found, Vec<u32>, u64)> =
+                    crate::pool::map_owned(pieces, each).into_iter().collect::<Option<_>>()?;
                 if parts.iter().map(|p| p.2).sum::<u64>() > limit {
                     return None;
                 }

@@ -233,8 +233,14 @@ impl Scene {
         };
         #[cfg(feature = "parallel")]
         let mut result = if count >= PARALLEL_MIN / 8 && N > 0 {
-            use rayon::prelude::*;
-            locals.par_chunks_mut(N).enumerate().with_min_len(64).try_for_each(|(k, out)| group(k, out))
+            // Runs of 64 groups; the first error in order, as one thread would meet it.
+            const RUN: usize = 64;
+            let runs: Vec<_> = locals.chunks_mut(RUN * N).enumerate().collect();
+            crate::pool::map_owned(runs, |(r, run)| {
+                run.chunks_mut(N).enumerate().try_for_each(|(k, out)| group(r * RUN + k, out))
+            })
+            .into_iter()
+            .collect::<Result<(), _>>()
         } else {
             sequential(&mut locals)
         };
@@ -268,7 +274,6 @@ impl Scene {
     /// the records (each owning those up to its last instance).
     #[cfg(feature = "parallel")]
     fn apply_ascending(&mut self, locals: &[(usize, Transform)]) {
-        use rayon::prelude::*;
         const CHUNK: usize = 1024;
         let mut pieces = Vec::with_capacity(locals.len().div_ceil(CHUNK));
         let (mut inst, mut dirty, mut offset) = (&mut self.instances[..], &mut self.dirty[..], 0);
@@ -279,7 +284,7 @@ impl Scene {
             pieces.push((chunk, offset, a, c));
             (inst, dirty, offset) = (b, d, end);
         }
-        pieces.into_par_iter().for_each(|(chunk, offset, inst, dirty)| apply_locals(chunk, offset, inst, dirty));
+        crate::pool::map_owned(pieces, |(chunk, offset, inst, dirty)| apply_locals(chunk, offset, inst, dirty));
     }
 
     /// Replaces the part an instance places (a flip-book's frame); its transform stays.
@@ -391,14 +396,7 @@ impl Scene {
             pieces.push((w[0], runs, a, c, e, undo));
             (world, changed, stamps) = (b, d, f);
         }
-        #[cfg(feature = "parallel")]
-        let results: Vec<Result<(), usize>> = {
-            use rayon::prelude::*;
-            pieces.into_par_iter().map(|(start, runs, w, c, s, undo)| run(start, runs, w, c, s, undo)).collect()
-        };
-        #[cfg(not(feature = "parallel"))]
-        let results: Vec<Result<(), usize>> =
-            pieces.into_iter().map(|(start, runs, w, c, s, undo)| run(start, runs, w, c, s, undo)).collect();
+        let results = crate::pool::map_owned(pieces, |(start, runs, w, c, s, undo)| run(start, runs, w, c, s, undo));
         if let Some(bad) = results.iter().find_map(|r| r.err()) {
             // Every chunk puts back what it replaced: the old transforms stay whole.
             for (w, undo) in chunks.windows(2).zip(&sc.undo) {
