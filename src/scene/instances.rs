@@ -232,8 +232,10 @@ impl Scene {
             locals.chunks_mut(N.max(1)).enumerate().try_for_each(|(k, out)| group(k, out))
         };
         #[cfg(feature = "parallel")]
-        let mut result = if count >= PARALLEL_MIN / 8 && N > 0 {
-            // Runs of 64 groups; the first error in order, as one thread would meet it.
+        let result = if count >= PARALLEL_MIN / 8 && N > 0 {
+            // Runs of 64 groups, each run whole up to its own first error, their results in
+            // order: the first error is the first bad transform in order, as one thread would
+            // meet it.
             const RUN: usize = 64;
             let runs: Vec<_> = locals.chunks_mut(RUN * N).enumerate().collect();
             crate::pool::map_owned(runs, |(r, run)| {
@@ -245,12 +247,7 @@ impl Scene {
             sequential(&mut locals)
         };
         #[cfg(not(feature = "parallel"))]
-        let mut result = sequential(&mut locals);
-        if result.is_err() {
-            // Threads stop at whichever bad transform they meet first: name the first one in
-            // order, as one thread would.
-            result = sequential(&mut locals);
-        }
+        let result = sequential(&mut locals);
         // Instances ascending over all groups (a crowd's cars, each one's eight in order): the
         // records split into stretches that threads apply apart.
         #[cfg(feature = "parallel")]
