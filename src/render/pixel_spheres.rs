@@ -86,6 +86,12 @@ impl<'a> TileLists<'a> {
         self.mask == 0
     }
 
+    /// Every instance the tile's lanes list (once per lane that lists it), in no useful order.
+    #[inline]
+    pub fn instances(&self) -> impl Iterator<Item = u32> + 'a {
+        self.entries.iter().map(|e| e.1)
+    }
+
     /// The list of lane `k` (below 64): (sphere entry t, instance), nearest first.
     #[inline]
     pub fn at(&self, k: usize) -> &'a [(f64, u32)] {
@@ -563,6 +569,17 @@ mod tests {
         }
         assert_eq!(lists.len(), crossings);
         assert!(crossings > 851 * 4, "the spheres should cross many rays ({crossings})");
+        // Each tile's instances (what the trace asks memory for ahead): those its lanes list.
+        for y0 in (0..cam.height).step_by(TILE) {
+            for x0 in (0..cam.width).step_by(TILE) {
+                let tile = lists.tile(x0, y0);
+                let mut want: Vec<u32> = (0..64).flat_map(|k| tile.at(k).iter().map(|e| e.1)).collect();
+                let mut got: Vec<u32> = tile.instances().collect();
+                want.sort_unstable();
+                got.sort_unstable();
+                assert_eq!(got, want, "tile ({x0}, {y0})");
+            }
+        }
     }
 
     /// Lists rebuilt from last frame's equal lists built afresh: some spheres moved, some
