@@ -149,20 +149,16 @@ pub fn trace_tiles<T: Send, S>(
         let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
         let mut hits = [None; (TILE * TILE) as usize];
         let x_lo = run * BEAM_WIDTH as usize;
+        // The instances the run's tiles list, asked for at once while its first tile's rays
+        // are set up: a crowd's lie scattered over megabytes, and each met as its ray reached
+        // it was a cache miss waited for alone.
+        if let Some(l) = lists {
+            for x0 in (x_lo..(x_lo + BEAM_WIDTH as usize).min(w)).step_by(TILE as usize) {
+                l.tile(x0 as u32, y0 as u32).instances().for_each(|i| p.instances.prefetch_ray_map(i as usize));
+            }
+        }
         for x0 in (x_lo..(x_lo + BEAM_WIDTH as usize).min(w)).step_by(TILE as usize) {
             let x1 = (x0 + TILE as usize).min(w);
-            // The instances the run's next tile lists (this one's too, at the run's start),
-            // asked for while this tile's rays are set up and traced: a crowd's lie scattered
-            // over megabytes, and each met as its ray reached it was a miss waited for alone.
-            if let Some(l) = lists {
-                let x_end = (x_lo + BEAM_WIDTH as usize).min(w);
-                let first = if x0 == x_lo { x0 } else { x0 + TILE as usize };
-                for x in (first..x_end).step_by(TILE as usize).take(if x0 == x_lo { 2 } else { 1 }) {
-                    for i in l.tile(x as u32, y0 as u32).instances() {
-                        p.instances.prefetch_ray_map(i as usize);
-                    }
-                }
-            }
             let Some(setup) = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]) else {
                 continue;
             };

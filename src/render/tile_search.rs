@@ -229,12 +229,6 @@ pub fn nearest_listed_packet<'l>(
             }
         }
     }
-    // Each listed instance's ray map asked for at once: a crowd's instances lie scattered
-    // over megabytes, and asked for one by one as each ray reaches them, every one was a
-    // cache miss waited for in turn.
-    for &(_, i, _) in &listed {
-        fi.prefetch_ray_map(i as usize);
-    }
     if (lanes.count_ones() as usize) < LISTED_LANES * listed.len() {
         // Instances a few pixels wide (a far crowd's): one ray at a time is cheaper.
         for k in each(lanes) {
