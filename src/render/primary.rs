@@ -149,15 +149,17 @@ pub fn trace_tiles<T: Send, S>(
         let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
         let mut hits = [None; (TILE * TILE) as usize];
         let x_lo = run * BEAM_WIDTH as usize;
+        // The left columns of the run's tiles.
+        let run_tiles = (x_lo..(x_lo + BEAM_WIDTH as usize).min(w)).step_by(TILE as usize);
         // The instances the run's tiles list, asked for at once while its first tile's rays
         // are set up: a crowd's lie scattered over megabytes, and each met as its ray reached
         // it was a cache miss waited for alone.
         if let Some(l) = lists {
-            for x0 in (x_lo..(x_lo + BEAM_WIDTH as usize).min(w)).step_by(TILE as usize) {
+            for x0 in run_tiles.clone() {
                 l.tile(x0 as u32, y0 as u32).instances().for_each(|i| p.instances.prefetch_ray_map(i as usize));
             }
         }
-        for x0 in (x_lo..(x_lo + BEAM_WIDTH as usize).min(w)).step_by(TILE as usize) {
+        for x0 in run_tiles {
             let x1 = (x0 + TILE as usize).min(w);
             let Some(setup) = tile_setup([x0 as u32, y0 as u32, x1 as u32, (y0 + tile_h) as u32]) else {
                 continue;
