@@ -141,9 +141,15 @@ mod avx {
     ) -> u32 {
         let lanes = (1u32 << n) - 1;
         let splat = |x: f64| _mm256_set1_pd(x);
-        let w = ks.map(|k| dirs[k]);
-        let axis = |i: usize| _mm256_set_pd(w[3][i], w[2][i], w[1][i], w[0][i]);
-        let (wx, wy, wz) = (axis(0), axis(1), axis(2));
+        // The four directions by axis, loaded straight from `dirs`: gathered through an array
+        // of them on the stack, two of the three vectors' loads straddled its narrower stores
+        // and waited on them (a fifth of this function's time).
+        let w = ks.map(|k| &dirs[k]);
+        // SAFETY: `DVec3` is `repr(C)` (x, y, z): its first 16 bytes are x and y.
+        let xy = w.map(|v| unsafe { _mm_loadu_pd(std::ptr::from_ref(v).cast::<f64>()) });
+        let (lo, hi) = (_mm256_set_m128d(xy[2], xy[0]), _mm256_set_m128d(xy[3], xy[1]));
+        let (wx, wy) = (_mm256_unpacklo_pd(lo, hi), _mm256_unpackhi_pd(lo, hi));
+        let wz = _mm256_set_pd(w[3].z, w[2].z, w[1].z, w[0].z);
         // `ToUnit::vector`, component by component as glam forms it.
         let d: [__m256d; 3] = match to_unit {
             ToUnit::Scale { inv_size, .. } => {
