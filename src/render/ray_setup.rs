@@ -36,11 +36,11 @@ pub(crate) fn map_four(
     scalar(to_unit, |_| unit_o, dirs, n, ks, slow, out);
 }
 
-/// [`map_four`] for rays from points of their own: lane `ks[j]`'s from `unit_o[j]` (in the
-/// unit cube).
+/// [`map_four`] for rays from points of their own: lane `k`'s from `origins[k]`, mapped into
+/// the cube by `to_unit.point` (the same operations, four at a time).
 pub(crate) fn map_four_from(
     to_unit: &ToUnit,
-    unit_o: &[DVec3; 4],
+    origins: &[DVec3],
     dirs: &[DVec3],
     n: usize,
     ks: &[usize; 4],
@@ -50,10 +50,10 @@ pub(crate) fn map_four_from(
     let slow = match () {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU has AVX and AVX2 (checked by the guard).
-        () if avx2() => unsafe { avx::map_four_from(to_unit, unit_o, dirs, n, ks, out) },
+        () if avx2() => unsafe { avx::map_four_from(to_unit, origins, dirs, n, ks, out) },
         () => (1u32 << n) - 1,
     };
-    scalar(to_unit, |j| unit_o[j], dirs, n, ks, slow, out);
+    scalar(to_unit, |j| to_unit.point(origins[ks[j]]), dirs, n, ks, slow, out);
 }
 
 /// The lanes `j < n` in `slow` set up one at a time, lane `ks[j]`'s from `unit_o(j)`.
@@ -111,18 +111,55 @@ mod avx {
     #[target_feature(enable = "avx,avx2")]
     pub(super) unsafe fn map_four_from(
         to_unit: &ToUnit,
-        unit_o: &[DVec3; 4],
+        origins: &[DVec3],
         dirs: &[DVec3],
         n: usize,
         ks: &[usize; 4],
         out: &mut [Option<UnitRay>],
     ) -> u32 {
-        // (Past `n` a lane may start anywhere: its ray is not written.)
-        if !unit_o[..n].iter().all(|o| o.is_finite()) {
-            return (1u32 << n) - 1;
+        let lanes = (1u32 << n) - 1;
+        let p = by_axis(origins, ks);
+        let splat = |x: f64| _mm256_set1_pd(x);
+        // `ToUnit::point`, component by component as glam forms it.
+        let o: [__m256d; 3] = match to_unit {
+            ToUnit::Scale { offset, inv_size } => {
+                let s = splat(*inv_size);
+                [0, 1, 2].map(|c| _mm256_add_pd(splat(offset[c]), _mm256_mul_pd(p[c], s)))
+            }
+            ToUnit::Affine(m) => {
+                let (x, y, z, t) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis, m.translation);
+                [0, 1, 2].map(|c| {
+                    let xy = _mm256_add_pd(_mm256_mul_pd(splat(x[c]), p[0]), _mm256_mul_pd(splat(y[c]), p[1]));
+                    _mm256_add_pd(_mm256_add_pd(xy, _mm256_mul_pd(splat(z[c]), p[2])), splat(t[c]))
+                })
+            }
+        };
+        // Every lane's origin finite, or all go to the scalar set-up (past `n` a lane may
+        // start anywhere: its ray is not written).
+        let sign = splat(-0.0);
+        let finite = o.iter().fold(_mm256_castsi256_pd(_mm256_set1_epi64x(-1)), |acc, &v| {
+            _mm256_and_pd(acc, _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, v), splat(f64::INFINITY)))
+        });
+        if _mm256_movemask_pd(finite) as u32 & lanes != lanes {
+            return lanes;
         }
-        let o = [0, 1, 2].map(|i| _mm256_set_pd(unit_o[3][i], unit_o[2][i], unit_o[1][i], unit_o[0][i]));
         map_four_at(to_unit, o, dirs, n, ks, out)
+    }
+
+    /// The vectors `v[ks[j]]` by axis, loaded straight from `v`: gathered through an array
+    /// on the stack, two of the three vectors' loads straddled its narrower stores and waited
+    /// on them (a fifth of [`map_four_at`]'s time).
+    ///
+    /// # Safety
+    /// The CPU has AVX and AVX2.
+    #[target_feature(enable = "avx,avx2")]
+    #[inline]
+    unsafe fn by_axis(v: &[DVec3], ks: &[usize; 4]) -> [__m256d; 3] {
+        let w = ks.map(|k| &v[k]);
+        // SAFETY: `DVec3` is `repr(C)` (x, y, z): its first 16 bytes are x and y.
+        let xy = w.map(|v| unsafe { _mm_loadu_pd(std::ptr::from_ref(v).cast::<f64>()) });
+        let (lo, hi) = (_mm256_set_m128d(xy[2], xy[0]), _mm256_set_m128d(xy[3], xy[1]));
+        [_mm256_unpacklo_pd(lo, hi), _mm256_unpackhi_pd(lo, hi), _mm256_set_pd(w[3].z, w[2].z, w[1].z, w[0].z)]
     }
 
     /// The four lanes from the origins `o` (by axis, finite for the lanes `j < n`).
@@ -141,15 +178,7 @@ mod avx {
     ) -> u32 {
         let lanes = (1u32 << n) - 1;
         let splat = |x: f64| _mm256_set1_pd(x);
-        // The four directions by axis, loaded straight from `dirs`: gathered through an array
-        // of them on the stack, two of the three vectors' loads straddled its narrower stores
-        // and waited on them (a fifth of this function's time).
-        let w = ks.map(|k| &dirs[k]);
-        // SAFETY: `DVec3` is `repr(C)` (x, y, z): its first 16 bytes are x and y.
-        let xy = w.map(|v| unsafe { _mm_loadu_pd(std::ptr::from_ref(v).cast::<f64>()) });
-        let (lo, hi) = (_mm256_set_m128d(xy[2], xy[0]), _mm256_set_m128d(xy[3], xy[1]));
-        let (wx, wy) = (_mm256_unpacklo_pd(lo, hi), _mm256_unpackhi_pd(lo, hi));
-        let wz = _mm256_set_pd(w[3].z, w[2].z, w[1].z, w[0].z);
+        let [wx, wy, wz] = by_axis(dirs, ks);
         // `ToUnit::vector`, component by component as glam forms it.
         let d: [__m256d; 3] = match to_unit {
             ToUnit::Scale { inv_size, .. } => {
@@ -295,23 +324,23 @@ mod tests {
         let (mut compared, mut vector_path, mut own_origins) = (0, 0, 0);
         for round in 0..12000 {
             let to_unit = if round % 2 == 0 {
-                ToUnit::Scale { offset: DVec3::ZERO, inv_size: 0.1 + rng.f64() * 4.0 }
+                let offset = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 4.0 - 2.0;
+                ToUnit::Scale { offset, inv_size: 0.1 + rng.f64() * 4.0 }
             } else {
                 let m = DMat3::from_cols_array(&[0.0; 9].map(|_| rng.f64() * 2.0 - 1.0));
-                ToUnit::Affine(DAffine3::from_mat3_translation(m, DVec3::ZERO))
+                let t = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 4.0 - 2.0;
+                ToUnit::Affine(DAffine3::from_mat3_translation(m, t))
             };
-            // One origin for the four lanes in two rounds of three, one each in the third.
-            let shared = origin(round, &mut rng);
-            let mut unit_o = [shared; 4];
-            if round % 3 == 2 {
-                unit_o = unit_o.map(|_| origin(rng.below(5) as usize, &mut rng));
-            }
-            if round % 97 == 0 {
-                match round % 3 {
-                    2 => unit_o[rng.below(4) as usize] = DVec3::new(f64::NAN, 0.0, 0.0),
-                    _ => unit_o = [DVec3::new(f64::NAN, 0.0, 0.0); 4],
-                }
-            }
+            // A point the map takes near `u` in the cube (not finite where the map is singular).
+            let back = |u: DVec3| match &to_unit {
+                ToUnit::Scale { offset, inv_size } => (u - *offset) / *inv_size,
+                ToUnit::Affine(m) => m.inverse().transform_point3(u),
+            };
+            // One origin in the cube for the four lanes in two rounds of three; in the third,
+            // each lane's own, before the map into the cube.
+            let own = round % 3 == 2;
+            let mut shared = origin(round, &mut rng);
+            let mut world: Vec<DVec3> = (0..8).map(|_| back(origin(rng.below(5) as usize, &mut rng))).collect();
 
             let dirs: Vec<DVec3> = (0..8)
                 .map(|_| {
@@ -330,24 +359,32 @@ mod tests {
             if unique.len() < n {
                 continue;
             }
+            if round % 97 == 0 {
+                match own {
+                    true => world[ks[rng.below(n as u64) as usize]] = DVec3::new(f64::NAN, 0.0, 0.0),
+                    false => shared = DVec3::new(f64::NAN, 0.0, 0.0),
+                }
+            }
+            let unit_o = |k: usize| if own { to_unit.point(world[k]) } else { shared };
             let marker = Some(UnitRay::from_unit(DVec3::splat(0.5), DVec3::X).expect("a ray"));
             let mut out = vec![marker; 8];
-            match round % 3 {
-                2 => map_four_from(&to_unit, &unit_o, &dirs, n, &ks, &mut out),
-                _ => map_four(&to_unit, unit_o[0], &dirs, n, &ks, &mut out),
+            match own {
+                true => map_four_from(&to_unit, &world, &dirs, n, &ks, &mut out),
+                false => map_four(&to_unit, shared, &dirs, n, &ks, &mut out),
             }
+            let origins_finite = ks[..n].iter().all(|&k| unit_o(k).is_finite());
             for k in 0..8 {
-                let j = ks[..n].iter().position(|&kj| kj == k);
-                let expect = match j {
-                    Some(j) => UnitRay::from_unit(unit_o[j], to_unit.vector(dirs[k])),
-                    None => marker,
+                let asked = ks[..n].contains(&k);
+                let expect = match asked {
+                    true => UnitRay::from_unit(unit_o(k), to_unit.vector(dirs[k])),
+                    false => marker,
                 };
-                let from = j.map(|j| unit_o[j]);
+                let from = asked.then(|| unit_o(k));
                 assert_eq!(bits(&out[k]), bits(&expect), "round {round}, lane {k}: {:?} from {from:?}", dirs[k]);
                 compared += 1;
-                let vector = expect.is_some_and(|r| r.parallel == 0) && unit_o[..n].iter().all(|o| o.is_finite());
-                vector_path += (j.is_some() && vector) as usize;
-                own_origins += (j.is_some() && vector && round % 3 == 2) as usize;
+                let vector = expect.is_some_and(|r| r.parallel == 0) && origins_finite;
+                vector_path += (asked && vector) as usize;
+                own_origins += (asked && vector && own) as usize;
             }
         }
         assert!(

@@ -73,10 +73,7 @@ impl TileScratch {
     /// [`Self::map_lanes`] for rays from points of their own: lane `k`'s from `origins[k]`
     /// (before its map into the cube).
     fn map_lanes_from(&mut self, p: &Prepared, origins: &[DVec3], dirs: &[DVec3], lanes: u64) {
-        for_fours(lanes, |n, ks| {
-            let unit_o = ks.map(|k| p.to_unit.point(origins[k]));
-            super::ray_setup::map_four_from(&p.to_unit, &unit_o, dirs, n, ks, &mut self.rays)
-        });
+        for_fours(lanes, |n, ks| super::ray_setup::map_four_from(&p.to_unit, origins, dirs, n, ks, &mut self.rays));
     }
 
     /// Traces the lanes `todo` (each set by [`Self::map_lanes`] or [`Self::map_lanes_from`])
