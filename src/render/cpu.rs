@@ -7,7 +7,7 @@ use super::brdf;
 use super::bvh::Bvh;
 use super::emitters::{emitter_light, EmitterShadows, EmitterTable, ShadowCone};
 use super::hitbuffer::{HitBuffer, HitRecord, Rendered, TileSummary};
-use super::instances::{prepare_changed, prepare_into, Prepared};
+use super::instances::{prepare_changed, prepare_into, Prepared, ToUnit};
 use super::pixel_spheres::PixelSpheres;
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
@@ -286,7 +286,12 @@ pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, 
     let p = &prepared[h.instance];
     let to_world = |n: Vec3| p.normal_to_world(n.as_dvec3()).normalize_or_zero().as_vec3();
     let mut normal = to_world(h.hit.normal());
-    let face_normal = to_world(h.hit.face_normal);
+    // A face normal is an axis (or zero), which an instance without a rotation or scale
+    // leaves as it is: `to_world` would give it back bit for bit.
+    let face_normal = match p.to_unit {
+        ToUnit::Scale { .. } => h.hit.face_normal,
+        ToUnit::Affine(_) => to_world(h.hit.face_normal),
+    };
     if !(normal.length_squared() > 0.5) {
         normal = if face_normal != Vec3::ZERO { face_normal } else { -d.as_vec3() };
     }
