@@ -183,8 +183,8 @@ pub fn for_each_index_with<S>(
 /// Pieces per thread that [`for_each_index`] cuts a loop into, at most: the last piece
 /// running bounds how long the other threads wait, and taking a piece is a locked add on
 /// its counter, which waits for the thread's earlier stores to drain. With 1 024, a small
-/// frame's loops over mostly idle tiles took a piece per tile, and a tenth of a 320×192
-/// frame's samples sat on those adds (docs/benchmarks.md, step 127).
+/// frame's loops over mostly idle tiles took a piece per tile, and 9 % of a 320×192 frame's
+/// samples sat on those adds (docs/benchmarks.md, step 127).
 #[cfg(feature = "parallel")]
 const PIECES: usize = 256;
 

@@ -315,9 +315,10 @@ mod tests {
     }
 
     /// Four lanes at a time set up the rays one at a time sets up, bit for bit, for both
-    /// kinds of ray map, origins inside, outside, far from and on the cube (one for all four
-    /// lanes, or one each, now and then not finite), and the directions that take the scalar
-    /// path; lanes not asked for are left alone.
+    /// kinds of ray map (with an offset or a translation), origins inside, outside, far from
+    /// and on the cube (one in the cube for all four lanes, or each lane's own before the
+    /// map into it, now and then not finite), and the directions that take the scalar path;
+    /// lanes not asked for are left alone.
     #[test]
     fn four_lanes_set_up_the_scalar_rays() {
         let mut rng = Rng::new(97);
