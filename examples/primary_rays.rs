@@ -86,7 +86,7 @@ fn main() -> Result<(), voxray::Error> {
             let mut best = f64::INFINITY;
             for _ in 0..reps {
                 let start = Instant::now();
-                let store = |t: &mut f32, h: Option<(voxray::render::visibility::InstanceHit, glam::DVec3)>| {
+                let store = |t: &mut f32, h: Option<(&voxray::render::visibility::InstanceHit, glam::DVec3)>| {
                     *t = h.map_or(f32::INFINITY, |h| h.0.hit.t)
                 };
                 trace_tiles(&primary, &mut t_hit, |_| Some(()), |_, _, _, _| Todo::All, store, |_| {});

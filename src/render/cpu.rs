@@ -705,8 +705,8 @@ fn render_lit_here(
         Some(r) => r.todo(rec, spheres, || ray_dir(x as usize, y as usize), x, y),
         None => Todo::All,
     };
-    let store = |rec: &mut HitRecord, hit: Option<(InstanceHit, DVec3)>| {
-        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, &hit, d));
+    let store = |rec: &mut HitRecord, hit: Option<(&InstanceHit, DVec3)>| {
+        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, hit, d));
     };
     let traced = if splatting {
         let per_instance = splat_cache.for_frame(scene, &prepared, camera, opts.max_level);

@@ -102,7 +102,7 @@ pub fn trace_tiles<T: Send, S>(
     out: &mut [T],
     tile_setup: impl Fn([u32; 4]) -> Option<S> + Sync + Send,
     pending: impl Fn(&S, u32, u32, &mut T) -> Todo + Sync + Send,
-    store: impl Fn(&mut T, Option<(InstanceHit, DVec3)>) + Sync + Send,
+    store: impl Fn(&mut T, Option<(&InstanceHit, DVec3)>) + Sync + Send,
     rows_done: impl Fn(usize) + Sync + Send,
 ) -> Traced {
     let w = p.camera.width as usize;
@@ -283,7 +283,7 @@ pub fn trace_tiles<T: Send, S>(
                         first,
                     );
                     for k in each(todo) {
-                        store(rows(at(k)), hits[k].map(|h| (h, dirs[k])));
+                        store(rows(at(k)), hits[k].as_ref().map(|h| (h, dirs[k])));
                     }
                 }
                 if partial != 0 {
@@ -301,7 +301,7 @@ pub fn trace_tiles<T: Send, S>(
                     );
                     for k in each(partial) {
                         if let Some(hit) = hits[k] {
-                            store(rows(at(k)), Some((hit, dirs[k])));
+                            store(rows(at(k)), Some((&hit, dirs[k])));
                             mask(x0)[0] |= 1 << k;
                         }
                     }
@@ -312,7 +312,7 @@ pub fn trace_tiles<T: Send, S>(
                 for k in each(todo) {
                     let d = dir(k);
                     let hit = nearest_work(&fi, DVec3::ZERO, d, p.search, &p.opts, &mut tally.work).map(|h| (h, d));
-                    store(rows(at(k)), hit);
+                    store(rows(at(k)), hit.as_ref().map(|(h, d)| (h, *d)));
                 }
             } else if todo != 0 {
                 // A ray whose list holds no sphere misses, without forming its direction, and
@@ -332,7 +332,7 @@ pub fn trace_tiles<T: Send, S>(
                 let list = |k: usize| tile_lists.at(k);
                 nearest_listed_packet(&fi, &dirs, listed, list, &p.opts, &mut tally.work, scratch, &mut hits);
                 for k in each(listed) {
-                    store(rows(at(k)), hits[k].map(|h| (h, dirs[k])));
+                    store(rows(at(k)), hits[k].as_ref().map(|h| (h, dirs[k])));
                 }
             }
             for k in each(partial) {
@@ -367,7 +367,7 @@ pub fn trace_tiles<T: Send, S>(
                     }
                 };
                 if let Some((hit, d)) = found {
-                    store(rows(at(k)), Some((hit, d)));
+                    store(rows(at(k)), Some((&hit, d)));
                     mask(x0)[0] |= 1 << k;
                 }
             }
@@ -420,6 +420,6 @@ struct Tally {
 /// The nearest hit of every pixel's primary ray (row-major, row 0 at the top).
 pub fn nearest_hits(p: &Primary) -> Vec<Option<InstanceHit>> {
     let mut out = vec![None; (p.camera.width * p.camera.height) as usize];
-    trace_tiles(p, &mut out, |_| Some(()), |_, _, _, _| Todo::All, |o, hit| *o = hit.map(|h| h.0), |_| {});
+    trace_tiles(p, &mut out, |_| Some(()), |_, _, _, _| Todo::All, |o, hit| *o = hit.map(|h| *h.0), |_| {});
     out
 }
