@@ -285,12 +285,11 @@ fn sun_shadows(
 pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
     let p = &prepared[h.instance];
     let to_world = |n: Vec3| p.normal_to_world(n.as_dvec3()).normalize_or_zero().as_vec3();
-    let mut normal = to_world(h.hit.normal());
     // A face normal is an axis (or zero), which an instance without a rotation or scale
     // leaves as it is: `to_world` would give it back bit for bit.
-    let face_normal = match p.to_unit {
-        ToUnit::Scale { .. } => h.hit.face_normal,
-        ToUnit::Affine(_) => to_world(h.hit.face_normal),
+    let (mut normal, face_normal) = match p.to_unit {
+        ToUnit::Scale { .. } => (super::unit_normals::unturned(h.hit.attr), h.hit.face_normal),
+        ToUnit::Affine(_) => (to_world(h.hit.normal()), to_world(h.hit.face_normal)),
     };
     if !(normal.length_squared() > 0.5) {
         normal = if face_normal != Vec3::ZERO { face_normal } else { -d.as_vec3() };

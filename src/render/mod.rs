@@ -19,6 +19,7 @@ pub mod radiance_cache;
 mod ray_setup;
 pub mod splat;
 pub mod tile_search;
+mod unit_normals;
 pub mod visibility;
 
 pub use cpu::{render, render_lit, AmbientLight, Frame, RenderOptions, Renderer, SplatDraw};
