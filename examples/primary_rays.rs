@@ -6,7 +6,8 @@
 //! `cargo run --release --example primary_rays [-- DEPTH [WIDTH HEIGHT]]` (default 9, 1280×768);
 //! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement, `BEAMS=on` or `off`
 //! for one of the two, `VIEW=default` or `close-up` for one view, `WHOLE=on` to also time whole
-//! frames (traced and shaded).
+//! frames (traced and shaded), `TURN=on` to turn the car a little (its instance then maps rays
+//! and normals with a full matrix, as an animated scene's do).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -38,7 +39,13 @@ fn main() -> Result<(), voxray::Error> {
         st.attribute_bytes_per_voxel()
     );
     let mut scene = Scene::new(vec![svo]);
-    scene.add(Instance { part: 0, parent: None, local: Transform::IDENTITY })?;
+    // `TURN=on`: the car turned a little about the vertical, so that its instance maps rays
+    // with a full matrix (as an animated scene's instances do).
+    let local = match std::env::var("TURN").is_ok_and(|t| t == "on") {
+        true => Transform { rotation: glam::DQuat::from_rotation_y(0.2), ..Transform::IDENTITY },
+        false => Transform::IDENTITY,
+    };
+    scene.add(Instance { part: 0, parent: None, local })?;
     scene.update()?;
     let (lo, hi) = scene.bounds();
     let default = Camera::framing(lo.as_vec3(), hi.as_vec3(), width, height);

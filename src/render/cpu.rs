@@ -283,13 +283,23 @@ fn sun_shadows(
 /// The hit record of a nearest hit along unit direction `d`: world normals turned to face the
 /// ray (surfaces are two-sided), the voxel's world size for offsets.
 pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
+    hit_record_in(scene, prepared, h, d, None)
+}
+
+/// [`hit_record`] in a frame with key `frame` ([`super::unit_normals::frame_key`], taken once
+/// `prepared` was filled for it): a turned instance's voxel normals are remembered too.
+#[inline]
+fn hit_record_in(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3, frame: Option<u64>) -> HitRecord {
     let p = &prepared[h.instance];
     let to_world = |n: Vec3| p.normal_to_world(n.as_dvec3()).normalize_or_zero().as_vec3();
     // A face normal is an axis (or zero), which an instance without a rotation or scale
     // leaves as it is: `to_world` would give it back bit for bit.
-    let (mut normal, face_normal) = match p.to_unit {
-        ToUnit::Scale { .. } => (super::unit_normals::unturned(h.hit.attr), h.hit.face_normal),
-        ToUnit::Affine(_) => (to_world(h.hit.normal()), to_world(h.hit.face_normal)),
+    let (mut normal, face_normal) = match (p.to_unit, frame) {
+        (ToUnit::Scale { .. }, _) => (super::unit_normals::unturned(h.hit.attr), h.hit.face_normal),
+        (ToUnit::Affine(_), Some(frame)) => {
+            (super::unit_normals::turned(frame, h.instance, h.hit.attr, to_world), to_world(h.hit.face_normal))
+        }
+        (ToUnit::Affine(_), None) => (to_world(h.hit.normal()), to_world(h.hit.face_normal)),
     };
     if !(normal.length_squared() > 0.5) {
         normal = if face_normal != Vec3::ZERO { face_normal } else { -d.as_vec3() };
@@ -704,8 +714,10 @@ fn render_lit_here(
         Some(r) => r.todo(rec, spheres, || ray_dir(x as usize, y as usize), x, y),
         None => Todo::All,
     };
+    // The instances are prepared for this frame and stay so while it traces.
+    let frame_key = super::unit_normals::frame_key();
     let store = |rec: &mut HitRecord, hit: Option<(&InstanceHit, DVec3)>| {
-        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record(scene, &prepared, hit, d));
+        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record_in(scene, &prepared, hit, d, Some(frame_key)));
     };
     let traced = if splatting {
         let per_instance = splat_cache.for_frame(scene, &prepared, camera, opts.max_level);

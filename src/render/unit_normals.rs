@@ -1,12 +1,17 @@
-//! A hit voxel's normal in world space for an instance that is not turned
-//! ([`ToUnit::Scale`](super::instances::ToUnit)): the stored normal decoded, then normalized
-//! in f64 as [`super::cpu::hit_record`] does for every instance. Remembered per thread: the
-//! two square roots and divisions were a seventh of a close-up frame, and neighbouring pixels
-//! mostly hit voxels with the same stored normal.
+//! A hit voxel's normal in world space, as [`super::cpu::hit_record`] forms it (the stored
+//! normal decoded, mapped by the instance and normalized in f64), remembered per thread:
+//! the two square roots and divisions were a seventh of a close-up frame, and neighbouring
+//! pixels mostly hit voxels with the same stored normal on the same instance.
+//!
+//! An instance that is not turned ([`ToUnit::Scale`](super::instances::ToUnit)) leaves the
+//! normal's direction alone, so its normal depends on the stored code only ([`unturned`]).
+//! A turned one's depends on its map too, which changes from frame to frame: [`turned`]
+//! keys it by the instance and a key that only one frame has ([`frame_key`]).
 
 use crate::svo::format::Attr;
 use glam::Vec3;
 use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Slots of the per-thread table (direct-mapped by the normal's code).
 const SLOTS: usize = 64;
@@ -14,17 +19,45 @@ const SLOTS: usize = 64;
 /// No code: stored codes have 24 bits.
 const EMPTY: u32 = u32::MAX;
 
+/// A turned instance's remembered normal.
+#[derive(Clone, Copy)]
+struct Turned {
+    /// [`frame_key`] of the frame (0: none).
+    frame: u64,
+    instance: usize,
+    code: u32,
+    normal: [f32; 3],
+}
+
 thread_local! {
     static SEEN: [Cell<(u32, [f32; 3])>; SLOTS] = const { [const { Cell::new((EMPTY, [0.0; 3])) }; SLOTS] };
+    static TURNED: [Cell<Turned>; SLOTS] = const {
+        [const { Cell::new(Turned { frame: 0, instance: 0, code: 0, normal: [0.0; 3] }) }; SLOTS]
+    };
+}
+
+/// The last frame key given out.
+static FRAMES: AtomicU64 = AtomicU64::new(0);
+
+/// A key that no other call has had (never 0): a frame takes one once its instances are
+/// prepared, and they stay as they are while it traces.
+pub(crate) fn frame_key() -> u64 {
+    FRAMES.fetch_add(1, Ordering::Relaxed) + 1
+}
+
+/// The stored code of `attr`'s normal (the decoded normal reads the low 24 bits, two 12-bit
+/// fields; the others hold the material) and its slot, mixed with `instance`.
+#[inline]
+fn code_and_slot(attr: Attr, instance: usize) -> (u32, usize) {
+    let code = attr.normal & 0x00FF_FFFF;
+    let mixed = code ^ (instance as u32).wrapping_mul(0x85EB_CA6B);
+    (code, (mixed.wrapping_mul(0x9E37_79B1) >> (32 - SLOTS.trailing_zeros())) as usize)
 }
 
 /// `attr.normal().as_dvec3().normalize_or_zero().as_vec3()`, bit for bit.
 #[inline]
 pub(crate) fn unturned(attr: Attr) -> Vec3 {
-    // The decoded normal reads the low 24 bits (two 12-bit fields); the others hold the
-    // material.
-    let code = attr.normal & 0x00FF_FFFF;
-    let slot = (code.wrapping_mul(0x9E37_79B1) >> (32 - SLOTS.trailing_zeros())) as usize;
+    let (code, slot) = code_and_slot(attr, 0);
     SEEN.with(|seen| {
         let (key, n) = seen[slot].get();
         if key == code {
@@ -32,6 +65,22 @@ pub(crate) fn unturned(attr: Attr) -> Vec3 {
         }
         let n = direct(attr);
         seen[slot].set((code, n.to_array()));
+        n
+    })
+}
+
+/// `to_world(attr.normal())` for instance `instance` of the frame with key `frame`
+/// ([`frame_key`]), where `to_world` is that instance's map of normals in that frame.
+#[inline]
+pub(crate) fn turned(frame: u64, instance: usize, attr: Attr, to_world: impl FnOnce(Vec3) -> Vec3) -> Vec3 {
+    let (code, slot) = code_and_slot(attr, instance);
+    TURNED.with(|seen| {
+        let t = seen[slot].get();
+        if t.frame == frame && t.instance == instance && t.code == code {
+            return Vec3::from_array(t.normal);
+        }
+        let n = to_world(attr.normal());
+        seen[slot].set(Turned { frame, instance, code, normal: n.to_array() });
         n
     })
 }
@@ -59,6 +108,27 @@ mod tests {
             let attr = Attr { albedo: 0, normal: code | material, emission: 0 };
             let bits = |v: Vec3| v.to_array().map(f32::to_bits);
             assert_eq!(bits(unturned(attr)), bits(direct(attr)), "code {code:x}");
+        }
+    }
+
+    /// A turned instance's remembered normals are its map's, frame by frame: a later frame
+    /// whose maps differ gets its own, whichever instance and code come back.
+    #[test]
+    fn turned_normals_follow_each_frames_maps() {
+        let mut rng = Rng::new(8);
+        let codes: Vec<u32> = (0..100).map(|_| rng.below(1 << 24) as u32).collect();
+        let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+        for round in 0..6 {
+            let frame = frame_key();
+            // Each frame turns each of its three instances its own way.
+            let angle = |instance: usize| 0.3 * round as f32 + instance as f32;
+            let map = |instance: usize, n: Vec3| glam::Quat::from_rotation_y(angle(instance)) * n;
+            for _ in 0..3_000 {
+                let (instance, code) = (rng.below(3) as usize, codes[rng.below(codes.len() as u64) as usize]);
+                let attr = Attr { albedo: 0, normal: code | (rng.below(256) as u32) << 24, emission: 0 };
+                let got = turned(frame, instance, attr, |n| map(instance, n));
+                assert_eq!(bits(got), bits(map(instance, attr.normal())), "frame {round}, instance {instance}");
+            }
         }
     }
 }
