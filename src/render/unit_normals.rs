@@ -1,7 +1,8 @@
 //! A hit voxel's normal in world space, as [`super::cpu::hit_record`] forms it (the stored
-//! normal decoded, mapped by the instance and normalized in f64), remembered per thread:
-//! the two square roots and divisions were a seventh of a close-up frame, and neighbouring
-//! pixels mostly hit voxels with the same stored normal on the same instance.
+//! normal decoded, mapped by the instance and normalized in f64), remembered per thread.
+//! Formed anew for every hit, with two square roots and divisions, it cost a whole close-up
+//! frame 3–4 % (docs/benchmarks.md, steps 129 and 130), and neighbouring pixels mostly hit
+//! voxels with the same stored normal on the same instance.
 //!
 //! An instance that is not turned ([`ToUnit::Scale`](super::instances::ToUnit)) leaves the
 //! normal's direction alone, so its normal depends on the stored code only ([`unturned`]).
