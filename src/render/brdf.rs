@@ -39,10 +39,35 @@ pub fn shininess_of_gloss_bits(g: u32) -> f32 {
 
 /// The normalized Phong lobe `(n + 2)/(2π) · max(0, cos α)ⁿ`.
 pub fn phong(shininess: f32, cos_alpha: f32) -> f32 {
-    if cos_alpha <= 0.0 {
+    // Below `zero_below`, `powf` gives 0 too, but through its slow underflow path: a glossy
+    // surface's sun lobe underflows at most pixels.
+    if cos_alpha <= 0.0 || cos_alpha < zero_below(shininess) {
         return 0.0;
     }
     (shininess + 2.0) / std::f32::consts::TAU * cos_alpha.min(1.0).powf(shininess)
+}
+
+/// A cosine under which `cosⁿ` (n = `shininess`) is below 2⁻¹⁶⁰, a thousandth of the least
+/// f32 subnormal, so that `powf` rounds it to 0: 2^(−160/n), lowered by a millionth; 0 (no
+/// cosine) for an exponent that is not finite and positive. Remembered per thread for the last
+/// exponent asked (a frame's surfaces share a few).
+fn zero_below(shininess: f32) -> f32 {
+    thread_local! {
+        // (exponent's bits, cosine); NaN's bits: no exponent yet.
+        static LAST: std::cell::Cell<(u32, f32)> = const { std::cell::Cell::new((u32::MAX, 0.0)) };
+    }
+    LAST.with(|last| {
+        let (bits, cut) = last.get();
+        if bits == shininess.to_bits() {
+            return cut;
+        }
+        let cut = match shininess.is_finite() && shininess > 0.0 {
+            true => (2f64.powf(-160.0 / shininess as f64) * (1.0 - 1e-6)) as f32,
+            false => 0.0,
+        };
+        last.set((shininess.to_bits(), cut));
+        cut
+    })
 }
 
 /// `d` mirrored about unit normal `n` (`d` points at the surface, the result away from it).
@@ -154,6 +179,39 @@ mod tests {
             let sum = hemisphere(800, |l| phong(e, r.dot(l) as f32) as f64);
             assert!(sum <= 1.0 + 1e-3 && sum > 0.6, "exponent {e}: ∫ f cos = {sum}");
         }
+    }
+
+    /// Where the lobe skips `powf`, `powf` gives 0 as well: for the stored glossinesses and
+    /// other exponents, at cosines spread over (0, 1] and packed around where `cosⁿ` reaches
+    /// the least subnormals (the lobe the same bit for bit as computed in full).
+    #[test]
+    fn skipped_lobes_are_the_computed_ones() {
+        let full = |e: f32, c: f32| {
+            if c <= 0.0 {
+                0.0
+            } else {
+                (e + 2.0) / std::f32::consts::TAU * c.min(1.0).powf(e)
+            }
+        };
+        let mut rng = Rng::new(3);
+        let mut exponents: Vec<f32> = (0..16).map(shininess_of_gloss_bits).collect();
+        exponents.extend((0..40).map(|_| (rng.f64() * 12.0).exp2() as f32));
+        let (mut skipped, mut tiny) = (0, 0);
+        for &e in &exponents {
+            // Where cosⁿ is 2⁻¹⁴⁹, the least subnormal.
+            let edge = 2f64.powf(-149.0 / e as f64);
+            for i in 0..4000 {
+                let c = match i % 2 {
+                    0 => rng.f64() as f32,
+                    _ => (edge * 2f64.powf((rng.f64() - 0.7) * 40.0 / e as f64)) as f32,
+                };
+                let (got, want) = (phong(e, c), full(e, c));
+                assert_eq!(got.to_bits(), want.to_bits(), "exponent {e}, cosine {c}");
+                skipped += (c > 0.0 && c < zero_below(e)) as u32;
+                tiny += (want > 0.0 && want < 1e-30) as u32;
+            }
+        }
+        assert!(skipped > 10_000 && tiny > 1_000, "skipped {skipped}, tiny {tiny}");
     }
 
     /// Sampling is unbiased: the mean weight of many samples equals the directional albedo
