@@ -47,7 +47,7 @@ pub fn phong(shininess: f32, cos_alpha: f32) -> f32 {
     (shininess + 2.0) / std::f32::consts::TAU * cos_alpha.min(1.0).powf(shininess)
 }
 
-/// A cosine under which `cosⁿ` (n = `shininess`) is below 2⁻¹⁶⁰, a thousandth of the least
+/// A cosine under which `cosⁿ` (n = `shininess`) is below 2⁻¹⁶⁰, a two-thousandth of the least
 /// f32 subnormal, so that `powf` rounds it to 0: 2^(−160/n), lowered by a millionth; 0 (no
 /// cosine) for an exponent that is not finite and positive. Remembered per thread for the last
 /// exponent asked (a frame's surfaces share a few).
