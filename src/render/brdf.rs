@@ -49,23 +49,26 @@ pub fn phong(shininess: f32, cos_alpha: f32) -> f32 {
 
 /// A cosine under which `cosⁿ` (n = `shininess`) is below 2⁻¹⁶⁰, a two-thousandth of the least
 /// f32 subnormal, so that `powf` rounds it to 0: 2^(−160/n), lowered by a millionth; 0 (no
-/// cosine) for an exponent that is not finite and positive. Remembered per thread for the last
-/// exponent asked (a frame's surfaces share a few).
+/// cosine) for an exponent that is not finite and positive. Remembered per thread in 16
+/// slots by the exponent (a frame's surfaces share a few: the stored glossinesses give 16),
+/// so that neighbouring pixels of different materials do not compute it again and again.
 fn zero_below(shininess: f32) -> f32 {
     thread_local! {
         // (exponent's bits, cosine); NaN's bits: no exponent yet.
-        static LAST: std::cell::Cell<(u32, f32)> = const { std::cell::Cell::new((u32::MAX, 0.0)) };
+        static SEEN: [std::cell::Cell<(u32, f32)>; 16] = const { [const { std::cell::Cell::new((u32::MAX, 0.0)) }; 16] };
     }
-    LAST.with(|last| {
-        let (bits, cut) = last.get();
-        if bits == shininess.to_bits() {
+    let bits = shininess.to_bits();
+    SEEN.with(|seen| {
+        let slot = &seen[(bits.wrapping_mul(0x9E37_79B1) >> 28) as usize];
+        let (seen_bits, cut) = slot.get();
+        if seen_bits == bits {
             return cut;
         }
         let cut = match shininess.is_finite() && shininess > 0.0 {
             true => (2f64.powf(-160.0 / shininess as f64) * (1.0 - 1e-6)) as f32,
             false => 0.0,
         };
-        last.set((shininess.to_bits(), cut));
+        slot.set((bits, cut));
         cut
     })
 }
