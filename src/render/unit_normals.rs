@@ -14,16 +14,17 @@ use glam::Vec3;
 use std::cell::Cell;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Slots of the per-thread table (direct-mapped by the normal's code).
+/// Slots of the per-thread table (direct-mapped by the normal's code and instance).
 const SLOTS: usize = 64;
 
-/// No code: stored codes have 24 bits.
-const EMPTY: u32 = u32::MAX;
+/// The frame key of an unturned instance's normals, which hold in every frame ([`frame_key`]
+/// never reaches it).
+const ANY_FRAME: u64 = u64::MAX;
 
-/// A turned instance's remembered normal.
+/// A remembered normal.
 #[derive(Clone, Copy)]
-struct Turned {
-    /// [`frame_key`] of the frame (0: none).
+struct Remembered {
+    /// [`frame_key`] of the frame, or [`ANY_FRAME`] (0: none).
     frame: u64,
     instance: usize,
     code: u32,
@@ -31,9 +32,8 @@ struct Turned {
 }
 
 thread_local! {
-    static SEEN: [Cell<(u32, [f32; 3])>; SLOTS] = const { [const { Cell::new((EMPTY, [0.0; 3])) }; SLOTS] };
-    static TURNED: [Cell<Turned>; SLOTS] = const {
-        [const { Cell::new(Turned { frame: 0, instance: 0, code: 0, normal: [0.0; 3] }) }; SLOTS]
+    static SEEN: [Cell<Remembered>; SLOTS] = const {
+        [const { Cell::new(Remembered { frame: 0, instance: 0, code: 0, normal: [0.0; 3] }) }; SLOTS]
     };
 }
 
@@ -46,42 +46,34 @@ pub(crate) fn frame_key() -> u64 {
     FRAMES.fetch_add(1, Ordering::Relaxed) + 1
 }
 
-/// The stored code of `attr`'s normal (the decoded normal reads the low 24 bits, two 12-bit
-/// fields; the others hold the material) and its slot, mixed with `instance`.
-#[inline]
-fn code_and_slot(attr: Attr, instance: usize) -> (u32, usize) {
-    let code = attr.normal & 0x00FF_FFFF;
-    let mixed = code ^ (instance as u32).wrapping_mul(0x85EB_CA6B);
-    (code, (mixed.wrapping_mul(0x9E37_79B1) >> (32 - SLOTS.trailing_zeros())) as usize)
-}
-
 /// `attr.normal().as_dvec3().normalize_or_zero().as_vec3()`, bit for bit.
 #[inline]
 pub(crate) fn unturned(attr: Attr) -> Vec3 {
-    let (code, slot) = code_and_slot(attr, 0);
-    SEEN.with(|seen| {
-        let (key, n) = seen[slot].get();
-        if key == code {
-            return Vec3::from_array(n);
-        }
-        let n = direct(attr);
-        seen[slot].set((code, n.to_array()));
-        n
-    })
+    remembered(ANY_FRAME, 0, attr, || direct(attr))
 }
 
 /// `to_world(attr.normal())` for instance `instance` of the frame with key `frame`
 /// ([`frame_key`]), where `to_world` is that instance's map of normals in that frame.
 #[inline]
 pub(crate) fn turned(frame: u64, instance: usize, attr: Attr, to_world: impl FnOnce(Vec3) -> Vec3) -> Vec3 {
-    let (code, slot) = code_and_slot(attr, instance);
-    TURNED.with(|seen| {
-        let t = seen[slot].get();
-        if t.frame == frame && t.instance == instance && t.code == code {
-            return Vec3::from_array(t.normal);
+    remembered(frame, instance, attr, || to_world(attr.normal()))
+}
+
+/// `normal()` of `attr`'s stored code on `instance` in frame `frame`, remembered.
+#[inline]
+fn remembered(frame: u64, instance: usize, attr: Attr, normal: impl FnOnce() -> Vec3) -> Vec3 {
+    // The decoded normal reads the low 24 bits (two 12-bit fields); the others hold the
+    // material.
+    let code = attr.normal & 0x00FF_FFFF;
+    let mixed = code ^ (instance as u32).wrapping_mul(0x85EB_CA6B);
+    let slot = (mixed.wrapping_mul(0x9E37_79B1) >> (32 - SLOTS.trailing_zeros())) as usize;
+    SEEN.with(|seen| {
+        let r = seen[slot].get();
+        if r.frame == frame && r.instance == instance && r.code == code {
+            return Vec3::from_array(r.normal);
         }
-        let n = to_world(attr.normal());
-        seen[slot].set(Turned { frame, instance, code, normal: n.to_array() });
+        let n = normal();
+        seen[slot].set(Remembered { frame, instance, code, normal: n.to_array() });
         n
     })
 }
