@@ -94,6 +94,12 @@ pub fn sun_response(albedo: Vec3, ks: f32, shininess: f32, n: Vec3, d: Vec3, to_
     if cos <= 0.0 {
         return Vec3::ZERO;
     }
+    facing_response(albedo, ks, shininess, n, d, to_sun, cos)
+}
+
+/// [`sun_response`] where the surface faces the light: `cos` is `n · to_sun`, above 0.
+#[inline(always)]
+pub fn facing_response(albedo: Vec3, ks: f32, shininess: f32, n: Vec3, d: Vec3, to_sun: Vec3, cos: f32) -> Vec3 {
     let mut f = albedo * (cos / std::f32::consts::PI);
     if ks > 0.0 {
         let r = reflect(d.as_dvec3(), n.as_dvec3()).as_vec3();

@@ -482,6 +482,7 @@ pub struct AmbientLight<'a> {
 #[allow(clippy::too_many_arguments)]
 fn direct_light(
     r: &HitRecord,
+    surface: (Vec3, f32, f32),
     eye: DVec3,
     d: DVec3,
     lights: &Lights,
@@ -492,11 +493,11 @@ fn direct_light(
 ) -> Vec3 {
     let mut c = Vec3::ZERO;
     let at = d * r.t as f64;
-    let shininess = brdf::shininess_of_gloss_bits(r.attr.gloss_bits());
-    let (albedo, ks) = (r.attr.albedo_linear(), r.attr.specular());
+    let (albedo, ks, shininess) = surface;
     if let Some(sun) = lights.sun {
-        if r.normal.dot(sun.to_sun) > 0.0 && visible(leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY) {
-            c += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun) * sun.irradiance;
+        let cos = r.normal.dot(sun.to_sun);
+        if cos > 0.0 && visible(leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY) {
+            c += brdf::facing_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun, cos) * sun.irradiance;
         }
     }
     if lights.has_extra() {
@@ -1021,6 +1022,7 @@ fn render_lit_here(
                     let mut blocker = SUN_FREE;
                     let radiance = direct_light(
                         r,
+                        (albedo, ks, row.shininess[x]),
                         camera.eye,
                         d,
                         lights,
