@@ -722,8 +722,9 @@ fn render_lit_here(
     };
     // The instances are prepared for this frame and stay so while it traces.
     let frame_key = super::unit_normals::frame_key();
-    let store = |rec: &mut HitRecord, hit: Option<(&InstanceHit, DVec3)>| {
-        *rec = hit.map_or(HitRecord::MISS, |(hit, d)| hit_record_in(scene, &prepared, hit, d, Some(frame_key)));
+    let store = |rec: &mut HitRecord, hit: Option<(&InstanceHit, DVec3)>| match hit {
+        Some((hit, d)) => *rec = hit_record_in(scene, &prepared, hit, d, Some(frame_key)),
+        None => rec.set_miss(),
     };
     let traced = if splatting {
         let per_instance = splat_cache.for_frame(scene, &prepared, camera, opts.max_level);

@@ -50,6 +50,19 @@ impl HitRecord {
         attr: Attr { albedo: 0, normal: 0, emission: 0 },
         voxel: 0.0,
     };
+
+    /// Makes this record [`Self::MISS`], field by field. (Assigned whole, the constant was
+    /// first copied onto the stack and then from there into the record, at every missed
+    /// pixel of a traced tile; docs/benchmarks.md, step 134.)
+    #[inline(always)]
+    pub fn set_miss(&mut self) {
+        self.t = f32::INFINITY;
+        self.instance = -1;
+        self.normal = Vec3::ZERO;
+        self.face_normal = Vec3::ZERO;
+        self.attr = Attr { albedo: 0, normal: 0, emission: 0 };
+        self.voxel = 0.0;
+    }
 }
 
 /// Hit records of the previous frame and what they were computed under.
@@ -852,6 +865,29 @@ mod tests {
     use super::*;
     use crate::rng::Rng;
     use crate::scene::lights::Sun;
+
+    /// A record made a miss in place is `MISS` bit for bit, whatever it held before.
+    #[test]
+    fn a_record_made_a_miss_is_the_miss() {
+        let bits = |r: &HitRecord| {
+            let v = |v: Vec3| v.to_array().map(f32::to_bits);
+            (r.t.to_bits(), r.instance, v(r.normal), v(r.face_normal), r.attr, r.voxel.to_bits())
+        };
+        let mut rng = Rng::new(3);
+        for _ in 0..100 {
+            let mut f = || rng.f64() as f32 * 2.0 - 1.0;
+            let mut r = HitRecord {
+                t: f() + 2.0,
+                instance: 5,
+                normal: Vec3::new(f(), f(), f()),
+                face_normal: Vec3::new(f(), f(), f()),
+                attr: Attr { albedo: 0x00AB_CDEF, normal: 0x1234_5678, emission: 9 },
+                voxel: f() + 2.0,
+            };
+            r.set_miss();
+            assert_eq!(bits(&r), bits(&HitRecord::MISS));
+        }
+    }
 
     /// Whenever a tile's shadow rays are taken as valid at once, every kept record of the
     /// tile passes its own test: random tiles, hits and moved spheres, many of the spheres
