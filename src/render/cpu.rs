@@ -283,13 +283,24 @@ fn sun_shadows(
 /// The hit record of a nearest hit along unit direction `d`: world normals turned to face the
 /// ray (surfaces are two-sided), the voxel's world size for offsets.
 pub(crate) fn hit_record(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3) -> HitRecord {
-    hit_record_in(scene, prepared, h, d, None)
+    let mut rec = HitRecord::MISS;
+    hit_record_into(&mut rec, scene, prepared, h, d, None);
+    rec
 }
 
-/// [`hit_record`] in a frame with key `frame` ([`super::unit_normals::frame_key`], taken once
-/// `prepared` was filled for it): a turned instance's voxel normals are remembered too.
-#[inline]
-fn hit_record_in(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3, frame: Option<u64>) -> HitRecord {
+/// Writes [`hit_record`] into `rec`, in a frame with key `frame`
+/// ([`super::unit_normals::frame_key`], taken once `prepared` was filled for it): a turned
+/// instance's voxel normals are remembered too. (Written in place: returned, the record was
+/// stored on the stack field by field and copied from there into the frame's records by wider
+/// loads, which waited on those stores at every hit; docs/benchmarks.md, step 135.)
+fn hit_record_into(
+    rec: &mut HitRecord,
+    scene: &Scene,
+    prepared: &[Prepared],
+    h: &InstanceHit,
+    d: DVec3,
+    frame: Option<u64>,
+) {
     let p = &prepared[h.instance];
     let to_world = |n: Vec3| p.normal_to_world(n.as_dvec3()).normalize_or_zero().as_vec3();
     // A face normal is an axis (or zero), which an instance without a rotation or scale
@@ -309,7 +320,14 @@ fn hit_record_in(scene: &Scene, prepared: &[Prepared], h: &InstanceHit, d: DVec3
         normal = -normal;
     }
     let voxel = scene.parts[p.part].bounds.voxel_size(h.hit.level) as f64 * p.max_stretch;
-    HitRecord { t: h.hit.t, instance: h.instance as i32, normal, face_normal, attr: h.hit.attr, voxel: voxel as f32 }
+    *rec = HitRecord {
+        t: h.hit.t,
+        instance: h.instance as i32,
+        normal,
+        face_normal,
+        attr: h.hit.attr,
+        voxel: voxel as f32,
+    };
 }
 
 /// A [`TileSummary`] that the rows of a tile, shaded on any thread, add to.
@@ -723,7 +741,7 @@ fn render_lit_here(
     // The instances are prepared for this frame and stay so while it traces.
     let frame_key = super::unit_normals::frame_key();
     let store = |rec: &mut HitRecord, hit: Option<(&InstanceHit, DVec3)>| match hit {
-        Some((hit, d)) => *rec = hit_record_in(scene, &prepared, hit, d, Some(frame_key)),
+        Some((hit, d)) => hit_record_into(rec, scene, &prepared, hit, d, Some(frame_key)),
         None => rec.set_miss(),
     };
     let traced = if splatting {
