@@ -501,7 +501,8 @@ pub struct AmbientLight<'a> {
 /// way, the emitters' light sampled at `key`'s points ([`emitter_light`]), then the hit's own
 /// emission. `visible(start, direction, distance)` says whether a shadow ray gets through;
 /// with `cone`, the emitters' shadows are cones instead. `d` is the primary ray's unit
-/// direction from the camera at `eye`.
+/// direction from the camera at `eye`; `surface` is the hit's albedo, specular reflectance
+/// and Phong exponent, as the shading loop decoded them for the surface data.
 #[allow(clippy::too_many_arguments)]
 fn direct_light(
     r: &HitRecord,
