@@ -7,7 +7,8 @@
 //! `RAYON_NUM_THREADS=1` for one thread, `REPS=n` frames per measurement, `BEAMS=on` or `off`
 //! for one of the two, `VIEW=default` or `close-up` for one view, `WHOLE=on` to also time whole
 //! frames (traced and shaded), `TURN=on` to turn the car a little (its instance then maps rays
-//! and normals with a full matrix, as an animated scene's do).
+//! and normals with a full matrix, as an animated scene's do), `SHADOWS=on` for whole frames
+//! with the sun's shadow rays (as `voxray render` draws them; off, as the peers' row).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -55,10 +56,11 @@ fn main() -> Result<(), voxray::Error> {
             continue;
         }
         if std::env::var("WHOLE").is_ok_and(|w| w == "on") {
-            // The same rays traced and shaded into a frame (sky and sun, no shadows, no hit
-            // buffer), as the peers' whole-frame row renders them.
+            // The same rays traced and shaded into a frame (sky and sun, no hit buffer; no
+            // shadows unless asked), as the peers' whole-frame row renders them.
             let lights = voxray::scene::Lights::default();
-            let features = Features { hit_buffer: false, shadows: false, ..Features::default() };
+            let shadows = std::env::var("SHADOWS").is_ok_and(|s| s == "on");
+            let features = Features { hit_buffer: false, shadows, ..Features::default() };
             // Through a session, as the harness renders it: each frame refills the last one.
             let mut session = Session::new(Backend::Cpu(Box::default()), "CPU".into());
             let mut best = f64::INFINITY;
