@@ -53,15 +53,18 @@ enum Primary {
 }
 
 fn frame_with(s: &Scene, cam: &Camera, primary: Primary, max_level: u32) -> Frame {
-    let lights = Lights::default();
+    frame_under(s, cam, primary, max_level, &Lights::default())
+}
+
+fn frame_under(s: &Scene, cam: &Camera, primary: Primary, max_level: u32, lights: &Lights) -> Frame {
     let features = Features { beams: primary != Primary::Plain, hit_buffer: false, ..Features::default() };
-    let mut plan = FramePlan::new(s, cam, &lights, &features, None);
+    let mut plan = FramePlan::new(s, cam, lights, &features, None);
     match primary {
         Primary::Beams => (plan.beams, plan.bvh_beams, plan.sphere_lists) = (true, false, false),
         Primary::Lists => (plan.beams, plan.sphere_lists) = (false, true),
         Primary::Plain => assert!(!plan.beams && !plan.sphere_lists, "{}", plan.explain()),
     }
-    render(s, cam, &lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
+    render(s, cam, lights, &plan, &RenderOptions { max_level, ..Default::default() }, None, &|_, _| {}).unwrap()
 }
 
 /// A camera `from` a car placed at `car`, looking at the car's middle.
@@ -105,6 +108,38 @@ fn beams_find_exactly_the_hits_rays_from_the_eye_find() {
     }
     // The beams must actually rule instances out (else this test proves nothing).
     assert!(skipped > 10_000, "beams skipped only {skipped} instance traversals");
+}
+
+/// With beams, a frame's sun shadow rays go as packets before the shading, and the shading
+/// takes their answers for the sun's rays only: the other suns', the points' and the spots'
+/// shadow rays are its own. Frames lit by all of them, with beams and without (every shadow
+/// ray then traced alone), are the same.
+#[test]
+fn only_the_suns_shadow_rays_take_the_sun_pass_answers() {
+    use glam::Vec3;
+    use voxray::scene::lights::{PointLight, SpotLight, Sun};
+    let s = scene();
+    let sun =
+        |x: f32, y: f32, z: f32, e: f32| Sun { to_sun: Vec3::new(x, y, z).normalize(), irradiance: Vec3::splat(e) };
+    let lights = Lights {
+        sun: Some(sun(0.5, 0.7, 0.3, 2.0)),
+        // Low and from the other side: its shadows fall elsewhere than the sun's.
+        suns: vec![sun(-0.8, 0.3, -0.4, 1.5)],
+        points: vec![PointLight { position: DVec3::new(-1.5, 2.5, 2.0), intensity: Vec3::new(4.0, 3.0, 2.0) }],
+        spots: vec![SpotLight {
+            position: DVec3::new(2.0, 3.0, -1.0),
+            direction: Vec3::new(-0.5, -1.0, 0.3).normalize(),
+            intensity: Vec3::new(3.0, 4.0, 6.0),
+            inner_deg: 15.0,
+            outer_deg: 30.0,
+        }],
+        ..Lights::default()
+    };
+    let c = close_to(DVec3::ZERO, DVec3::new(2.5, 2.0, 4.0), 50.0, 80, 56);
+    let with = frame_under(&s, &c, Primary::Beams, u32::MAX, &lights);
+    let without = frame_under(&s, &c, Primary::Plain, u32::MAX, &lights);
+    assert_same_frames(&with, &without, "sun, another sun, a point and a spot");
+    assert!(with.shadow_rays > 0 && without.shadow_rays > 0, "no shadow rays were asked for");
 }
 
 /// Sixty small instances seen from afar, each a few pixels wide at a random place in its

@@ -499,7 +499,10 @@ pub struct AmbientLight<'a> {
 /// The light a hit receives besides the ambient term (WGSL's `direct_light`): the sun, when
 /// the surface faces it and its shadow ray is free, the other suns, points and spots the same
 /// way, the emitters' light sampled at `key`'s points ([`emitter_light`]), then the hit's own
-/// emission. `visible(start, direction, distance)` says whether a shadow ray gets through;
+/// emission. `visible(start, direction, distance, sun)` says whether a shadow ray gets
+/// through; `sun` says that it is the scene's sun's (`Lights::sun`), whose answer the frame's
+/// sun pass may hold. (Told, not found by comparing directions: the direction, handed over
+/// on the stack in narrow stores, stalled the wide load that compared it at every lit pixel.)
 /// with `cone`, the emitters' shadows are cones instead. `d` is the primary ray's unit
 /// direction from the camera at `eye`; `surface` is the hit's albedo, specular reflectance
 /// and Phong exponent, as the shading loop decoded them for the surface data.
@@ -512,7 +515,7 @@ fn direct_light(
     lights: &Lights,
     emitters: &EmitterTable,
     key: u32,
-    visible: &mut dyn FnMut(DVec3, DVec3, f64) -> bool,
+    visible: &mut dyn FnMut(DVec3, DVec3, f64, bool) -> bool,
     cone: Option<&ShadowCone>,
 ) -> Vec3 {
     let mut c = Vec3::ZERO;
@@ -520,20 +523,21 @@ fn direct_light(
     let (albedo, ks, shininess) = surface;
     if let Some(sun) = lights.sun {
         let cos = r.normal.dot(sun.to_sun);
-        if cos > 0.0 && visible(leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY) {
+        if cos > 0.0 && visible(leave(r, at), sun.to_sun.as_dvec3(), f64::INFINITY, true) {
             c += brdf::facing_response(albedo, ks, shininess, r.normal, d.as_vec3(), sun.to_sun, cos) * sun.irradiance;
         }
     }
     if lights.has_extra() {
         for inc in lights.incident_extra(eye + at) {
             let l = inc.to_light.as_vec3();
-            if r.normal.dot(l) > 0.0 && visible(leave(r, at), inc.to_light, inc.distance) {
+            if r.normal.dot(l) > 0.0 && visible(leave(r, at), inc.to_light, inc.distance, false) {
                 c += brdf::sun_response(albedo, ks, shininess, r.normal, d.as_vec3(), l) * inc.irradiance;
             }
         }
     }
     let samples = lights.emitter_sampling();
     if samples > 0 {
+        let mut emitter_visible = |start, dir, t_max| visible(start, dir, t_max, false);
         c += emitter_light(
             emitters,
             samples,
@@ -547,7 +551,7 @@ fn direct_light(
             shininess,
             match cone {
                 Some(cone) => EmitterShadows::Cones(cone),
-                None => EmitterShadows::Rays(visible),
+                None => EmitterShadows::Rays(&mut emitter_visible),
             },
         );
     }
@@ -1051,13 +1055,11 @@ fn render_lit_here(
                         lights,
                         &emitters,
                         k as u32,
-                        &mut |start, dir, t_max| {
+                        &mut |start, dir, t_max, sun_ray| {
                             if !plan.shadows {
                                 return true;
                             }
                             row_shadow_rays += 1;
-                            let sun_ray =
-                                t_max == f64::INFINITY && lights.sun.is_some_and(|s| s.to_sun.as_dvec3() == dir);
                             if sun_ray {
                                 match sun_rays.get(x, y) {
                                     SunRay::Free => return true,
