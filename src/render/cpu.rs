@@ -501,11 +501,12 @@ pub struct AmbientLight<'a> {
 /// way, the emitters' light sampled at `key`'s points ([`emitter_light`]), then the hit's own
 /// emission. `visible(start, direction, distance, sun)` says whether a shadow ray gets
 /// through; `sun` says that it is the scene's sun's (`Lights::sun`), whose answer the frame's
-/// sun pass may hold. (Told, not found by comparing directions: the direction, handed over
-/// on the stack in narrow stores, stalled the wide load that compared it at every lit pixel.)
-/// with `cone`, the emitters' shadows are cones instead. `d` is the primary ray's unit
-/// direction from the camera at `eye`; `surface` is the hit's albedo, specular reflectance
-/// and Phong exponent, as the shading loop decoded them for the surface data.
+/// sun pass may hold. With `cone`, the emitters' shadows are cones instead. `d` is the
+/// primary ray's unit direction from the camera at `eye`; `surface` is the hit's albedo,
+/// specular reflectance and Phong exponent, as the shading loop decoded them for the surface
+/// data. (The sun's ray is told, not found by comparing directions: the direction, handed
+/// over on the stack in narrower stores, stalled the wide load that compared it at every lit
+/// pixel.)
 #[allow(clippy::too_many_arguments)]
 fn direct_light(
     r: &HitRecord,
