@@ -292,7 +292,7 @@ impl SceneCaster {
                 TileScratch::with(|s| nearest_packet_bvh(&fi, origins, &dirs, lanes, &self.opts, w, s, &mut found))
             }
             None => TileScratch::with(|s| {
-                nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None)
+                nearest_packet(&fi, origins, &dirs, lanes, self.search(), &self.opts, w, s, &mut found, None, None)
             }),
         }
         for (k, o) in out.iter_mut().enumerate() {

@@ -688,7 +688,7 @@ impl Reuse {
     #[inline]
     pub fn todo(&self, r: &HitRecord, spheres: &[u32], dir: impl Fn() -> DVec3, x: u32, y: u32) -> Todo {
         if r.instance >= 0 && self.moved[r.instance as usize] {
-            return Todo::Again { instance: r.instance as u32 };
+            return Todo::Again { instance: r.instance as u32, t: r.t };
         }
         let t_hit = r.t as f64;
         let mut d = None;

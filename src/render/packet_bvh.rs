@@ -217,7 +217,7 @@ pub fn nearest_packet_bvh(
         |first, count, mask| {
             for &i in &bvh.items[first..first + count] {
                 let i = i as usize;
-                nearest_instance(fi, i, opts.t_min, origins, dirs, mask, Search::Bvh, opts, work, scratch, out);
+                nearest_instance(fi, i, opts.t_min, origins, dirs, mask, Search::Bvh, opts, work, scratch, out, None);
             }
             for k in each(mask) {
                 if let Some(b) = out[k] {

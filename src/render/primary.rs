@@ -4,7 +4,9 @@
 
 use super::beam::{self, TilePyramid, TileRays, BEAM_WIDTH, TILE};
 use super::pixel_spheres::{PixelSpheres, TileLists};
-use super::tile_search::{each, nearest_listed_packet, nearest_moved_tile, nearest_packet, Origins, TileScratch};
+use super::tile_search::{
+    each, nearest_listed_packet, nearest_moved_tile, nearest_packet, Origins, StoredHits, TileScratch,
+};
 use super::visibility::{nearest_listed_moved, nearest_moved, nearest_work, FrameInstances, InstanceHit, Search, Work};
 use crate::scene::camera::Camera;
 use crate::traverse::TraceOptions;
@@ -74,6 +76,10 @@ pub enum Todo {
     Again {
         /// The instance of the stored hit.
         instance: u32,
+        /// Ray parameter of the stored hit. No instance that stayed put is hit before it (the
+        /// stored hit was the nearest of all), so such an instance need not be traced where
+        /// a hit nearer than this is found first.
+        t: f32,
     },
     /// A search among the moved instances ([`Primary::moved`]) only, against the nearest hit
     /// `(t, instance)` among all the others (+∞ and −1 for none): the stored hit, when it is
@@ -171,14 +177,17 @@ pub fn trace_tiles<T: Send, S>(
             // The instance most of the tile's Again pixels hit last frame (a vote: one counter
             // that a different instance decrements).
             let (mut first, mut votes) = (None, 0u32);
+            // Per lane, the t of its stored hit where that hit's instance moved (else −∞).
+            let mut stored_t = [f32::NEG_INFINITY; (TILE * TILE) as usize];
             for ty in 0..tile_h {
                 for x in x0..x1 {
                     let k = ty * TILE as usize + x - x0;
                     match pending(&setup, x as u32, (y0 + ty) as u32, rows(ty * w + x)) {
                         Todo::Keep => {}
                         Todo::All => todo |= 1 << k,
-                        Todo::Again { instance } => {
+                        Todo::Again { instance, t } => {
                             todo |= 1 << k;
+                            stored_t[k] = t;
                             if first == Some(instance as usize) {
                                 votes += 1;
                             } else if votes == 0 {
@@ -270,6 +279,7 @@ pub fn trace_tiles<T: Send, S>(
                     dirs[k] = dir(k);
                 }
                 if todo != 0 {
+                    let stored = moved_flags.map(|moved| StoredHits { t: &stored_t, moved });
                     nearest_packet(
                         &fi,
                         Origins::One(DVec3::ZERO),
@@ -281,6 +291,7 @@ pub fn trace_tiles<T: Send, S>(
                         scratch,
                         &mut hits,
                         first,
+                        stored,
                     );
                     for k in each(todo) {
                         store(rows(at(k)), hits[k].as_ref().map(|h| (h, dirs[k])));

@@ -134,13 +134,27 @@ impl Origins<'_> {
     }
 }
 
+/// What last frame's nearest hits tell a tile's search this frame (the camera the same):
+/// lane `k`'s stored hit lay at `t[k]` (−∞ where none is known). An instance that has not
+/// moved since lies where it lay, so its nearest hit along the ray is where it was, at `t[k]`
+/// or beyond (the stored hit was the nearest of all): it cannot beat a hit found nearer than
+/// `t[k]`, and the lane need not trace it then.
+#[derive(Clone, Copy, Debug)]
+pub struct StoredHits<'a> {
+    /// Per lane, the t of its stored hit.
+    pub t: &'a [f32; LANES],
+    /// Per instance, whether it moved since the stored hits were traced.
+    pub moved: &'a [bool],
+}
+
 /// The nearest hit of each ray `origins.of(k) + t·dirs[k]` for the lanes `k` of `lanes` (up
 /// to [`LANES`]), written to `out[k]`: what [`super::visibility::nearest_work`] answers for
 /// the ray. The rays start at one point (a tile's, from the eye) or each at its own (a
 /// library caller's). `fi.starts`, when given, holds the tile's beam starts (every ray of
 /// `dirs` inside the tile's beam); without them the instances are searched in their order.
 /// Instance `first`, when given, is searched before the others (the answer is the same in
-/// any order): the instance the rays hit last frame, whose hit then bounds the rest.
+/// any order): the instance the rays hit last frame, whose hit then bounds the rest; `stored`,
+/// when given, skips the lanes that cannot find a nearer hit on an instance that stayed put.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn nearest_packet(
@@ -154,6 +168,7 @@ pub fn nearest_packet(
     scratch: &mut TileScratch,
     out: &mut [Option<InstanceHit>],
     first: Option<usize>,
+    stored: Option<StoredHits>,
 ) {
     let n = fi.prepared.len();
     let starts = fi.starts.unwrap_or(&[]);
@@ -176,7 +191,7 @@ pub fn nearest_packet(
         work.culled += beam_culled * rays;
     }
     for &(start, i) in order.iter() {
-        nearest_instance(fi, i, start, origins, dirs, lanes, search, opts, work, scratch, out);
+        nearest_instance(fi, i, start, origins, dirs, lanes, search, opts, work, scratch, out, stored);
     }
     scratch.order = order;
     if search == Search::Plain {
@@ -238,7 +253,8 @@ pub fn nearest_listed_packet<'l>(
     listed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     for &(_, i, by) in &listed {
         let one = Origins::One(DVec3::ZERO);
-        nearest_instance(fi, i as usize, opts.t_min, one, dirs, by, Search::CullSort, opts, work, scratch, out);
+        let s = Search::CullSort;
+        nearest_instance(fi, i as usize, opts.t_min, one, dirs, by, s, opts, work, scratch, out, None);
     }
     scratch.listed = listed;
 }
@@ -248,6 +264,8 @@ pub fn nearest_listed_packet<'l>(
 /// `i`'s sphere (every lane, in the plain search) no later than its best hit so far `out[k]`
 /// are traced through its octree from `start` (its beam start, or `opts.t_min`) up to that
 /// hit, and a hit found replaces the best where it is nearer, or as near on a lower instance.
+/// With `stored`, a lane whose best so far is nearer than its stored hit skips the instance
+/// when it has not moved ([`StoredHits`]).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn nearest_instance(
@@ -262,13 +280,19 @@ pub(super) fn nearest_instance(
     work: &mut Work,
     scratch: &mut TileScratch,
     out: &mut [Option<InstanceHit>],
+    stored: Option<StoredHits>,
 ) {
     let p = &fi.prepared[i];
     let t_min = if start > opts.t_min { start } else { opts.t_min };
+    // The stored hits' t where this instance stayed put (else none).
+    let stayed = stored.filter(|s| search != Search::Plain && s.moved.get(i).is_some_and(|m| !m)).map(|s| s.t);
     let mut todo = 0u64;
     for k in each(lanes) {
         let d = dirs[k];
         let bound = out[k].map_or(opts.t_max, |b| b.hit.t);
+        if stayed.is_some_and(|t| t[k] > bound) {
+            continue;
+        }
         if search != Search::Plain {
             let Some((entry, _)) = sphere_interval(p.centre, p.radius, origins.of(k), d) else {
                 work.culled += 1;
@@ -531,6 +555,69 @@ mod tests {
         (0..LANES).map(|k| DVec3::new(cx + (k % 8) as f64 * 0.01, cy + (k / 8) as f64 * 0.01, -1.0)).collect()
     }
 
+    /// A search told last frame's nearest hits ([`StoredHits`]) finds this frame's nearest hits,
+    /// lane for lane, though it skips the instances that stayed put wherever a hit nearer
+    /// than the stored one turns up first: some instances moved since (each towards the eye,
+    /// so that they are often hit nearer than before), the others stayed.
+    #[test]
+    fn stored_hits_skip_only_what_cannot_be_nearer() {
+        let opts = TraceOptions::default();
+        let (mut checked, mut skipped) = (0, 0);
+        for seed in 0..12u64 {
+            let mut scene = scene(seed + 40, 6);
+            let dirs = tile(seed + 7);
+            let before = prepare(&scene, DVec3::ZERO, true);
+            let fi = FrameInstances { parts: &scene.parts, prepared: &before, bvh: None, starts: None };
+            let mut t = [f32::NEG_INFINITY; LANES];
+            for (k, t) in t.iter_mut().enumerate() {
+                let hit = nearest_work(&fi, DVec3::ZERO, dirs[k], Search::Plain, &opts, &mut Work::default());
+                *t = hit.map_or(f32::NEG_INFINITY, |h| h.hit.t);
+            }
+            // Every other instance moves a little towards the eye and turns.
+            let mut moved = vec![false; 6];
+            for i in (seed as usize % 2..6).step_by(2) {
+                let mut local = scene.instances()[i].local;
+                local.translation *= 0.8;
+                local.rotation *= DQuat::from_rotation_z(0.3);
+                scene.set_local(i, local).expect("a valid transform");
+                moved[i] = true;
+            }
+            scene.update().expect("well-conditioned");
+            let now = prepare(&scene, DVec3::ZERO, true);
+            let fi = FrameInstances { parts: &scene.parts, prepared: &now, bvh: None, starts: None };
+            let (mut out, mut plain_out) = ([None; LANES], [None; LANES]);
+            let (mut work, mut plain_work) = (Work::default(), Work::default());
+            let stored = Some(StoredHits { t: &t, moved: &moved });
+            let one = Origins::One(DVec3::ZERO);
+            TileScratch::with(|s| {
+                nearest_packet(
+                    &fi,
+                    one,
+                    &dirs,
+                    u64::MAX,
+                    Search::CullSort,
+                    &opts,
+                    &mut work,
+                    s,
+                    &mut out,
+                    None,
+                    stored,
+                );
+                let w = &mut plain_work;
+                nearest_packet(&fi, one, &dirs, u64::MAX, Search::CullSort, &opts, w, s, &mut plain_out, None, None);
+            });
+            for (k, &d) in dirs.iter().enumerate() {
+                let want = nearest_work(&fi, DVec3::ZERO, d, Search::Plain, &opts, &mut Work::default());
+                assert_eq!(out[k], want, "seed {seed}, lane {k}");
+                assert_eq!(plain_out[k], want, "seed {seed}, lane {k}, without stored hits");
+                checked += want.is_some() as usize;
+            }
+            skipped += plain_work.traced - work.traced;
+        }
+        assert!(checked > 100, "{checked} hits");
+        assert!(skipped > 50, "{skipped} instance traces skipped");
+    }
+
     /// The thread's kept scratch finds what the one-ray search finds, lane for lane, after it
     /// traced other tiles of other scenes with other lanes (what a use leaves in it is never
     /// read), for nearest hits and for shadow rays alike.
@@ -559,6 +646,7 @@ mod tests {
                     s,
                     &mut out,
                     None,
+                    None,
                 )
             });
             // Any instance searched first, the same answers.
@@ -567,7 +655,7 @@ mod tests {
             TileScratch::with(|s| {
                 let (w, o) = (&mut Work::default(), &mut first_out);
                 let one = Origins::One(DVec3::ZERO);
-                nearest_packet(&fi, one, &dirs, lanes, Search::CullSort, &opts, w, s, o, Some(first))
+                nearest_packet(&fi, one, &dirs, lanes, Search::CullSort, &opts, w, s, o, Some(first), None)
             });
             let origins: Vec<DVec3> = dirs.iter().map(|d| *d * 0.5).collect();
             let blocked = TileScratch::with(|s| {
