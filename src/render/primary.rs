@@ -275,9 +275,7 @@ pub fn trace_tiles<T: Send, S>(
             if p.beams {
                 // The tile's rays as packets through each instance: the same answers as one by
                 // one (below).
-                for k in each(todo | partial) {
-                    dirs[k] = dir(k);
-                }
+                super::ray_setup::tile_dirs(&basis, &sx, &sy, todo | partial, &mut dirs);
                 if todo != 0 {
                     let stored = moved_flags.map(|moved| StoredHits { t: &stored_t, moved });
                     nearest_packet(
@@ -337,9 +335,7 @@ pub fn trace_tiles<T: Send, S>(
                 // The others: the instances their lists hold, each traced by its lanes as one
                 // packet.
                 let listed = todo & tile_lists.mask;
-                for k in each(listed) {
-                    dirs[k] = dir(k);
-                }
+                super::ray_setup::tile_dirs(&basis, &sx, &sy, listed, &mut dirs);
                 let list = |k: usize| tile_lists.at(k);
                 nearest_listed_packet(&fi, &dirs, listed, list, &p.opts, &mut tally.work, scratch, &mut hits);
                 for k in each(listed) {

@@ -11,7 +11,32 @@
 
 use super::instances::ToUnit;
 use crate::ray::{UnitRay, MAX_UNIT_ORIGIN, PARALLEL_RATIO};
+use crate::scene::camera::Basis;
 use glam::DVec3;
+
+/// Sets `dirs[k]` to `b.dir(sx[k % 8], sy[k / 8])` for the lanes `k` of `lanes` of an 8×8
+/// tile (`sx`, `sy` its columns' and rows' screen slopes): the unit directions of its rays
+/// from the eye, four at a time in AVX2 where the CPU has it (the same IEEE operations in
+/// the same order as `Basis::dir`, so the same bits). The other lanes of a row's four that
+/// holds one of `lanes` may be written too.
+///
+/// # Panics
+/// When `dirs` holds fewer than 64 directions.
+pub(crate) fn tile_dirs(b: &Basis, sx: &[f64; 8], sy: &[f64; 8], lanes: u64, dirs: &mut [DVec3]) {
+    let dirs = &mut dirs[..64];
+    #[cfg(target_arch = "x86_64")]
+    if avx2() {
+        // SAFETY: the CPU has AVX and AVX2 (checked above).
+        unsafe { avx::tile_dirs(b, sx, sy, lanes, dirs) };
+        return;
+    }
+    let mut l = lanes;
+    while l != 0 {
+        let k = l.trailing_zeros() as usize;
+        l &= l - 1;
+        dirs[k] = b.dir(sx[k % 8], sy[k / 8]);
+    }
+}
 
 /// Sets `out[k]` to `from_unit(unit_o, to_unit.vector(dirs[k]))` for `k = ks[j]`, `j < n`
 /// (`n ≤ 4`; the lanes past `n` are set up, not written, so `ks` holds valid indices there
@@ -144,6 +169,53 @@ mod avx {
             return lanes;
         }
         map_four_at(to_unit, o, dirs, n, ks, out)
+    }
+
+    /// [`super::tile_dirs`] in AVX2 vectors, four columns of a row at a time. Each direction
+    /// is stored as `by_axis` loads it (its x and y in one 16-byte store, its z alone), so
+    /// that the loads that set the rays up are forwarded from these stores.
+    ///
+    /// # Safety
+    /// The CPU has AVX and AVX2.
+    #[target_feature(enable = "avx,avx2")]
+    pub(super) unsafe fn tile_dirs(b: &Basis, sx: &[f64; 8], sy: &[f64; 8], lanes: u64, dirs: &mut [DVec3]) {
+        let splat = |x: f64| _mm256_set1_pd(x);
+        let (f, r, u) = (b.forward, b.right, b.up);
+        // SAFETY: each half of `sx` is four f64.
+        let columns = unsafe { [_mm256_loadu_pd(sx.as_ptr()), _mm256_loadu_pd(sx.as_ptr().add(4))] };
+        for q in 0..16 {
+            if (lanes >> (4 * q)) & 0xF == 0 {
+                continue;
+            }
+            let (sxv, syv) = (columns[q % 2], splat(sy[q / 2]));
+            // `(forward + right * sx) + up * sy`, axis by axis as glam forms it.
+            let v = [0, 1, 2].map(|c| {
+                let fr = _mm256_add_pd(splat(f[c]), _mm256_mul_pd(splat(r[c]), sxv));
+                _mm256_add_pd(fr, _mm256_mul_pd(splat(u[c]), syv))
+            });
+            // `normalize`: times `1 / sqrt((x·x + y·y) + z·z)`.
+            let xy = _mm256_add_pd(_mm256_mul_pd(v[0], v[0]), _mm256_mul_pd(v[1], v[1]));
+            let dot = _mm256_add_pd(xy, _mm256_mul_pd(v[2], v[2]));
+            let recip = _mm256_div_pd(splat(1.0), _mm256_sqrt_pd(dot));
+            let d = v.map(|c| _mm256_mul_pd(c, recip));
+            // Lanes 0 and 2 (x, y) in `lo`, 1 and 3 in `hi`.
+            let (lo, hi) = (_mm256_unpacklo_pd(d[0], d[1]), _mm256_unpackhi_pd(d[0], d[1]));
+            let xy = [
+                _mm256_castpd256_pd128(lo),
+                _mm256_castpd256_pd128(hi),
+                _mm256_extractf128_pd::<1>(lo),
+                _mm256_extractf128_pd::<1>(hi),
+            ];
+            let mut z = [0f64; 4];
+            // SAFETY: `z` holds four f64.
+            unsafe { _mm256_storeu_pd(z.as_mut_ptr(), d[2]) };
+            for (j, (xy, z)) in xy.into_iter().zip(z).enumerate() {
+                let at = &mut dirs[4 * q + j];
+                // SAFETY: `DVec3` is `repr(C)` (x, y, z): its first 16 bytes are x and y.
+                unsafe { _mm_storeu_pd(std::ptr::from_mut(at).cast::<f64>(), xy) };
+                at.z = z;
+            }
+        }
     }
 
     /// The vectors `v[ks[j]]` by axis, loaded straight from `v`: gathered through an array
@@ -312,6 +384,48 @@ mod tests {
             3 => DVec3::new(0.0, 1.0, rng.f64()),
             _ => DVec3::new(rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0, rng.f64() * 8.0 - 4.0),
         }
+    }
+
+    /// A tile's directions four at a time are `Basis::dir`'s bit for bit, for cameras of
+    /// every size, field of view and orientation, tiles anywhere on the image (the slopes of
+    /// pixels on and past its edges too) and any lanes asked for; the lanes asked for are
+    /// all written.
+    #[test]
+    fn a_tiles_directions_are_basis_dir_bit_for_bit() {
+        let mut rng = Rng::new(31);
+        let mut compared = 0;
+        for round in 0..3000 {
+            let eye = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 200.0 - 100.0;
+            let target =
+                eye + DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * 10f64.powi(round % 7 - 3);
+            let up = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5);
+            let camera = crate::scene::Camera {
+                eye,
+                target,
+                up,
+                vfov_deg: 1.0 + rng.f64() * 170.0,
+                width: 1 + rng.below(4000) as u32,
+                height: 1 + rng.below(4000) as u32,
+            };
+            let Ok(()) = camera.validate() else { continue };
+            let b = camera.basis();
+            let (x0, y0) = (rng.below(camera.width as u64 + 8) as u32, rng.below(camera.height as u64 + 8) as u32);
+            let sx: [f64; 8] = std::array::from_fn(|i| camera.screen_x(&b, x0 + i as u32));
+            let sy: [f64; 8] = std::array::from_fn(|i| camera.screen_y(&b, y0 + i as u32));
+            let lanes = if round % 3 == 0 { u64::MAX } else { rng.next_u64() & rng.next_u64() };
+            let mut dirs = [DVec3::splat(f64::NAN); 64];
+            tile_dirs(&b, &sx, &sy, lanes, &mut dirs);
+            for k in (0..64).filter(|k| lanes & (1 << k) != 0) {
+                let want = b.dir(sx[k % 8], sy[k / 8]);
+                assert_eq!(
+                    dirs[k].to_array().map(f64::to_bits),
+                    want.to_array().map(f64::to_bits),
+                    "round {round}, lane {k}"
+                );
+                compared += 1;
+            }
+        }
+        assert!(compared > 50_000, "{compared} directions compared");
     }
 
     /// Four lanes at a time set up the rays one at a time sets up, bit for bit, for both
