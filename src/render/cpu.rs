@@ -12,6 +12,7 @@ use super::pixel_spheres::PixelSpheres;
 use super::plan::FramePlan;
 use super::primary::{trace_tiles, Primary, Todo};
 use super::visibility::{occluded, FrameInstances, InstanceHit};
+use crate::scene::camera::{PixelGrid, PixelRect};
 use crate::scene::{Camera, CameraError, Lights, Scene};
 use crate::traverse::packet::LANES;
 use crate::traverse::TraceOptions;
@@ -850,6 +851,17 @@ fn render_lit_here(
     // are shaded afresh): decided before the sun's shadow packets, so that those rays go in
     // the packets instead of one by one in the shading pass. Of those, the ones that no
     // instance blocked (`.1`): only a moved instance can block them now.
+    // Per moved sphere, the pixels whose kept records' shadow rays may meet it (none without
+    // the sun, all where the records' summaries are not known).
+    let shadow_rects = match (shade_from, lights.sun) {
+        (Some((reuse, _)), Some(sun)) if plan.shadows => match super::hitbuffer::shadow_reach(&old_tiles) {
+            Some(reach) if !old_tiles.is_empty() => {
+                reuse.shadow_rects(&PixelGrid::new(camera, &basis), sun.to_sun.as_dvec3(), reach)
+            }
+            _ => vec![PixelRect::Unbounded],
+        },
+        _ => Vec::new(),
+    };
     let reshade_tiles: Vec<(u64, u64)> = match shade_from {
         Some((reuse, _)) if plan.shadows => crate::pool::map_index(tile_count, |t| {
             let (x0, y0) = ((t % tiles_x) * TILE as usize, (t / tiles_x) * TILE as usize);
@@ -858,7 +870,8 @@ fn render_lit_here(
             let row = (1u64 << tw) - 1;
             let inside = (0..th).fold(0u64, |m, ty| m | row << (ty * TILE as usize));
             let kept = inside & !traced.stored[t];
-            if kept == 0 {
+            let rect = [x0 as u32, y0 as u32, (x0 + tw - 1) as u32, (y0 + th - 1) as u32];
+            if kept == 0 || !super::hitbuffer::rects_meet(&shadow_rects, rect) {
                 return (0, 0);
             }
             // The moved spheres their shadow rays may meet (Reuse::tile_shadow_suspects; none

@@ -19,6 +19,7 @@
 use super::beam::TILE;
 use super::instances::{sphere_interval, Prepared};
 use super::primary::Todo;
+use crate::scene::camera::{PixelGrid, PixelRect};
 use crate::scene::{Camera, Lights, Scene};
 use crate::svo::Attr;
 use glam::{DAffine3, DVec3, Vec3};
@@ -641,6 +642,26 @@ impl Reuse {
         }
     }
 
+    /// Per moved sphere, the pixels whose kept record's shadow ray towards the sun (`to_sun`,
+    /// unit) may meet it, when every kept record's shadow ray starts within `reach` of the eye
+    /// ([`shadow_reach`]). A ray from `o` along `to_sun` meets the sphere (c, r) only where
+    /// `o` lies in the sphere or in the half-infinite cylinder of radius r behind it (away
+    /// from the sun); within `reach` of the eye that cylinder ends `c·to_sun + reach` behind
+    /// c. So `o` lies in the capsule around that segment, and the pixel's ray passes within
+    /// r of it ([`PixelGrid::near`]; r and the segment padded a millionth, far above the
+    /// rounding of [`sphere_interval`] and of the projection). A tile none of whose pixels
+    /// any of these holds keeps every stored shadow ray's answer without a test.
+    pub fn shadow_rects(&self, grid: &PixelGrid, to_sun: DVec3, reach: f64) -> Vec<PixelRect> {
+        self.moved_spheres
+            .iter()
+            .map(|&(c, r, _)| {
+                let pad = 1e-6 * (r + c.length() + reach);
+                let behind = (c.dot(to_sun) + reach).max(0.0) * (1.0 + 1e-6) + pad;
+                grid.near(&[c, c - to_sun * behind], r * (1.0 + 1e-6) + pad)
+            })
+            .collect()
+    }
+
     /// The moved spheres that a kept record's shadow ray from a tile may still meet, as a
     /// mask over [`Reuse::moved_spheres`] (bit k: sphere k): those that the ball of
     /// [`Reuse::tile_shadows_valid`] does not clear. Zero when that test passes the tile;
@@ -765,6 +786,24 @@ impl Reuse {
     }
 }
 
+/// How far from the eye the shadow rays of the records that `tiles` summarize may start: a
+/// hit at t along its unit ray, its shadow ray at most 1.1 voxels from it (`cpu::leave`: a
+/// unit normal and a tenth of a unit face normal), grown a millionth. None when a summary
+/// holds a t that is not finite.
+pub fn shadow_reach(tiles: &[TileSummary]) -> Option<f64> {
+    let far = tiles.iter().filter(|t| t.has_hits()).map(|t| t.t_hi as f64 + 1.1 * t.voxel as f64).fold(0.0, f64::max);
+    far.is_finite().then_some(far * (1.0 + 1e-6))
+}
+
+/// Whether one of `rects` holds a pixel of the rectangle `[x0, y0, x1, y1]` (inclusive).
+pub fn rects_meet(rects: &[PixelRect], [x0, y0, x1, y1]: [u32; 4]) -> bool {
+    rects.iter().any(|r| match *r {
+        PixelRect::Empty => false,
+        PixelRect::Unbounded => true,
+        PixelRect::Pixels { x0: a, y0: b, x1: c, y1: d } => a <= x1 && x0 <= c && b <= y1 && y0 <= d,
+    })
+}
+
 /// Where the shadow rays of a tile's kept records start, for the tile tests of [`Reuse`].
 enum ShadowBall {
     /// The tile holds misses only: no shadow rays.
@@ -865,6 +904,62 @@ mod tests {
     use super::*;
     use crate::rng::Rng;
     use crate::scene::lights::Sun;
+
+    /// The pixels `Reuse::shadow_rects` gives each moved sphere hold every pixel whose shadow
+    /// ray (from its hit, moved off it as `cpu::leave` moves it, within the reach) meets the
+    /// sphere: spheres placed so that such a ray from a random pixel's hit just grazes them,
+    /// from inside or just outside, in front of its start or behind it, for cameras and suns
+    /// of every direction. Most rectangles are bounded, and they leave pixels out.
+    #[test]
+    fn shadow_rects_hold_every_pixel_whose_shadow_ray_meets_a_sphere() {
+        let mut rng = Rng::new(71);
+        let (mut met, mut bounded, mut left_out) = (0, 0, 0);
+        let unit = |rng: &mut Rng| {
+            let v = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5);
+            if v.length() > 0.01 {
+                v.normalize()
+            } else {
+                DVec3::Y
+            }
+        };
+        for round in 0..4000 {
+            let camera = Camera {
+                eye: DVec3::ZERO,
+                target: unit(&mut rng),
+                up: unit(&mut rng),
+                vfov_deg: 20.0 + rng.f64() * 100.0,
+                width: 16 + rng.below(300) as u32,
+                height: 16 + rng.below(300) as u32,
+            };
+            let Ok(()) = camera.validate() else { continue };
+            let basis = camera.basis();
+            let (x, y) = (rng.below(camera.width as u64) as u32, rng.below(camera.height as u64) as u32);
+            let d = camera.ray_dir(&basis, x, y);
+            // The pixel's hit and its shadow ray's start, 1.1 voxels off it at most.
+            let (t, voxel) = (0.5 + rng.f64() * 30.0, rng.f64() * 0.2);
+            let o = d * t + unit(&mut rng) * voxel + unit(&mut rng) * (0.1 * voxel);
+            let to_sun = unit(&mut rng);
+            // A sphere the ray from o towards the sun grazes, its surface within a billionth
+            // of the ray (inside or out), somewhere from just behind o to far ahead.
+            let r = 0.05 + rng.f64() * 3.0;
+            let side = unit(&mut rng).reject_from(to_sun).normalize_or_zero();
+            let graze = r * (1.0 + (rng.f64() - 0.5) * 2e-9);
+            let c = o + to_sun * ((rng.f64() * 1.2 - 0.2) * 40.0) + side * graze;
+            let spheres = vec![(c, r, [0; 4]), (unit(&mut rng) * 20.0, 1.0, [0; 4])];
+            let reuse = Reuse::new(vec![true], spheres, vec![0]);
+            let reach = (t + 1.1 * voxel) * (1.0 + 1e-6);
+            let rects = reuse.shadow_rects(&PixelGrid::new(&camera, &basis), to_sun, reach);
+            if sphere_interval(c, r, o, to_sun).is_some() {
+                met += 1;
+                assert!(rects_meet(&rects[..1], [x, y, x, y]), "round {round}: {:?} leaves out ({x}, {y})", rects[0]);
+            }
+            bounded += matches!(rects[0], PixelRect::Pixels { .. }) as usize;
+            let PixelRect::Pixels { x0, y0, x1, y1 } = rects[0] else { continue };
+            left_out += ((x1 - x0 + 1) * (y1 - y0 + 1) < camera.width * camera.height) as usize;
+        }
+        assert!(met > 1000, "{met} rays meet their sphere");
+        assert!(bounded > 1500 && left_out > 1000, "{bounded} bounded rectangles, {left_out} leave pixels out");
+    }
 
     /// A record made a miss in place is `MISS` bit for bit, whatever it held before.
     #[test]
