@@ -847,10 +847,6 @@ fn render_lit_here(
         }
     });
     let shadow_cone = relative_cone.as_ref().map(|c| c as &ShadowCone);
-    // Per tile, the kept records whose shadow ray may now meet a moved sphere (their pixels
-    // are shaded afresh): decided before the sun's shadow packets, so that those rays go in
-    // the packets instead of one by one in the shading pass. Of those, the ones that no
-    // instance blocked (`.1`): only a moved instance can block them now.
     // Per moved sphere, the pixels whose kept records' shadow rays may meet it (none without
     // the sun, all where the records' summaries are not known).
     let shadow_rects = match (shade_from, lights.sun) {
@@ -862,6 +858,10 @@ fn render_lit_here(
         },
         _ => Vec::new(),
     };
+    // Per tile, the kept records whose shadow ray may now meet a moved sphere (their pixels
+    // are shaded afresh): decided before the sun's shadow packets, so that those rays go in
+    // the packets instead of one by one in the shading pass. Of those, the ones that no
+    // instance blocked (`.1`): only a moved instance can block them now.
     let reshade_tiles: Vec<(u64, u64)> = match shade_from {
         Some((reuse, _)) if plan.shadows => crate::pool::map_index(tile_count, |t| {
             let (x0, y0) = ((t % tiles_x) * TILE as usize, (t / tiles_x) * TILE as usize);
@@ -870,6 +870,8 @@ fn render_lit_here(
             let row = (1u64 << tw) - 1;
             let inside = (0..th).fold(0u64, |m, ty| m | row << (ty * TILE as usize));
             let kept = inside & !traced.stored[t];
+            // No kept pixel, or no moved sphere's shadow reaches the tile: every stored shadow
+            // answer stands, and the tile's rays need not be formed to say so.
             let rect = [x0 as u32, y0 as u32, (x0 + tw - 1) as u32, (y0 + th - 1) as u32];
             if kept == 0 || !super::hitbuffer::rects_meet(&shadow_rects, rect) {
                 return (0, 0);
