@@ -223,7 +223,8 @@ pub(crate) const SUN_UNKNOWN: u32 = u32::MAX - 1;
 /// tile's `candidates(tile)` (its lanes; tiles row-major) are asked: a mostly kept frame
 /// then looks at its few traced pixels instead of all of them. Of those, the lanes
 /// `moved_only(tile)` are asked about the instances that `moved` says moved, alone
-/// ([`super::tile_search::MovedOnly`]).
+/// ([`super::tile_search::MovedOnly`]). `boxes` (or none) bound each instance's cells for
+/// the packets that test the instances one by one.
 #[allow(clippy::too_many_arguments)]
 fn sun_shadows(
     fi: &FrameInstances,
@@ -235,6 +236,7 @@ fn sun_shadows(
     candidates: impl Fn(usize) -> u64 + Sync + Send,
     moved_only: impl Fn(usize) -> u64 + Sync + Send,
     moved: &[bool],
+    boxes: &[(DVec3, DVec3)],
     needs: impl Fn(usize, usize) -> bool + Sync + Send,
     origin: impl Fn(usize, usize) -> DVec3 + Sync + Send,
 ) -> SunRays {
@@ -272,7 +274,7 @@ fn sun_shadows(
             }),
             false => super::tile_search::TileScratch::with(|scratch| {
                 super::tile_search::occluded_tile_by(
-                    fi, &origins, to_sun, lanes, only, inf, search, max_level, scratch, b,
+                    fi, &origins, to_sun, lanes, only, boxes, inf, search, max_level, scratch, b,
                 )
             }),
         };
@@ -955,7 +957,14 @@ fn render_lit_here(
             let moved_only = |t: usize| reshade_tiles.get(t).map_or(0, |r| r.1);
             let moved = reuse.as_ref().map_or(&[][..], |r| &r.moved[..]);
             let max_level = opts.max_level;
-            sun_shadows(&fi, w, height, to_sun, search, max_level, candidates, moved_only, moved, needs, origin)
+            // Boxes around the instances' cells, for the packets that test each instance
+            // (not those through the BVH).
+            let boxes = match prepared.len() <= super::beam::MAX_INSTANCES {
+                true => super::instances::occupied_world_boxes(scene, camera.eye, max_level),
+                false => Vec::new(),
+            };
+            let (b, cand) = (&boxes, candidates);
+            sun_shadows(&fi, w, height, to_sun, search, max_level, cand, moved_only, moved, b, needs, origin)
         }
         _ => SunRays::default(),
     };

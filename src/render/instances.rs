@@ -359,6 +359,33 @@ pub(crate) fn part_boxes(scene: &Scene, max_level: u32) -> Vec<PartBox> {
         .collect()
 }
 
+/// Per instance, a camera-relative axis-aligned box holding its occupied cells at
+/// `max_level` (the world box of its part's [`PartBox`], grown as the sphere of
+/// [`Prepared`] is, by [`SPHERE_PAD`] of itself and of the part's cube): a ray that misses
+/// it cannot hit the instance at that level. Flat and long instances (a ground) fill their
+/// box far more than their sphere.
+pub fn occupied_world_boxes(scene: &Scene, eye: DVec3, max_level: u32) -> Vec<(DVec3, DVec3)> {
+    let boxes = part_boxes(scene, max_level);
+    scene
+        .instances()
+        .iter()
+        .enumerate()
+        .map(|(i, inst)| {
+            let w = scene.world(i);
+            let PartBox { centre, half, .. } = boxes[inst.part];
+            let m = &w.matrix3;
+            // |M|·half: the box's corners mapped by M lie within it of the mapped centre.
+            let (a, b, c) = (m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
+            let reach = a * half.x + b * half.y + c * half.z;
+            let stretch = a.length().max(b.length()).max(c.length());
+            let size = scene.parts[inst.part].bounds.size as f64;
+            let grow = reach * (1.0 + SPHERE_PAD) + DVec3::splat(1.5 * size * stretch * SPHERE_PAD);
+            let mid = w.transform_point3(centre) - eye;
+            (mid - grow, mid + grow)
+        })
+        .collect()
+}
+
 /// A bound on how far `m` stretches any vector (its largest singular value): the largest
 /// row sum of |MᵀM| (Gershgorin), the largest column length when the columns are
 /// orthogonal (a rotation with any scale along the part's axes), more under shear.

@@ -335,7 +335,7 @@ pub fn occluded_tile(
 ) -> u64 {
     let only = MovedOnly { lanes: 0, moved: &[] };
     let mut blockers = [0; LANES];
-    occluded_tile_by(fi, origins, dir, lanes, only, t_max, search, max_level, scratch, &mut blockers)
+    occluded_tile_by(fi, origins, dir, lanes, only, &[], t_max, search, max_level, scratch, &mut blockers)
 }
 
 /// Lanes of a shadow packet that are asked about the moved instances alone: their rays, the
@@ -351,7 +351,9 @@ pub struct MovedOnly<'a> {
 
 /// [`occluded_tile`], with the lanes of `only` tested against the moved instances alone, and
 /// `blockers[k]` set to the instance that blocked lane `k` (where bit `k` of the result is
-/// set; the first in the order of `fi.prepared`).
+/// set; the first in the order of `fi.prepared`). `boxes`, unless empty, holds per instance a
+/// box around its occupied cells ([`super::instances::occupied_world_boxes`]): every search
+/// but the plain one skips the instances whose box a ray misses.
 #[allow(clippy::too_many_arguments)]
 pub fn occluded_tile_by(
     fi: &FrameInstances,
@@ -359,6 +361,7 @@ pub fn occluded_tile_by(
     dir: DVec3,
     lanes: u64,
     only: MovedOnly,
+    boxes: &[(DVec3, DVec3)],
     t_max: f64,
     search: Search,
     max_level: u32,
@@ -376,18 +379,27 @@ pub fn occluded_tile_by(
     }
     let (centre, width) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
     let dirs = [dir; LANES];
+    let inv = dir.recip();
     let mut open = lanes;
     for (i, p) in fi.prepared.iter().enumerate() {
         let asked = if only.moved.get(i).is_some_and(|m| !m) { open & !only.lanes } else { open };
         if asked == 0 || sphere_interval(p.centre, p.radius + width, centre, dir).is_none() {
             continue;
         }
+        // The slab test rounds by a few units in 2⁻⁵² of the distances it spans; the box is
+        // grown by far more (as `Reuse::shadow_valid_among` grows the moved boxes).
+        let cells = boxes.get(i).filter(|_| search != Search::Plain).map(|&(lo, hi)| {
+            let slack = DVec3::splat(1e-9 * (centre.length() + width + lo.length() + hi.length()));
+            (lo - slack, hi + slack)
+        });
         let mut todo = 0u64;
         for k in each(asked) {
-            // Every search but the plain one skips instances whose sphere the ray misses (or
-            // enters beyond t_max): that changes no answer, the octree lies inside the sphere.
+            // Every search but the plain one skips instances whose box or sphere the ray
+            // misses (or enters beyond t_max): that changes no answer, the octree lies inside
+            // both. (The box first: a ground's sphere holds every ray above it.)
             if search != Search::Plain
-                && !sphere_interval(p.centre, p.radius, origins[k], dir).is_some_and(|(t0, _)| t0 <= t_max)
+                && (cells.is_some_and(|(lo, hi)| super::bvh::box_entry(lo, hi, origins[k], inv, t_max).is_none())
+                    || !sphere_interval(p.centre, p.radius, origins[k], dir).is_some_and(|(t0, _)| t0 <= t_max))
             {
                 continue;
             }
@@ -616,6 +628,52 @@ mod tests {
         }
         assert!(checked > 100, "{checked} hits");
         assert!(skipped > 50, "{skipped} instance traces skipped");
+    }
+
+    /// Shadow packets told the boxes around the instances' cells
+    /// ([`super::super::instances::occupied_world_boxes`]) answer as the plain one-ray test,
+    /// lane for lane, for rays from points in and around the instances in every direction;
+    /// the boxes turn many rays away.
+    #[test]
+    fn shadow_packets_skip_only_instances_whose_cells_a_ray_misses() {
+        let (mut blocked, mut checked, mut turned_away) = (0, 0, 0);
+        for seed in 0..16u64 {
+            let scene = scene(seed + 90, 5);
+            let prepared = prepare(&scene, DVec3::ZERO, true);
+            let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
+            let boxes = crate::render::instances::occupied_world_boxes(&scene, DVec3::ZERO, u32::MAX);
+            let mut rng = Rng::new(seed);
+            for _ in 0..8 {
+                // Origins around one instance's cells; one direction for the packet.
+                let (lo, hi) = boxes[rng.below(5) as usize];
+                let origins: Vec<DVec3> = (0..LANES)
+                    .map(|_| lo + (hi - lo) * DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 1.4 - (hi - lo) * 0.2)
+                    .collect();
+                let dir = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5).normalize();
+                let only = MovedOnly { lanes: 0, moved: &[] };
+                let mut b = [0; LANES];
+                let got = TileScratch::with(|s| {
+                    occluded_tile_by(&fi, &origins, dir, u64::MAX, only, &boxes, 2.0, Search::Cull, u32::MAX, s, &mut b)
+                });
+                for (k, &o) in origins.iter().enumerate() {
+                    let want = crate::render::visibility::occluded(&fi, o, dir, 2.0, Search::Plain, u32::MAX);
+                    assert_eq!(got & (1 << k) != 0, want, "seed {seed}, lane {k}");
+                    blocked += want as usize;
+                    checked += 1;
+                    let inv = dir.recip();
+                    turned_away += boxes
+                        .iter()
+                        .zip(&prepared)
+                        .filter(|((lo, hi), p)| {
+                            sphere_interval(p.centre, p.radius, o, dir).is_some_and(|(t0, _)| t0 <= 2.0)
+                                && crate::render::bvh::box_entry(*lo, *hi, o, inv, 2.0).is_none()
+                        })
+                        .count();
+                }
+            }
+        }
+        assert!(blocked > checked / 10 && blocked < checked * 9 / 10, "{blocked} of {checked} rays blocked");
+        assert!(turned_away > 200, "{turned_away} instances turned away by their boxes, {checked} rays");
     }
 
     /// The thread's kept scratch finds what the one-ray search finds, lane for lane, after it
