@@ -360,10 +360,10 @@ pub(crate) fn part_boxes(scene: &Scene, max_level: u32) -> Vec<PartBox> {
 }
 
 /// Per instance, a camera-relative axis-aligned box holding its occupied cells at
-/// `max_level` (the world box of its part's [`PartBox`], grown as the sphere of
-/// [`Prepared`] is, by [`SPHERE_PAD`] of itself and of the part's cube): a ray that misses
-/// it cannot hit the instance at that level. Flat and long instances (a ground) fill their
-/// box far more than their sphere.
+/// `max_level` (the world box of its part's [`crate::svo::Svo::occupied_box`], grown as
+/// the sphere of [`Prepared`] is, by [`SPHERE_PAD`] of itself and of the part's cube): a
+/// ray that misses it cannot hit the instance at that level. Flat and long instances (a
+/// ground) fill their box far more than their sphere.
 pub fn occupied_world_boxes(scene: &Scene, eye: DVec3, max_level: u32) -> Vec<(DVec3, DVec3)> {
     let boxes = part_boxes(scene, max_level);
     scene
