@@ -216,7 +216,9 @@ pub(crate) const SUN_FREE: u32 = u32::MAX;
 pub(crate) const SUN_UNKNOWN: u32 = u32::MAX - 1;
 
 /// The sun's shadow rays (towards `to_sun`, unbounded, down to the frame's `max_level`) of
-/// the pixels `needs(x, y)` says, starting at `origin(x, y)`, traced tile by tile as packets
+/// the pixels `needs(x, y)` says, starting at `origin(x, y, d)` (`d` the pixel's ray
+/// direction, which `dirs(x0, y0, lanes, out)` writes for a tile's lanes as
+/// `ray_setup::tile_dirs` does), traced tile by tile as packets
 /// ([`super::tile_search::occluded_tile`]; through the instance BVH together where the frame
 /// searches it, [`super::packet_bvh::occluded_tile_bvh`]): per pixel of a `width` × `height`
 /// frame. Only a
@@ -238,7 +240,8 @@ fn sun_shadows(
     moved: &[bool],
     boxes: &[(DVec3, DVec3)],
     needs: impl Fn(usize, usize) -> bool + Sync + Send,
-    origin: impl Fn(usize, usize) -> DVec3 + Sync + Send,
+    dirs: impl Fn(usize, usize, u64, &mut [DVec3]) + Sync + Send,
+    origin: impl Fn(usize, usize, DVec3) -> DVec3 + Sync + Send,
 ) -> SunRays {
     let t = TILE as usize;
     let tiles_x = width.div_ceil(t);
@@ -262,8 +265,10 @@ fn sun_shadows(
         }
         // (Filled only for tiles with rays: most of a mostly kept frame's have none.)
         let mut origins = [DVec3::ZERO; (TILE * TILE) as usize];
+        let mut d = [DVec3::ZERO; (TILE * TILE) as usize];
+        dirs(x0, y0, lanes, &mut d);
         for k in super::tile_search::each(lanes) {
-            origins[k] = origin(x0 + k % t, y0 + k / t);
+            origins[k] = origin(x0 + k % t, y0 + k / t, d[k]);
         }
         let only = super::tile_search::MovedOnly { lanes: moved_only(tile) & lanes, moved };
         let mut blockers = [0; LANES];
@@ -941,9 +946,16 @@ fn render_lit_here(
                     r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0
                 }
             };
-            let origin = |x: usize, y: usize| {
+            let origin = |x: usize, y: usize, d: DVec3| {
                 let r = &records[y * w + x];
-                leave(r, ray_dir(x, y) * r.t as f64)
+                leave(r, d * r.t as f64)
+            };
+            // A tile's `ray_dir`s four at a time (pixels past the image's edges take its last
+            // column's or row's: they cast no rays).
+            let dirs = |x0: usize, y0: usize, lanes: u64, out: &mut [DVec3]| {
+                let sx: [f64; TILE as usize] = std::array::from_fn(|i| columns[(x0 + i).min(w - 1)]);
+                let sy: [f64; TILE as usize] = std::array::from_fn(|i| rows[(y0 + i).min(h - 1)]);
+                super::ray_setup::tile_dirs(&basis, &sx, &sy, lanes, out);
             };
             // Only a pixel traced this frame, or reshaded, can be without its kept colour.
             let candidates = |t: usize| {
@@ -964,7 +976,7 @@ fn render_lit_here(
                 false => Vec::new(),
             };
             let (b, cand) = (&boxes, candidates);
-            sun_shadows(&fi, w, height, to_sun, search, max_level, cand, moved_only, moved, b, needs, origin)
+            sun_shadows(&fi, w, height, to_sun, search, max_level, cand, moved_only, moved, b, needs, dirs, origin)
         }
         _ => SunRays::default(),
     };
@@ -1033,6 +1045,11 @@ fn render_lit_here(
             // Misses stored without a search, and of those the ones this frame already shows.
             let missed = traced.missed.get(t).copied().unwrap_or(0);
             let shown = shown_missed.get(t).copied().unwrap_or(0);
+            // The span's ray directions, `ray_dir`'s bits four at a time (a pixel past the
+            // image's right edge takes the last column's: it is not shaded).
+            let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
+            let sx: [f64; TILE as usize] = std::array::from_fn(|i| columns[(span.start + i).min(w - 1)]);
+            super::ray_setup::tile_dirs(&basis, &sx, &[rows[y]; TILE as usize], (1 << TILE) - 1, &mut dirs);
             for x in span {
                 let k = y * w + x;
                 let bit = 1 << (row_shift + x % TILE as usize);
@@ -1070,7 +1087,7 @@ fn render_lit_here(
                         // reflectance × sky.
                         None => (albedo + Vec3::splat(ks)) * sky,
                     };
-                    let d = ray_dir(x, y);
+                    let d = dirs[x % TILE as usize];
                     let mut blocker = SUN_FREE;
                     let radiance = direct_light(
                         r,
