@@ -632,6 +632,13 @@ fn render_lit_here(
     // (their reuse, shadow and shading tests), three divisions each.
     let (columns, rows) = camera.screen_slopes(&basis);
     let ray_dir = |x: usize, y: usize| basis.dir(columns[x], rows[y]);
+    // `ray_dir` of the lanes `lanes` of the 8×8 tile at (x0, y0), four at a time, into `out`
+    // (pixels past the image's edges take its last column's or row's: they are not asked).
+    let tile_dirs = |x0: usize, y0: usize, lanes: u64, out: &mut [DVec3]| {
+        let sx: [f64; TILE as usize] = std::array::from_fn(|i| columns[(x0 + i).min(w - 1)]);
+        let sy: [f64; TILE as usize] = std::array::from_fn(|i| rows[(y0 + i).min(h - 1)]);
+        super::ray_setup::tile_dirs(&basis, &sx, &sy, lanes, out);
+    };
     let mut hits = hits;
     // Last frame's instances' memory, refilled.
     let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
@@ -950,13 +957,6 @@ fn render_lit_here(
                 let r = &records[y * w + x];
                 leave(r, d * r.t as f64)
             };
-            // A tile's `ray_dir`s four at a time (pixels past the image's edges take its last
-            // column's or row's: they cast no rays).
-            let dirs = |x0: usize, y0: usize, lanes: u64, out: &mut [DVec3]| {
-                let sx: [f64; TILE as usize] = std::array::from_fn(|i| columns[(x0 + i).min(w - 1)]);
-                let sy: [f64; TILE as usize] = std::array::from_fn(|i| rows[(y0 + i).min(h - 1)]);
-                super::ray_setup::tile_dirs(&basis, &sx, &sy, lanes, out);
-            };
             // Only a pixel traced this frame, or reshaded, can be without its kept colour.
             let candidates = |t: usize| {
                 if shade_from.is_some() {
@@ -976,7 +976,7 @@ fn render_lit_here(
                 false => Vec::new(),
             };
             let (b, cand) = (&boxes, candidates);
-            sun_shadows(&fi, w, height, to_sun, search, max_level, cand, moved_only, moved, b, needs, dirs, origin)
+            sun_shadows(&fi, w, height, to_sun, search, max_level, cand, moved_only, moved, b, needs, tile_dirs, origin)
         }
         _ => SunRays::default(),
     };
@@ -1045,11 +1045,9 @@ fn render_lit_here(
             // Misses stored without a search, and of those the ones this frame already shows.
             let missed = traced.missed.get(t).copied().unwrap_or(0);
             let shown = shown_missed.get(t).copied().unwrap_or(0);
-            // The span's ray directions, `ray_dir`'s bits four at a time (a pixel past the
-            // image's right edge takes the last column's: it is not shaded).
+            // The span's ray directions: the first row of the tile at (span.start, y).
             let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
-            let sx: [f64; TILE as usize] = std::array::from_fn(|i| columns[(span.start + i).min(w - 1)]);
-            super::ray_setup::tile_dirs(&basis, &sx, &[rows[y]; TILE as usize], (1 << TILE) - 1, &mut dirs);
+            tile_dirs(span.start, y, (1 << TILE) - 1, &mut dirs);
             for x in span {
                 let k = y * w + x;
                 let bit = 1 << (row_shift + x % TILE as usize);
