@@ -138,7 +138,8 @@ impl Origins<'_> {
 /// lane `k`'s stored hit lay at `t[k]` (−∞ where none is known). An instance that has not
 /// moved since lies where it lay, so its nearest hit along the ray is where it was, at `t[k]`
 /// or beyond (the stored hit was the nearest of all): it cannot beat a hit found nearer than
-/// `t[k]`, and the lane need not trace it then.
+/// `t[k]`, and the lane need not trace it then; otherwise the lane's walk through it starts
+/// just short of `t[k]`.
 #[derive(Clone, Copy, Debug)]
 pub struct StoredHits<'a> {
     /// Per lane, the t of its stored hit.
@@ -265,7 +266,8 @@ pub fn nearest_listed_packet<'l>(
 /// are traced through its octree from `start` (its beam start, or `opts.t_min`) up to that
 /// hit, and a hit found replaces the best where it is nearer, or as near on a lower instance.
 /// With `stored`, a lane whose best so far is nearer than its stored hit skips the instance
-/// when it has not moved ([`StoredHits`]).
+/// when it has not moved, and traces it from just short of the stored hit otherwise
+/// ([`StoredHits`]).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn nearest_instance(
@@ -313,8 +315,53 @@ pub(super) fn nearest_instance(
         Origins::One(o) => scratch.map_lanes(p, p.to_unit.point(o), dirs, todo),
         Origins::Each(at) => scratch.map_lanes_from(p, at, dirs, todo),
     }
+    if let Some(t) = stayed {
+        // Nor can it be hit before the stored hit: its walk starts just short of it.
+        for k in each(todo) {
+            if let Some(r) = scratch.rays[k].as_ref() {
+                let late = late_start(t[k], r.t_scale);
+                if late > scratch.opts[k].t_min {
+                    scratch.opts[k].t_min = late;
+                }
+            }
+        }
+    }
     for (k, h) in scratch.trace(&fi.parts[p.part], todo) {
         keep(&mut out[k], i, h);
+    }
+}
+
+/// How far short of a stored hit an instance that stayed put starts its walk
+/// ([`late_start`]), in the internal t of its ray (about unit-cube lengths, the cube entered
+/// within a few units of t = 0). The walk's plane crossings round by at most a unit and a half
+/// in the last place at the root and half a unit per halving below, about 5·10⁻⁶ at depth 16;
+/// 2⁻¹⁴ is twelve times that, and under a twentieth of a voxel at depth 9. (The random
+/// scenes' walks at depth 6 needed 10⁻⁶: `late_starts_find_the_stored_hits_bit_for_bit`.)
+const LATE_MARGIN: f64 = 1.0 / 16384.0;
+
+/// The t (world units) at which a ray whose stored hit lay at `t` may start its walk through
+/// an instance that has not moved since, its internal t scaled by `t_scale`
+/// ([`UnitRay::t_scale`]); −∞ where no hit is known. The instance's own nearest hit `t_i`
+/// (the same f32 value as when stored) is no nearer than the stored hit, the nearest of all,
+/// so its f64 entry lies within half a unit in the last place of `t` below it. The start lies
+/// a whole unit in the last place and [`LATE_MARGIN`] internal units below that, rounded
+/// down: the walk's f32 entry of the hit voxel, within its rounding of the exact entry, lies
+/// beyond it. Then the walk visits the voxels it visited from an earlier start, less those
+/// it leaves before the start (none of which it reported), and reports the hit unclamped,
+/// the same bits: raising `t_min` changes a walk only by what it skips and clamps.
+#[inline]
+fn late_start(t: f32, t_scale: f64) -> f32 {
+    if !(t.is_finite() && t > 0.0) {
+        return f32::NEG_INFINITY;
+    }
+    // (The unit above `t`: below a power of two the one below is half as large.)
+    let ulp = f32::from_bits(t.to_bits() + 1) - t;
+    let s = (t as f64 - ulp as f64 - LATE_MARGIN * t_scale) as f32;
+    // One unit lower again, for the rounding of the cast (towards +∞ at worst).
+    if s > 0.0 {
+        f32::from_bits(s.to_bits() - 1)
+    } else {
+        f32::NEG_INFINITY
     }
 }
 
@@ -628,6 +675,79 @@ mod tests {
         }
         assert!(checked > 100, "{checked} hits");
         assert!(skipped > 50, "{skipped} instance traces skipped");
+    }
+
+    /// Walks through instances that stayed put, started just short of the stored hits
+    /// ([`late_start`]), find those hits bit for bit: every instance is told it stayed and
+    /// every lane its own nearest hit, so each lane walks each instance it is not skipped
+    /// for from just short of that hit. Seen from the scene's side and from far away, where
+    /// a unit in the last place of t is large against the instances.
+    #[test]
+    fn late_starts_find_the_stored_hits_bit_for_bit() {
+        let opts = TraceOptions::default();
+        let (mut checked, mut late) = (0, 0);
+        for seed in 0..16u64 {
+            let scene = scene(seed + 70, 5);
+            for far in [0.0, 200.0 * (1 + seed) as f64] {
+                let eye = DVec3::new(0.0, 0.0, far);
+                // The tile's fan narrowed to meet the scene from `eye`.
+                let narrow = 4.0 / (4.0 + far);
+                let dirs: Vec<DVec3> =
+                    tile(seed + 3).iter().map(|d| DVec3::new(d.x * narrow, d.y * narrow, -1.0)).collect();
+                let prepared = prepare(&scene, eye, true);
+                let fi = FrameInstances { parts: &scene.parts, prepared: &prepared, bvh: None, starts: None };
+                let one = Origins::One(DVec3::ZERO);
+                let mut t = [f32::NEG_INFINITY; LANES];
+                let mut want = [None; LANES];
+                for k in 0..LANES {
+                    want[k] = nearest_work(&fi, DVec3::ZERO, dirs[k], Search::Plain, &opts, &mut Work::default());
+                    t[k] = want[k].map_or(f32::NEG_INFINITY, |h| h.hit.t);
+                }
+                let stayed = vec![false; 5];
+                let mut out = [None; LANES];
+                TileScratch::with(|s| {
+                    let stored = Some(StoredHits { t: &t, moved: &stayed });
+                    let w = &mut Work::default();
+                    nearest_packet(&fi, one, &dirs, u64::MAX, Search::CullSort, &opts, w, s, &mut out, None, stored);
+                    for i in 0..5 {
+                        // The lanes that would walk instance i from later than without.
+                        let p = &prepared[i];
+                        s.map_lanes(p, p.to_unit.point(DVec3::ZERO), &dirs, u64::MAX);
+                        late += (0..LANES)
+                            .filter(|&k| s.rays[k].is_some_and(|r| late_start(t[k], r.t_scale) > opts.t_min))
+                            .count();
+                    }
+                });
+                for k in 0..LANES {
+                    assert_eq!(out[k], want[k], "seed {seed}, eye {eye}, lane {k}");
+                    checked += want[k].is_some() as usize;
+                }
+            }
+        }
+        assert!(checked > 500, "{checked} hits");
+        assert!(late > 1000, "{late} late starts");
+    }
+
+    /// `late_start`'s start, taken into a ray's internal t, lies at least [`LATE_MARGIN`]
+    /// below the exact t of every f64 entry that rounds to the stored hit or beyond, for
+    /// stored hits across the binades and internal scales from far below one to far above.
+    #[test]
+    fn late_starts_keep_their_margin_below_every_entry_that_rounds_to_the_hit() {
+        let mut rng = Rng::new(5);
+        for _ in 0..20_000 {
+            let t = (rng.f64() * 40.0 - 20.0).exp2() as f32;
+            let t_scale = (rng.below(40) as f64 - 20.0).exp2();
+            let start = late_start(t, t_scale) as f64;
+            // The least f64 that rounds to `t` as f32: half way to the f32 below.
+            let below = f32::from_bits(t.to_bits() - 1) as f64;
+            let least = (below + t as f64) * 0.5;
+            assert!(start.is_finite() || t as f64 <= 2.0 * LATE_MARGIN * t_scale, "t {t}");
+            assert!((least - start) / t_scale >= LATE_MARGIN, "t {t}, scale {t_scale}, start {start}");
+        }
+        assert_eq!(late_start(f32::NEG_INFINITY, 1.0), f32::NEG_INFINITY);
+        assert_eq!(late_start(0.0, 1.0), f32::NEG_INFINITY);
+        assert_eq!(late_start(f32::MAX, 1.0), f32::NEG_INFINITY);
+        assert_eq!(late_start(f32::NAN, 1.0), f32::NEG_INFINITY);
     }
 
     /// Shadow packets told the boxes around the instances' cells
