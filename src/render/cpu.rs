@@ -732,31 +732,38 @@ fn render_lit_here(
         moved_flags,
         missed_before: &records_missed,
     };
-    // Per tile, the moved spheres whose pixel rectangles reach into it (usually none).
+    // Per tile whose pixels may need tracing, each pixel's nearest entry into the moved
+    // spheres whose pixel rectangles reach into it (usually none; `Reuse::tile_entries`).
+    let no_entries = [f64::INFINITY; (TILE * TILE) as usize];
     let tile_spheres = |rect: [u32; 4]| match &reuse {
         Some(r) => {
             let mut spheres = r.spheres_in(rect);
+            let [x0, y0, x1, y1] = rect;
             if !spheres.is_empty() {
                 // The rectangles are loose (a box's projection, a pixel wider): the tile's
                 // cone drops the spheres none of its rays can meet.
-                let [x0, y0, x1, y1] = rect;
                 let cone = super::beam::TileCone::new(&TileRays::new(camera, &basis, x0, y0, x1, y1));
                 spheres.retain(|&k| {
                     let (c, radius, _) = r.moved_spheres[k as usize];
                     cone.meets_ball(c, radius)
                 });
             }
-            let t = (rect[1] / TILE) as usize * tiles_x + (rect[0] / TILE) as usize;
+            let t = (y0 / TILE) as usize * tiles_x + (x0 / TILE) as usize;
             match old_tiles.get(t) {
                 Some(tile) if r.tile_kept(tile, &spheres) => None,
-                _ => Some(spheres),
+                _ if spheres.is_empty() => Some(no_entries),
+                _ => {
+                    let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
+                    tile_dirs(x0 as usize, y0 as usize, u64::MAX, &mut dirs);
+                    Some(r.tile_entries(&spheres, x0, y0, &dirs))
+                }
             }
         }
-        None => Some(Vec::new()),
+        None => Some(no_entries),
     };
-    let pending = |spheres: &Vec<u32>, x: u32, y: u32, rec: &mut HitRecord| match &reuse {
+    let pending = |entries: &[f64; (TILE * TILE) as usize], x: u32, y: u32, rec: &mut HitRecord| match &reuse {
         // `rec` still holds last frame's record of this pixel.
-        Some(r) => r.todo(rec, spheres, || ray_dir(x as usize, y as usize), x, y),
+        Some(r) => r.todo(rec, entries[((y % TILE) * TILE + x % TILE) as usize]),
         None => Todo::All,
     };
     // The instances are prepared for this frame and stay so while it traces.

@@ -702,29 +702,57 @@ impl Reuse {
         Some(walked.unwrap_or_else(|| (0..n).filter(|&k| suspect(k)).fold(0, |m, k| m | 1 << k)))
     }
 
-    /// What pixel (x, y) with stored record `r` needs this frame. `spheres` lists the moved
-    /// spheres that may reach the pixel ([`Reuse::spheres_in`] of its tile); `dir` gives the
-    /// unit direction of its ray from the eye, asked for only when one of their rectangles
-    /// holds the pixel.
+    /// What a pixel with stored record `r` needs this frame, where `entry` is the nearest
+    /// entry of its ray into the moved spheres that may reach it ([`Reuse::tile_entries`]).
     #[inline]
-    pub fn todo(&self, r: &HitRecord, spheres: &[u32], dir: impl Fn() -> DVec3, x: u32, y: u32) -> Todo {
+    pub fn todo(&self, r: &HitRecord, entry: f64) -> Todo {
         if r.instance >= 0 && self.moved[r.instance as usize] {
             return Todo::Again { instance: r.instance as u32, t: r.t };
         }
-        let t_hit = r.t as f64;
-        let mut d = None;
-        let crossed = spheres.iter().any(|&k| {
-            let (c, rad, [x0, y0, x1, y1]) = self.moved_spheres[k as usize];
-            x >= x0 && x <= x1 && y >= y0 && y <= y1 && {
-                let d = *d.get_or_insert_with(&dir);
-                sphere_interval(c, rad, DVec3::ZERO, d).is_some_and(|(t0, _)| t0 <= t_hit)
-            }
-        });
+        // (A NaN or +∞ entry: no moved sphere meets the ray.)
+        let crossed = entry <= r.t as f64;
         match (crossed, self.moved_search().is_empty()) {
             (false, _) => Todo::Keep,
             (true, true) => Todo::All,
             (true, false) => Todo::Moved { t: r.t, instance: r.instance },
         }
+    }
+
+    /// Per lane `k` of the 8×8 tile whose top left pixel is (x0, y0) (pixel
+    /// (x0 + k % 8, y0 + k / 8), its ray from the eye along `dirs[k]`), the least entry t
+    /// into the moved spheres of `spheres` ([`Reuse::spheres_in`] of the tile) whose pixel
+    /// rectangle holds the pixel and that the ray meets, +∞ where none: [`sphere_interval`]'s
+    /// operations in its order, so the same t. [`Reuse::todo`] compares it with the stored
+    /// hit. Formed for the whole tile at once, in vectors (four lanes in AVX2 where the CPU
+    /// has it): asked pixel by pixel, a mostly kept frame's test took a tenth of its primary
+    /// rays' time (docs/benchmarks.md, step 143).
+    ///
+    /// # Panics
+    /// When `dirs` holds fewer than 64 directions.
+    pub fn tile_entries(&self, spheres: &[u32], x0: u32, y0: u32, dirs: &[DVec3]) -> [f64; 64] {
+        let mut d = [[0.0; 64]; 3];
+        for (k, v) in dirs[..64].iter().enumerate() {
+            (d[0][k], d[1][k], d[2][k]) = (v.x, v.y, v.z);
+        }
+        let mut out = [f64::INFINITY; 64];
+        let axis =
+            |lo: u32, hi: u32, at: u32| (0..8).filter(|&i| at + i >= lo && at + i <= hi).fold(0u64, |m, i| m | 1 << i);
+        for &k in spheres {
+            let (c, radius, [rx0, ry0, rx1, ry1]) = self.moved_spheres[k as usize];
+            // The lanes inside the sphere's rectangle: its columns in every row it holds.
+            let (columns, rows) = (axis(rx0, rx1, x0), axis(ry0, ry1, y0));
+            let inside = (0..8).filter(|&r| rows & 1 << r != 0).fold(0u64, |m, r| m | columns << (8 * r));
+            if inside != 0 {
+                #[cfg(target_arch = "x86_64")]
+                if super::ray_setup::avx2() {
+                    // SAFETY: the CPU has AVX and AVX2 (checked above).
+                    unsafe { nearest_entries_avx2(c, radius, inside, &d, &mut out) };
+                    continue;
+                }
+                nearest_entries(c, radius, inside, &d, &mut out);
+            }
+        }
+        out
     }
 
     /// Whether the shadow ray of record `r` (the same record as the stored frame's, under the
@@ -897,6 +925,34 @@ impl Ball {
         let across = (oc - to_sun * along).length();
         across > r + self.radius + margin || along + r + self.radius + margin < 0.0
     }
+}
+
+/// [`Reuse::tile_entries`] for one sphere (centre `c`, `radius`) and the lanes of `inside`:
+/// lowers `out[k]` to the ray's entry t where the ray along (`d[0][k]`, `d[1][k]`, `d[2][k]`)
+/// meets the sphere ahead of the eye, as [`sphere_interval`] answers it from the eye.
+/// Branch-free over the 64 lanes, so that it compiles to vectors.
+#[inline(always)]
+fn nearest_entries(c: DVec3, radius: f64, inside: u64, d: &[[f64; 64]; 3], out: &mut [f64; 64]) {
+    // `sphere_interval`'s c from the origin: the centre's squared length less r².
+    let cc = c.length_squared() - radius * radius;
+    for k in 0..64 {
+        let b = c.x * d[0][k] + c.y * d[1][k] + c.z * d[2][k];
+        let disc = b * b - cc;
+        let s = disc.sqrt();
+        let (t0, t1) = (b - s, b + s);
+        let meets = (inside >> k) & 1 != 0 && disc >= 0.0 && t1 >= 0.0 && t0 < out[k];
+        out[k] = if meets { t0 } else { out[k] };
+    }
+}
+
+/// [`nearest_entries`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU has AVX and AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2")]
+unsafe fn nearest_entries_avx2(c: DVec3, radius: f64, inside: u64, d: &[[f64; 64]; 3], out: &mut [f64; 64]) {
+    nearest_entries(c, radius, inside, d, out)
 }
 
 #[cfg(test)]
@@ -1089,6 +1145,62 @@ mod tests {
         for r in rects {
             assert_eq!(binned.spheres_in(r), plain.spheres_in(r), "{r:?}");
         }
+    }
+
+    /// A tile's nearest sphere entries, formed for its 64 lanes at once, are pixel by pixel
+    /// the least entry t of `sphere_interval` (the same bits) among the spheres whose
+    /// rectangle holds the pixel, so a stored hit is kept or traced as the test of each
+    /// sphere would have it: spheres around, behind and holding the eye, grazed by the
+    /// tile's rays, their rectangles cutting across it.
+    #[test]
+    fn tile_entries_are_each_pixels_nearest_sphere_entry() {
+        let mut rng = Rng::new(23);
+        let camera = Camera {
+            eye: DVec3::new(1.0, 2.0, 9.0),
+            target: DVec3::ZERO,
+            up: DVec3::Y,
+            vfov_deg: 50.0,
+            width: 80,
+            height: 48,
+        };
+        let basis = camera.basis();
+        let (mut met, mut missed) = (0, 0);
+        for round in 0..300 {
+            let (x0, y0) = (rng.below(10) as u32 * TILE, rng.below(6) as u32 * TILE);
+            let dirs: Vec<DVec3> = (0..64).map(|k| camera.ray_dir(&basis, x0 + k % TILE, y0 + k / TILE)).collect();
+            let spheres: Vec<(DVec3, f64, [u32; 4])> = (0..1 + rng.below(5))
+                .map(|_| {
+                    // Centred on a lane's ray (some grazed by it), or around the eye.
+                    let d = dirs[rng.below(64) as usize];
+                    let radius = rng.range(0.01, 2.0) as f64;
+                    let off = rng.unit_vector().as_dvec3() * radius * rng.range(0.0, 1.2) as f64;
+                    let c = if round % 7 == 0 { off } else { d * rng.range(-3.0, 15.0) as f64 + off };
+                    let (a, b) = (x0 + rng.below(12) as u32, y0 + rng.below(12) as u32);
+                    let rect = [a.saturating_sub(6), b.saturating_sub(6), a, b];
+                    (c, radius, rect)
+                })
+                .collect();
+            let n = spheres.len() as u32;
+            let reuse = Reuse::new(vec![false], spheres.clone(), vec![1]);
+            let listed: Vec<u32> = (0..n).filter(|_| rng.below(5) != 0).collect();
+            let entries = reuse.tile_entries(&listed, x0, y0, &dirs);
+            for (k, d) in dirs.iter().enumerate() {
+                let (x, y) = (x0 + k as u32 % TILE, y0 + k as u32 / TILE);
+                let want = listed
+                    .iter()
+                    .map(|&i| spheres[i as usize])
+                    .filter(|&(_, _, [a, b, c, e])| x >= a && x <= c && y >= b && y <= e)
+                    .filter_map(|(c, r, _)| sphere_interval(c, r, DVec3::ZERO, *d).map(|(t0, _)| t0))
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(entries[k].to_bits(), want.to_bits(), "round {round}, lane {k}");
+                if want.is_finite() {
+                    met += 1;
+                } else {
+                    missed += 1;
+                }
+            }
+        }
+        assert!(met > 2000 && missed > 2000, "{met} lanes met a sphere, {missed} none");
     }
 
     /// With many moved spheres the shadow tests walk a BVH over them: pixel by pixel and

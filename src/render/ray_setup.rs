@@ -96,9 +96,9 @@ fn scalar(
     }
 }
 
-/// Whether the CPU runs [`avx::map_four`] (asked once).
+/// Whether the CPU runs [`avx::map_four`] and other AVX2 code (asked once).
 #[cfg(target_arch = "x86_64")]
-fn avx2() -> bool {
+pub(super) fn avx2() -> bool {
     static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *HAS.get_or_init(|| std::arch::is_x86_feature_detected!("avx") && std::arch::is_x86_feature_detected!("avx2"))
 }
