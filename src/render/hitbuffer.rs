@@ -709,8 +709,8 @@ impl Reuse {
         if r.instance >= 0 && self.moved[r.instance as usize] {
             return Todo::Again { instance: r.instance as u32, t: r.t };
         }
-        // (A NaN or +∞ entry: no moved sphere meets the ray.)
-        let crossed = entry <= r.t as f64;
+        // An entry of +∞: no moved sphere meets the ray (a stored miss's t is +∞ too).
+        let crossed = entry < f64::INFINITY && entry <= r.t as f64;
         match (crossed, self.moved_search().is_empty()) {
             (false, _) => Todo::Keep,
             (true, true) => Todo::All,
@@ -1149,8 +1149,8 @@ mod tests {
 
     /// A tile's nearest sphere entries, formed for its 64 lanes at once, are pixel by pixel
     /// the least entry t of `sphere_interval` (the same bits) among the spheres whose
-    /// rectangle holds the pixel, so a stored hit is kept or traced as the test of each
-    /// sphere would have it: spheres around, behind and holding the eye, grazed by the
+    /// rectangle holds the pixel, and a stored hit or miss is kept or traced as the test of
+    /// each sphere would have it: spheres around, behind and holding the eye, grazed by the
     /// tile's rays, their rectangles cutting across it.
     #[test]
     fn tile_entries_are_each_pixels_nearest_sphere_entry() {
@@ -1193,6 +1193,19 @@ mod tests {
                     .filter_map(|(c, r, _)| sphere_interval(c, r, DVec3::ZERO, *d).map(|(t0, _)| t0))
                     .fold(f64::INFINITY, f64::min);
                 assert_eq!(entries[k].to_bits(), want.to_bits(), "round {round}, lane {k}");
+                // What the pixel needs, for stored hits before, at and past the entry and for
+                // a stored miss: traced where a listed sphere holding the pixel is entered no
+                // later than the stored hit.
+                for t in [want as f32 * 0.999, want as f32, want as f32 * 1.001, f32::INFINITY] {
+                    let rec = HitRecord { t, instance: 0, ..HitRecord::MISS };
+                    let crossed = listed.iter().map(|&i| spheres[i as usize]).any(|(c, r, [a, b, cx, e])| {
+                        x >= a && x <= cx && y >= b && y <= e && {
+                            sphere_interval(c, r, DVec3::ZERO, *d).is_some_and(|(t0, _)| t0 <= t as f64)
+                        }
+                    });
+                    let todo = if crossed { Todo::Moved { t, instance: 0 } } else { Todo::Keep };
+                    assert_eq!(reuse.todo(&rec, entries[k]), todo, "round {round}, lane {k}, stored t {t}");
+                }
                 if want.is_finite() {
                     met += 1;
                 } else {
