@@ -913,12 +913,41 @@ fn render_lit_here(
             if suspects == Some(0) {
                 return (0, 0);
             }
+            // The same ray, blocked by an instance that stayed where it was: blocked still.
+            let blocked_still = |blocker: u32| reuse.moved.get(blocker as usize).is_some_and(|m| !m);
+            if let (Some(suspects), Some(sun)) = (suspects, lights.sun) {
+                // The kept records that cast a shadow ray (`Reuse::shadow_valid_among`'s), and
+                // of those the ones that no instance blocked.
+                let (mut asked, mut free) = (0u64, 0u64);
+                for k in super::tile_search::each(kept) {
+                    let at = (y0 + k / TILE as usize) * w + x0 + k % TILE as usize;
+                    let (r, blocker) = (&records[at], sun_blockers[at]);
+                    if !blocked_still(blocker) && r.instance >= 0 && r.normal.dot(sun.to_sun) > 0.0 {
+                        asked |= 1 << k;
+                        free |= ((blocker == SUN_FREE) as u64) << k;
+                    }
+                }
+                if asked == 0 {
+                    return (0, 0);
+                }
+                // Their starts, where the shading pass starts them, and the tile's test of all
+                // of them against each suspect at once.
+                let mut dirs = [DVec3::ZERO; (TILE * TILE) as usize];
+                tile_dirs(x0, y0, asked, &mut dirs);
+                let mut from = [[0.0; (TILE * TILE) as usize]; 3];
+                for k in super::tile_search::each(asked) {
+                    let r = &records[(y0 + k / TILE as usize) * w + x0 + k % TILE as usize];
+                    let o = leave(r, dirs[k] * r.t as f64);
+                    (from[0][k], from[1][k], from[2][k]) = (o.x, o.y, o.z);
+                }
+                let out = reuse.tile_shadows_met(suspects, asked, &from, sun.to_sun.as_dvec3());
+                return (out, out & free);
+            }
             let (mut out, mut free) = (0u64, 0u64);
             for k in super::tile_search::each(kept) {
                 let (x, y) = (x0 + k % TILE as usize, y0 + k / TILE as usize);
                 let blocker = sun_blockers[y * w + x];
-                // The same ray, blocked by an instance that stayed where it was: blocked still.
-                if reuse.moved.get(blocker as usize).is_some_and(|m| !m) {
+                if blocked_still(blocker) {
                     continue;
                 }
                 let r = &records[y * w + x];

@@ -755,6 +755,28 @@ impl Reuse {
         out
     }
 
+    /// Of the lanes `lanes` of a tile, those whose shadow ray, from (`from[0][k]`,
+    /// `from[1][k]`, `from[2][k]`) towards the sun along unit `to_sun`, meets one of the
+    /// moved spheres of the mask `suspects` ([`Reuse::tile_shadow_suspects`]), as
+    /// [`sphere_interval`] answers it: its operations in its order, so the same answers as
+    /// [`Reuse::shadow_valid_among`] gives lane by lane. All 64 lanes at once, in vectors
+    /// (four lanes in AVX2 where the CPU has it): lane by lane, a mostly kept frame's test
+    /// of its kept shadows took a twentieth of its time (docs/benchmarks.md, step 144).
+    pub fn tile_shadows_met(&self, suspects: u64, lanes: u64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
+        let mut met = 0u64;
+        for k in super::tile_search::each(suspects) {
+            let Some(&(c, radius, _)) = self.moved_spheres.get(k) else { continue };
+            #[cfg(target_arch = "x86_64")]
+            if super::ray_setup::avx2() {
+                // SAFETY: the CPU has AVX and AVX2 (checked above).
+                met |= unsafe { shadows_met_avx2(c, radius, from, to_sun) };
+                continue;
+            }
+            met |= shadows_met(c, radius, from, to_sun);
+        }
+        met & lanes
+    }
+
     /// Whether the shadow ray of record `r` (the same record as the stored frame's, under the
     /// same lights) still finds what it found: from where [`super::cpu`] starts it towards
     /// the sun it crosses no moved instance's old or new sphere, so every instance that could
@@ -955,6 +977,35 @@ unsafe fn nearest_entries_avx2(c: DVec3, radius: f64, inside: u64, d: &[[f64; 64
     nearest_entries(c, radius, inside, d, out)
 }
 
+/// [`Reuse::tile_shadows_met`] for one sphere (centre `c`, `radius`): the lanes whose ray from
+/// (`from[0][k]`, `from[1][k]`, `from[2][k]`) along `to_sun` meets it ahead of its start, as
+/// [`sphere_interval`] answers it. Branch-free over the 64 lanes, so that it compiles to
+/// vectors.
+#[inline(always)]
+fn shadows_met(c: DVec3, radius: f64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
+    let rr = radius * radius;
+    let mut met = 0u64;
+    for k in 0..64 {
+        let oc = [c.x - from[0][k], c.y - from[1][k], c.z - from[2][k]];
+        let b = oc[0] * to_sun.x + oc[1] * to_sun.y + oc[2] * to_sun.z;
+        let cc = (oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2]) - rr;
+        let disc = b * b - cc;
+        let t1 = b + disc.sqrt();
+        met |= ((disc >= 0.0 && t1 >= 0.0) as u64) << k;
+    }
+    met
+}
+
+/// [`shadows_met`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU has AVX and AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2")]
+unsafe fn shadows_met_avx2(c: DVec3, radius: f64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
+    shadows_met(c, radius, from, to_sun)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1145,6 +1196,59 @@ mod tests {
         for r in rects {
             assert_eq!(binned.spheres_in(r), plain.spheres_in(r), "{r:?}");
         }
+    }
+
+    /// A tile's kept shadows tested against its suspects for all 64 lanes at once answer lane
+    /// by lane as `sphere_interval` does (and so as `Reuse::shadow_valid_among`): rays from
+    /// scattered starts, spheres ahead of them, behind them and around them, many grazed to
+    /// within a few roundings of their surface.
+    #[test]
+    fn tile_shadows_met_answers_as_each_lanes_sphere_test() {
+        let mut rng = Rng::new(29);
+        let (mut met, mut missed, mut behind) = (0, 0, 0);
+        for round in 0..1000 {
+            // (Unit in f64, so that the spheres placed along it graze its rays.)
+            let to_sun = rng.unit_vector().as_dvec3().normalize();
+            let mut from = [[0.0; 64]; 3];
+            let starts: Vec<DVec3> = (0..64)
+                .map(|k| {
+                    let o = rng.unit_vector().as_dvec3() * rng.range(0.0, 5.0) as f64;
+                    (from[0][k], from[1][k], from[2][k]) = (o.x, o.y, o.z);
+                    o
+                })
+                .collect();
+            let spheres: Vec<(DVec3, f64, [u32; 4])> = (0..2 + rng.below(11))
+                .map(|_| {
+                    // Grazing a lane's ray (from inside or out), ahead of its start or behind it.
+                    let o = starts[rng.below(64) as usize];
+                    let radius = rng.range(0.01, 3.0) as f64;
+                    let side = rng.unit_vector().as_dvec3().reject_from(to_sun).normalize_or_zero();
+                    let graze = radius * (1.0 + (rng.f64() - 0.5) * 10f64.powi(-(rng.below(16) as i32)));
+                    let along = rng.range(-2.0 * radius as f32 - 1.0, 10.0) as f64;
+                    (o + to_sun * along + side * graze, radius, [0; 4])
+                })
+                .collect();
+            let n = spheres.len() as u32;
+            let reuse = Reuse::new(vec![false], spheres.clone(), vec![1]);
+            let suspects = (0..n).filter(|_| rng.below(4) != 0).fold(0u64, |m, k| m | 1 << k);
+            let lanes = rng.below(u64::MAX);
+            let got = reuse.tile_shadows_met(suspects, lanes, &from, to_sun);
+            for (k, o) in starts.iter().enumerate() {
+                let meets = |i: usize| sphere_interval(spheres[i].0, spheres[i].1, *o, to_sun);
+                let want = lanes & 1 << k != 0 && super::super::tile_search::each(suspects).any(|i| meets(i).is_some());
+                assert_eq!(got & 1 << k != 0, want, "round {round}, lane {k}");
+                let any_line = (0..n as usize).any(|i| {
+                    let oc = spheres[i].0 - *o;
+                    oc.length_squared() - oc.dot(to_sun).powi(2) <= spheres[i].1 * spheres[i].1
+                });
+                match (want, any_line) {
+                    (true, _) => met += 1,
+                    (false, true) => behind += 1,
+                    (false, false) => missed += 1,
+                }
+            }
+        }
+        assert!(met > 2000 && missed > 2000 && behind > 200, "{met} met, {missed} missed, {behind} behind");
     }
 
     /// A tile's nearest sphere entries, formed for its 64 lanes at once, are pixel by pixel
