@@ -1044,6 +1044,27 @@ fn render_lit_here(
         Some(_) => (0..tile_count).map(|_| AtomicU64::new(0)).collect(),
         None => Vec::new(),
     };
+    // Per band of tiles, the columns of the tiles whose rows the shading pass visits, and how
+    // many pixels a row of the band has in the others. Where the frame's colours are patched,
+    // a tile neither traced nor reshaded (most of a mostly kept frame's) keeps every pixel as
+    // the frame holds it: asked row by row, such tiles cost a mostly kept frame's shading
+    // 2 % of its time (docs/benchmarks.md, step 145).
+    let bands = h.div_ceil(TILE as usize);
+    let mut row_tiles: Vec<u32> = Vec::new();
+    let mut band_tiles = Vec::with_capacity(bands);
+    for ty in 0..bands {
+        let start = row_tiles.len();
+        let mut idle = 0;
+        for tx in 0..tiles_x {
+            let t = ty * tiles_x + tx;
+            if !patch || fresh(t) || traced.stored[t] != 0 || reshade(t) != 0 {
+                row_tiles.push(tx as u32);
+            } else {
+                idle += (w - tx * TILE as usize).min(TILE as usize) as u64;
+            }
+        }
+        band_tiles.push((start..row_tiles.len(), idle));
+    }
     // Shading, with each pixel's surface data (the AOVs) written in the same pass over the
     // records: one read of them instead of two.
     let shading = |y: usize, mut row: FrameRow| {
@@ -1052,7 +1073,11 @@ fn render_lit_here(
         let (mut kept, mut row_shadow_rays) = (0, 0);
         // This row's bits in a tile's pixel masks.
         let (ty, row_shift) = (y / TILE as usize, (y % TILE as usize) * TILE as usize);
-        for tx in 0..tiles_x {
+        let (visited, idle) = band_tiles[ty].clone();
+        // Every pixel of the others keeps its colour, which the frame holds.
+        kept += idle;
+        for &tx in &row_tiles[visited] {
+            let tx = tx as usize;
             let t = ty * tiles_x + tx;
             let fresh = fresh(t);
             let reshade_row = (reshade(t) >> row_shift) & ((1 << TILE) - 1);
