@@ -427,6 +427,11 @@ pub fn occluded_tile_by(
     let (centre, width) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
     let dirs = [dir; LANES];
     let inv = dir.recip();
+    // The origins by axis, for the test of every lane against an instance at once.
+    let mut from = [[0.0; LANES]; 3];
+    for k in each(lanes) {
+        (from[0][k], from[1][k], from[2][k]) = (origins[k].x, origins[k].y, origins[k].z);
+    }
     let mut open = lanes;
     for (i, p) in fi.prepared.iter().enumerate() {
         let asked = if only.moved.get(i).is_some_and(|m| !m) { open & !only.lanes } else { open };
@@ -439,19 +444,14 @@ pub fn occluded_tile_by(
             let slack = DVec3::splat(1e-9 * (centre.length() + width + lo.length() + hi.length()));
             (lo - slack, hi + slack)
         });
-        let mut todo = 0u64;
-        for k in each(asked) {
-            // Every search but the plain one skips instances whose box or sphere the ray
-            // misses (or enters beyond t_max): that changes no answer, the octree lies inside
-            // both. (The box first: a ground's sphere holds every ray above it.)
-            if search != Search::Plain
-                && (cells.is_some_and(|(lo, hi)| super::bvh::box_entry(lo, hi, origins[k], inv, t_max).is_none())
-                    || !sphere_interval(p.centre, p.radius, origins[k], dir).is_some_and(|(t0, _)| t0 <= t_max))
-            {
-                continue;
-            }
+        // Every search but the plain one skips instances whose box or sphere the ray misses
+        // (or enters beyond t_max): that changes no answer, the octree lies inside both.
+        let todo = match search {
+            Search::Plain => asked,
+            _ => asked & entering(&from, dir, inv, cells, (p.centre, p.radius), t_max),
+        };
+        for k in each(todo) {
             scratch.opts[k] = opts;
-            todo |= 1 << k;
         }
         scratch.map_lanes_from(p, origins, &dirs, todo);
         for (k, _) in scratch.trace(&fi.parts[p.part], todo) {
@@ -463,6 +463,91 @@ pub fn occluded_tile_by(
         }
     }
     lanes & !open
+}
+
+/// The lanes whose ray from (`from[0][k]`, `from[1][k]`, `from[2][k]`) along `dir` (its
+/// reciprocal `inv`) enters the box `cells` (when given) and the sphere `ball` within
+/// `t_max`: [`super::bvh::box_entry`]'s and [`sphere_interval`]'s operations in their order, so
+/// their answers, for all 64 lanes at once in vectors (four lanes in AVX2 where the CPU has
+/// it). Lane by lane, these tests took a twentieth of a mostly kept frame's shadow rays
+/// (docs/benchmarks.md, step 146).
+pub(crate) fn entering(
+    from: &[[f64; LANES]; 3],
+    dir: DVec3,
+    inv: DVec3,
+    cells: Option<(DVec3, DVec3)>,
+    ball: (DVec3, f64),
+    t_max: f64,
+) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    if super::ray_setup::avx2() {
+        // SAFETY: the CPU has AVX and AVX2 (checked above).
+        return unsafe { entering_avx2(from, dir, inv, cells, ball, t_max) };
+    }
+    entering_lanes(from, dir, inv, cells, ball, t_max)
+}
+
+/// [`entering`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU has AVX and AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2")]
+unsafe fn entering_avx2(
+    from: &[[f64; LANES]; 3],
+    dir: DVec3,
+    inv: DVec3,
+    cells: Option<(DVec3, DVec3)>,
+    ball: (DVec3, f64),
+    t_max: f64,
+) -> u64 {
+    entering_lanes(from, dir, inv, cells, ball, t_max)
+}
+
+/// [`entering`], branch-free over the lanes so that it compiles to vectors.
+#[inline(always)]
+fn entering_lanes(
+    from: &[[f64; LANES]; 3],
+    dir: DVec3,
+    inv: DVec3,
+    cells: Option<(DVec3, DVec3)>,
+    (centre, radius): (DVec3, f64),
+    t_max: f64,
+) -> u64 {
+    let mut met = [true; LANES];
+    if let Some((lo, hi)) = cells {
+        let (mut t0, mut t1) = ([0.0f64; LANES], [t_max; LANES]);
+        for i in 0..3 {
+            let (o, lo, hi, inv) = (&from[i], lo[i], hi[i], inv[i]);
+            if inv.is_infinite() {
+                // Parallel to the slab: inside it or not, by position.
+                for k in 0..LANES {
+                    met[k] &= !(o[k] < lo || o[k] > hi);
+                }
+            } else {
+                for k in 0..LANES {
+                    let (a, b) = ((lo - o[k]) * inv, (hi - o[k]) * inv);
+                    t0[k] = t0[k].max(a.min(b));
+                    t1[k] = t1[k].min(a.max(b));
+                }
+            }
+        }
+        for k in 0..LANES {
+            met[k] &= t0[k] <= t1[k];
+        }
+    }
+    let rr = radius * radius;
+    let mut out = 0u64;
+    for k in 0..LANES {
+        let oc = [centre.x - from[0][k], centre.y - from[1][k], centre.z - from[2][k]];
+        let b = oc[0] * dir.x + oc[1] * dir.y + oc[2] * dir.z;
+        let c = (oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2]) - rr;
+        let disc = b * b - c;
+        let s = disc.sqrt();
+        let (e0, e1) = (b - s, b + s);
+        out |= ((met[k] && disc >= 0.0 && e1 >= 0.0 && e0 <= t_max) as u64) << k;
+    }
+    out
 }
 
 /// Whether each ray `origins[k] + t·dirs[k]`, `0 ≤ t ≤ t_max[k]`, for the lanes `k` of
@@ -794,6 +879,61 @@ mod tests {
         }
         assert!(blocked > checked / 10 && blocked < checked * 9 / 10, "{blocked} of {checked} rays blocked");
         assert!(turned_away > 200, "{turned_away} instances turned away by their boxes, {checked} rays");
+    }
+
+    /// The test of all 64 lanes against an instance at once answers lane by lane as
+    /// `box_entry` and `sphere_interval` do: directions with components of zero (slabs
+    /// tested by position), origins on the boxes' faces, spheres grazed to within a few
+    /// roundings, ahead of the origins, behind them and past `t_max`.
+    #[test]
+    fn every_lanes_entry_test_answers_as_its_own() {
+        let mut rng = Rng::new(41);
+        let (mut entered, mut by_box, mut by_ball) = (0, 0, 0);
+        for round in 0..3000 {
+            let mut dir = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5);
+            // Some directions along a face or an axis.
+            for i in 0..3 {
+                if rng.below(6) == 0 {
+                    dir[i] = 0.0;
+                }
+            }
+            let dir = dir.try_normalize().unwrap_or(DVec3::X);
+            let inv = dir.recip();
+            let lo = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 4.0 - 2.0;
+            let hi = lo + DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 3.0;
+            let cells = (round % 5 != 0).then_some((lo, hi));
+            let radius = 0.05 + rng.f64() * 2.0;
+            let t_max = if round % 3 == 0 { f64::INFINITY } else { rng.f64() * 6.0 };
+            let mut from = [[0.0; LANES]; 3];
+            let origins: Vec<DVec3> = (0..LANES)
+                .map(|k| {
+                    let mut o = lo + (hi - lo) * DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 2.0 - (hi - lo) * 0.5;
+                    // Some origins on a face of the box.
+                    if rng.below(4) == 0 {
+                        let i = rng.below(3) as usize;
+                        o[i] = if rng.below(2) == 0 { lo[i] } else { hi[i] };
+                    }
+                    (from[0][k], from[1][k], from[2][k]) = (o.x, o.y, o.z);
+                    o
+                })
+                .collect();
+            // A sphere that one lane's ray grazes, from inside or out, ahead of it or behind.
+            let o = origins[rng.below(LANES as u64) as usize];
+            let side = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5).reject_from(dir);
+            let graze = radius * (1.0 + (rng.f64() - 0.5) * 10f64.powi(-(rng.below(16) as i32)));
+            let centre = o + dir * (rng.f64() * 8.0 - 2.0) + side.normalize_or_zero() * graze;
+            let got = entering(&from, dir, inv, cells, (centre, radius), t_max);
+            for (k, &o) in origins.iter().enumerate() {
+                let in_box =
+                    cells.is_none_or(|(lo, hi)| crate::render::bvh::box_entry(lo, hi, o, inv, t_max).is_some());
+                let in_ball = sphere_interval(centre, radius, o, dir).is_some_and(|(t0, _)| t0 <= t_max);
+                assert_eq!(got & 1 << k != 0, in_box && in_ball, "round {round}, lane {k}");
+                entered += (in_box && in_ball) as usize;
+                by_box += (!in_box && in_ball) as usize;
+                by_ball += (in_box && !in_ball) as usize;
+            }
+        }
+        assert!(entered > 5_000 && by_box > 5_000 && by_ball > 5_000, "{entered} {by_box} {by_ball}");
     }
 
     /// The thread's kept scratch finds what the one-ray search finds, lane for lane, after it
