@@ -1033,12 +1033,6 @@ fn render_lit_here(
     // Tile t's records are last frame's.
     let same_records = |t: usize| !old_tiles.is_empty() && traced.stored[t] == 0;
     let fresh = |t: usize| keeping && !same_records(t);
-    let new_tiles: Vec<TileAcc> = match keeping {
-        true => {
-            (0..tile_count).map(|t| TileAcc::new(if fresh(t) { TileSummary::NONE } else { old_tiles[t] })).collect()
-        }
-        false => Vec::new(),
-    };
     // Per tile, the pixels shaded afresh, when the buffer's colours are to be updated there.
     let shaded: Vec<AtomicU64> = match shade_from {
         Some(_) => (0..tile_count).map(|_| AtomicU64::new(0)).collect(),
@@ -1049,15 +1043,26 @@ fn render_lit_here(
     // a tile neither traced nor reshaded (most of a mostly kept frame's) keeps every pixel as
     // the frame holds it: asked row by row, such tiles cost a mostly kept frame's shading
     // 2 % of its time (docs/benchmarks.md, step 145).
+    // In the same pass, the tiles whose summaries this frame forms (`fresh`, most often the
+    // few traced), each with a slot of `new_tiles` (`fresh_slot[t]`); the others keep last
+    // frame's, untouched.
     let bands = h.div_ceil(TILE as usize);
     let mut row_tiles: Vec<u32> = Vec::new();
     let mut band_tiles = Vec::with_capacity(bands);
+    let (all_fresh, mut fresh_tiles) = (keeping && old_tiles.is_empty(), Vec::new());
+    let mut fresh_slot = vec![u32::MAX; if keeping { tile_count } else { 0 }];
+    let all_visited = !patch || all_fresh;
     for ty in 0..bands {
         let start = row_tiles.len();
         let mut idle = 0;
-        for tx in 0..tiles_x {
-            let t = ty * tiles_x + tx;
-            if !patch || fresh(t) || traced.stored[t] != 0 || reshade(t) != 0 {
+        let band = ty * tiles_x..(ty + 1) * tiles_x;
+        let reshaded = |tx: usize| reshade_tiles.get(band.start + tx).map_or(0, |r| r.0);
+        for (tx, &stored) in traced.stored[band.clone()].iter().enumerate() {
+            if keeping && (all_fresh || stored != 0) {
+                fresh_slot[band.start + tx] = fresh_tiles.len() as u32;
+                fresh_tiles.push((band.start + tx) as u32);
+            }
+            if all_visited || stored != 0 || reshaded(tx) != 0 {
                 row_tiles.push(tx as u32);
             } else {
                 idle += (w - tx * TILE as usize).min(TILE as usize) as u64;
@@ -1065,6 +1070,7 @@ fn render_lit_here(
         }
         band_tiles.push((start..row_tiles.len(), idle));
     }
+    let new_tiles: Vec<TileAcc> = fresh_tiles.iter().map(|_| TileAcc::new(TileSummary::NONE)).collect();
     // Shading, with each pixel's surface data (the AOVs) written in the same pass over the
     // records: one read of them instead of two.
     let shading = |y: usize, mut row: FrameRow| {
@@ -1185,7 +1191,7 @@ fn render_lit_here(
                 };
             }
             if fresh {
-                new_tiles[t].add(&summary);
+                new_tiles[fresh_slot[t] as usize].add(&summary);
             }
             if shaded_here != 0 && shade_from.is_some() {
                 shaded[t].fetch_or(shaded_here, Ordering::Relaxed);
@@ -1203,7 +1209,15 @@ fn render_lit_here(
         b.splats = splat_cache;
         if plan.keep_hits && !splatting {
             b.store(camera, scene, &prepared, records, opts.max_level);
-            b.tiles = new_tiles.iter().map(TileAcc::load).collect();
+            // Last frame's summaries, but where formed afresh.
+            let mut tiles = match old_tiles.len() == tile_count {
+                true => old_tiles,
+                false => vec![TileSummary::NONE; tile_count],
+            };
+            for (acc, &t) in new_tiles.iter().zip(&fresh_tiles) {
+                tiles[t as usize] = acc.load();
+            }
+            b.tiles = tiles;
             if colours_from_buffer {
                 // Its colours are this frame's but where pixels were shaded afresh.
                 let shaded: Vec<u64> = shaded.into_iter().map(AtomicU64::into_inner).collect();
