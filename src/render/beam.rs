@@ -69,6 +69,25 @@ impl TileRays {
             ],
         }
     }
+
+    /// [`TileRays::new`] from the camera's [`Camera::screen_slopes`] (`columns`, `rows`): the
+    /// same rays without the divisions, for a frame that forms many tiles' rays (a mostly
+    /// kept frame's tests of its tiles: docs/benchmarks.md, step 149).
+    ///
+    /// # Panics
+    /// When the tile reaches past `columns` or `rows`.
+    pub fn from_slopes(basis: &Basis, columns: &[f64], rows: &[f64], x0: u32, y0: u32, x1: u32, y1: u32) -> Self {
+        let (a, b) = (x1.max(x0 + 1) as usize - 1, y1.max(y0 + 1) as usize - 1);
+        let (x0, y0) = (x0 as usize, y0 as usize);
+        TileRays {
+            corners: [
+                basis.dir(columns[x0], rows[y0]),
+                basis.dir(columns[a], rows[y0]),
+                basis.dir(columns[x0], rows[b]),
+                basis.dir(columns[a], rows[b]),
+            ],
+        }
+    }
 }
 
 /// A circular cone from `apex` that holds a set of rays.
@@ -346,6 +365,32 @@ mod tests {
             vfov_deg: 50.0,
             width: 70,
             height: 52,
+        }
+    }
+
+    /// A tile's corner rays from the screen slopes are `TileRays::new`'s, bit for bit, for
+    /// tiles of every size and place (clipped by the image's edges) and cameras of every
+    /// field of view and aspect.
+    #[test]
+    fn tile_rays_from_slopes_are_the_cameras() {
+        let mut rng = Rng::new(17);
+        for round in 0..400 {
+            let cam = Camera {
+                vfov_deg: rng.range(5.0, 150.0) as f64,
+                width: 1 + rng.below(300) as u32,
+                height: 1 + rng.below(300) as u32,
+                up: if round % 2 == 0 { DVec3::Y } else { DVec3::new(0.3, 1.0, -0.2) },
+                ..camera()
+            };
+            let basis = cam.basis();
+            let (columns, rows) = cam.screen_slopes(&basis);
+            let (x0, y0) = (rng.below(cam.width as u64) as u32, rng.below(cam.height as u64) as u32);
+            let x1 = (x0 + rng.below(12) as u32).min(cam.width);
+            let y1 = (y0 + rng.below(12) as u32).min(cam.height);
+            let want = TileRays::new(&cam, &basis, x0, y0, x1, y1).corners;
+            let got = TileRays::from_slopes(&basis, &columns, &rows, x0, y0, x1, y1).corners;
+            let bits = |c: [DVec3; 4]| c.map(|d| d.to_array().map(f64::to_bits));
+            assert_eq!(bits(got), bits(want), "round {round}: {x0}..{x1} x {y0}..{y1}");
         }
     }
 

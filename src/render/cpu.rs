@@ -639,6 +639,8 @@ fn render_lit_here(
         let sy: [f64; TILE as usize] = std::array::from_fn(|i| rows[(y0 + i).min(h - 1)]);
         super::ray_setup::tile_dirs(&basis, &sx, &sy, lanes, out);
     };
+    // `TileRays::new` of pixels x0..x1 × y0..y1, from the same slopes.
+    let tile_rays = |x0: u32, y0: u32, x1: u32, y1: u32| TileRays::from_slopes(&basis, &columns, &rows, x0, y0, x1, y1);
     let mut hits = hits;
     // Last frame's instances' memory, refilled.
     let mut prepared = hits.as_deref_mut().map(|h| std::mem::take(&mut h.prepared)).unwrap_or_default();
@@ -742,7 +744,7 @@ fn render_lit_here(
             if !spheres.is_empty() {
                 // The rectangles are loose (a box's projection, a pixel wider): the tile's
                 // cone drops the spheres none of its rays can meet.
-                let cone = super::beam::TileCone::new(&TileRays::new(camera, &basis, x0, y0, x1, y1));
+                let cone = super::beam::TileCone::new(&tile_rays(x0, y0, x1, y1));
                 spheres.retain(|&k| {
                     let (c, radius, _) = r.moved_spheres[k as usize];
                     cone.meets_ball(c, radius)
@@ -905,7 +907,7 @@ fn render_lit_here(
                 (Some(_), Some(old)) if !old.has_hits() => Some(0),
                 (Some(sun), Some(old)) => {
                     let (x0, y0) = (x0 as u32, y0 as u32);
-                    let rays = TileRays::new(camera, &basis, x0, y0, x0 + tw as u32, y0 + th as u32);
+                    let rays = tile_rays(x0, y0, x0 + tw as u32, y0 + th as u32);
                     reuse.tile_shadow_suspects(old, &rays, sun.to_sun.as_dvec3())
                 }
                 _ => None,
