@@ -1044,10 +1044,9 @@ fn render_lit_here(
     // many pixels a row of the band has in the others. Where the frame's colours are patched,
     // a tile neither traced nor reshaded (most of a mostly kept frame's) keeps every pixel as
     // the frame holds it: asked row by row, such tiles cost a mostly kept frame's shading
-    // 2 % of its time (docs/benchmarks.md, step 145).
-    // In the same pass, the tiles whose summaries this frame forms (`fresh`, most often the
-    // few traced), each with a slot of `new_tiles` (`fresh_slot[t]`); the others keep last
-    // frame's, untouched.
+    // 2 % of its time (docs/benchmarks.md, step 145). In the same pass, the tiles whose
+    // summaries this frame forms (`fresh`, most often the few traced), each with a slot of
+    // `new_tiles` (`fresh_slot[t]`): the others keep last frame's (step 147).
     let bands = h.div_ceil(TILE as usize);
     let mut row_tiles: Vec<u32> = Vec::new();
     let mut band_tiles = Vec::with_capacity(bands);

@@ -760,8 +760,8 @@ impl Reuse {
     /// moved spheres of the mask `suspects` ([`Reuse::tile_shadow_suspects`]), as
     /// [`sphere_interval`] answers it: its operations in its order, so the same answers as
     /// [`Reuse::shadow_valid_among`] gives lane by lane. All 64 lanes at once, in vectors
-    /// (four lanes in AVX2 where the CPU has it): lane by lane, a mostly kept frame's test
-    /// of its kept shadows took a twentieth of its time (docs/benchmarks.md, step 144).
+    /// (four lanes in AVX2 where the CPU has it): lane by lane, this test of a mostly kept
+    /// frame's kept shadows took about 4 % of its time (docs/benchmarks.md, step 144).
     pub fn tile_shadows_met(&self, suspects: u64, lanes: u64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
         let mut met = 0u64;
         for k in super::tile_search::each(suspects) {

@@ -448,7 +448,7 @@ pub fn occluded_tile_by(
         // (or enters beyond t_max): that changes no answer, the octree lies inside both.
         let todo = match search {
             Search::Plain => asked,
-            _ => asked & entering(&from, dir, inv, cells, (p.centre, p.radius), t_max),
+            _ => asked & entering(&from, &Entry { dir, inv, cells, ball: (p.centre, p.radius), t_max }),
         };
         for k in each(todo) {
             scratch.opts[k] = opts;
@@ -465,26 +465,30 @@ pub fn occluded_tile_by(
     lanes & !open
 }
 
-/// The lanes whose ray from (`from[0][k]`, `from[1][k]`, `from[2][k]`) along `dir` (its
-/// reciprocal `inv`) enters the box `cells` (when given) and the sphere `ball` within
-/// `t_max`: [`super::bvh::box_entry`]'s and [`sphere_interval`]'s operations in their order, so
-/// their answers, for all 64 lanes at once in vectors (four lanes in AVX2 where the CPU has
-/// it). Lane by lane, these tests took a twentieth of a mostly kept frame's shadow rays
-/// (docs/benchmarks.md, step 146).
-pub(crate) fn entering(
-    from: &[[f64; LANES]; 3],
-    dir: DVec3,
-    inv: DVec3,
-    cells: Option<(DVec3, DVec3)>,
-    ball: (DVec3, f64),
-    t_max: f64,
-) -> u64 {
+/// What [`entering`] tests a tile's parallel rays against: the rays run along `dir` (its
+/// reciprocal `inv`) up to `t_max`; the instance's cells lie in the box `cells` (when given)
+/// and in the sphere `ball` (centre, radius).
+#[derive(Clone, Copy)]
+pub(crate) struct Entry {
+    pub dir: DVec3,
+    pub inv: DVec3,
+    pub cells: Option<(DVec3, DVec3)>,
+    pub ball: (DVec3, f64),
+    pub t_max: f64,
+}
+
+/// The lanes whose ray from (`from[0][k]`, `from[1][k]`, `from[2][k]`) enters what `e` holds
+/// within its `t_max`: [`super::bvh::box_entry`]'s and [`sphere_interval`]'s operations in
+/// their order, so their answers, for all 64 lanes at once in vectors (four lanes in AVX2
+/// where the CPU has it). Lane by lane, these tests took about 3 % of a mostly kept frame's
+/// time, a tenth of its shadow rays' (docs/benchmarks.md, step 146).
+pub(crate) fn entering(from: &[[f64; LANES]; 3], e: &Entry) -> u64 {
     #[cfg(target_arch = "x86_64")]
     if super::ray_setup::avx2() {
         // SAFETY: the CPU has AVX and AVX2 (checked above).
-        return unsafe { entering_avx2(from, dir, inv, cells, ball, t_max) };
+        return unsafe { entering_avx2(from, e) };
     }
-    entering_lanes(from, dir, inv, cells, ball, t_max)
+    entering_lanes(from, e)
 }
 
 /// [`entering`] compiled for AVX2.
@@ -493,27 +497,14 @@ pub(crate) fn entering(
 /// The CPU has AVX and AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx,avx2")]
-unsafe fn entering_avx2(
-    from: &[[f64; LANES]; 3],
-    dir: DVec3,
-    inv: DVec3,
-    cells: Option<(DVec3, DVec3)>,
-    ball: (DVec3, f64),
-    t_max: f64,
-) -> u64 {
-    entering_lanes(from, dir, inv, cells, ball, t_max)
+unsafe fn entering_avx2(from: &[[f64; LANES]; 3], e: &Entry) -> u64 {
+    entering_lanes(from, e)
 }
 
 /// [`entering`], branch-free over the lanes so that it compiles to vectors.
 #[inline(always)]
-fn entering_lanes(
-    from: &[[f64; LANES]; 3],
-    dir: DVec3,
-    inv: DVec3,
-    cells: Option<(DVec3, DVec3)>,
-    (centre, radius): (DVec3, f64),
-    t_max: f64,
-) -> u64 {
+fn entering_lanes(from: &[[f64; LANES]; 3], e: &Entry) -> u64 {
+    let Entry { dir, inv, cells, ball: (centre, radius), t_max } = *e;
     let mut met = [true; LANES];
     if let Some((lo, hi)) = cells {
         let (mut t0, mut t1) = ([0.0f64; LANES], [t_max; LANES]);
@@ -922,7 +913,7 @@ mod tests {
             let side = DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5).reject_from(dir);
             let graze = radius * (1.0 + (rng.f64() - 0.5) * 10f64.powi(-(rng.below(16) as i32)));
             let centre = o + dir * (rng.f64() * 8.0 - 2.0) + side.normalize_or_zero() * graze;
-            let got = entering(&from, dir, inv, cells, (centre, radius), t_max);
+            let got = entering(&from, &Entry { dir, inv, cells, ball: (centre, radius), t_max });
             for (k, &o) in origins.iter().enumerate() {
                 let in_box =
                     cells.is_none_or(|(lo, hi)| crate::render::bvh::box_entry(lo, hi, o, inv, t_max).is_some());
