@@ -758,21 +758,23 @@ impl Reuse {
     /// Of the lanes `lanes` of a tile, those whose shadow ray, from (`from[0][k]`,
     /// `from[1][k]`, `from[2][k]`) towards the sun along unit `to_sun`, meets one of the
     /// moved spheres of the mask `suspects` ([`Reuse::tile_shadow_suspects`]), as
-    /// [`sphere_interval`] answers it: its operations in its order, so the same answers as
-    /// [`Reuse::shadow_valid_among`] gives lane by lane. All 64 lanes at once, in vectors
-    /// (four lanes in AVX2 where the CPU has it): lane by lane, this test of a mostly kept
-    /// frame's kept shadows took about 4 % of its time (docs/benchmarks.md, step 144).
+    /// [`sphere_interval`] answers it: its operations in its order
+    /// (`tile_search::entering`, with no box and no end), so the same answers as
+    /// [`Reuse::shadow_valid_among`] gives lane by lane. All 64 lanes at once, in vectors:
+    /// lane by lane, this test of a mostly kept frame's kept shadows took about 4 % of its
+    /// time (docs/benchmarks.md, step 144).
     pub fn tile_shadows_met(&self, suspects: u64, lanes: u64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
         let mut met = 0u64;
         for k in super::tile_search::each(suspects) {
             let Some(&(c, radius, _)) = self.moved_spheres.get(k) else { continue };
-            #[cfg(target_arch = "x86_64")]
-            if super::ray_setup::avx2() {
-                // SAFETY: the CPU has AVX and AVX2 (checked above).
-                met |= unsafe { shadows_met_avx2(c, radius, from, to_sun) };
-                continue;
-            }
-            met |= shadows_met(c, radius, from, to_sun);
+            let ray = super::tile_search::Entry {
+                dir: to_sun,
+                inv: to_sun.recip(),
+                cells: None,
+                ball: (c, radius),
+                t_max: f64::INFINITY,
+            };
+            met |= super::tile_search::entering(from, &ray);
         }
         met & lanes
     }
@@ -975,35 +977,6 @@ fn nearest_entries(c: DVec3, radius: f64, inside: u64, d: &[[f64; 64]; 3], out: 
 #[target_feature(enable = "avx,avx2")]
 unsafe fn nearest_entries_avx2(c: DVec3, radius: f64, inside: u64, d: &[[f64; 64]; 3], out: &mut [f64; 64]) {
     nearest_entries(c, radius, inside, d, out)
-}
-
-/// [`Reuse::tile_shadows_met`] for one sphere (centre `c`, `radius`): the lanes whose ray from
-/// (`from[0][k]`, `from[1][k]`, `from[2][k]`) along `to_sun` meets it ahead of its start, as
-/// [`sphere_interval`] answers it. Branch-free over the 64 lanes, so that it compiles to
-/// vectors.
-#[inline(always)]
-fn shadows_met(c: DVec3, radius: f64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
-    let rr = radius * radius;
-    let mut met = 0u64;
-    for k in 0..64 {
-        let oc = [c.x - from[0][k], c.y - from[1][k], c.z - from[2][k]];
-        let b = oc[0] * to_sun.x + oc[1] * to_sun.y + oc[2] * to_sun.z;
-        let cc = (oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2]) - rr;
-        let disc = b * b - cc;
-        let t1 = b + disc.sqrt();
-        met |= ((disc >= 0.0 && t1 >= 0.0) as u64) << k;
-    }
-    met
-}
-
-/// [`shadows_met`] compiled for AVX2.
-///
-/// # Safety
-/// The CPU has AVX and AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx,avx2")]
-unsafe fn shadows_met_avx2(c: DVec3, radius: f64, from: &[[f64; 64]; 3], to_sun: DVec3) -> u64 {
-    shadows_met(c, radius, from, to_sun)
 }
 
 #[cfg(test)]
